@@ -1,0 +1,35 @@
+//! Fields: what the renderer queries at sample points.
+
+use anyhow::Result;
+use candle_core::Tensor;
+
+use crate::sampler::RaySamples;
+use crate::sdf::SdfVolume;
+
+/// Volume density and feature (colour) at every sample.
+#[derive(Debug, Clone)]
+pub struct FieldOutput {
+    /// `(N, S, 1)` volume density σ ≥ 0 (may be +∞ for an opaque sample).
+    pub density: Tensor,
+    /// `(N, S, 3)` colour.
+    pub feature: Tensor,
+}
+
+/// The implicit functions the renderer can draw.
+#[derive(Debug, Clone)]
+pub enum Field {
+    Sdf(SdfVolume),
+}
+
+impl Field {
+    /// Evaluates the field at the samples of N rays.
+    ///
+    /// `samples`: points `(N, S, 3)`, lengths `(N, S, 1)`; `deltas`: `(N, S, 1)`;
+    /// `directions`: `(N, 3)` unit ray directions. Returns density `(N, S, 1)` and
+    /// feature `(N, S, 3)`.
+    pub fn evaluate(&self, samples: &RaySamples, deltas: &Tensor, _directions: &Tensor) -> Result<FieldOutput> {
+        match self {
+            Field::Sdf(volume) => volume.evaluate(samples, deltas),
+        }
+    }
+}
