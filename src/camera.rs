@@ -148,7 +148,12 @@ pub fn camera_position_from_spherical_angles(dist: f64, elev_deg: f64, azim_deg:
 /// θ runs over `linspace(0, 2π, n_poses + 1)` without the last value. For `up = (0, 1, 0)`
 /// (any up with a non-zero y) the eye is `(cos(θ+π/2)·r, 0, −sin(θ+π/2)·r)`, otherwise
 /// `(cos(θ+π/2)·r, sin(θ+π/2)·r, 2.0)`; every camera looks at the origin.
-pub fn surround_cameras(radius: f64, n_poses: usize, up: DVec3, focal: f64) -> Vec<PerspectiveCamera> {
+pub fn surround_cameras(
+    radius: f64,
+    n_poses: usize,
+    up: DVec3,
+    focal: f64,
+) -> Vec<PerspectiveCamera> {
     let step = 2.0 * std::f64::consts::PI / n_poses as f64;
     (0..n_poses)
         .map(|i| {
@@ -184,7 +189,11 @@ mod tests {
             }
         }
         // T = -Rᵀ eye = -(0,0,-3) = (0,0,3).
-        assert!(close(DVec3::from_array(t), DVec3::new(0.0, 0.0, 3.0), 1e-12));
+        assert!(close(
+            DVec3::from_array(t),
+            DVec3::new(0.0, 0.0, 3.0),
+            1e-12
+        ));
     }
 
     #[test]
@@ -197,7 +206,11 @@ mod tests {
                 assert!((r[i][j] - expected_r[i][j]).abs() < 1e-12, "R[{i}][{j}]");
             }
         }
-        assert!(close(DVec3::from_array(t), DVec3::new(0.0, 0.0, 2.0), 1e-12));
+        assert!(close(
+            DVec3::from_array(t),
+            DVec3::new(0.0, 0.0, 2.0),
+            1e-12
+        ));
     }
 
     #[test]
@@ -216,7 +229,10 @@ mod tests {
             // The eye is at distance r (y up) or sqrt(r² + 4) (z up) from the origin and
             // the origin projects to the principal point.
             let o = cam.project(DVec3::ZERO);
-            assert!(o.x.abs() < 1e-12 && o.y.abs() < 1e-12, "origin not centred: {o}");
+            assert!(
+                o.x.abs() < 1e-12 && o.y.abs() < 1e-12,
+                "origin not centred: {o}"
+            );
             assert!((o.z - c.length()).abs() < 1e-12);
             assert!(close(cam.world_to_view(c), DVec3::ZERO, 1e-12));
         }

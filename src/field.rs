@@ -27,7 +27,12 @@ impl Field {
     /// `samples`: points `(N, S, 3)`, lengths `(N, S, 1)`; `deltas`: `(N, S, 1)`;
     /// `directions`: `(N, 3)` unit ray directions. Returns density `(N, S, 1)` and
     /// feature `(N, S, 3)`.
-    pub fn evaluate(&self, samples: &RaySamples, deltas: &Tensor, _directions: &Tensor) -> Result<FieldOutput> {
+    pub fn evaluate(
+        &self,
+        samples: &RaySamples,
+        deltas: &Tensor,
+        _directions: &Tensor,
+    ) -> Result<FieldOutput> {
         match self {
             Field::Sdf(volume) => volume.evaluate(samples, deltas),
         }

@@ -59,7 +59,12 @@ pub fn pixel_grid(width: usize, height: usize, device: &Device) -> Result<Tensor
 
 /// `n` distinct pixel indices (row-major, `y·W + x`) drawn uniformly from a `width × height`
 /// image, for training batches. `n` larger than the image takes every pixel once.
-pub fn random_pixel_indices(width: usize, height: usize, n: usize, rng: &mut impl Rng) -> Vec<usize> {
+pub fn random_pixel_indices(
+    width: usize,
+    height: usize,
+    n: usize,
+    rng: &mut impl Rng,
+) -> Vec<usize> {
     let total = width * height;
     sample(rng, total, n.min(total)).into_vec()
 }
@@ -84,7 +89,11 @@ impl Rays {
     /// Rays through the given NDC points.
     ///
     /// `ndc_points`: N points `(x, y)`; returns origins and directions of shape `(N, 3)`.
-    pub fn from_ndc_points(camera: &PerspectiveCamera, ndc_points: &[[f64; 2]], device: &Device) -> Result<Self> {
+    pub fn from_ndc_points(
+        camera: &PerspectiveCamera,
+        ndc_points: &[[f64; 2]],
+        device: &Device,
+    ) -> Result<Self> {
         let n = ndc_points.len();
         let mut origins = Vec::with_capacity(3 * n);
         let mut directions = Vec::with_capacity(3 * n);
@@ -100,7 +109,12 @@ impl Rays {
     }
 
     /// One ray per pixel of a `width × height` image, row-major: `(W·H, 3)` origins and directions.
-    pub fn for_image(camera: &PerspectiveCamera, width: usize, height: usize, device: &Device) -> Result<Self> {
+    pub fn for_image(
+        camera: &PerspectiveCamera,
+        width: usize,
+        height: usize,
+        device: &Device,
+    ) -> Result<Self> {
         Self::from_ndc_points(camera, &pixel_grid_values(width, height), device)
     }
 
@@ -114,7 +128,10 @@ impl Rays {
     ) -> Result<Self> {
         let xs = linspace(-1.0, 1.0, width);
         let ys = linspace(-1.0, 1.0, height);
-        let points: Vec<[f64; 2]> = indices.iter().map(|&i| [-xs[i % width], -ys[i / width]]).collect();
+        let points: Vec<[f64; 2]> = indices
+            .iter()
+            .map(|&i| [-xs[i % width], -ys[i / width]])
+            .collect();
         Self::from_ndc_points(camera, &points, device)
     }
 
@@ -171,7 +188,14 @@ mod tests {
             let rays = Rays::for_image(&cam, w, h, &Device::Cpu).unwrap();
             assert_eq!(rays.origins.dims(), &[w * h, 3]);
             assert_eq!(rays.directions.dims(), &[w * h, 3]);
-            let norms = rays.directions.sqr().unwrap().sum(1).unwrap().sqrt().unwrap();
+            let norms = rays
+                .directions
+                .sqr()
+                .unwrap()
+                .sum(1)
+                .unwrap()
+                .sqrt()
+                .unwrap();
             for n in norms.to_vec1::<f32>().unwrap() {
                 assert!((n - 1.0).abs() < 1e-6, "norm {n}");
             }

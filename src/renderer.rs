@@ -32,11 +32,14 @@ pub const MAX_OPTICAL_DEPTH: f64 = 1e4;
 /// `lengths`: `(N, S, 1)`; returns `(N, S, 1)`.
 pub fn deltas(lengths: &Tensor) -> Result<Tensor> {
     let (n, s, _) = lengths.dims3()?;
-    let last = Tensor::full(LAST_DELTA as f32, (n, 1, 1), lengths.device())?.to_dtype(lengths.dtype())?;
+    let last =
+        Tensor::full(LAST_DELTA as f32, (n, 1, 1), lengths.device())?.to_dtype(lengths.dtype())?;
     if s == 1 {
         return Ok(last);
     }
-    let diff = lengths.narrow(1, 1, s - 1)?.sub(&lengths.narrow(1, 0, s - 1)?)?;
+    let diff = lengths
+        .narrow(1, 1, s - 1)?
+        .sub(&lengths.narrow(1, 0, s - 1)?)?;
     Ok(Tensor::cat(&[&diff, &last], 1)?)
 }
 
@@ -46,7 +49,9 @@ pub fn deltas(lengths: &Tensor) -> Result<Tensor> {
 /// matrix so that it is one differentiable matmul.
 pub fn exclusive_cumsum(x: &Tensor) -> Result<Tensor> {
     let (_, s) = x.dims2()?;
-    let mask: Vec<f32> = (0..s * s).map(|k| if k / s < k % s { 1.0 } else { 0.0 }).collect();
+    let mask: Vec<f32> = (0..s * s)
+        .map(|k| if k / s < k % s { 1.0 } else { 0.0 })
+        .collect();
     let mask = Tensor::from_vec(mask, (s, s), x.device())?.to_dtype(x.dtype())?;
     Ok(x.matmul(&mask)?)
 }
@@ -82,6 +87,40 @@ pub fn aggregate(weights: &Tensor, values: &Tensor) -> Result<Tensor> {
     Ok(values.broadcast_mul(weights)?.sum(1)?)
 }
 
+/// Colour, depth and opacity of each ray from its samples: the weights and their weighted sums.
+/// On the CPU with f32 data this is the fused kernel of [`crate::composite`] (forward and
+/// backward); elsewhere the tensor ops [`weights`] and [`aggregate`].
+///
+/// `density`, `deltas`, `lengths`: `(N, S, 1)`; `feature`: `(N, S, C)`. Returns colour `(N, C)`,
+/// depth `(N, 1)` and opacity `(N, 1)`.
+pub fn composite(
+    density: &Tensor,
+    deltas: &Tensor,
+    feature: &Tensor,
+    lengths: &Tensor,
+) -> Result<RenderOutput> {
+    let c = feature.dim(2)?;
+    if density.device().is_cpu() && density.dtype() == DType::F32 {
+        let values = Tensor::cat(&[feature, lengths], 2)?;
+        let out = density.contiguous()?.apply_op3(
+            &deltas.contiguous()?,
+            &values,
+            crate::composite::Composite,
+        )?;
+        return Ok(RenderOutput {
+            color: out.narrow(1, 0, c)?,
+            depth: out.narrow(1, c, 1)?,
+            opacity: out.narrow(1, c + 1, 1)?,
+        });
+    }
+    let w = weights(density, deltas)?;
+    Ok(RenderOutput {
+        color: aggregate(&w, feature)?,
+        depth: aggregate(&w, lengths)?,
+        opacity: w.sum(1)?,
+    })
+}
+
 /// What the renderer produces for a batch of N rays.
 #[derive(Debug, Clone)]
 pub struct RenderOutput {
@@ -106,7 +145,10 @@ impl VolumeRenderer {
         if chunk_size == 0 {
             bail!("renderer.chunk_size must be at least 1");
         }
-        Ok(Self { chunk_size, white_background })
+        Ok(Self {
+            chunk_size,
+            white_background,
+        })
     }
 
     /// Renders one chunk of rays (no chunking): sample → field → weights → aggregate.
@@ -122,14 +164,19 @@ impl VolumeRenderer {
         let samples = sampler.sample(rays, jitter)?;
         let deltas = deltas(&samples.lengths)?;
         let out = field.evaluate(&samples, &deltas, &rays.directions)?;
-        let w = weights(&out.density, &deltas)?;
-        let mut color = aggregate(&w, &out.feature)?;
-        let depth = aggregate(&w, &samples.lengths)?;
-        let opacity = w.sum(1)?;
+        let RenderOutput {
+            mut color,
+            depth,
+            opacity,
+        } = composite(&out.density, &deltas, &out.feature, &samples.lengths)?;
         if self.white_background {
             color = color.add(&opacity.affine(-1.0, 1.0)?.broadcast_as(color.shape())?)?;
         }
-        Ok(RenderOutput { color, depth, opacity })
+        Ok(RenderOutput {
+            color,
+            depth,
+            opacity,
+        })
     }
 
     /// Renders all rays, `chunk_size` at a time, and checks the result is finite.
@@ -191,9 +238,19 @@ mod tests {
     #[test]
     fn deltas_end_with_1e10() {
         let l = t3(&[1.0, 1.5, 3.0, 0.0, 2.0, 2.5], 2, 3);
-        let d = deltas(&l).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let d = deltas(&l)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
         assert_eq!(d, vec![0.5, 1.5, 1e10, 2.0, 0.5, 1e10]);
-        let one = deltas(&t3(&[2.0], 1, 1)).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let one = deltas(&t3(&[2.0], 1, 1))
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
         assert_eq!(one, vec![1e10]);
     }
 
@@ -225,8 +282,20 @@ mod tests {
         let lengths = [0.0f32, 0.4, 0.9, 1.0, 1.7, 2.2, 3.0, 3.1];
         let l = t3(&lengths, 1, 8);
         let d = deltas(&l).unwrap();
-        let w = weights(&t3(&sigma, 1, 8), &d).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        let dv: Vec<f64> = d.flatten_all().unwrap().to_vec1::<f32>().unwrap().iter().map(|&v| v as f64).collect();
+        let w = weights(&t3(&sigma, 1, 8), &d)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        let dv: Vec<f64> = d
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap()
+            .iter()
+            .map(|&v| v as f64)
+            .collect();
         let sv: Vec<f64> = sigma.iter().map(|&v| v as f64).collect();
         let r = reference_weights(&sv, &dv);
         for (a, b) in w.iter().zip(&r) {

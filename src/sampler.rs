@@ -1,8 +1,9 @@
 //! Stratified sampling of points along rays.
 
 use anyhow::{ensure, Result};
-use candle_core::Tensor;
+use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
 use rand::Rng;
+use rayon::prelude::*;
 
 use crate::rays::{linspace, Rays};
 
@@ -26,14 +27,24 @@ pub struct StratifiedSampler {
 
 impl StratifiedSampler {
     pub fn new(n_pts_per_ray: usize, min_depth: f64, max_depth: f64) -> Result<Self> {
-        ensure!(n_pts_per_ray >= 1, "sampler.n_pts_per_ray must be at least 1");
+        ensure!(
+            n_pts_per_ray >= 1,
+            "sampler.n_pts_per_ray must be at least 1"
+        );
         ensure!(
             min_depth.is_finite() && max_depth.is_finite(),
             "sampler.min_depth and sampler.max_depth must be finite"
         );
         ensure!(min_depth >= 0.0, "sampler.min_depth must be non-negative");
-        ensure!(min_depth <= max_depth, "sampler.min_depth must not exceed sampler.max_depth");
-        Ok(Self { n_pts_per_ray, min_depth, max_depth })
+        ensure!(
+            min_depth <= max_depth,
+            "sampler.min_depth must not exceed sampler.max_depth"
+        );
+        Ok(Self {
+            n_pts_per_ray,
+            min_depth,
+            max_depth,
+        })
     }
 
     /// The unjittered depths, `linspace(min_depth, max_depth, n_pts_per_ray)`.
@@ -48,9 +59,23 @@ impl StratifiedSampler {
     pub fn jittered_depths(&self, n_rays: usize, rng: &mut impl Rng) -> Vec<f32> {
         let z = self.depths();
         let s = z.len();
-        let lower: Vec<f64> = (0..s).map(|i| if i == 0 { z[0] } else { 0.5 * (z[i - 1] + z[i]) }).collect();
+        let lower: Vec<f64> = (0..s)
+            .map(|i| {
+                if i == 0 {
+                    z[0]
+                } else {
+                    0.5 * (z[i - 1] + z[i])
+                }
+            })
+            .collect();
         let upper: Vec<f64> = (0..s)
-            .map(|i| if i + 1 == s { z[s - 1] } else { 0.5 * (z[i] + z[i + 1]) })
+            .map(|i| {
+                if i + 1 == s {
+                    z[s - 1]
+                } else {
+                    0.5 * (z[i] + z[i + 1])
+                }
+            })
             .collect();
         let mut out = Vec::with_capacity(n_rays * s);
         for _ in 0..n_rays {
@@ -65,30 +90,97 @@ impl StratifiedSampler {
     /// Samples every ray at the same depths (`jitter = None`) or at per-ray jittered depths.
     ///
     /// `rays`: N rays; returns points `(N, S, 3)` and lengths `(N, S, 1)`.
-    pub fn sample(&self, rays: &Rays, jitter: Option<&mut dyn rand::RngCore>) -> Result<RaySamples> {
+    pub fn sample(
+        &self,
+        rays: &Rays,
+        jitter: Option<&mut dyn rand::RngCore>,
+    ) -> Result<RaySamples> {
         let n = rays.len();
         let s = self.n_pts_per_ray;
         let device = rays.origins.device();
         let lengths = match jitter {
             None => {
                 let z: Vec<f32> = self.depths().into_iter().map(|v| v as f32).collect();
-                Tensor::from_vec(z, (1, s, 1), device)?.broadcast_as((n, s, 1))?.contiguous()?
+                Tensor::from_vec(z, (1, s, 1), device)?
+                    .broadcast_as((n, s, 1))?
+                    .contiguous()?
             }
-            Some(rng) => Tensor::from_vec(self.jittered_depths(n, &mut RngRef(rng)), (n, s, 1), device)?,
+            Some(rng) => {
+                Tensor::from_vec(self.jittered_depths(n, &mut RngRef(rng)), (n, s, 1), device)?
+            }
         };
         let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
         Ok(RaySamples { points, lengths })
     }
 }
 
-/// `origins[:, None] + lengths · directions[:, None]`.
+/// `origins[:, None] + lengths · directions[:, None]`. On the CPU with f32 data this is one
+/// multi-threaded pass (no gradient flows to rays or lengths, which are never trained);
+/// elsewhere Candle broadcast ops.
 ///
 /// `origins`, `directions`: `(N, 3)`; `lengths`: `(N, S, 1)`; returns `(N, S, 3)`.
 pub fn sample_points(origins: &Tensor, directions: &Tensor, lengths: &Tensor) -> Result<Tensor> {
+    if origins.device().is_cpu() && origins.dtype() == DType::F32 {
+        return Ok(origins.contiguous()?.apply_op3_no_bwd(
+            &directions.contiguous()?,
+            &lengths.contiguous()?,
+            &SamplePointsKernel,
+        )?);
+    }
+    sample_points_tensor_ops(origins, directions, lengths)
+}
+
+/// [`sample_points`] as Candle broadcast ops.
+pub fn sample_points_tensor_ops(
+    origins: &Tensor,
+    directions: &Tensor,
+    lengths: &Tensor,
+) -> Result<Tensor> {
     let (n, s, _) = lengths.dims3()?;
     let o = origins.unsqueeze(1)?.broadcast_as((n, s, 3))?;
     let d = directions.unsqueeze(1)?.broadcast_as((n, s, 3))?;
     Ok(o.add(&d.broadcast_mul(lengths)?)?)
+}
+
+struct SamplePointsKernel;
+
+impl CustomOp3 for SamplePointsKernel {
+    fn name(&self) -> &'static str {
+        "sample-points"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let slice = |s: &'_ CpuStorage, l: &Layout| -> candle_core::Result<Vec<f32>> {
+            let (a, b) = l
+                .contiguous_offsets()
+                .ok_or_else(|| candle_core::Error::Msg("sample-points: not contiguous".into()))?;
+            Ok(s.as_slice::<f32>()?[a..b].to_vec())
+        };
+        let (o, d) = (slice(s1, l1)?, slice(s2, l2)?);
+        let (a, b) = l3
+            .contiguous_offsets()
+            .ok_or_else(|| candle_core::Error::Msg("sample-points: not contiguous".into()))?;
+        let t = &s3.as_slice::<f32>()?[a..b];
+        let (n, s, _) = l3.shape().dims3()?;
+        let mut out = vec![0f32; n * s * 3];
+        out.par_chunks_mut(s * 3).enumerate().for_each(|(r, p)| {
+            for (i, q) in p.chunks_exact_mut(3).enumerate() {
+                let ti = t[r * s + i];
+                for k in 0..3 {
+                    q[k] = o[r * 3 + k] + ti * d[r * 3 + k];
+                }
+            }
+        });
+        Ok((CpuStorage::F32(out), Shape::from((n, s, 3))))
+    }
 }
 
 /// Adapts a `dyn RngCore` to the generic `Rng` methods.
@@ -109,8 +201,8 @@ impl rand::RngCore for RngRef<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use candle_core::Device;
     use crate::camera::surround_cameras;
+    use candle_core::Device;
     use glam::DVec3;
     use rand::SeedableRng;
 
@@ -145,6 +237,26 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn fused_points_match_broadcast_ops() {
+        let r = rays(7, 5);
+        let sampler = StratifiedSampler::new(11, 0.0, 4.0).unwrap();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(9);
+        let s = sampler.sample(&r, Some(&mut rng)).unwrap();
+        let b = sample_points_tensor_ops(&r.origins, &r.directions, &s.lengths).unwrap();
+        let diff = s
+            .points
+            .sub(&b)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        assert!(diff < 1e-6);
     }
 
     #[test]

@@ -1,0 +1,175 @@
+//! `nerf bench`: wall-clock timings of the main jobs, printed beside their error so a
+//! speed-up that loses accuracy shows.
+
+use std::time::Instant;
+
+use anyhow::Result;
+use candle_core::Device;
+use serde::Serialize;
+
+use crate::config::Config;
+use crate::images::RgbImage;
+use crate::scene::{render_views, Frame};
+
+/// One benchmark result.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchResult {
+    pub name: String,
+    /// What was timed, in words.
+    pub work: String,
+    /// Best wall-clock seconds over the repeats.
+    pub seconds: f64,
+    /// Every repeat's seconds.
+    pub runs: Vec<f64>,
+    /// PyTorch CPU figure for the same work on the reference 2-core machine, when known.
+    pub pytorch_seconds: Option<f64>,
+    /// Error of this run against a reference computation, with its unit, when measured.
+    pub error: Option<String>,
+}
+
+/// Machine facts printed with every table.
+#[derive(Debug, Clone, Serialize)]
+pub struct MachineInfo {
+    pub threads: usize,
+    pub profile: &'static str,
+    pub cpu: String,
+}
+
+pub fn machine_info() -> MachineInfo {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown".into());
+    MachineInfo {
+        threads: rayon::current_num_threads(),
+        profile: if cfg!(debug_assertions) {
+            "debug"
+        } else {
+            "release"
+        },
+        cpu,
+    }
+}
+
+/// PSNR in dB between two colour images in [0, 1].
+pub fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
+    let mse = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        / a.data.len() as f64;
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        -10.0 * mse.log10()
+    }
+}
+
+/// Times the box render (all surround views of `config`) `repeats` times; the error column is
+/// the PSNR of the last run's frames against a dense render with 16× the samples.
+pub fn bench_sdf_render(
+    config: &Config,
+    repeats: usize,
+    device: &Device,
+) -> Result<(BenchResult, Vec<Frame>)> {
+    let field = config.sdf_field()?;
+    let sampler = config.sampler()?;
+    let renderer = config.renderer()?;
+    let cameras = config.surround_cameras();
+    let size = config.image_size();
+    let mut runs = Vec::new();
+    let mut frames = Vec::new();
+    for _ in 0..repeats.max(1) {
+        let t = Instant::now();
+        frames = render_views(&field, &cameras, size, &sampler, &renderer, device)?;
+        runs.push(t.elapsed().as_secs_f64());
+    }
+    let (w, h) = size;
+    let work = format!(
+        "{} frames {}x{} x {} points",
+        cameras.len(),
+        w,
+        h,
+        sampler.n_pts_per_ray
+    );
+    let best = runs.iter().cloned().fold(f64::INFINITY, f64::min);
+    Ok((
+        BenchResult {
+            name: "box render".into(),
+            work,
+            seconds: best,
+            runs,
+            pytorch_seconds: Some(3.65),
+            error: None,
+        },
+        frames,
+    ))
+}
+
+/// Everything `nerf bench` measures.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchReport {
+    pub machine: MachineInfo,
+    pub results: Vec<BenchResult>,
+}
+
+/// Runs every benchmark that applies to `config`.
+pub fn run_benchmarks(config: &Config, repeats: usize, device: &Device) -> Result<BenchReport> {
+    let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
+    let dense_config = {
+        let mut c = config.clone();
+        c.sampler.n_pts_per_ray *= 16;
+        c
+    };
+    let dense = render_views(
+        &dense_config.sdf_field()?,
+        &dense_config.surround_cameras(),
+        dense_config.image_size(),
+        &dense_config.sampler()?,
+        &dense_config.renderer()?,
+        device,
+    )?;
+    let mean_psnr = frames
+        .iter()
+        .zip(&dense)
+        .map(|(a, b)| psnr(&a.color, &b.color))
+        .sum::<f64>()
+        / frames.len() as f64;
+    result.error = Some(format!("{mean_psnr:.2} dB PSNR vs {}x samples", 16));
+    Ok(BenchReport {
+        machine: machine_info(),
+        results: vec![result],
+    })
+}
+
+/// The report as a Markdown table.
+pub fn format_table(report: &BenchReport) -> String {
+    let m = &report.machine;
+    let mut s = format!(
+        "machine: {} | threads: {} | profile: {}\n\n",
+        m.cpu, m.threads, m.profile
+    );
+    s += "| benchmark | work | time (s) | PyTorch CPU (s) | ratio | error |\n|---|---|---|---|---|---|\n";
+    for r in &report.results {
+        let (pt, ratio) = match r.pytorch_seconds {
+            Some(p) => (format!("{p:.2}"), format!("{:.2}x", r.seconds / p)),
+            None => ("-".into(), "-".into()),
+        };
+        s += &format!(
+            "| {} | {} | {:.3} | {} | {} | {} |\n",
+            r.name,
+            r.work,
+            r.seconds,
+            pt,
+            ratio,
+            r.error.as_deref().unwrap_or("-")
+        );
+    }
+    s
+}

@@ -1,0 +1,658 @@
+//! Configuration in the homework's YAML schema, with Hydra-style `key.sub=value` overrides.
+//!
+//! A homework config file works unmodified. Unknown keys, wrong types and bad values are
+//! errors that name the key. Extensions beyond the homework (all optional):
+//! `cameras` (the surround views to render) and `data.data_dir` (where the dataset lives).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+use glam::DVec3;
+use serde::de::DeserializeOwned;
+use serde::Deserialize;
+use serde_yaml_ng::{Mapping, Value};
+
+use crate::camera::{surround_cameras, PerspectiveCamera};
+use crate::field::Field;
+use crate::renderer::VolumeRenderer;
+use crate::sampler::StratifiedSampler;
+use crate::sdf::{Sdf, SdfVolume};
+
+/// Configs shipped with the binary, found by name when `configs/NAME.yaml` is not on disk.
+const BUILT_IN: &[(&str, &str)] = &[
+    ("box", include_str!("../configs/box.yaml")),
+    ("sphere", include_str!("../configs/sphere.yaml")),
+];
+
+/// A homework parameter `{val, opt}`; `opt` marks it trainable in the homework.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Param<T> {
+    pub val: T,
+    #[serde(default)]
+    pub opt: bool,
+}
+
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    /// `[width, height]` in pixels.
+    pub image_size: [usize; 2],
+    #[serde(default)]
+    pub dataset_name: Option<String>,
+    /// Directory holding the dataset (extension; default `../shared/data/<dataset_name>`).
+    #[serde(default)]
+    pub data_dir: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RendererConfig {
+    #[serde(rename = "type", default = "default_renderer_type")]
+    pub kind: String,
+    pub chunk_size: usize,
+    #[serde(default)]
+    pub white_background: bool,
+}
+
+fn default_renderer_type() -> String {
+    "volume".into()
+}
+
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SamplerConfig {
+    #[serde(rename = "type", default = "default_sampler_type")]
+    pub kind: String,
+    pub n_pts_per_ray: usize,
+    pub min_depth: f64,
+    pub max_depth: f64,
+}
+
+fn default_sampler_type() -> String {
+    "stratified".into()
+}
+
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SdfShapeConfig {
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub center: Param<[f64; 3]>,
+    #[serde(default)]
+    pub side_lengths: Option<Param<[f64; 3]>>,
+    #[serde(default)]
+    pub radius: Option<Param<f64>>,
+}
+
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FeatureConfig {
+    #[serde(default)]
+    pub rainbow: bool,
+    pub val: [f64; 3],
+    #[serde(default)]
+    pub opt: bool,
+}
+
+/// `implicit_function` with `type: sdf_volume`.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SdfVolumeConfig {
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub sdf: SdfShapeConfig,
+    pub feature: FeatureConfig,
+    pub alpha: Param<f64>,
+    pub beta: Param<f64>,
+}
+
+/// `implicit_function` with `type: nerf` (the homework's keys and defaults).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NerfConfig {
+    #[serde(rename = "type")]
+    pub kind: String,
+    #[serde(default = "d6")]
+    pub n_harmonic_functions_xyz: usize,
+    #[serde(default = "d2")]
+    pub n_harmonic_functions_dir: usize,
+    #[serde(default = "d128")]
+    pub n_hidden_neurons_xyz: usize,
+    #[serde(default = "d64")]
+    pub n_hidden_neurons_dir: usize,
+    #[serde(default)]
+    pub density_noise_std: f64,
+    #[serde(default = "d6")]
+    pub n_layers_xyz: usize,
+    #[serde(default = "default_append_xyz")]
+    pub append_xyz: Vec<usize>,
+}
+
+fn d2() -> usize {
+    2
+}
+fn d6() -> usize {
+    6
+}
+fn d64() -> usize {
+    64
+}
+fn d128() -> usize {
+    128
+}
+fn default_append_xyz() -> Vec<usize> {
+    vec![3]
+}
+
+/// The typed `implicit_function` section.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ImplicitFunctionConfig {
+    SdfVolume(SdfVolumeConfig),
+    Nerf(NerfConfig),
+}
+
+/// `training` (the homework's nerf_lego.yaml keys).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TrainingConfig {
+    pub num_epochs: usize,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub lr_scheduler_step_size: usize,
+    pub lr_scheduler_gamma: f64,
+    pub checkpoint_path: PathBuf,
+    pub checkpoint_interval: usize,
+    #[serde(default)]
+    pub resume: bool,
+    pub render_interval: usize,
+}
+
+/// `cameras` (extension): the surround views rendered by `nerf render`.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CamerasConfig {
+    pub radius: f64,
+    pub n_poses: usize,
+    pub up: [f64; 3],
+    pub focal_length: f64,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    #[serde(default)]
+    seed: Option<u64>,
+    #[serde(rename = "type", default)]
+    kind: Option<String>,
+    data: DataConfig,
+    renderer: RendererConfig,
+    sampler: SamplerConfig,
+    implicit_function: Value,
+    #[serde(default)]
+    training: Option<TrainingConfig>,
+    #[serde(default)]
+    cameras: Option<CamerasConfig>,
+}
+
+/// A fully parsed and validated configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    pub seed: u64,
+    /// The homework's top-level `type` (informational; the subcommand decides what runs).
+    pub kind: Option<String>,
+    pub data: DataConfig,
+    pub renderer: RendererConfig,
+    pub sampler: SamplerConfig,
+    pub implicit_function: ImplicitFunctionConfig,
+    pub training: Option<TrainingConfig>,
+    pub cameras: CamerasConfig,
+}
+
+/// Deserialises `value` into `T`, prefixing errors with the dotted key path.
+fn from_value<T: DeserializeOwned>(value: Value, prefix: &str) -> Result<T> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = e.path().to_string();
+        let key = match (prefix.is_empty(), path == ".") {
+            (true, true) => "config".to_string(),
+            (true, false) => path,
+            (false, true) => prefix.to_string(),
+            (false, false) => format!("{prefix}.{path}"),
+        };
+        anyhow!("{key}: {}", e.into_inner())
+    })
+}
+
+/// Applies one `key.sub=value` override; the value is parsed as YAML.
+pub fn apply_override(root: &mut Value, assignment: &str) -> Result<()> {
+    let (key, raw) = assignment
+        .split_once('=')
+        .ok_or_else(|| anyhow!("override `{assignment}` is not of the form key.sub=value"))?;
+    let key = key.trim();
+    if key.is_empty() || key.split('.').any(str::is_empty) {
+        bail!("override `{assignment}` has an empty key");
+    }
+    let value: Value = serde_yaml_ng::from_str(raw)
+        .with_context(|| format!("override {key}: cannot parse `{raw}`"))?;
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut node = root;
+    for (i, part) in parts.iter().enumerate() {
+        let map = match node {
+            Value::Mapping(m) => m,
+            Value::Null => {
+                *node = Value::Mapping(Mapping::new());
+                match node {
+                    Value::Mapping(m) => m,
+                    _ => unreachable!(),
+                }
+            }
+            _ => bail!(
+                "override {key}: `{}` is not a section",
+                parts[..i].join(".")
+            ),
+        };
+        let k = Value::String((*part).to_string());
+        if i + 1 == parts.len() {
+            map.insert(k, value);
+            return Ok(());
+        }
+        node = map.entry(k).or_insert(Value::Null);
+    }
+    Ok(())
+}
+
+/// The YAML text for `--config NAME_OR_PATH`: an existing file path, `configs/NAME.yaml`, or a
+/// built-in config of that name.
+pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
+    let path = Path::new(name_or_path);
+    if path.is_file() {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read config {}", path.display()))?;
+        return Ok((text, path.display().to_string()));
+    }
+    let looks_like_path = name_or_path.contains('/')
+        || name_or_path.ends_with(".yaml")
+        || name_or_path.ends_with(".yml");
+    if !looks_like_path {
+        let local = Path::new("configs").join(format!("{name_or_path}.yaml"));
+        if local.is_file() {
+            let text = std::fs::read_to_string(&local)
+                .with_context(|| format!("cannot read config {}", local.display()))?;
+            return Ok((text, local.display().to_string()));
+        }
+        if let Some((_, text)) = BUILT_IN.iter().find(|(n, _)| *n == name_or_path) {
+            return Ok(((*text).to_string(), format!("built-in {name_or_path}")));
+        }
+    }
+    let known: Vec<&str> = BUILT_IN.iter().map(|(n, _)| *n).collect();
+    bail!("config `{name_or_path}` not found (not a file, not configs/{name_or_path}.yaml; built-in configs: {})", known.join(", "))
+}
+
+impl Config {
+    /// Loads `--config NAME_OR_PATH` and applies the overrides in order.
+    pub fn load(name_or_path: &str, overrides: &[String]) -> Result<Self> {
+        let (text, origin) = config_text(name_or_path)?;
+        Self::from_yaml(&text, overrides).with_context(|| format!("config {origin}"))
+    }
+
+    /// Parses YAML text, applies overrides, and validates.
+    pub fn from_yaml(text: &str, overrides: &[String]) -> Result<Self> {
+        let mut root: Value =
+            serde_yaml_ng::from_str(text).map_err(|e| anyhow!("malformed YAML: {e}"))?;
+        if !matches!(root, Value::Mapping(_)) {
+            bail!("malformed config: the top level must be a mapping of sections");
+        }
+        for o in overrides {
+            apply_override(&mut root, o)?;
+        }
+        let raw: RawConfig = from_value(root, "")?;
+        let kind = raw
+            .implicit_function
+            .get("type")
+            .and_then(Value::as_str)
+            .ok_or_else(|| anyhow!("implicit_function.type: missing (sdf_volume or nerf)"))?
+            .to_string();
+        let implicit_function = match kind.as_str() {
+            "sdf_volume" => ImplicitFunctionConfig::SdfVolume(from_value(
+                raw.implicit_function,
+                "implicit_function",
+            )?),
+            "nerf" => ImplicitFunctionConfig::Nerf(from_value(
+                raw.implicit_function,
+                "implicit_function",
+            )?),
+            other => bail!(
+                "implicit_function.type: unknown type `{other}` (expected sdf_volume or nerf)"
+            ),
+        };
+        let cameras = raw
+            .cameras
+            .unwrap_or_else(|| default_cameras(&implicit_function));
+        let config = Config {
+            seed: raw.seed.unwrap_or(0),
+            kind: raw.kind,
+            data: raw.data,
+            renderer: raw.renderer,
+            sampler: raw.sampler,
+            implicit_function,
+            training: raw.training,
+            cameras,
+        };
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Checks every value's range, naming the key of the first bad one.
+    pub fn validate(&self) -> Result<()> {
+        let [w, h] = self.data.image_size;
+        if w == 0 || h == 0 {
+            bail!("data.image_size: width and height must be at least 1 (got [{w}, {h}])");
+        }
+        if self.renderer.kind != "volume" {
+            bail!(
+                "renderer.type: unknown renderer `{}` (expected volume)",
+                self.renderer.kind
+            );
+        }
+        if self.sampler.kind != "stratified" {
+            bail!(
+                "sampler.type: unknown sampler `{}` (expected stratified)",
+                self.sampler.kind
+            );
+        }
+        self.renderer()?;
+        finite("sampler.min_depth", self.sampler.min_depth)?;
+        finite("sampler.max_depth", self.sampler.max_depth)?;
+        if self.sampler.min_depth < 0.0 {
+            bail!(
+                "sampler.min_depth: must be non-negative (got {})",
+                self.sampler.min_depth
+            );
+        }
+        if self.sampler.min_depth > self.sampler.max_depth {
+            bail!(
+                "sampler.min_depth: must not exceed sampler.max_depth ({} > {})",
+                self.sampler.min_depth,
+                self.sampler.max_depth
+            );
+        }
+        self.sampler()?;
+        let c = &self.cameras;
+        finite("cameras.radius", c.radius)?;
+        finite("cameras.focal_length", c.focal_length)?;
+        for (i, v) in c.up.iter().enumerate() {
+            finite(&format!("cameras.up[{i}]"), *v)?;
+        }
+        if c.radius <= 0.0 {
+            bail!("cameras.radius: must be positive (got {})", c.radius);
+        }
+        if c.focal_length <= 0.0 {
+            bail!(
+                "cameras.focal_length: must be positive (got {})",
+                c.focal_length
+            );
+        }
+        if c.n_poses == 0 {
+            bail!("cameras.n_poses: must be at least 1");
+        }
+        if c.up.iter().all(|v| *v == 0.0) {
+            bail!("cameras.up: must be a non-zero vector");
+        }
+        match &self.implicit_function {
+            ImplicitFunctionConfig::SdfVolume(s) => validate_sdf(s)?,
+            ImplicitFunctionConfig::Nerf(n) => validate_nerf(n)?,
+        }
+        if let Some(t) = &self.training {
+            finite("training.lr", t.lr)?;
+            finite("training.lr_scheduler_gamma", t.lr_scheduler_gamma)?;
+            if t.lr <= 0.0 {
+                bail!("training.lr: must be positive (got {})", t.lr);
+            }
+            for (key, v) in [
+                ("training.num_epochs", t.num_epochs),
+                ("training.batch_size", t.batch_size),
+                ("training.lr_scheduler_step_size", t.lr_scheduler_step_size),
+                ("training.checkpoint_interval", t.checkpoint_interval),
+                ("training.render_interval", t.render_interval),
+            ] {
+                if v == 0 {
+                    bail!("{key}: must be at least 1");
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Image width and height.
+    pub fn image_size(&self) -> (usize, usize) {
+        (self.data.image_size[0], self.data.image_size[1])
+    }
+
+    pub fn sampler(&self) -> Result<StratifiedSampler> {
+        StratifiedSampler::new(
+            self.sampler.n_pts_per_ray,
+            self.sampler.min_depth,
+            self.sampler.max_depth,
+        )
+    }
+
+    pub fn renderer(&self) -> Result<VolumeRenderer> {
+        VolumeRenderer::new(self.renderer.chunk_size, self.renderer.white_background)
+    }
+
+    /// The surround cameras of the `cameras` section.
+    pub fn surround_cameras(&self) -> Vec<PerspectiveCamera> {
+        let c = &self.cameras;
+        surround_cameras(c.radius, c.n_poses, DVec3::from_array(c.up), c.focal_length)
+    }
+
+    /// The SDF volume field, when the config describes one.
+    pub fn sdf_field(&self) -> Result<Field> {
+        let ImplicitFunctionConfig::SdfVolume(s) = &self.implicit_function else {
+            bail!("implicit_function.type: this command needs sdf_volume");
+        };
+        let center = s.sdf.center.val.map(|v| v as f32);
+        let sdf = match s.sdf.kind.as_str() {
+            "box" => Sdf::Box {
+                center,
+                side_lengths: s
+                    .sdf
+                    .side_lengths
+                    .as_ref()
+                    .expect("validated")
+                    .val
+                    .map(|v| v as f32),
+            },
+            "sphere" => Sdf::Sphere {
+                center,
+                radius: s.sdf.radius.as_ref().expect("validated").val as f32,
+            },
+            other => bail!("implicit_function.sdf.type: unknown shape `{other}`"),
+        };
+        Ok(Field::Sdf(SdfVolume {
+            sdf,
+            alpha: s.alpha.val,
+            beta: s.beta.val,
+            rainbow: s.feature.rainbow,
+            feature: s.feature.val.map(|v| v as f32),
+        }))
+    }
+}
+
+/// The homework's render views: radius 3 with y up and focal 1 for SDF scenes; radius 4 with
+/// z up and focal 2 for NeRF scenes; 20 poses.
+fn default_cameras(f: &ImplicitFunctionConfig) -> CamerasConfig {
+    match f {
+        ImplicitFunctionConfig::SdfVolume(_) => CamerasConfig {
+            radius: 3.0,
+            n_poses: 20,
+            up: [0.0, 1.0, 0.0],
+            focal_length: 1.0,
+        },
+        ImplicitFunctionConfig::Nerf(_) => CamerasConfig {
+            radius: 4.0,
+            n_poses: 20,
+            up: [0.0, 0.0, 1.0],
+            focal_length: 2.0,
+        },
+    }
+}
+
+fn finite(key: &str, v: f64) -> Result<()> {
+    if !v.is_finite() {
+        bail!("{key}: must be a finite number (got {v})");
+    }
+    Ok(())
+}
+
+fn validate_sdf(s: &SdfVolumeConfig) -> Result<()> {
+    let p = "implicit_function";
+    for (i, v) in s.sdf.center.val.iter().enumerate() {
+        finite(&format!("{p}.sdf.center.val[{i}]"), *v)?;
+    }
+    for (i, v) in s.feature.val.iter().enumerate() {
+        finite(&format!("{p}.feature.val[{i}]"), *v)?;
+    }
+    finite(&format!("{p}.alpha.val"), s.alpha.val)?;
+    finite(&format!("{p}.beta.val"), s.beta.val)?;
+    if !(0.0..=1.0).contains(&s.alpha.val) {
+        bail!("{p}.alpha.val: must be in [0, 1] (got {})", s.alpha.val);
+    }
+    if s.beta.val <= 0.0 {
+        bail!("{p}.beta.val: must be positive (got {})", s.beta.val);
+    }
+    match s.sdf.kind.as_str() {
+        "box" => {
+            let Some(sides) = &s.sdf.side_lengths else {
+                bail!("{p}.sdf.side_lengths: required for a box");
+            };
+            for (i, v) in sides.val.iter().enumerate() {
+                finite(&format!("{p}.sdf.side_lengths.val[{i}]"), *v)?;
+                if *v <= 0.0 {
+                    bail!("{p}.sdf.side_lengths.val[{i}]: must be positive (got {v})");
+                }
+            }
+        }
+        "sphere" => {
+            let Some(radius) = &s.sdf.radius else {
+                bail!("{p}.sdf.radius: required for a sphere");
+            };
+            finite(&format!("{p}.sdf.radius.val"), radius.val)?;
+            if radius.val <= 0.0 {
+                bail!("{p}.sdf.radius.val: must be positive (got {})", radius.val);
+            }
+        }
+        other => bail!("{p}.sdf.type: unknown shape `{other}` (expected box or sphere)"),
+    }
+    Ok(())
+}
+
+fn validate_nerf(n: &NerfConfig) -> Result<()> {
+    let p = "implicit_function";
+    if n.n_hidden_neurons_xyz == 0 {
+        bail!("{p}.n_hidden_neurons_xyz: must be at least 1");
+    }
+    if n.n_hidden_neurons_dir == 0 {
+        bail!("{p}.n_hidden_neurons_dir: must be at least 1");
+    }
+    if n.n_layers_xyz == 0 {
+        bail!("{p}.n_layers_xyz: must be at least 1");
+    }
+    finite(&format!("{p}.density_noise_std"), n.density_noise_std)?;
+    if n.density_noise_std < 0.0 {
+        bail!("{p}.density_noise_std: must be non-negative");
+    }
+    if let Some(bad) = n
+        .append_xyz
+        .iter()
+        .find(|&&i| i == 0 || i >= n.n_layers_xyz)
+    {
+        bail!(
+            "{p}.append_xyz: layer {bad} is out of range 1..{}",
+            n.n_layers_xyz
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn box_with(overrides: &[&str]) -> Result<Config> {
+        let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+        Config::load("box", &o)
+    }
+
+    #[test]
+    fn built_in_box_matches_the_homework() {
+        let c = box_with(&[]).unwrap();
+        assert_eq!(c.image_size(), (256, 256));
+        assert_eq!(c.sampler.n_pts_per_ray, 64);
+        assert_eq!((c.sampler.min_depth, c.sampler.max_depth), (0.0, 5.0));
+        let ImplicitFunctionConfig::SdfVolume(s) = &c.implicit_function else {
+            panic!()
+        };
+        assert_eq!(s.sdf.side_lengths.as_ref().unwrap().val, [1.75; 3]);
+        assert_eq!(s.beta.val, 0.05);
+        assert!(s.feature.rainbow);
+        assert_eq!(c.cameras.radius, 3.0);
+    }
+
+    #[test]
+    fn overrides_change_values() {
+        let c = box_with(&[
+            "sampler.n_pts_per_ray=32",
+            "data.image_size=[200,150]",
+            "renderer.white_background=True",
+        ])
+        .unwrap();
+        assert_eq!(c.sampler.n_pts_per_ray, 32);
+        assert_eq!(c.image_size(), (200, 150));
+        assert!(c.renderer.white_background);
+        let c = box_with(&[
+            "implicit_function.sdf.type=sphere",
+            "implicit_function.sdf.radius.val=0.8",
+        ])
+        .unwrap();
+        assert!(matches!(
+            c.sdf_field().unwrap(),
+            Field::Sdf(SdfVolume {
+                sdf: Sdf::Sphere { .. },
+                ..
+            })
+        ));
+    }
+
+    fn err(overrides: &[&str]) -> String {
+        format!("{:#}", box_with(overrides).unwrap_err())
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        assert!(err(&["sampler.n_pts_per_rays=3"]).contains("n_pts_per_rays"));
+        assert!(err(&["sampler.n_pts_per_ray=abc"]).contains("sampler.n_pts_per_ray"));
+        assert!(err(&["sampler.n_pts_per_ray=0"]).contains("sampler.n_pts_per_ray"));
+        assert!(err(&["sampler.min_depth=-1"]).contains("sampler.min_depth"));
+        assert!(err(&["sampler.min_depth=6"]).contains("sampler.min_depth"));
+        assert!(err(&["data.image_size=[0,5]"]).contains("data.image_size"));
+        assert!(err(&["renderer.chunk_size=0"]).contains("renderer.chunk_size"));
+        assert!(err(&["implicit_function.beta.val=.nan"]).contains("implicit_function.beta.val"));
+        assert!(err(&["implicit_function.sdf.center.val=[0, .inf, 0]"]).contains("center"));
+        assert!(err(&["implicit_function.sdf.colour=1"]).contains("implicit_function.sdf"));
+        assert!(err(&["implicit_function.type=mesh"]).contains("implicit_function.type"));
+        assert!(err(&["cameras.radius=.nan"]).contains("cameras"));
+        assert!(err(&["nokey"]).contains("key.sub=value"));
+    }
+
+    #[test]
+    fn malformed_yaml_and_missing_configs() {
+        assert!(
+            format!("{:#}", Config::from_yaml("data: [1, 2", &[]).unwrap_err())
+                .contains("malformed")
+        );
+        assert!(
+            format!("{:#}", Config::load("no_such_config", &[]).unwrap_err()).contains("not found")
+        );
+    }
+}

@@ -1,0 +1,203 @@
+//! Writing what people look at: PNG, GIF and NPY files, always atomically (temp file, then
+//! rename), so an interrupted or failed write never leaves a half-written file behind.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use image::{ImageBuffer, Rgb};
+use npyz::WriterBuilder;
+
+/// Runs `write` on a temp file beside `path`, then renames it over `path`. On error the temp
+/// file is removed and `path` is untouched.
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .with_context(|| format!("{} is not a file path", path.display()))?;
+    let tmp: PathBuf = dir.join(format!(
+        ".{}.{}.tmp",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| -> Result<()> {
+        let file =
+            File::create(&tmp).with_context(|| format!("cannot write {}", path.display()))?;
+        let mut w = BufWriter::new(file);
+        write(&mut w)?;
+        w.flush()?;
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(())
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Float colour in [0, 1] → byte, as matplotlib's `imsave` does (`(x·255).astype(uint8)`, so
+/// truncation); values outside [0, 1] are clamped.
+pub fn to_byte(v: f32) -> u8 {
+    (v.clamp(0.0, 1.0) * 255.0) as u8
+}
+
+/// An RGB image with float channels in [0, 1], row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RgbImage {
+    pub width: usize,
+    pub height: usize,
+    /// `width · height · 3` values.
+    pub data: Vec<f32>,
+}
+
+impl RgbImage {
+    pub fn new(width: usize, height: usize, data: Vec<f32>) -> Result<Self> {
+        if data.len() != width * height * 3 {
+            bail!(
+                "image data has {} values, expected {}×{}×3",
+                data.len(),
+                width,
+                height
+            );
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    pub fn to_bytes(&self) -> Vec<u8> {
+        self.data.iter().map(|&v| to_byte(v)).collect()
+    }
+}
+
+/// Writes an 8-bit RGB PNG.
+pub fn write_png(path: &Path, image: &RgbImage) -> Result<()> {
+    let buffer: ImageBuffer<Rgb<u8>, Vec<u8>> =
+        ImageBuffer::from_raw(image.width as u32, image.height as u32, image.to_bytes())
+            .context("image buffer size")?;
+    write_atomically(path, |w| {
+        buffer
+            .write_to(w, image::ImageFormat::Png)
+            .with_context(|| format!("cannot encode {}", path.display()))?;
+        Ok(())
+    })
+}
+
+/// Writes an animated, looping GIF (a palette per frame), `delay_cs` hundredths of a second per
+/// frame.
+pub fn write_gif(path: &Path, frames: &[RgbImage], delay_cs: u16) -> Result<()> {
+    let Some(first) = frames.first() else {
+        bail!("no frames to write to {}", path.display());
+    };
+    let (w, h) = (first.width as u16, first.height as u16);
+    write_atomically(path, |out| {
+        let mut encoder = gif::Encoder::new(out, w, h, &[])?;
+        encoder.set_repeat(gif::Repeat::Infinite)?;
+        for f in frames {
+            let mut frame = gif::Frame::from_rgb_speed(w, h, &f.to_bytes(), 1);
+            frame.delay = delay_cs;
+            encoder.write_frame(&frame)?;
+        }
+        Ok(())
+    })
+}
+
+/// Writes a little-endian float32 `.npy` array of the given shape.
+pub fn write_npy(path: &Path, shape: &[u64], data: &[f32]) -> Result<()> {
+    let expected: u64 = shape.iter().product();
+    if expected != data.len() as u64 {
+        bail!(
+            "npy data has {} values, shape {:?} needs {}",
+            data.len(),
+            shape,
+            expected
+        );
+    }
+    write_atomically(path, |w| {
+        let mut writer = npyz::WriteOptions::<f32>::new()
+            .default_dtype()
+            .shape(shape)
+            .writer(w)
+            .begin_nd()?;
+        writer.extend(data.iter().copied())?;
+        writer.finish()?;
+        Ok(())
+    })
+}
+
+/// Maps values to matplotlib's viridis after min–max normalisation (what `plt.imsave` does
+/// with a 2-D array): `(H·W)` values → RGB image.
+pub fn viridis_image(width: usize, height: usize, values: &[f32]) -> Result<RgbImage> {
+    let (lo, hi) = values
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+            (lo.min(v), hi.max(v))
+        });
+    let range = if hi > lo { hi - lo } else { 1.0 };
+    let mut data = Vec::with_capacity(values.len() * 3);
+    for &v in values {
+        // matplotlib: index = floor(x · 256), clipped to 255.
+        let x = (v - lo) / range;
+        let idx = ((x * 256.0) as usize).min(255);
+        let c = colorous::VIRIDIS.eval_rational(idx, 256);
+        data.extend([c.r, c.g, c.b].map(|b| (b as f32 + 0.5) / 255.0));
+    }
+    RgbImage::new(width, height, data)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bytes_truncate_like_matplotlib() {
+        assert_eq!(to_byte(1.0), 255);
+        assert_eq!(to_byte(0.9995), 254);
+        assert_eq!(to_byte(-0.5), 0);
+        assert_eq!(to_byte(2.0), 255);
+    }
+
+    #[test]
+    fn atomic_write_leaves_nothing_on_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.png");
+        let r = write_atomically(&path, |_| anyhow::bail!("boom"));
+        assert!(r.is_err());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+
+    #[test]
+    fn png_and_npy_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = RgbImage::new(2, 1, vec![0.0, 0.5, 1.0, 1.0, 0.0, 0.25]).unwrap();
+        let p = dir.path().join("a.png");
+        write_png(&p, &img).unwrap();
+        let back = image::open(&p).unwrap().to_rgb8();
+        assert_eq!(back.into_raw(), vec![0, 127, 255, 255, 0, 63]);
+        let n = dir.path().join("a.npy");
+        write_npy(&n, &[1, 2, 3], &img.data).unwrap();
+        let bytes = std::fs::read(&n).unwrap();
+        let arr = npyz::NpyFile::new(&bytes[..]).unwrap();
+        assert_eq!(arr.shape(), &[1, 2, 3]);
+        assert_eq!(arr.into_vec::<f32>().unwrap(), img.data);
+    }
+
+    #[test]
+    fn viridis_ends() {
+        let img = viridis_image(2, 1, &[0.0, 1.0]).unwrap();
+        let b = img.to_bytes();
+        // matplotlib viridis(0) = #440154, viridis(1) = #fde725.
+        assert_eq!(&b[..3], &[0x44, 0x01, 0x54]);
+        assert_eq!(&b[3..], &[0xfd, 0xe7, 0x25]);
+    }
+}
