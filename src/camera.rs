@@ -47,7 +47,7 @@ impl PerspectiveCamera {
         if all.clone().any(|v| !v.is_finite()) {
             bail!("camera has a non-finite value in R, T, focal length or principal point");
         }
-        if self.focal.iter().any(|f| *f == 0.0) {
+        if self.focal.contains(&0.0) {
             bail!("camera focal length must be non-zero");
         }
         Ok(())

@@ -1,20 +1,25 @@
 //! Fused volume compositing on the CPU: weights and their weighted sums in one pass per ray,
 //! with a hand-written backward pass so training uses the same code path as rendering.
 //!
-//! Inputs: density σ `(N, S, 1)`, spacings Δ `(N, S, 1)`, values v `(N, S, K)`.
-//! Output `(N, K + 1)`: `Σ_i w_i v_ik` for each k, then the opacity `Σ_i w_i`, with
-//! `τ_i = clamp(σ_i Δ_i, 0, MAX_OPTICAL_DEPTH)`, `T_i = exp(−Σ_{j<i} τ_j)`,
-//! `w_i = T_i (1 − e^{−τ_i})` — the same maths as [`crate::renderer::weights`].
+//! Inputs: density σ `(N, S, 1)`, sample lengths t `(N, S, 1)`, features v `(N, S, C)`; σ and
+//! v may be strided views (no copies are made). Spacings are `Δ_i = t_{i+1} − t_i`, with
+//! [`LAST_DELTA`] for the last sample. Output `(N, C + 2)`: colour `Σ_i w_i v_ic`, depth
+//! `Σ_i w_i t_i`, opacity `Σ_i w_i`, where `τ_i = clamp(σ_i Δ_i, 0, MAX_OPTICAL_DEPTH)`,
+//! `T_i = Π_{j<i} e^{−τ_j}`, `w_i = T_i (1 − e^{−τ_i})` — the maths of
+//! [`crate::renderer::weights`].
 //!
-//! Backward, with `g_i = Σ_k G_k v_ik + G_K` for the output gradient G:
-//! `∂L/∂v_ik = w_i G_k` and `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, so
+//! Backward, with `g_i = Σ_c G_c v_ic + G_depth t_i + G_opacity` for the output gradient G:
+//! `∂L/∂v_ic = w_i G_c` and `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, so
 //! `∂L/∂σ_i = Δ_i ∂L/∂τ_i` for `0 ≤ σΔ < MAX_OPTICAL_DEPTH` and 0 above, where the clamp holds
-//! the optical depth constant.
+//! the optical depth constant. Lengths get no gradient.
+
+// Index loops walk several per-ray arrays in step; iterator chains would hide that.
+#![allow(clippy::needless_range_loop)]
 
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::renderer::MAX_OPTICAL_DEPTH;
+use crate::renderer::{LAST_DELTA, MAX_OPTICAL_DEPTH};
 
 /// Rays per parallel work item.
 const RAYS_PER_TASK: usize = 256;
@@ -39,14 +44,73 @@ pub fn ray_weights(tau: &[f32], weights: &mut [f32], transmittance_after: &mut [
     }
 }
 
-fn contiguous<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&s.as_slice::<f32>()?[a..b]),
-        None => candle_core::bail!("composite: {what} must be contiguous"),
+/// A read-only `(N, S, K)` view with arbitrary strides.
+#[derive(Clone, Copy)]
+struct View<'a> {
+    data: &'a [f32],
+    offset: usize,
+    strides: [usize; 3],
+}
+
+impl<'a> View<'a> {
+    fn new(storage: &'a CpuStorage, layout: &Layout) -> candle_core::Result<Self> {
+        let st = layout.stride();
+        if st.len() != 3 {
+            candle_core::bail!(
+                "composite: expected a rank-3 tensor, got {:?}",
+                layout.shape()
+            );
+        }
+        Ok(Self {
+            data: storage.as_slice::<f32>()?,
+            offset: layout.start_offset(),
+            strides: [st[0], st[1], st[2]],
+        })
+    }
+
+    #[inline]
+    fn at(&self, ray: usize, sample: usize, channel: usize) -> f32 {
+        self.data[self.offset
+            + ray * self.strides[0]
+            + sample * self.strides[1]
+            + channel * self.strides[2]]
     }
 }
 
-/// The forward op: `(σ, Δ, v) → (N, K + 1)`.
+/// Per-ray scratch: optical depths, weights, transmittance after each sample, spacings.
+struct Scratch {
+    tau: Vec<f32>,
+    w: Vec<f32>,
+    t_after: Vec<f32>,
+    delta: Vec<f32>,
+}
+
+impl Scratch {
+    fn new(s: usize) -> Self {
+        Self {
+            tau: vec![0.0; s],
+            w: vec![0.0; s],
+            t_after: vec![0.0; s],
+            delta: vec![0.0; s],
+        }
+    }
+
+    /// Fills spacings, optical depths and weights of one ray.
+    fn ray(&mut self, sigma: &View, lengths: &View, ray: usize) {
+        let s = self.tau.len();
+        for i in 0..s {
+            self.delta[i] = if i + 1 < s {
+                lengths.at(ray, i + 1, 0) - lengths.at(ray, i, 0)
+            } else {
+                LAST_DELTA as f32
+            };
+            self.tau[i] = clamped_optical_depth(sigma.at(ray, i, 0), self.delta[i]);
+        }
+        ray_weights(&self.tau, &mut self.w, &mut self.t_after);
+    }
+}
+
+/// The forward op: `(σ, t, v) → (N, C + 2)`.
 pub struct Composite;
 
 impl CustomOp3 for Composite {
@@ -63,84 +127,93 @@ impl CustomOp3 for Composite {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let sigma = contiguous(s1, l1, "density")?;
-        let delta = contiguous(s2, l2, "deltas")?;
-        let values = contiguous(s3, l3, "values")?;
+        let (sigma, lengths, values) = (View::new(s1, l1)?, View::new(s2, l2)?, View::new(s3, l3)?);
         let (n, s, k) = l3.shape().dims3()?;
-        if sigma.len() != n * s || delta.len() != n * s {
-            candle_core::bail!("composite: density, deltas and values disagree in shape");
+        if l1.shape().dims3()? != (n, s, 1) || l2.shape().dims3()? != (n, s, 1) {
+            candle_core::bail!("composite: density, lengths and features disagree in shape");
         }
-        let mut out = vec![0f32; n * (k + 1)];
-        out.par_chunks_mut(RAYS_PER_TASK * (k + 1))
+        let width = k + 2;
+        let mut out = vec![0f32; n * width];
+        out.par_chunks_mut(RAYS_PER_TASK * width)
             .enumerate()
             .for_each(|(task, out)| {
-                let mut tau = vec![0f32; s];
-                let mut w = vec![0f32; s];
-                let mut t_after = vec![0f32; s];
-                for (r, o) in out.chunks_exact_mut(k + 1).enumerate() {
+                let mut sc = Scratch::new(s);
+                for (r, o) in out.chunks_exact_mut(width).enumerate() {
                     let ray = task * RAYS_PER_TASK + r;
-                    let base = ray * s;
-                    for i in 0..s {
-                        tau[i] = clamped_optical_depth(sigma[base + i], delta[base + i]);
-                    }
-                    ray_weights(&tau, &mut w, &mut t_after);
+                    sc.ray(&sigma, &lengths, ray);
                     o.fill(0.0);
                     for i in 0..s {
-                        let v = &values[(base + i) * k..(base + i + 1) * k];
+                        let w = sc.w[i];
                         for c in 0..k {
-                            o[c] += w[i] * v[c];
+                            o[c] += w * values.at(ray, i, c);
                         }
-                        o[k] += w[i];
+                        o[k] += w * lengths.at(ray, i, 0);
+                        o[k + 1] += w;
                     }
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((n, k + 1))))
+        Ok((CpuStorage::F32(out), Shape::from((n, width))))
     }
 
     fn bwd(
         &self,
         sigma: &Tensor,
-        delta: &Tensor,
+        lengths: &Tensor,
         values: &Tensor,
         _res: &Tensor,
         grad_res: &Tensor,
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        let grads = Tensor::cat(
+        let (n, s, k) = values.dims3()?;
+        let packed = Tensor::cat(
             &[
                 &sigma.flatten_all()?,
-                &delta.flatten_all()?,
-                &values.flatten_all()?,
+                &lengths.flatten_all()?,
                 &grad_res.flatten_all()?,
             ],
             0,
         )?;
-        let (n, s, k) = values.dims3()?;
-        let both = grads.apply_op1_no_bwd(&CompositeBackward { n, s, k })?;
+        let both = packed.apply_op2_no_bwd(&values.contiguous()?, &CompositeBackward)?;
         let grad_sigma = both.narrow(0, 0, n * s)?.reshape((n, s, 1))?;
         let grad_values = both.narrow(0, n * s, n * s * k)?.reshape((n, s, k))?;
         Ok((Some(grad_sigma), None, Some(grad_values)))
     }
 }
 
-/// The backward op; input is `[σ, Δ, v, G]` flattened and concatenated, output
+/// The backward op: `[σ, t, G]` flattened and concatenated, and v `(N, S, C)` →
 /// `[∂L/∂σ, ∂L/∂v]` flattened and concatenated.
-struct CompositeBackward {
-    n: usize,
-    s: usize,
-    k: usize,
-}
+struct CompositeBackward;
 
-impl candle_core::CustomOp1 for CompositeBackward {
+impl candle_core::CustomOp2 for CompositeBackward {
     fn name(&self) -> &'static str {
         "volume-composite-backward"
     }
 
-    fn cpu_fwd(&self, st: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        let all = contiguous(st, l, "gradient input")?;
-        let (n, s, k) = (self.n, self.s, self.k);
-        let (sigma, rest) = all.split_at(n * s);
-        let (delta, rest) = rest.split_at(n * s);
-        let (values, grad) = rest.split_at(n * s * k);
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let (n, s, k) = l2.shape().dims3()?;
+        let values = View::new(s2, l2)?;
+        let (a, b) = l1.contiguous_offsets().ok_or_else(|| {
+            candle_core::Error::Msg("composite backward: input not contiguous".into())
+        })?;
+        let packed = &s1.as_slice::<f32>()?[a..b];
+        let (sigma_flat, rest) = packed.split_at(n * s);
+        let (lengths_flat, grad) = rest.split_at(n * s);
+        let sigma = View {
+            data: sigma_flat,
+            offset: 0,
+            strides: [s, 1, 1],
+        };
+        let lengths = View {
+            data: lengths_flat,
+            offset: 0,
+            strides: [s, 1, 1],
+        };
+        let width = k + 2;
         let mut out = vec![0f32; n * s * (k + 1)];
         let (g_sigma, g_values) = out.split_at_mut(n * s);
         g_sigma
@@ -148,43 +221,32 @@ impl candle_core::CustomOp1 for CompositeBackward {
             .zip(g_values.par_chunks_mut(RAYS_PER_TASK * s * k))
             .enumerate()
             .for_each(|(task, (gs, gv))| {
-                let mut tau = vec![0f32; s];
-                let mut w = vec![0f32; s];
-                let mut t_after = vec![0f32; s];
-                let mut g = vec![0f64; s];
+                let mut sc = Scratch::new(s);
+                let mut g = vec![0f32; s];
                 for (r, (gs, gv)) in gs
                     .chunks_exact_mut(s)
                     .zip(gv.chunks_exact_mut(s * k))
                     .enumerate()
                 {
                     let ray = task * RAYS_PER_TASK + r;
-                    let base = ray * s;
-                    let go = &grad[ray * (k + 1)..(ray + 1) * (k + 1)];
+                    let go = &grad[ray * width..(ray + 1) * width];
+                    sc.ray(&sigma, &lengths, ray);
                     for i in 0..s {
-                        tau[i] = clamped_optical_depth(sigma[base + i], delta[base + i]);
-                    }
-                    ray_weights(&tau, &mut w, &mut t_after);
-                    for i in 0..s {
-                        let v = &values[(base + i) * k..(base + i + 1) * k];
-                        let mut gi = go[k] as f64;
+                        let mut gi = go[k] * lengths.at(ray, i, 0) + go[k + 1];
                         for c in 0..k {
-                            gi += (go[c] * v[c]) as f64;
-                            gv[i * k + c] = w[i] * go[c];
+                            gi += go[c] * values.at(ray, i, c);
+                            gv[i * k + c] = sc.w[i] * go[c];
                         }
                         g[i] = gi;
                     }
                     // Suffix sums Σ_{j>i} w_j g_j, walking backwards.
-                    let mut suffix = 0f64;
+                    let mut suffix = 0f32;
                     for i in (0..s).rev() {
-                        let d_tau = t_after[i] as f64 * g[i] - suffix;
-                        suffix += w[i] as f64 * g[i];
-                        let raw = sigma[base + i] * delta[base + i];
+                        let d_tau = sc.t_after[i] * g[i] - suffix;
+                        suffix += sc.w[i] * g[i];
+                        let raw = sigma.at(ray, i, 0) * sc.delta[i];
                         let active = (0.0..MAX_OPTICAL_DEPTH as f32).contains(&raw);
-                        gs[i] = if active {
-                            (delta[base + i] as f64 * d_tau) as f32
-                        } else {
-                            0.0
-                        };
+                        gs[i] = if active { sc.delta[i] * d_tau } else { 0.0 };
                     }
                 }
             });
@@ -195,7 +257,7 @@ impl candle_core::CustomOp1 for CompositeBackward {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::renderer::{aggregate, weights};
+    use crate::renderer::{aggregate, deltas, weights};
     use candle_core::{Device, Var};
 
     /// Random inputs; `zero` is the value used for the 30% empty samples.
@@ -222,21 +284,31 @@ mod tests {
         let values: Vec<f32> = (0..n * s * k).map(|_| rng.random::<f32>()).collect();
         let dev = &Device::Cpu;
         let l = Tensor::from_vec(lengths, (n, s, 1), dev).unwrap();
-        let d = crate::renderer::deltas(&l).unwrap();
         (
             Tensor::from_vec(sigma, (n, s, 1), dev).unwrap(),
-            d,
+            l,
             Tensor::from_vec(values, (n, s, k), dev).unwrap(),
         )
     }
 
     #[test]
     fn forward_matches_tensor_ops() {
-        let (sigma, d, v) = inputs(300, 9, 4, 1, 0.0);
-        let fused = sigma.apply_op3(&d, &v, Composite).unwrap();
-        assert_eq!(fused.dims(), &[300, 5]);
-        let w = weights(&sigma, &d).unwrap();
-        let reference = Tensor::cat(&[aggregate(&w, &v).unwrap(), w.sum(1).unwrap()], 1).unwrap();
+        let (sigma, l, v) = inputs(300, 9, 4, 1, 0.0);
+        // A strided feature view, as the fused SDF field hands over.
+        let wide = Tensor::cat(&[&v, &v], 2).unwrap();
+        let v_view = wide.narrow(2, 4, 4).unwrap();
+        let fused = sigma.apply_op3(&l, &v_view, Composite).unwrap();
+        assert_eq!(fused.dims(), &[300, 6]);
+        let w = weights(&sigma, &deltas(&l).unwrap()).unwrap();
+        let reference = Tensor::cat(
+            &[
+                aggregate(&w, &v).unwrap(),
+                aggregate(&w, &l).unwrap(),
+                w.sum(1).unwrap(),
+            ],
+            1,
+        )
+        .unwrap();
         let diff = fused
             .sub(&reference)
             .unwrap()
@@ -252,22 +324,27 @@ mod tests {
     #[test]
     fn backward_matches_tensor_ops_autodiff() {
         // Exact zeros are avoided: Candle's clamp splits the gradient at a tie.
-        let (sigma, d, v) = inputs(70, 12, 3, 2, 1e-4);
+        let (sigma, l, v) = inputs(70, 12, 3, 2, 1e-4);
+        let d = deltas(&l).unwrap();
         let sv = Var::from_tensor(&sigma).unwrap();
         let vv = Var::from_tensor(&v).unwrap();
         // A loss that weights every output differently.
-        let mix = Tensor::new(&[[0.3f32, -1.2, 0.7, 2.0]], &Device::Cpu).unwrap();
+        let mix = Tensor::new(&[[0.3f32, -1.2, 0.7, 0.4, 2.0]], &Device::Cpu).unwrap();
         let loss_of = |out: Tensor| out.broadcast_mul(&mix).unwrap().sum_all().unwrap();
         let fused = loss_of(
             sv.as_tensor()
-                .apply_op3(&d, vv.as_tensor(), Composite)
+                .apply_op3(&l, vv.as_tensor(), Composite)
                 .unwrap(),
         );
         let gf = fused.backward().unwrap();
         let w = weights(sv.as_tensor(), &d).unwrap();
         let reference = loss_of(
             Tensor::cat(
-                &[aggregate(&w, vv.as_tensor()).unwrap(), w.sum(1).unwrap()],
+                &[
+                    aggregate(&w, vv.as_tensor()).unwrap(),
+                    aggregate(&w, &l).unwrap(),
+                    w.sum(1).unwrap(),
+                ],
                 1,
             )
             .unwrap(),

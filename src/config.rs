@@ -169,13 +169,22 @@ pub struct TrainingConfig {
 }
 
 /// `cameras` (extension): the surround views rendered by `nerf render`.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct CamerasConfig {
     pub radius: f64,
     pub n_poses: usize,
     pub up: [f64; 3],
     pub focal_length: f64,
+}
+
+/// `cameras` as written: any key left out takes the scene type's default.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCamerasConfig {
+    radius: Option<f64>,
+    n_poses: Option<usize>,
+    up: Option<[f64; 3]>,
+    focal_length: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -192,7 +201,7 @@ struct RawConfig {
     #[serde(default)]
     training: Option<TrainingConfig>,
     #[serde(default)]
-    cameras: Option<CamerasConfig>,
+    cameras: Option<RawCamerasConfig>,
 }
 
 /// A fully parsed and validated configuration.
@@ -325,9 +334,14 @@ impl Config {
                 "implicit_function.type: unknown type `{other}` (expected sdf_volume or nerf)"
             ),
         };
-        let cameras = raw
-            .cameras
-            .unwrap_or_else(|| default_cameras(&implicit_function));
+        let defaults = default_cameras(&implicit_function);
+        let given = raw.cameras.unwrap_or_default();
+        let cameras = CamerasConfig {
+            radius: given.radius.unwrap_or(defaults.radius),
+            n_poses: given.n_poses.unwrap_or(defaults.n_poses),
+            up: given.up.unwrap_or(defaults.up),
+            focal_length: given.focal_length.unwrap_or(defaults.focal_length),
+        };
         let config = Config {
             seed: raw.seed.unwrap_or(0),
             kind: raw.kind,

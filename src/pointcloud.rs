@@ -46,7 +46,7 @@ pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<Rg
         let q = view
             .camera
             .project(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
-        if !(q.z > 1e-3) || !q.x.is_finite() || !q.y.is_finite() {
+        if q.z.is_nan() || q.z <= 1e-3 || !q.x.is_finite() || !q.y.is_finite() {
             continue;
         }
         // Pixel centre (i, j) sits at NDC x = 1 − (2j + 1)/W, y = 1 − (2i + 1)/H.

@@ -101,12 +101,9 @@ pub fn composite(
 ) -> Result<RenderOutput> {
     let c = feature.dim(2)?;
     if density.device().is_cpu() && density.dtype() == DType::F32 {
-        let values = Tensor::cat(&[feature, lengths], 2)?;
-        let out = density.contiguous()?.apply_op3(
-            &deltas.contiguous()?,
-            &values,
-            crate::composite::Composite,
-        )?;
+        // The kernel derives the same deltas from the lengths itself; σ and the features are
+        // read through their strides, so the fused field's output is not copied.
+        let out = density.apply_op3(lengths, feature, crate::composite::Composite)?;
         return Ok(RenderOutput {
             color: out.narrow(1, 0, c)?,
             depth: out.narrow(1, c, 1)?,
