@@ -124,7 +124,9 @@ pub struct BenchReport {
 /// ([`crate::reference`]).
 pub fn run_benchmarks(config: &Config, repeats: usize, device: &Device) -> Result<BenchReport> {
     let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
-    let crate::field::Field::Sdf(volume) = config.sdf_field()?;
+    let crate::field::Field::Sdf(volume) = config.sdf_field()? else {
+        anyhow::bail!("nerf bench needs an SDF config");
+    };
     let cam = config.surround_cameras()[0];
     let (colors, depths) =
         crate::reference::render_image(&volume, &cam, config.image_size(), &config.sampler()?);

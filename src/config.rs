@@ -22,6 +22,8 @@ use crate::sdf::{Sdf, SdfVolume};
 const BUILT_IN: &[(&str, &str)] = &[
     ("box", include_str!("../configs/box.yaml")),
     ("sphere", include_str!("../configs/sphere.yaml")),
+    ("lego", include_str!("../configs/lego.yaml")),
+    ("nerf_lego", include_str!("../configs/nerf_lego.yaml")),
 ];
 
 /// A homework parameter `{val, opt}`; `opt` marks it trainable in the homework.

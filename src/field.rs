@@ -3,6 +3,7 @@
 use anyhow::Result;
 use candle_core::Tensor;
 
+use crate::nerf_model::Nerf;
 use crate::sampler::RaySamples;
 use crate::sdf::SdfVolume;
 
@@ -19,6 +20,12 @@ pub struct FieldOutput {
 #[derive(Debug, Clone)]
 pub enum Field {
     Sdf(SdfVolume),
+    /// A NeRF; `density_noise` is the training-time noise added before its density ReLU
+    /// (0 when rendering).
+    Nerf {
+        model: Nerf,
+        density_noise: f64,
+    },
 }
 
 impl Field {
@@ -31,10 +38,14 @@ impl Field {
         &self,
         samples: &RaySamples,
         deltas: &Tensor,
-        _directions: &Tensor,
+        directions: &Tensor,
     ) -> Result<FieldOutput> {
         match self {
             Field::Sdf(volume) => volume.evaluate(samples, deltas),
+            Field::Nerf {
+                model,
+                density_noise,
+            } => model.evaluate(samples, directions, *density_noise),
         }
     }
 }

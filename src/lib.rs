@@ -30,4 +30,9 @@ pub fn tune_allocator() {
         libc::mallopt(libc::M_TOP_PAD, 64 << 20);
     }
 }
+pub mod adam;
+pub mod checkpoint;
+pub mod dataset;
+pub mod nerf_model;
 pub mod reference;
+pub mod train;

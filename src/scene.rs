@@ -191,3 +191,69 @@ pub fn render_sdf_scene(
     }
     Ok(written)
 }
+
+/// Renders the config's surround views of a NeRF field into an animated GIF at `path`.
+pub fn render_nerf_gif(
+    config: &Config,
+    field: &Field,
+    path: &Path,
+    device: &Device,
+) -> Result<PathBuf> {
+    if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        prepare_out_dir(dir)?;
+    }
+    let frames = render_views(
+        field,
+        &config.surround_cameras(),
+        config.image_size(),
+        &config.sampler()?,
+        &config.renderer()?,
+        device,
+    )?;
+    write_gif(
+        path,
+        &frames.iter().map(|f| f.color.clone()).collect::<Vec<_>>(),
+        10,
+    )?;
+    Ok(path.to_path_buf())
+}
+
+/// `nerf render` for a NeRF config: loads `checkpoint` and writes render_nerf.gif (and, with
+/// `raw`, the float arrays) into `out_dir`.
+pub fn render_nerf_scene(
+    config: &Config,
+    checkpoint: &Path,
+    out_dir: &Path,
+    raw: bool,
+    device: &Device,
+) -> Result<Vec<PathBuf>> {
+    let nerf = crate::train::nerf_config(config)?;
+    if !checkpoint.is_file() {
+        anyhow::bail!(
+            "checkpoint {} not found (train one with `nerf train --config nerf_lego`)",
+            checkpoint.display()
+        );
+    }
+    let (state, _) = crate::train::NerfState::from_checkpoint(nerf, checkpoint, device)?;
+    prepare_out_dir(out_dir)?;
+    let field = state.field();
+    let frames = render_views(
+        &field,
+        &config.surround_cameras(),
+        config.image_size(),
+        &config.sampler()?,
+        &config.renderer()?,
+        device,
+    )?;
+    let gif = out_dir.join("render_nerf.gif");
+    write_gif(
+        &gif,
+        &frames.iter().map(|f| f.color.clone()).collect::<Vec<_>>(),
+        10,
+    )?;
+    let mut written = vec![gif];
+    if raw {
+        written.extend(write_raw_frames(out_dir, &frames)?);
+    }
+    Ok(written)
+}

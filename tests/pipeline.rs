@@ -104,7 +104,9 @@ fn hard_box_depth_matches_analytic_intersection() {
 fn box_render_agrees_with_float64_recomputation() {
     let config = box_config(&[]);
     let field = config.sdf_field().unwrap();
-    let Field::Sdf(volume) = &field;
+    let Field::Sdf(volume) = &field else {
+        unreachable!()
+    };
     let sampler = config.sampler().unwrap();
     let (w, h) = (40, 30);
     let mut max_color: f64 = 0.0;

@@ -1,0 +1,171 @@
+//! NeRF checkpoints as one safetensors file, written atomically.
+//!
+//! Tensors: the model's parameters under their PyTorch names (`mlp_xyz.mlp.0.0.weight`, …,
+//! see [`crate::nerf_model`]), and for training checkpoints the Adam moments
+//! `adam.exp_avg.<name>` / `adam.exp_avg_sq.<name>`. Metadata: `epoch` (epochs completed),
+//! `adam_step`, `format` = `nerf-candle-1`. A loader that only wants the model ignores `adam.*`.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use candle_core::{DType, Device, Tensor};
+use candle_nn::VarMap;
+
+use crate::config::NerfConfig;
+use crate::images::write_atomically;
+use crate::nerf_model::parameter_shapes;
+
+/// What a checkpoint holds besides tensors.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CheckpointInfo {
+    /// Epochs completed when it was written.
+    pub epoch: usize,
+    /// Adam steps taken.
+    pub adam_step: u64,
+    /// Training wall-clock seconds so far, over all resumed runs.
+    pub wall_seconds: f64,
+}
+
+/// Writes `tensors` and `info` to `path` (temp file + rename).
+pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> Result<()> {
+    let mut data = Vec::with_capacity(tensors.len());
+    for (name, t) in tensors {
+        let t = t
+            .to_device(&Device::Cpu)?
+            .to_dtype(DType::F32)?
+            .contiguous()?;
+        let bytes: Vec<u8> = t
+            .flatten_all()?
+            .to_vec1::<f32>()?
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        data.push((name.clone(), t.dims().to_vec(), bytes));
+    }
+    let views: Vec<(String, safetensors::tensor::TensorView)> = data
+        .iter()
+        .map(|(n, shape, bytes)| {
+            Ok((
+                n.clone(),
+                safetensors::tensor::TensorView::new(
+                    safetensors::Dtype::F32,
+                    shape.clone(),
+                    bytes,
+                )?,
+            ))
+        })
+        .collect::<Result<_>>()?;
+    let metadata: HashMap<String, String> = [
+        ("epoch".to_string(), info.epoch.to_string()),
+        ("adam_step".to_string(), info.adam_step.to_string()),
+        (
+            "wall_seconds".to_string(),
+            format!("{:.3}", info.wall_seconds),
+        ),
+        ("format".to_string(), "nerf-candle-1".to_string()),
+    ]
+    .into();
+    let bytes = safetensors::serialize(views, Some(metadata))?;
+    if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create checkpoint directory {}", dir.display()))?;
+    }
+    write_atomically(path, |w| {
+        use std::io::Write;
+        w.write_all(&bytes)?;
+        Ok(())
+    })
+}
+
+/// Reads every tensor and the metadata of a checkpoint.
+pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
+    let bytes = std::fs::read(path)
+        .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| {
+        anyhow::anyhow!(
+            "checkpoint {} is corrupt or not safetensors: {e}",
+            path.display()
+        )
+    })?;
+    let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| {
+        anyhow::anyhow!(
+            "checkpoint {} is corrupt or not safetensors: {e}",
+            path.display()
+        )
+    })?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    let num = |k: &str| -> Result<u64> {
+        meta.get(k)
+            .map(|v| v.parse::<u64>())
+            .transpose()
+            .with_context(|| format!("checkpoint {}: bad metadata {k}", path.display()))
+            .map(|v| v.unwrap_or(0))
+    };
+    let wall_seconds = meta
+        .get("wall_seconds")
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or(0.0);
+    let info = CheckpointInfo {
+        epoch: num("epoch")? as usize,
+        adam_step: num("adam_step")?,
+        wall_seconds,
+    };
+    let mut tensors = HashMap::new();
+    for (name, view) in st.tensors() {
+        if view.dtype() != safetensors::Dtype::F32 {
+            bail!(
+                "checkpoint {}: tensor {name} is {:?}, expected F32",
+                path.display(),
+                view.dtype()
+            );
+        }
+        let values: Vec<f32> = view
+            .data()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        tensors.insert(name, Tensor::from_vec(values, view.shape(), device)?);
+    }
+    Ok((tensors, info))
+}
+
+/// Copies the model parameters of a checkpoint into `varmap`, checking every name and shape
+/// against the config (the error names the tensor and both shapes).
+pub fn load_model_into(
+    varmap: &VarMap,
+    tensors: &HashMap<String, Tensor>,
+    config: &NerfConfig,
+    origin: &Path,
+) -> Result<()> {
+    let data = varmap.data().lock().expect("varmap lock");
+    for (name, shape) in parameter_shapes(config) {
+        let t = tensors
+            .get(&name)
+            .with_context(|| format!("checkpoint {} lacks tensor {name}", origin.display()))?;
+        if t.dims() != &shape[..] {
+            bail!(
+                "checkpoint {}: tensor {name} has shape {:?} but the config needs {:?}",
+                origin.display(),
+                t.dims(),
+                shape
+            );
+        }
+        let var = data
+            .get(&name)
+            .with_context(|| format!("model has no parameter {name}"))?;
+        var.set(t)?;
+    }
+    Ok(())
+}
+
+/// The model parameters of `varmap`, by name, sorted.
+pub fn model_tensors(varmap: &VarMap) -> Vec<(String, Tensor)> {
+    let data = varmap.data().lock().expect("varmap lock");
+    let mut v: Vec<(String, Tensor)> = data
+        .iter()
+        .map(|(k, var)| (k.clone(), var.as_tensor().clone()))
+        .collect();
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}

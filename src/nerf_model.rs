@@ -1,0 +1,324 @@
+//! The homework's NeRF (`NeuralRadianceField`) as a candle-nn module.
+//!
+//! * Harmonic embedding with frequencies `2^0 … 2^(L−1)`, output `[sin(x·f), cos(x·f), x]`
+//!   ordered channel-major as pytorch3d's `HarmonicEmbedding`.
+//! * `mlp_xyz`: `n_layers_xyz` ReLU layers of width `n_hidden_neurons_xyz`; the xyz embedding is
+//!   concatenated again before the layers in `append_xyz`.
+//! * `density_layer`: Linear(hidden, 1) + ReLU.
+//! * `intermediate_linear`: Linear(hidden, hidden); `color_layer`: Linear(hidden + dir_embedding,
+//!   n_hidden_neurons_dir) + ReLU → Linear(·, 3) + sigmoid.
+//!
+//! The direction half of `color_layer.0` depends only on the ray, so it is applied once per ray
+//! and broadcast over the samples (the same result as concatenating per sample).
+//!
+//! Parameters carry the PyTorch module names (`mlp_xyz.mlp.{i}.0.weight`,
+//! `density_layer.0.weight`, `intermediate_linear.weight`, `color_layer.{0,2}.weight`, and
+//! `.bias`), with PyTorch's shapes (`(out, in)`) and PyTorch's default `nn.Linear`
+//! initialisation, U(−1/√fan_in, 1/√fan_in).
+
+use anyhow::{ensure, Result};
+use candle_core::{Module, Tensor};
+use candle_nn::{Init, Linear, VarBuilder};
+
+use crate::config::NerfConfig;
+use crate::field::FieldOutput;
+use crate::sampler::RaySamples;
+
+/// `[sin(x·f), cos(x·f), x]` with `f = 2^0 … 2^(L−1)`.
+///
+/// `x`: `(M, 3)`; returns `(M, 3·2L + 3)`.
+pub fn harmonic_embedding(x: &Tensor, n_harmonic_functions: usize) -> Result<Tensor> {
+    let (m, c) = x.dims2()?;
+    if n_harmonic_functions == 0 {
+        return Ok(x.clone());
+    }
+    let freqs: Vec<f32> = (0..n_harmonic_functions)
+        .map(|i| 2f32.powi(i as i32))
+        .collect();
+    let freqs =
+        Tensor::from_vec(freqs, (1, 1, n_harmonic_functions), x.device())?.to_dtype(x.dtype())?;
+    let embed = x
+        .unsqueeze(2)?
+        .broadcast_mul(&freqs)?
+        .reshape((m, c * n_harmonic_functions))?;
+    Ok(Tensor::cat(&[&embed.sin()?, &embed.cos()?, x], 1)?)
+}
+
+/// Output width of [`harmonic_embedding`] for 3-D input.
+pub fn embedding_dim(n_harmonic_functions: usize) -> usize {
+    3 * 2 * n_harmonic_functions + 3
+}
+
+/// `nn.Linear(in_dim, out_dim)` with PyTorch's default initialisation, under `vb`.
+fn torch_linear(in_dim: usize, out_dim: usize, vb: VarBuilder) -> Result<Linear> {
+    let bound = 1.0 / (in_dim as f64).sqrt();
+    let init = Init::Uniform {
+        lo: -bound,
+        up: bound,
+    };
+    let w = vb.get_with_hints((out_dim, in_dim), "weight", init)?;
+    let b = vb.get_with_hints(out_dim, "bias", init)?;
+    Ok(Linear::new(w, Some(b)))
+}
+
+/// The NeRF MLP.
+#[derive(Debug, Clone)]
+pub struct Nerf {
+    pub config: NerfConfig,
+    mlp_xyz: Vec<Linear>,
+    density_layer: Linear,
+    intermediate_linear: Linear,
+    color_layer_0: Linear,
+    color_layer_2: Linear,
+}
+
+impl Nerf {
+    /// Builds the model; parameters are created in (or loaded from) `vb`.
+    pub fn new(config: &NerfConfig, vb: VarBuilder) -> Result<Self> {
+        let hidden = config.n_hidden_neurons_xyz;
+        let dim_xyz = embedding_dim(config.n_harmonic_functions_xyz);
+        let dim_dir = embedding_dim(config.n_harmonic_functions_dir);
+        ensure!(
+            config.n_layers_xyz >= 1,
+            "implicit_function.n_layers_xyz must be at least 1"
+        );
+        let mut mlp_xyz = Vec::with_capacity(config.n_layers_xyz);
+        for i in 0..config.n_layers_xyz {
+            let dim_in = if i == 0 {
+                dim_xyz
+            } else if config.append_xyz.contains(&i) {
+                hidden + dim_xyz
+            } else {
+                hidden
+            };
+            mlp_xyz.push(torch_linear(
+                dim_in,
+                hidden,
+                vb.pp(format!("mlp_xyz.mlp.{i}.0")),
+            )?);
+        }
+        Ok(Self {
+            config: config.clone(),
+            mlp_xyz,
+            density_layer: torch_linear(hidden, 1, vb.pp("density_layer.0"))?,
+            intermediate_linear: torch_linear(hidden, hidden, vb.pp("intermediate_linear"))?,
+            color_layer_0: torch_linear(
+                hidden + dim_dir,
+                config.n_hidden_neurons_dir,
+                vb.pp("color_layer.0"),
+            )?,
+            color_layer_2: torch_linear(config.n_hidden_neurons_dir, 3, vb.pp("color_layer.2"))?,
+        })
+    }
+
+    /// Density and colour at every sample.
+    ///
+    /// `points`: `(N, S, 3)`; `directions`: `(N, 3)` unit vectors. Returns density `(N, S, 1)`
+    /// (ReLU, ≥ 0) and colour `(N, S, 3)` (sigmoid, in (0, 1)). `density_noise` adds Gaussian
+    /// noise of that standard deviation before the ReLU (training regulariser; 0 = off).
+    pub fn forward(
+        &self,
+        points: &Tensor,
+        directions: &Tensor,
+        density_noise: f64,
+    ) -> Result<FieldOutput> {
+        let (n, s, _) = points.dims3()?;
+        let hidden = self.config.n_hidden_neurons_xyz;
+        let xyz = harmonic_embedding(
+            &points.reshape((n * s, 3))?,
+            self.config.n_harmonic_functions_xyz,
+        )?;
+        let mut y = xyz.clone();
+        for (i, layer) in self.mlp_xyz.iter().enumerate() {
+            if i > 0 && self.config.append_xyz.contains(&i) {
+                y = Tensor::cat(&[&y, &xyz], 1)?;
+            }
+            y = layer.forward(&y)?.relu()?;
+        }
+        let mut raw_density = self.density_layer.forward(&y)?;
+        if density_noise > 0.0 {
+            raw_density = (&raw_density + raw_density.randn_like(0.0, density_noise)?)?;
+        }
+        let density = raw_density.relu()?.reshape((n, s, 1))?;
+        let features = self.intermediate_linear.forward(&y)?;
+        // color_layer.0 on [features, dir_embedding] = W_f·features + (W_d·dir_embedding + b),
+        // the bracket computed once per ray.
+        let w = self.color_layer_0.weight();
+        let (w_feat, w_dir) = (
+            w.narrow(1, 0, hidden)?,
+            w.narrow(1, hidden, w.dim(1)? - hidden)?,
+        );
+        let dir = harmonic_embedding(directions, self.config.n_harmonic_functions_dir)?;
+        let mut per_ray = dir.matmul(&w_dir.t()?)?;
+        if let Some(b) = self.color_layer_0.bias() {
+            per_ray = per_ray.broadcast_add(b)?;
+        }
+        let per_sample = features.matmul(&w_feat.t()?)?.reshape((n, s, w.dim(0)?))?;
+        let h = per_sample.broadcast_add(&per_ray.unsqueeze(1)?)?.relu()?;
+        let color = candle_nn::ops::sigmoid(
+            &self
+                .color_layer_2
+                .forward(&h.reshape((n * s, w.dim(0)?))?)?,
+        )?;
+        Ok(FieldOutput {
+            density,
+            feature: color.reshape((n, s, 3))?,
+        })
+    }
+
+    /// [`Nerf::forward`] on sampled rays.
+    pub fn evaluate(
+        &self,
+        samples: &RaySamples,
+        directions: &Tensor,
+        density_noise: f64,
+    ) -> Result<FieldOutput> {
+        self.forward(&samples.points, directions, density_noise)
+    }
+}
+
+/// Shapes of every parameter, by PyTorch name, for a config (used to check checkpoints).
+pub fn parameter_shapes(config: &NerfConfig) -> Vec<(String, Vec<usize>)> {
+    let hidden = config.n_hidden_neurons_xyz;
+    let dim_xyz = embedding_dim(config.n_harmonic_functions_xyz);
+    let dim_dir = embedding_dim(config.n_harmonic_functions_dir);
+    let mut out = Vec::new();
+    let mut linear = |name: String, i: usize, o: usize| {
+        out.push((format!("{name}.weight"), vec![o, i]));
+        out.push((format!("{name}.bias"), vec![o]));
+    };
+    for i in 0..config.n_layers_xyz {
+        let dim_in = if i == 0 {
+            dim_xyz
+        } else if config.append_xyz.contains(&i) {
+            hidden + dim_xyz
+        } else {
+            hidden
+        };
+        linear(format!("mlp_xyz.mlp.{i}.0"), dim_in, hidden);
+    }
+    linear("density_layer.0".into(), hidden, 1);
+    linear("intermediate_linear".into(), hidden, hidden);
+    linear(
+        "color_layer.0".into(),
+        hidden + dim_dir,
+        config.n_hidden_neurons_dir,
+    );
+    linear("color_layer.2".into(), config.n_hidden_neurons_dir, 3);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{DType, Device};
+    use candle_nn::VarMap;
+
+    fn homework_config() -> NerfConfig {
+        NerfConfig {
+            kind: "nerf".into(),
+            n_harmonic_functions_xyz: 6,
+            n_harmonic_functions_dir: 2,
+            n_hidden_neurons_xyz: 128,
+            n_hidden_neurons_dir: 64,
+            density_noise_std: 0.0,
+            n_layers_xyz: 6,
+            append_xyz: vec![3],
+        }
+    }
+
+    #[test]
+    fn embedding_matches_pytorch3d_ordering() {
+        let x = Tensor::new(&[[0.5f32, -1.0, 2.0]], &Device::Cpu).unwrap();
+        let e = harmonic_embedding(&x, 2).unwrap().to_vec2::<f32>().unwrap()[0].clone();
+        assert_eq!(e.len(), embedding_dim(2));
+        // embed = [x0·1, x0·2, x1·1, x1·2, x2·1, x2·2]; then sin, cos, x.
+        let embed = [0.5f32, 1.0, -1.0, -2.0, 2.0, 4.0];
+        for k in 0..6 {
+            assert!((e[k] - embed[k].sin()).abs() < 1e-6);
+            assert!((e[6 + k] - embed[k].cos()).abs() < 1e-6);
+        }
+        assert_eq!(&e[12..], &[0.5, -1.0, 2.0]);
+    }
+
+    #[test]
+    fn shapes_names_and_ranges() {
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let cfg = homework_config();
+        let model = Nerf::new(&cfg, vb).unwrap();
+        let points = Tensor::randn(0f32, 1.0, (5, 7, 3), &Device::Cpu).unwrap();
+        let dirs = Tensor::randn(0f32, 1.0, (5, 3), &Device::Cpu).unwrap();
+        let out = model.forward(&points, &dirs, 0.0).unwrap();
+        assert_eq!(out.density.dims(), &[5, 7, 1]);
+        assert_eq!(out.feature.dims(), &[5, 7, 3]);
+        let d = out.density.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert!(d.iter().all(|v| *v >= 0.0));
+        let c = out.feature.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert!(c.iter().all(|v| *v > 0.0 && *v < 1.0));
+        let data = varmap.data().lock().unwrap();
+        let expected = parameter_shapes(&cfg);
+        assert_eq!(data.len(), expected.len());
+        for (name, shape) in expected {
+            assert_eq!(data[&name].dims(), &shape[..], "{name}");
+        }
+        // The homework-size model: about 0.5 MB of f32 parameters.
+        let n: usize = data.values().map(|v| v.elem_count()).sum();
+        assert!((100_000..150_000).contains(&n), "{n} parameters");
+    }
+
+    #[test]
+    fn per_ray_direction_branch_equals_concatenation() {
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let cfg = NerfConfig {
+            n_hidden_neurons_xyz: 16,
+            n_hidden_neurons_dir: 8,
+            n_layers_xyz: 3,
+            append_xyz: vec![2],
+            ..homework_config()
+        };
+        let model = Nerf::new(&cfg, vb).unwrap();
+        let points = Tensor::randn(0f32, 1.0, (4, 3, 3), &Device::Cpu).unwrap();
+        let dirs = Tensor::randn(0f32, 1.0, (4, 3), &Device::Cpu).unwrap();
+        let fast = model.forward(&points, &dirs, 0.0).unwrap().feature;
+        // Straightforward version: concatenate the direction embedding to every sample.
+        let xyz = harmonic_embedding(&points.reshape((12, 3)).unwrap(), 6).unwrap();
+        let mut y = xyz.clone();
+        for (i, l) in model.mlp_xyz.iter().enumerate() {
+            if i == 2 {
+                y = Tensor::cat(&[&y, &xyz], 1).unwrap();
+            }
+            y = l.forward(&y).unwrap().relu().unwrap();
+        }
+        let f = model.intermediate_linear.forward(&y).unwrap();
+        let dir = harmonic_embedding(&dirs, 2).unwrap();
+        let dir = dir
+            .unsqueeze(1)
+            .unwrap()
+            .broadcast_as((4, 3, 15))
+            .unwrap()
+            .reshape((12, 15))
+            .unwrap();
+        let h = model
+            .color_layer_0
+            .forward(&Tensor::cat(&[&f, &dir], 1).unwrap())
+            .unwrap()
+            .relu()
+            .unwrap();
+        let slow = candle_nn::ops::sigmoid(&model.color_layer_2.forward(&h).unwrap())
+            .unwrap()
+            .reshape((4, 3, 3))
+            .unwrap();
+        let diff = fast
+            .sub(&slow)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        assert!(diff < 1e-6, "{diff}");
+    }
+}
