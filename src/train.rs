@@ -33,11 +33,33 @@ pub struct NerfState {
 }
 
 impl NerfState {
-    /// A freshly initialised model (PyTorch's default init, seeded by Candle's RNG).
+    /// A freshly initialised model: PyTorch's default `nn.Linear` init, U(−1/√fan_in,
+    /// 1/√fan_in) for weights and biases, drawn from a generator seeded with `seed` (parameters
+    /// in name order), so runs are reproducible.
     pub fn new(config: &NerfConfig, device: &Device) -> Result<Self> {
+        Self::seeded(config, 0, device)
+    }
+
+    /// [`NerfState::new`] with an explicit seed.
+    pub fn seeded(config: &NerfConfig, seed: u64, device: &Device) -> Result<Self> {
+        use rand::Rng;
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
         let model = Nerf::new(config, vb)?;
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        for (name, var) in named_vars(&varmap) {
+            // fan_in is the weight's second dimension; a bias shares its layer's weight fan_in.
+            let weight_name = name
+                .strip_suffix(".bias")
+                .map(|p| format!("{p}.weight"))
+                .unwrap_or(name.clone());
+            let fan_in = varmap.data().lock().expect("varmap lock")[&weight_name].dims()[1];
+            let bound = 1.0 / (fan_in as f64).sqrt();
+            let values: Vec<f32> = (0..var.elem_count())
+                .map(|_| rng.random_range(-bound..bound) as f32)
+                .collect();
+            var.set(&Tensor::from_vec(values, var.shape(), device)?)?;
+        }
         Ok(Self { varmap, model })
     }
 
@@ -182,7 +204,10 @@ pub fn train(
         let (state, info) = NerfState::from_checkpoint(&nerf, &paths.checkpoint, device)?;
         (state, info)
     } else {
-        (NerfState::new(&nerf, device)?, CheckpointInfo::default())
+        (
+            NerfState::seeded(&nerf, config.seed, device)?,
+            CheckpointInfo::default(),
+        )
     };
     let mut adam = Adam::new(named_vars(&state.varmap), training.lr)?;
     if info.epoch > 0 {
