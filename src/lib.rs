@@ -33,6 +33,7 @@ pub fn tune_allocator() {
 pub mod adam;
 pub mod checkpoint;
 pub mod dataset;
+pub mod eval;
 pub mod nerf_model;
 pub mod reference;
 pub mod train;

@@ -61,6 +61,32 @@ enum Command {
         /// Hydra-style overrides, e.g. training.num_epochs=20.
         overrides: Vec<String>,
     },
+    /// PSNR of a trained NeRF over a dataset split at the config's image size.
+    Eval {
+        /// Config name or path (e.g. lego).
+        #[arg(long)]
+        config: String,
+        /// Which split to score.
+        #[arg(long, value_enum, default_value = "test")]
+        split: SplitArg,
+        /// NeRF checkpoint to evaluate.
+        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
+        checkpoint: PathBuf,
+        /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Write each predicted view as <frame>.png into this directory.
+        #[arg(long)]
+        save_images: Option<PathBuf>,
+        /// Score only the first N views.
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Print JSON instead of a summary.
+        #[arg(long)]
+        json: bool,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
     /// Time the main jobs and print a table (or JSON).
     Bench {
         /// Config of the SDF scene to time.
@@ -75,6 +101,31 @@ enum Command {
         /// Hydra-style overrides for the config.
         overrides: Vec<String>,
     },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum SplitArg {
+    Train,
+    Val,
+    Test,
+}
+
+impl From<SplitArg> for nerf::dataset::Split {
+    fn from(s: SplitArg) -> Self {
+        match s {
+            SplitArg::Train => Self::Train,
+            SplitArg::Val => Self::Val,
+            SplitArg::Test => Self::Test,
+        }
+    }
+}
+
+fn data_dir_for(config: &Config, given: Option<PathBuf>) -> PathBuf {
+    given
+        .or_else(|| config.data.data_dir.clone())
+        .unwrap_or_else(|| {
+            nerf::dataset::default_data_dir(config.data.dataset_name.as_deref().unwrap_or("lego"))
+        })
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -108,13 +159,7 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let data_dir = data_dir.unwrap_or_else(|| {
-                config.data.data_dir.clone().unwrap_or_else(|| {
-                    nerf::dataset::default_data_dir(
-                        config.data.dataset_name.as_deref().unwrap_or("lego"),
-                    )
-                })
-            });
+            let data_dir = data_dir_for(&config, data_dir);
             let paths = nerf::train::TrainPaths::for_config(&config, &out_dir)?;
             let info = nerf::train::train(&config, &data_dir, &paths, epochs, &device)?;
             println!(
@@ -123,6 +168,58 @@ fn run(cli: Cli) -> Result<()> {
                 info.adam_step,
                 paths.checkpoint.display()
             );
+        }
+        Command::Eval {
+            config,
+            split,
+            checkpoint,
+            data_dir,
+            save_images,
+            limit,
+            json,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let nerf_cfg = nerf::train::nerf_config(&config)?;
+            if !checkpoint.is_file() {
+                anyhow::bail!("checkpoint {} not found", checkpoint.display());
+            }
+            let (state, _) =
+                nerf::train::NerfState::from_checkpoint(nerf_cfg, &checkpoint, &device)?;
+            let (w, h) = config.image_size();
+            let data_dir = data_dir_for(&config, data_dir);
+            let split: nerf::dataset::Split = split.into();
+            let dataset = nerf::dataset::Dataset::load(
+                &data_dir,
+                split,
+                w,
+                h,
+                config.renderer.white_background,
+            )?;
+            let report = nerf::eval::evaluate(
+                &config,
+                &state.field(),
+                &dataset,
+                split,
+                save_images.as_deref(),
+                limit,
+                &device,
+            )?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                println!(
+                    "{} split, {} views at {}x{}, {} points: PSNR mean {:.2} dB, min {:.2}, max {:.2}",
+                    report.split,
+                    report.views.len(),
+                    report.width,
+                    report.height,
+                    report.n_pts_per_ray,
+                    report.mean_psnr,
+                    report.min_psnr,
+                    report.max_psnr
+                );
+            }
         }
         Command::Bench {
             config,

@@ -223,6 +223,10 @@ pub fn train(
         eprintln!("already trained for {} epochs", info.epoch);
         return Ok(info);
     }
+    if let Some(dir) = paths.log.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create checkpoint directory {}", dir.display()))?;
+    }
     let mut log = std::fs::OpenOptions::new()
         .create(true)
         .append(true)

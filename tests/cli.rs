@@ -267,3 +267,103 @@ fn box_render_agrees_with_the_homework_reference_images() {
         .count();
     assert!(close as f64 / ours.as_raw().len() as f64 > 0.95);
 }
+
+#[test]
+fn train_render_and_eval_a_tiny_nerf() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego");
+    if !data.join("transforms_train.json").is_file() {
+        eprintln!("skipping: lego data not found at {}", data.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt_dir = dir.path().join("ckpt");
+    let model = [
+        "implicit_function.n_hidden_neurons_xyz=16",
+        "implicit_function.n_hidden_neurons_dir=8",
+        "implicit_function.n_layers_xyz=3",
+        "implicit_function.append_xyz=[2]",
+        "sampler.n_pts_per_ray=8",
+        "data.image_size=[8,8]",
+    ];
+    let mut args = vec!["train", "--config", "nerf_lego", "--out-dir"];
+    let images = dir.path().join("images");
+    args.push(images.to_str().unwrap());
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt_dir.display());
+    args.extend([
+        "training.num_epochs=1",
+        "training.batch_size=16",
+        "training.render_interval=1",
+        &ckpt_arg,
+    ]);
+    args.extend(model);
+    let o = nerf(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ckpt = ckpt_dir.join("nerf_lego.safetensors");
+    assert!(ckpt.is_file());
+    assert_eq!(
+        std::fs::read_to_string(ckpt_dir.join("nerf_lego.log.jsonl"))
+            .unwrap()
+            .lines()
+            .count(),
+        100
+    );
+    assert_eq!(
+        gif_frames(&images.join("render_nerf_training.gif")).len(),
+        20
+    );
+
+    let out = dir.path().join("render");
+    let mut args = vec![
+        "render",
+        "--config",
+        "lego",
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--out-dir",
+        out.to_str().unwrap(),
+    ];
+    args.extend(model);
+    let o = nerf(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(gif_frames(&out.join("render_nerf.gif")).len(), 20);
+
+    let saved = dir.path().join("eval");
+    let mut args = vec![
+        "eval",
+        "--config",
+        "lego",
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--split",
+        "test",
+        "--limit",
+        "3",
+        "--json",
+        "--save-images",
+        saved.to_str().unwrap(),
+    ];
+    args.extend(model);
+    let o = nerf(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["views"].as_array().unwrap().len(), 3);
+    assert!(report["mean_psnr"].as_f64().unwrap().is_finite());
+    assert!(saved.join("r_0.png").is_file());
+
+    // A checkpoint of another width is refused, naming the tensor.
+    let o = nerf(&[
+        "render",
+        "--config",
+        "lego",
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--out-dir",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("mlp_xyz.mlp.0.0.weight"),
+        "{}",
+        stderr(&o)
+    );
+}

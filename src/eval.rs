@@ -1,0 +1,84 @@
+//! `nerf eval`: PSNR of a trained NeRF against a split of the dataset.
+
+use std::path::Path;
+
+use anyhow::Result;
+use candle_core::Device;
+use serde::Serialize;
+
+use crate::bench::psnr;
+use crate::config::Config;
+use crate::dataset::{Dataset, Split};
+use crate::field::Field;
+use crate::images::write_png;
+use crate::scene::{prepare_out_dir, progress_bar, render_view};
+
+/// PSNR of one view.
+#[derive(Debug, Clone, Serialize)]
+pub struct ViewScore {
+    /// Frame name, e.g. `r_0`.
+    pub frame: String,
+    pub psnr: f64,
+}
+
+/// PSNR over a split: mean, min, max and per view.
+#[derive(Debug, Clone, Serialize)]
+pub struct EvalReport {
+    pub split: String,
+    pub width: usize,
+    pub height: usize,
+    pub n_pts_per_ray: usize,
+    pub mean_psnr: f64,
+    pub min_psnr: f64,
+    pub max_psnr: f64,
+    pub views: Vec<ViewScore>,
+}
+
+/// Renders every view of `dataset` with `field` and scores it; with `save_images`, writes each
+/// prediction as `<frame>.png` there. `limit` evaluates only the first views.
+pub fn evaluate(
+    config: &Config,
+    field: &Field,
+    dataset: &Dataset,
+    split: Split,
+    save_images: Option<&Path>,
+    limit: Option<usize>,
+    device: &Device,
+) -> Result<EvalReport> {
+    let sampler = config.sampler()?;
+    let renderer = config.renderer()?;
+    let size = (dataset.width, dataset.height);
+    if let Some(dir) = save_images {
+        prepare_out_dir(dir)?;
+    }
+    let n = limit.map_or(dataset.frames.len(), |l| l.min(dataset.frames.len()));
+    let bar = progress_bar(n as u64, "evaluating");
+    let mut views = Vec::with_capacity(n);
+    for (frame, truth) in dataset.frames.iter().zip(&dataset.images).take(n) {
+        let predicted = render_view(field, &frame.camera, size, &sampler, &renderer, device)?;
+        let name = frame
+            .file_path
+            .file_stem()
+            .map_or_else(|| "view".to_string(), |s| s.to_string_lossy().to_string());
+        if let Some(dir) = save_images {
+            write_png(&dir.join(format!("{name}.png")), &predicted.color)?;
+        }
+        views.push(ViewScore {
+            frame: name,
+            psnr: psnr(&predicted.color, truth),
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let values: Vec<f64> = views.iter().map(|v| v.psnr).collect();
+    Ok(EvalReport {
+        split: split.name().to_string(),
+        width: size.0,
+        height: size.1,
+        n_pts_per_ray: sampler.n_pts_per_ray,
+        mean_psnr: values.iter().sum::<f64>() / values.len().max(1) as f64,
+        min_psnr: values.iter().cloned().fold(f64::INFINITY, f64::min),
+        max_psnr: values.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+        views,
+    })
+}
