@@ -61,6 +61,19 @@ fn torch_linear(in_dim: usize, out_dim: usize, vb: VarBuilder) -> Result<Linear>
     Ok(Linear::new(w, Some(b)))
 }
 
+/// Input width of layer `i` of `mlp_xyz`: the xyz embedding for the first layer, hidden plus
+/// the embedding where `append_xyz` concatenates it again, hidden otherwise.
+pub fn mlp_input_dim(config: &NerfConfig, i: usize) -> usize {
+    let dim_xyz = embedding_dim(config.n_harmonic_functions_xyz);
+    if i == 0 {
+        dim_xyz
+    } else if config.append_xyz.contains(&i) {
+        config.n_hidden_neurons_xyz + dim_xyz
+    } else {
+        config.n_hidden_neurons_xyz
+    }
+}
+
 /// The NeRF MLP.
 #[derive(Debug, Clone)]
 pub struct Nerf {
@@ -76,7 +89,6 @@ impl Nerf {
     /// Builds the model; parameters are created in (or loaded from) `vb`.
     pub fn new(config: &NerfConfig, vb: VarBuilder) -> Result<Self> {
         let hidden = config.n_hidden_neurons_xyz;
-        let dim_xyz = embedding_dim(config.n_harmonic_functions_xyz);
         let dim_dir = embedding_dim(config.n_harmonic_functions_dir);
         ensure!(
             config.n_layers_xyz >= 1,
@@ -84,15 +96,8 @@ impl Nerf {
         );
         let mut mlp_xyz = Vec::with_capacity(config.n_layers_xyz);
         for i in 0..config.n_layers_xyz {
-            let dim_in = if i == 0 {
-                dim_xyz
-            } else if config.append_xyz.contains(&i) {
-                hidden + dim_xyz
-            } else {
-                hidden
-            };
             mlp_xyz.push(torch_linear(
-                dim_in,
+                mlp_input_dim(config, i),
                 hidden,
                 vb.pp(format!("mlp_xyz.mlp.{i}.0")),
             )?);
@@ -180,7 +185,6 @@ impl Nerf {
 /// Shapes of every parameter, by PyTorch name, for a config (used to check checkpoints).
 pub fn parameter_shapes(config: &NerfConfig) -> Vec<(String, Vec<usize>)> {
     let hidden = config.n_hidden_neurons_xyz;
-    let dim_xyz = embedding_dim(config.n_harmonic_functions_xyz);
     let dim_dir = embedding_dim(config.n_harmonic_functions_dir);
     let mut out = Vec::new();
     let mut linear = |name: String, i: usize, o: usize| {
@@ -188,14 +192,7 @@ pub fn parameter_shapes(config: &NerfConfig) -> Vec<(String, Vec<usize>)> {
         out.push((format!("{name}.bias"), vec![o]));
     };
     for i in 0..config.n_layers_xyz {
-        let dim_in = if i == 0 {
-            dim_xyz
-        } else if config.append_xyz.contains(&i) {
-            hidden + dim_xyz
-        } else {
-            hidden
-        };
-        linear(format!("mlp_xyz.mlp.{i}.0"), dim_in, hidden);
+        linear(format!("mlp_xyz.mlp.{i}.0"), mlp_input_dim(config, i), hidden);
     }
     linear("density_layer.0".into(), hidden, 1);
     linear("intermediate_linear".into(), hidden, hidden);
