@@ -141,10 +141,82 @@ pub fn run_benchmarks(config: &Config, repeats: usize, device: &Device) -> Resul
         max_abs(&frames[0].color.data, &colors),
         max_abs(&frames[0].depth, &depths)
     ));
+    let mut results = vec![result];
+    results.extend(bench_nerf(
+        &Config::load("nerf_lego", &[])?,
+        repeats,
+        device,
+    )?);
     Ok(BenchReport {
         machine: machine_info(),
-        results: vec![result],
+        results,
     })
+}
+
+/// NeRF throughput with the homework model (seeded initial weights; timing does not depend on
+/// them): one training step (batch_size rays × n_pts_per_ray, forward, backward, Adam) and one
+/// rendered frame at the config's size. Errors are not measured here (`nerf eval` does that).
+pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Vec<BenchResult>> {
+    use rand::SeedableRng;
+    let nerf = crate::train::nerf_config(config)?;
+    let training = config
+        .training
+        .clone()
+        .ok_or_else(|| anyhow::anyhow!("training: section missing"))?;
+    let state = crate::train::NerfState::seeded(nerf, 0, device)?;
+    let sampler = config.sampler()?;
+    let renderer = config.renderer()?;
+    let (w, h) = config.image_size();
+    let camera = crate::camera::surround_cameras(4.0, 20, glam::DVec3::Z, 2.0)[0];
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0);
+    let vars: Vec<(String, candle_core::Var)> = {
+        let data = state.varmap.data().lock().expect("varmap lock");
+        data.iter().map(|(k, v)| (k.clone(), v.clone())).collect()
+    };
+    let mut adam = crate::adam::Adam::new(vars, training.lr)?;
+    let mut step_runs = Vec::new();
+    for _ in 0..repeats.max(1) {
+        let t = Instant::now();
+        let pixels = crate::rays::random_pixel_indices(w, h, training.batch_size, &mut rng);
+        let rays = crate::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
+        let target = candle_core::Tensor::full(0.5f32, (pixels.len(), 3), device)?;
+        let field = crate::field::Field::Nerf {
+            model: state.model.clone(),
+            density_noise: 0.0,
+        };
+        let out = renderer.render(&field, &sampler, &rays, Some(&mut rng))?;
+        let loss = out.color.sub(&target)?.sqr()?.mean_all()?;
+        adam.step(&loss.backward()?)?;
+        step_runs.push(t.elapsed().as_secs_f64());
+    }
+    let mut frame_runs = Vec::new();
+    for _ in 0..repeats.clamp(1, 2) {
+        let t = Instant::now();
+        crate::scene::render_view(&state.field(), &camera, (w, h), &sampler, &renderer, device)?;
+        frame_runs.push(t.elapsed().as_secs_f64());
+    }
+    let best = |r: &[f64]| r.iter().cloned().fold(f64::INFINITY, f64::min);
+    Ok(vec![
+        BenchResult {
+            name: "NeRF training step".into(),
+            work: format!(
+                "{} rays x {} points, fwd+bwd+Adam",
+                training.batch_size, sampler.n_pts_per_ray
+            ),
+            seconds: best(&step_runs),
+            runs: step_runs,
+            pytorch_seconds: Some(1.0),
+            error: None,
+        },
+        BenchResult {
+            name: "NeRF render".into(),
+            work: format!("1 frame {w}x{h} x {} points, dense", sampler.n_pts_per_ray),
+            seconds: best(&frame_runs),
+            runs: frame_runs,
+            pytorch_seconds: Some(6.7),
+            error: None,
+        },
+    ])
 }
 
 /// The report as a Markdown table.

@@ -171,6 +171,20 @@ impl Nerf {
         })
     }
 
+    /// The same model with weights detached from the autograd graph, for rendering: ops on it
+    /// record nothing, so intermediate activations are freed as soon as they are used.
+    pub fn detached(&self) -> Self {
+        let detach = |l: &Linear| Linear::new(l.weight().detach(), l.bias().map(|b| b.detach()));
+        Self {
+            config: self.config.clone(),
+            mlp_xyz: self.mlp_xyz.iter().map(detach).collect(),
+            density_layer: detach(&self.density_layer),
+            intermediate_linear: detach(&self.intermediate_linear),
+            color_layer_0: detach(&self.color_layer_0),
+            color_layer_2: detach(&self.color_layer_2),
+        }
+    }
+
     /// [`Nerf::forward`] on sampled rays.
     pub fn evaluate(
         &self,
@@ -192,7 +206,11 @@ pub fn parameter_shapes(config: &NerfConfig) -> Vec<(String, Vec<usize>)> {
         out.push((format!("{name}.bias"), vec![o]));
     };
     for i in 0..config.n_layers_xyz {
-        linear(format!("mlp_xyz.mlp.{i}.0"), mlp_input_dim(config, i), hidden);
+        linear(
+            format!("mlp_xyz.mlp.{i}.0"),
+            mlp_input_dim(config, i),
+            hidden,
+        );
     }
     linear("density_layer.0".into(), hidden, 1);
     linear("intermediate_linear".into(), hidden, hidden);

@@ -75,10 +75,10 @@ impl NerfState {
         Ok((state, info))
     }
 
-    /// The field for rendering (no density noise).
+    /// The field for rendering: detached weights (no gradient graph), no density noise.
     pub fn field(&self) -> Field {
         Field::Nerf {
-            model: self.model.clone(),
+            model: self.model.detached(),
             density_noise: 0.0,
         }
     }

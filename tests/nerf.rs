@@ -105,7 +105,10 @@ fn gradients_reach_every_parameter() {
         .renderer()
         .unwrap()
         .render(
-            &state.field(),
+            &nerf::field::Field::Nerf {
+                model: state.model.clone(),
+                density_noise: 0.0,
+            },
             &config.sampler().unwrap(),
             &rays,
             Some(&mut rng),
