@@ -29,6 +29,17 @@ pub enum Field {
 }
 
 impl Field {
+    /// The most samples (rays × points per ray) to evaluate at once. The renderer lowers its
+    /// `chunk_size` to fit, which bounds memory without changing any output: a NeRF keeps
+    /// activations of 128 floats per sample per layer (2^18 samples: 128 MiB each), an SDF
+    /// volume a few floats.
+    pub fn max_samples_per_chunk(&self) -> usize {
+        match self {
+            Field::Sdf(_) => usize::MAX,
+            Field::Nerf { .. } => 1 << 18,
+        }
+    }
+
     /// Evaluates the field at the samples of N rays.
     ///
     /// `samples`: points `(N, S, 3)`, lengths `(N, S, 1)`; `deltas`: `(N, S, 1)`;

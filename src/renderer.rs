@@ -176,7 +176,8 @@ impl VolumeRenderer {
         })
     }
 
-    /// Renders all rays, `chunk_size` at a time, and checks the result is finite.
+    /// Renders all rays, `chunk_size` at a time (fewer where the field's
+    /// [`Field::max_samples_per_chunk`] requires), and checks the result is finite.
     ///
     /// `rays`: N rays; returns colour `(N, 3)`, depth and opacity `(N, 1)`.
     pub fn render(
@@ -187,10 +188,13 @@ impl VolumeRenderer {
         mut jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
         let n = rays.len();
-        let mut parts = Vec::with_capacity(n.div_ceil(self.chunk_size));
+        let chunk_size = self
+            .chunk_size
+            .min((field.max_samples_per_chunk() / sampler.n_pts_per_ray).max(1));
+        let mut parts = Vec::with_capacity(n.div_ceil(chunk_size));
         let mut start = 0;
         while start < n {
-            let len = self.chunk_size.min(n - start);
+            let len = chunk_size.min(n - start);
             let chunk = rays.narrow(start, len)?;
             let rng = jitter.as_mut().map(|r| &mut **r as &mut dyn rand::RngCore);
             parts.push(self.render_chunk(field, sampler, &chunk, rng)?);
