@@ -367,3 +367,74 @@ fn train_render_and_eval_a_tiny_nerf() {
         stderr(&o)
     );
 }
+
+#[test]
+fn bad_checkpoints_and_missing_data_give_one_clear_line() {
+    let dir = tempfile::tempdir().unwrap();
+    // A real checkpoint of the lego config, then a truncated copy and random bytes.
+    let config = nerf::config::Config::load("lego", &[]).unwrap();
+    let state = nerf::train::NerfState::seeded(
+        nerf::train::nerf_config(&config).unwrap(),
+        0,
+        &candle_core::Device::Cpu,
+    )
+    .unwrap();
+    let good = dir.path().join("good.safetensors");
+    nerf::checkpoint::save(
+        &good,
+        &nerf::checkpoint::model_tensors(&state.varmap),
+        Default::default(),
+    )
+    .unwrap();
+    let bytes = std::fs::read(&good).unwrap();
+    let truncated = dir.path().join("truncated.safetensors");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    let garbage = dir.path().join("garbage.safetensors");
+    std::fs::write(
+        &garbage,
+        (0..4000u32)
+            .map(|i| (i * 7919 % 251) as u8)
+            .collect::<Vec<_>>(),
+    )
+    .unwrap();
+    let missing = dir.path().join("missing.safetensors");
+    for (ckpt, needle) in [
+        (&missing, "not found"),
+        (&truncated, "corrupt"),
+        (&garbage, "corrupt"),
+    ] {
+        let c = ckpt.to_str().unwrap();
+        assert_clean_failure(&["--config", "lego", "--checkpoint", c], needle);
+    }
+    let nowhere = dir.path().join("no_data");
+    for cmd in ["train", "eval"] {
+        let ckpt_dir = format!(
+            "training.checkpoint_path={}",
+            dir.path().join("ck").display()
+        );
+        let mut args = vec![
+            cmd,
+            "--config",
+            if cmd == "train" { "nerf_lego" } else { "lego" },
+            "--data-dir",
+            nowhere.to_str().unwrap(),
+        ];
+        if cmd == "train" {
+            args.push(&ckpt_dir);
+        } else {
+            args.extend(["--checkpoint", good.to_str().unwrap()]);
+        }
+        let o = nerf(&args);
+        assert_eq!(o.status.code(), Some(1));
+        let err = stderr(&o);
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(
+            err.contains("download") && err.contains("scripts/download_lego.sh"),
+            "{err}"
+        );
+    }
+    assert!(
+        !dir.path().join("ck").exists(),
+        "train wrote a checkpoint directory without data"
+    );
+}
