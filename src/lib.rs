@@ -31,6 +31,7 @@ pub fn tune_allocator() {
     }
 }
 pub mod adam;
+pub mod bias_relu;
 pub mod checkpoint;
 pub mod dataset;
 pub mod eval;

@@ -138,7 +138,7 @@ impl Nerf {
             if i > 0 && self.config.append_xyz.contains(&i) {
                 y = Tensor::cat(&[&y, &xyz], 1)?;
             }
-            y = layer.forward(&y)?.relu()?;
+            y = linear_relu(layer, &y)?;
         }
         let mut raw_density = self.density_layer.forward(&y)?;
         if density_noise > 0.0 {
@@ -194,6 +194,17 @@ impl Nerf {
     ) -> Result<FieldOutput> {
         self.forward(&samples.points, directions, density_noise)
     }
+}
+
+/// `relu(layer(x))` with the bias add and ReLU fused ([`crate::bias_relu`]).
+///
+/// `x`: `(M, in)`; returns `(M, out)`.
+pub fn linear_relu(layer: &Linear, x: &Tensor) -> Result<Tensor> {
+    let pre = x.matmul(&layer.weight().t()?)?;
+    Ok(match layer.bias() {
+        Some(b) => crate::bias_relu::bias_relu(&pre, b)?,
+        None => pre.relu()?,
+    })
 }
 
 /// Shapes of every parameter, by PyTorch name, for a config (used to check checkpoints).
