@@ -178,6 +178,31 @@ fn named_vars(varmap: &VarMap) -> Vec<(String, candle_core::Var)> {
     v
 }
 
+/// Drops log lines of steps after `last_step` (written after the checkpoint a run resumes
+/// from), so a resumed log has each step once. Rewritten atomically; a missing log is fine.
+pub fn rewind_log(log: &Path, last_step: u64) -> Result<()> {
+    let Ok(text) = std::fs::read_to_string(log) else {
+        return Ok(());
+    };
+    let step_of = |line: &str| -> Option<u64> {
+        let v: serde_json::Value = serde_json::from_str(line).ok()?;
+        v.get("step")?.as_u64()
+    };
+    let kept: Vec<&str> = text
+        .lines()
+        .filter(|l| step_of(l).is_some_and(|s| s <= last_step))
+        .collect();
+    if kept.len() == text.lines().count() {
+        return Ok(());
+    }
+    crate::images::write_atomically(log, |w| {
+        for line in kept {
+            writeln!(w, "{line}")?;
+        }
+        Ok(())
+    })
+}
+
 /// Runs `nerf train`. `stop_after_epochs` ends the run early (after writing a checkpoint) once
 /// that many epochs have been done in this process.
 pub fn train(
@@ -227,6 +252,7 @@ pub fn train(
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create checkpoint directory {}", dir.display()))?;
     }
+    rewind_log(&paths.log, info.adam_step)?;
     let mut log = std::fs::OpenOptions::new()
         .create(true)
         .append(true)

@@ -223,7 +223,23 @@ fn resume_continues_exactly() {
     let split = tempfile::tempdir().unwrap();
     let half = run(split.path(), Some(2));
     assert_eq!(checkpoint::load(&half, &Device::Cpu).unwrap().1.epoch, 2);
+    // As if the run had been killed mid-epoch: steps logged after the last checkpoint.
+    let log_path = split.path().join("nerf_lego.log.jsonl");
+    let mut log = std::fs::read_to_string(&log_path).unwrap();
+    log += "{\"step\":201,\"epoch\":2,\"wall_s\":1.0,\"loss\":0.1,\"psnr\":10.0}\n";
+    std::fs::write(&log_path, log).unwrap();
     let b = run(split.path(), None);
+    // The resumed log holds each of the 4 × 100 steps exactly once, in order.
+    let log = std::fs::read_to_string(split.path().join("nerf_lego.log.jsonl")).unwrap();
+    let steps: Vec<u64> = log
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["step"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(steps, (1..=400).collect::<Vec<_>>());
     let (wa, wb) = (weights_of(&a), weights_of(&b));
     assert_eq!(checkpoint::load(&b, &Device::Cpu).unwrap().1.epoch, 4);
     for (name, x) in &wa {
