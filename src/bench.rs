@@ -169,11 +169,7 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
     let (w, h) = config.image_size();
     let camera = crate::camera::surround_cameras(4.0, 20, glam::DVec3::Z, 2.0)[0];
     let mut rng = rand::rngs::StdRng::seed_from_u64(0);
-    let vars: Vec<(String, candle_core::Var)> = {
-        let data = state.varmap.data().lock().expect("varmap lock");
-        data.iter().map(|(k, v)| (k.clone(), v.clone())).collect()
-    };
-    let mut adam = crate::adam::Adam::new(vars, training.lr)?;
+    let mut adam = crate::adam::Adam::new(crate::train::named_vars(&state.varmap), training.lr)?;
     let mut step_runs = Vec::new();
     for _ in 0..repeats.max(1) {
         let t = Instant::now();

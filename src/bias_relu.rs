@@ -8,14 +8,9 @@
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-const ROWS_PER_TASK: usize = 512;
+use crate::storage::contiguous_f32;
 
-fn contiguous<'a>(s: &'a CpuStorage, l: &Layout) -> candle_core::Result<&'a [f32]> {
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&s.as_slice::<f32>()?[a..b]),
-        None => candle_core::bail!("bias-relu: inputs must be contiguous"),
-    }
-}
+const ROWS_PER_TASK: usize = 512;
 
 /// `relu(x + bias)`. `x`: `(M, H)`; `bias`: `(H)`; returns `(M, H)`.
 pub fn bias_relu(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
@@ -40,7 +35,10 @@ impl CustomOp2 for BiasRelu {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, b) = (contiguous(s1, l1)?, contiguous(s2, l2)?);
+        let (x, b) = (
+            contiguous_f32(s1, l1, "bias-relu")?,
+            contiguous_f32(s2, l2, "bias-relu")?,
+        );
         let (m, h) = l1.shape().dims2()?;
         if b.len() != h {
             candle_core::bail!("bias-relu: bias has {} values for {h} columns", b.len());
@@ -88,7 +86,10 @@ impl CustomOp2 for ReluMask {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (y, g) = (contiguous(s1, l1)?, contiguous(s2, l2)?);
+        let (y, g) = (
+            contiguous_f32(s1, l1, "bias-relu")?,
+            contiguous_f32(s2, l2, "bias-relu")?,
+        );
         let mut out = vec![0f32; y.len()];
         out.par_chunks_mut(1 << 16)
             .zip(y.par_chunks(1 << 16).zip(g.par_chunks(1 << 16)))

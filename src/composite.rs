@@ -19,6 +19,8 @@
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
+use crate::storage::contiguous_f32;
+
 use crate::renderer::{LAST_DELTA, MAX_OPTICAL_DEPTH};
 
 /// Rays per parallel work item.
@@ -197,10 +199,7 @@ impl candle_core::CustomOp2 for CompositeBackward {
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let (n, s, k) = l2.shape().dims3()?;
         let values = View::new(s2, l2)?;
-        let (a, b) = l1.contiguous_offsets().ok_or_else(|| {
-            candle_core::Error::Msg("composite backward: input not contiguous".into())
-        })?;
-        let packed = &s1.as_slice::<f32>()?[a..b];
+        let packed = contiguous_f32(s1, l1, "composite backward")?;
         let (sigma_flat, rest) = packed.split_at(n * s);
         let (lengths_flat, grad) = rest.split_at(n * s);
         let sigma = View {

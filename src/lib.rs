@@ -37,4 +37,5 @@ pub mod dataset;
 pub mod eval;
 pub mod nerf_model;
 pub mod reference;
+pub mod storage;
 pub mod train;

@@ -5,6 +5,8 @@ use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
 use rand::Rng;
 use rayon::prelude::*;
 
+use crate::storage::contiguous_f32;
+
 use crate::rays::{linspace, Rays};
 
 /// Sample points along a batch of rays.
@@ -158,17 +160,9 @@ impl CustomOp3 for SamplePointsKernel {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let slice = |s: &'_ CpuStorage, l: &Layout| -> candle_core::Result<Vec<f32>> {
-            let (a, b) = l
-                .contiguous_offsets()
-                .ok_or_else(|| candle_core::Error::Msg("sample-points: not contiguous".into()))?;
-            Ok(s.as_slice::<f32>()?[a..b].to_vec())
-        };
-        let (o, d) = (slice(s1, l1)?, slice(s2, l2)?);
-        let (a, b) = l3
-            .contiguous_offsets()
-            .ok_or_else(|| candle_core::Error::Msg("sample-points: not contiguous".into()))?;
-        let t = &s3.as_slice::<f32>()?[a..b];
+        let o = contiguous_f32(s1, l1, "sample-points")?;
+        let d = contiguous_f32(s2, l2, "sample-points")?;
+        let t = contiguous_f32(s3, l3, "sample-points")?;
         let (n, s, _) = l3.shape().dims3()?;
         let mut out = vec![0f32; n * s * 3];
         out.par_chunks_mut(s * 3).enumerate().for_each(|(r, p)| {

@@ -4,6 +4,8 @@ use anyhow::Result;
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor, D};
 use rayon::prelude::*;
 
+use crate::storage::contiguous_f32;
+
 use crate::field::FieldOutput;
 use crate::sampler::RaySamples;
 
@@ -193,12 +195,8 @@ impl CustomOp2 for FusedSdfVolume {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (Some((a0, a1)), Some((b0, b1))) = (l1.contiguous_offsets(), l2.contiguous_offsets())
-        else {
-            candle_core::bail!("fused-sdf-volume needs contiguous inputs");
-        };
-        let points = &s1.as_slice::<f32>()?[a0..a1];
-        let deltas = &s2.as_slice::<f32>()?[b0..b1];
+        let points = contiguous_f32(s1, l1, "fused-sdf-volume")?;
+        let deltas = contiguous_f32(s2, l2, "fused-sdf-volume")?;
         let dims = l1.shape().dims();
         if points.len() != 3 * deltas.len() {
             candle_core::bail!("fused-sdf-volume: points and deltas disagree in size");

@@ -168,7 +168,7 @@ pub fn train_step(
 }
 
 /// Named parameters for the optimiser, in a fixed order.
-fn named_vars(varmap: &VarMap) -> Vec<(String, candle_core::Var)> {
+pub fn named_vars(varmap: &VarMap) -> Vec<(String, candle_core::Var)> {
     let data = varmap.data().lock().expect("varmap lock");
     let mut v: Vec<_> = data
         .iter()
