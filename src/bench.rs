@@ -122,7 +122,12 @@ pub struct BenchReport {
 /// Runs every benchmark that applies to `config`. The box render's error column is the largest
 /// colour and depth difference of its frame 0 against the float64 recomputation
 /// ([`crate::reference`]).
-pub fn run_benchmarks(config: &Config, repeats: usize, device: &Device) -> Result<BenchReport> {
+pub fn run_benchmarks(
+    config: &Config,
+    repeats: usize,
+    lego: Option<&LegoBench>,
+    device: &Device,
+) -> Result<BenchReport> {
     let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
     let crate::field::Field::Sdf(volume) = config.sdf_field()? else {
         anyhow::bail!("nerf bench needs an SDF config");
@@ -142,6 +147,16 @@ pub fn run_benchmarks(config: &Config, repeats: usize, device: &Device) -> Resul
         max_abs(&frames[0].depth, &depths)
     ));
     let mut results = vec![result];
+    if let Some(lego) = lego {
+        if lego.checkpoint.is_file() {
+            results.extend(bench_trained_nerf(lego, device)?);
+        } else {
+            eprintln!(
+                "skipping the trained-NeRF benchmark: checkpoint {} not found",
+                lego.checkpoint.display()
+            );
+        }
+    }
     results.extend(bench_nerf(
         &Config::load("nerf_lego", &[])?,
         repeats,
@@ -179,6 +194,7 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
         let field = crate::field::Field::Nerf {
             model: state.model.clone(),
             density_noise: 0.0,
+            occupancy: None,
         };
         let out = renderer.render(&field, &sampler, &rays, Some(&mut rng))?;
         let loss = out.color.sub(&target)?.sqr()?.mean_all()?;
@@ -206,11 +222,163 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
         },
         BenchResult {
             name: "NeRF render".into(),
-            work: format!("1 frame {w}x{h} x {} points, dense", sampler.n_pts_per_ray),
+            work: format!(
+                "1 frame {w}x{h} x {} points, dense, untrained",
+                sampler.n_pts_per_ray
+            ),
             seconds: best(&frame_runs),
             runs: frame_runs,
             pytorch_seconds: Some(6.7),
             error: None,
+        },
+    ])
+}
+
+/// What the trained-NeRF benchmark renders: a checkpoint, and the lego test split when
+/// available (otherwise the surround views, compared with the dense render only).
+#[derive(Debug, Clone)]
+pub struct LegoBench {
+    pub checkpoint: std::path::PathBuf,
+    pub data_dir: std::path::PathBuf,
+    /// Views to render (the first of the test split).
+    pub views: usize,
+}
+
+/// The `lego` render config with every acceleration off: dense rendering as the homework.
+pub fn dense_overrides() -> Vec<String> {
+    vec![
+        "renderer.early_termination=0".into(),
+        "renderer.occupancy_grid=null".into(),
+    ]
+}
+
+/// Frames of one configuration, with per-frame seconds and the time to load the checkpoint (and
+/// build or load its grid).
+struct RenderRun {
+    frames: Vec<Frame>,
+    runs: Vec<f64>,
+    load_seconds: f64,
+}
+
+/// The shipped checkpoint rendered densely and with the accelerations of the `lego` config
+/// (occupancy grid, early termination): time per frame, PSNR of each against the ground truth,
+/// and of the accelerated render against the dense one.
+pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<BenchResult>> {
+    let fast_config = Config::load("lego", &[])?;
+    let dense_config = Config::load("lego", &dense_overrides())?;
+    let (w, h) = fast_config.image_size();
+    let (cameras, truth): (Vec<_>, Option<Vec<RgbImage>>) = match crate::dataset::Dataset::load(
+        &lego.data_dir,
+        crate::dataset::Split::Test,
+        w,
+        h,
+        fast_config.renderer.white_background,
+    ) {
+        Ok(d) => (
+            d.frames.iter().take(lego.views).map(|f| f.camera).collect(),
+            Some(d.images.into_iter().take(lego.views).collect()),
+        ),
+        Err(e) => {
+            eprintln!("trained-NeRF benchmark without ground truth ({e})");
+            (
+                fast_config
+                    .surround_cameras()
+                    .into_iter()
+                    .take(lego.views)
+                    .collect(),
+                None,
+            )
+        }
+    };
+    let n = cameras.len();
+    let render_all = |config: &Config| -> Result<RenderRun> {
+        let t = Instant::now();
+        let (state, _) = crate::train::NerfState::load(config, &lego.checkpoint, device)?;
+        let load_seconds = t.elapsed().as_secs_f64();
+        let field = state.field();
+        let (sampler, renderer) = (config.sampler()?, config.renderer()?);
+        let mut frames = Vec::with_capacity(n);
+        let mut runs = Vec::with_capacity(n);
+        for cam in &cameras {
+            let t = Instant::now();
+            frames.push(crate::scene::render_view(
+                &field,
+                cam,
+                (w, h),
+                &sampler,
+                &renderer,
+                device,
+            )?);
+            runs.push(t.elapsed().as_secs_f64());
+        }
+        Ok(RenderRun {
+            frames,
+            runs,
+            load_seconds,
+        })
+    };
+    let RenderRun {
+        frames: dense,
+        runs: dense_runs,
+        ..
+    } = render_all(&dense_config)?;
+    let RenderRun {
+        frames: fast,
+        runs: fast_runs,
+        load_seconds: grid_seconds,
+    } = render_all(&fast_config)?;
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let mean_psnr = |a: &[Frame], b: &[RgbImage]| {
+        mean(
+            &a.iter()
+                .zip(b)
+                .map(|(x, y)| psnr(&x.color, y))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let dense_colors: Vec<RgbImage> = dense.iter().map(|f| f.color.clone()).collect();
+    let vs_dense = mean_psnr(&fast, &dense_colors);
+    let counts = fast
+        .iter()
+        .fold(crate::skipping::SampleCounts::default(), |a, f| {
+            a + f.samples
+        });
+    let evaluated = 100.0 * counts.evaluated as f64 / counts.total.max(1) as f64;
+    let (dense_error, fast_error) = match &truth {
+        Some(t) => {
+            let (d, f) = (mean_psnr(&dense, t), mean_psnr(&fast, t));
+            (
+                format!("PSNR {d:.2} dB vs ground truth ({n} test views)"),
+                format!(
+                    "PSNR {f:.2} dB vs ground truth ({:+.2} dB vs dense); {vs_dense:.1} dB vs the dense render; field at {evaluated:.1}% of samples",
+                    f - d
+                ),
+            )
+        }
+        None => (
+            "no ground truth".to_string(),
+            format!("{vs_dense:.1} dB vs the dense render; field at {evaluated:.1}% of samples"),
+        ),
+    };
+    let points = fast_config.sampler.n_pts_per_ray;
+    Ok(vec![
+        BenchResult {
+            name: "trained NeRF render, dense".into(),
+            work: format!("1 frame {w}x{h} x {points} points (mean of {n})"),
+            seconds: mean(&dense_runs),
+            runs: dense_runs,
+            pytorch_seconds: Some(6.7),
+            error: Some(dense_error),
+        },
+        BenchResult {
+            name: "trained NeRF render, occupancy grid + early termination".into(),
+            work: format!(
+                "1 frame {w}x{h} x {points} points (mean of {n}; loading the checkpoint and its grid took {grid_seconds:.3} s once)"
+            ),
+            seconds: mean(&fast_runs),
+            runs: fast_runs,
+            pytorch_seconds: Some(6.7),
+            error: Some(fast_error),
         },
     ])
 }

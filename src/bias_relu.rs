@@ -66,8 +66,52 @@ impl CustomOp2 for BiasRelu {
         let grad_x = res
             .contiguous()?
             .apply_op2_no_bwd(&grad.contiguous()?, &ReluMask)?;
-        let grad_b = grad_x.sum(0)?;
+        let grad_b = column_sum(&grad_x)?;
         Ok((Some(grad_x), Some(grad_b)))
+    }
+}
+
+/// Sums of the columns of `x` `(M, H)`: `(H)`. On the CPU one multi-threaded pass over the
+/// rows (Candle's `sum(0)` walks the matrix column by column); elsewhere `sum(0)`.
+pub fn column_sum(x: &Tensor) -> candle_core::Result<Tensor> {
+    if x.device().is_cpu() && x.dtype() == DType::F32 {
+        x.contiguous()?.apply_op1_no_bwd(&ColumnSum)
+    } else {
+        x.sum(0)
+    }
+}
+
+struct ColumnSum;
+
+impl candle_core::CustomOp1 for ColumnSum {
+    fn name(&self) -> &'static str {
+        "column-sum"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        let x = contiguous_f32(s, l, "column-sum")?;
+        let (_, h) = l.shape().dims2()?;
+        let sum = x
+            .par_chunks(ROWS_PER_TASK * h.max(1))
+            .map(|block| {
+                let mut acc = vec![0f32; h];
+                for row in block.chunks_exact(h) {
+                    for (a, v) in acc.iter_mut().zip(row) {
+                        *a += v;
+                    }
+                }
+                acc
+            })
+            .reduce(
+                || vec![0f32; h],
+                |mut a, b| {
+                    for (a, b) in a.iter_mut().zip(&b) {
+                        *a += b;
+                    }
+                    a
+                },
+            );
+        Ok((CpuStorage::F32(sum), Shape::from(h)))
     }
 }
 
@@ -105,6 +149,24 @@ impl CustomOp2 for ReluMask {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn column_sum_matches_candle() {
+        for (m, h) in [(1, 1), (3, 5), (2000, 7), (1025, 128)] {
+            let x = Tensor::randn(0f32, 1.0, (m, h), &candle_core::Device::Cpu).unwrap();
+            let fast = column_sum(&x).unwrap().to_vec1::<f32>().unwrap();
+            let slow = x
+                .to_dtype(DType::F64)
+                .unwrap()
+                .sum(0)
+                .unwrap()
+                .to_vec1::<f64>()
+                .unwrap();
+            for (a, b) in fast.iter().zip(&slow) {
+                assert!((*a as f64 - b).abs() < 1e-4 * (m as f64).sqrt(), "{a} {b}");
+            }
+        }
+    }
     use candle_core::{Device, Var};
 
     #[test]

@@ -24,6 +24,10 @@ const BUILT_IN: &[(&str, &str)] = &[
     ("sphere", include_str!("../configs/sphere.yaml")),
     ("lego", include_str!("../configs/lego.yaml")),
     ("nerf_lego", include_str!("../configs/nerf_lego.yaml")),
+    (
+        "nerf_lego_fast",
+        include_str!("../configs/nerf_lego_fast.yaml"),
+    ),
 ];
 
 /// A homework parameter `{val, opt}`; `opt` marks it trainable in the homework.
@@ -55,10 +59,71 @@ pub struct RendererConfig {
     pub chunk_size: usize,
     #[serde(default)]
     pub white_background: bool,
+    /// Extension: stop marching a ray once its transmittance falls below this (0 = off, the
+    /// homework's dense rendering). Needs a NeRF field.
+    #[serde(default)]
+    pub early_termination: f64,
+    /// Extension: skip samples in empty cells of an occupancy grid (NeRF fields).
+    #[serde(default)]
+    pub occupancy_grid: Option<OccupancyGridConfig>,
 }
 
 fn default_renderer_type() -> String {
     "volume".into()
+}
+
+/// `renderer.occupancy_grid` (extension): the empty-space skipping grid, and how training
+/// keeps it up to date (nerfacc's defaults).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OccupancyGridConfig {
+    /// Cells per side.
+    #[serde(default = "d64")]
+    pub resolution: usize,
+    /// `[min_x, min_y, min_z, max_x, max_y, max_z]`; outside it the field is taken as empty.
+    #[serde(default = "default_aabb")]
+    pub aabb: [f64; 6],
+    /// A cell is occupied while one sample step through it would have at least this opacity.
+    #[serde(default = "default_alpha_threshold")]
+    pub alpha_threshold: f64,
+    /// Training: update the grid every this many steps.
+    #[serde(default = "d16")]
+    pub update_interval: usize,
+    /// Training: probe every cell at each update for the first this many steps.
+    #[serde(default = "d256")]
+    pub warmup_steps: usize,
+    /// Training: decay of each cell's running density maximum per update.
+    #[serde(default = "default_decay")]
+    pub decay: f64,
+}
+
+impl Default for OccupancyGridConfig {
+    fn default() -> Self {
+        Self {
+            resolution: d64(),
+            aabb: default_aabb(),
+            alpha_threshold: default_alpha_threshold(),
+            update_interval: d16(),
+            warmup_steps: d256(),
+            decay: default_decay(),
+        }
+    }
+}
+
+fn default_aabb() -> [f64; 6] {
+    [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5]
+}
+fn default_alpha_threshold() -> f64 {
+    0.01
+}
+fn default_decay() -> f64 {
+    0.95
+}
+fn d16() -> usize {
+    16
+}
+fn d256() -> usize {
+    256
 }
 
 #[derive(Debug, Clone, Deserialize, PartialEq)]
@@ -168,6 +233,15 @@ pub struct TrainingConfig {
     #[serde(default)]
     pub resume: bool,
     pub render_interval: usize,
+    /// Extension: draw each batch's rays from all training images instead of one image per
+    /// step (the homework's scheme, the default).
+    #[serde(default)]
+    pub rays_from_all_images: bool,
+    /// Extension: composite each training ray onto a random colour (prediction and target
+    /// alike) instead of the fixed background, so that density where the object is
+    /// transparent costs loss even when its colour matches the background.
+    #[serde(default)]
+    pub random_background: bool,
 }
 
 /// `cameras` (extension): the surround views rendered by `nerf render`.
@@ -377,6 +451,18 @@ impl Config {
             );
         }
         self.renderer()?;
+        let early = self.renderer.early_termination;
+        finite("renderer.early_termination", early)?;
+        if !(0.0..1.0).contains(&early) {
+            bail!("renderer.early_termination: must be in [0, 1) (got {early})");
+        }
+        if let Some(g) = &self.renderer.occupancy_grid {
+            validate_occupancy_grid(g)?;
+        }
+        let accelerated = early > 0.0 || self.renderer.occupancy_grid.is_some();
+        if accelerated && !matches!(self.implicit_function, ImplicitFunctionConfig::Nerf(_)) {
+            bail!("renderer.occupancy_grid and renderer.early_termination need implicit_function.type nerf");
+        }
         finite("sampler.min_depth", self.sampler.min_depth)?;
         finite("sampler.max_depth", self.sampler.max_depth)?;
         if self.sampler.min_depth < 0.0 {
@@ -453,7 +539,8 @@ impl Config {
     }
 
     pub fn renderer(&self) -> Result<VolumeRenderer> {
-        VolumeRenderer::new(self.renderer.chunk_size, self.renderer.white_background)
+        VolumeRenderer::new(self.renderer.chunk_size, self.renderer.white_background)?
+            .with_early_termination(self.renderer.early_termination)
     }
 
     /// The surround cameras of the `cameras` section.
@@ -512,6 +599,40 @@ fn default_cameras(f: &ImplicitFunctionConfig) -> CamerasConfig {
             focal_length: 2.0,
         },
     }
+}
+
+fn validate_occupancy_grid(g: &OccupancyGridConfig) -> Result<()> {
+    let key = "renderer.occupancy_grid";
+    if g.resolution == 0 || g.resolution > 512 {
+        bail!("{key}.resolution: must be 1 to 512 (got {})", g.resolution);
+    }
+    for (i, v) in g.aabb.iter().enumerate() {
+        finite(&format!("{key}.aabb[{i}]"), *v)?;
+    }
+    for k in 0..3 {
+        if g.aabb[k] >= g.aabb[k + 3] {
+            bail!(
+                "{key}.aabb: min must be below max on every axis (axis {k}: {} >= {})",
+                g.aabb[k],
+                g.aabb[k + 3]
+            );
+        }
+    }
+    finite(&format!("{key}.alpha_threshold"), g.alpha_threshold)?;
+    if !(g.alpha_threshold > 0.0 && g.alpha_threshold < 1.0) {
+        bail!(
+            "{key}.alpha_threshold: must be in (0, 1) (got {})",
+            g.alpha_threshold
+        );
+    }
+    finite(&format!("{key}.decay"), g.decay)?;
+    if !(g.decay > 0.0 && g.decay <= 1.0) {
+        bail!("{key}.decay: must be in (0, 1] (got {})", g.decay);
+    }
+    if g.update_interval == 0 {
+        bail!("{key}.update_interval: must be at least 1");
+    }
+    Ok(())
 }
 
 fn finite(key: &str, v: f64) -> Result<()> {

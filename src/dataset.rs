@@ -18,7 +18,7 @@ use std::str::FromStr;
 use anyhow::{anyhow, bail, Result};
 use glam::{DMat3, DMat4};
 use image::imageops::{self, FilterType};
-use image::{ImageBuffer, ImageFormat, Rgb};
+use image::{ImageBuffer, ImageFormat, Rgba};
 use rayon::prelude::*;
 use serde::Deserialize;
 
@@ -257,6 +257,17 @@ pub fn load_image(
     height: usize,
     white_background: bool,
 ) -> Result<RgbImage> {
+    Ok(load_image_and_transparency(path, width, height, white_background)?.0)
+}
+
+/// [`load_image`], and the image's transparency `1 − a` resized the same way (`width × height`
+/// values), so that the image on any other background `b` is `image + transparency · (b − bg)`.
+pub fn load_image_and_transparency(
+    path: &Path,
+    width: usize,
+    height: usize,
+    white_background: bool,
+) -> Result<(RgbImage, Vec<f32>)> {
     let (w, h) = match (u32::try_from(width), u32::try_from(height)) {
         (Ok(w), Ok(h)) if w > 0 && h > 0 => (w, h),
         _ => bail!(
@@ -272,27 +283,35 @@ pub fn load_image(
     let rgba = decoded.to_rgba32f();
     let (w0, h0) = rgba.dimensions();
     let bg = if white_background { 1.0 } else { 0.0 };
+    // Composited colour and transparency; every channel is resized independently and
+    // linearly, so the relation between them survives resizing.
     let composited: Vec<f32> = rgba
         .pixels()
         .flat_map(|p| {
             let a = p[3];
-            [0, 1, 2].map(|c| p[c] * a + bg * (1.0 - a))
+            [
+                p[0] * a + bg * (1.0 - a),
+                p[1] * a + bg * (1.0 - a),
+                p[2] * a + bg * (1.0 - a),
+                1.0 - a,
+            ]
         })
         .collect();
-    // (H0, W0, 3).
-    let composited: ImageBuffer<Rgb<f32>, Vec<f32>> = ImageBuffer::from_raw(w0, h0, composited)
+    // (H0, W0, 4).
+    let composited: ImageBuffer<Rgba<f32>, Vec<f32>> = ImageBuffer::from_raw(w0, h0, composited)
         .ok_or_else(|| anyhow!("cannot decode PNG {}: inconsistent size", path.display()))?;
     let resized = if (w0, h0) == (w, h) {
         composited
     } else {
         imageops::resize(&composited, w, h, FilterType::Triangle)
     };
-    let data = resized
-        .into_raw()
-        .into_iter()
-        .map(|v| v.clamp(0.0, 1.0))
+    let raw = resized.into_raw();
+    let data = raw
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]].map(|v| v.clamp(0.0, 1.0)))
         .collect();
-    RgbImage::new(width, height, data)
+    let transparency = raw.chunks_exact(4).map(|p| p[3].clamp(0.0, 1.0)).collect();
+    Ok((RgbImage::new(width, height, data)?, transparency))
 }
 
 /// A loaded split: frames and their images, all resized to `width × height`.
@@ -302,6 +321,9 @@ pub struct Dataset {
     pub frames: Vec<Frame>,
     /// `frames.len()` images, each `width × height × 3` floats in [0, 1].
     pub images: Vec<RgbImage>,
+    /// Per image, `width × height` transparencies `1 − a` (see
+    /// [`load_image_and_transparency`]); empty when unknown.
+    pub transparency: Vec<Vec<f32>>,
     pub width: usize,
     pub height: usize,
 }
@@ -317,13 +339,18 @@ impl Dataset {
         white_background: bool,
     ) -> Result<Self> {
         let frames = read_split(data_dir, split)?;
-        let images = frames
+        let (images, transparency) = frames
             .par_iter()
-            .map(|frame| load_image(&frame.file_path, width, height, white_background))
-            .collect::<Result<Vec<_>>>()?;
+            .map(|frame| {
+                load_image_and_transparency(&frame.file_path, width, height, white_background)
+            })
+            .collect::<Result<Vec<_>>>()?
+            .into_iter()
+            .unzip();
         Ok(Self {
             frames,
             images,
+            transparency,
             width,
             height,
         })
@@ -554,6 +581,17 @@ mod tests {
         // Downsizing to one pixel averages the composited colours.
         let one = load_image(&path, 1, 1, false).unwrap();
         assert!((one.data[0] - a / 2.0).abs() < 1e-6, "{:?}", one.data);
+        // The transparency carries an image from one background to another, resized or not.
+        for (w, h) in [(2, 1), (1, 1)] {
+            let (black, t) = load_image_and_transparency(&path, w, h, false).unwrap();
+            let white = load_image(&path, w, h, true).unwrap();
+            assert_eq!(t.len(), w * h);
+            for (i, (b, wh)) in black.data.iter().zip(&white.data).enumerate() {
+                assert!((b + t[i / 3] - wh).abs() < 1e-6, "{:?} {t:?}", black.data);
+            }
+        }
+        let (_, t) = load_image_and_transparency(&path, 2, 1, false).unwrap();
+        assert!((t[0] - (1.0 - a)).abs() < 1e-6 && (t[1] - 1.0).abs() < 1e-6);
     }
 
     #[test]

@@ -28,6 +28,10 @@ pub struct EvalReport {
     pub width: usize,
     pub height: usize,
     pub n_pts_per_ray: usize,
+    /// Mean seconds to render one view.
+    pub seconds_per_view: f64,
+    /// Fraction of drawn samples at which the field was evaluated (1 when dense).
+    pub evaluated_fraction: f64,
     pub mean_psnr: f64,
     pub min_psnr: f64,
     pub max_psnr: f64,
@@ -54,8 +58,13 @@ pub fn evaluate(
     let n = limit.map_or(dataset.frames.len(), |l| l.min(dataset.frames.len()));
     let bar = progress_bar(n as u64, "evaluating");
     let mut views = Vec::with_capacity(n);
+    let mut render_seconds = 0.0;
+    let mut counts = crate::skipping::SampleCounts::default();
     for (frame, truth) in dataset.frames.iter().zip(&dataset.images).take(n) {
+        let t = std::time::Instant::now();
         let predicted = render_view(field, &frame.camera, size, &sampler, &renderer, device)?;
+        render_seconds += t.elapsed().as_secs_f64();
+        counts = counts + predicted.samples;
         let name = frame
             .file_path
             .file_stem()
@@ -76,6 +85,8 @@ pub fn evaluate(
         width: size.0,
         height: size.1,
         n_pts_per_ray: sampler.n_pts_per_ray,
+        seconds_per_view: render_seconds / n.max(1) as f64,
+        evaluated_fraction: counts.evaluated as f64 / counts.total.max(1) as f64,
         mean_psnr: values.iter().sum::<f64>() / values.len().max(1) as f64,
         min_psnr: values.iter().cloned().fold(f64::INFINITY, f64::min),
         max_psnr: values.iter().cloned().fold(f64::NEG_INFINITY, f64::max),

@@ -3,7 +3,10 @@
 use anyhow::Result;
 use candle_core::Tensor;
 
+use std::sync::Arc;
+
 use crate::nerf_model::Nerf;
+use crate::occupancy::OccupancyGrid;
 use crate::sampler::RaySamples;
 use crate::sdf::SdfVolume;
 
@@ -21,10 +24,12 @@ pub struct FieldOutput {
 pub enum Field {
     Sdf(SdfVolume),
     /// A NeRF; `density_noise` is the training-time noise added before its density ReLU
-    /// (0 when rendering).
+    /// (0 when rendering); `occupancy`, when present, marks where it can have density (the
+    /// renderer skips samples elsewhere).
     Nerf {
         model: Nerf,
         density_noise: f64,
+        occupancy: Option<Arc<OccupancyGrid>>,
     },
 }
 
@@ -56,6 +61,7 @@ impl Field {
             Field::Nerf {
                 model,
                 density_noise,
+                ..
             } => model.evaluate(samples, directions, *density_noise),
         }
     }

@@ -16,6 +16,7 @@ pub mod renderer;
 pub mod sampler;
 pub mod scene;
 pub mod sdf;
+pub mod skipping;
 
 /// Tunes glibc's allocator for tensor work: tensors of many megabytes are allocated and freed
 /// for every op, and by default glibc hands each back to the OS, so the next op pays page
@@ -35,7 +36,9 @@ pub mod bias_relu;
 pub mod checkpoint;
 pub mod dataset;
 pub mod eval;
+pub mod import;
 pub mod nerf_model;
+pub mod occupancy;
 pub mod reference;
 pub mod storage;
 pub mod train;

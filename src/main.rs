@@ -87,6 +87,20 @@ enum Command {
         /// Hydra-style overrides.
         overrides: Vec<String>,
     },
+    /// Convert a PyTorch state dict of the homework's NeRF (.pth) into a checkpoint.
+    ImportTorch {
+        /// The .pth file (`torch.save(model.state_dict())`, or a dict holding it under
+        /// model / model_state_dict / state_dict).
+        pth: PathBuf,
+        /// Config whose implicit_function describes the model's sizes.
+        #[arg(long, default_value = "nerf_lego")]
+        config: String,
+        /// Where to write the safetensors checkpoint.
+        #[arg(long, default_value = "checkpoints/imported.safetensors")]
+        out: PathBuf,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
     /// Time the main jobs and print a table (or JSON).
     Bench {
         /// Config of the SDF scene to time.
@@ -98,6 +112,15 @@ enum Command {
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
+        /// Trained NeRF to time dense against accelerated rendering (skipped when missing).
+        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
+        checkpoint: PathBuf,
+        /// Lego dataset directory for the ground truth (default ../shared/data/lego).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Test views rendered for the trained-NeRF benchmark.
+        #[arg(long, default_value_t = 5)]
+        views: usize,
         /// Hydra-style overrides for the config.
         overrides: Vec<String>,
     },
@@ -180,12 +203,9 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let nerf_cfg = nerf::train::nerf_config(&config)?;
             if !checkpoint.is_file() {
                 anyhow::bail!("checkpoint {} not found", checkpoint.display());
             }
-            let (state, _) =
-                nerf::train::NerfState::from_checkpoint(nerf_cfg, &checkpoint, &device)?;
             let (w, h) = config.image_size();
             let data_dir = data_dir_for(&config, data_dir);
             let split: nerf::dataset::Split = split.into();
@@ -196,6 +216,7 @@ fn run(cli: Cli) -> Result<()> {
                 h,
                 config.renderer.white_background,
             )?;
+            let (state, _) = nerf::train::NerfState::load(&config, &checkpoint, &device)?;
             let report = nerf::eval::evaluate(
                 &config,
                 &state.field(),
@@ -209,7 +230,7 @@ fn run(cli: Cli) -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
                 println!(
-                    "{} split, {} views at {}x{}, {} points: PSNR mean {:.2} dB, min {:.2}, max {:.2}",
+                    "{} split, {} views at {}x{}, {} points: PSNR mean {:.2} dB, min {:.2}, max {:.2}; {:.3} s per view, field evaluated at {:.1}% of samples",
                     report.split,
                     report.views.len(),
                     report.width,
@@ -217,18 +238,43 @@ fn run(cli: Cli) -> Result<()> {
                     report.n_pts_per_ray,
                     report.mean_psnr,
                     report.min_psnr,
-                    report.max_psnr
+                    report.max_psnr,
+                    report.seconds_per_view,
+                    100.0 * report.evaluated_fraction
                 );
             }
+        }
+        Command::ImportTorch {
+            pth,
+            config,
+            out,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let nerf_cfg = nerf::train::nerf_config(&config)?;
+            let n = nerf::import::import_torch(&pth, nerf_cfg, &out)?;
+            eprintln!(
+                "wrote {} ({n} parameters from {})",
+                out.display(),
+                pth.display()
+            );
         }
         Command::Bench {
             config,
             repeats,
             json,
+            checkpoint,
+            data_dir,
+            views,
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let report = nerf::bench::run_benchmarks(&config, repeats, &device)?;
+            let lego = nerf::bench::LegoBench {
+                checkpoint,
+                data_dir: data_dir.unwrap_or_else(|| nerf::dataset::default_data_dir("lego")),
+                views,
+            };
+            let report = nerf::bench::run_benchmarks(&config, repeats, Some(&lego), &device)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {

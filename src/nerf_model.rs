@@ -116,6 +116,63 @@ impl Nerf {
         })
     }
 
+    /// The shared trunk: harmonic embedding of the points and `mlp_xyz` (with the `append_xyz`
+    /// skip connections).
+    ///
+    /// `points`: `(M, 3)`; returns `(M, n_hidden_neurons_xyz)`.
+    fn trunk(&self, points: &Tensor) -> Result<Tensor> {
+        let xyz = harmonic_embedding(points, self.config.n_harmonic_functions_xyz)?;
+        let mut y = xyz.clone();
+        for (i, layer) in self.mlp_xyz.iter().enumerate() {
+            if i > 0 && self.config.append_xyz.contains(&i) {
+                y = Tensor::cat(&[&y, &xyz], 1)?;
+            }
+            y = linear_relu(layer, &y)?;
+        }
+        Ok(y)
+    }
+
+    /// Density head: `relu(density_layer(y) + noise)`.
+    ///
+    /// `trunk`: `(M, hidden)`; returns `(M, 1)`.
+    fn density_head(&self, trunk: &Tensor, density_noise: f64) -> Result<Tensor> {
+        let mut raw_density = self.density_layer.forward(trunk)?;
+        if density_noise > 0.0 {
+            raw_density = (&raw_density + raw_density.randn_like(0.0, density_noise)?)?;
+        }
+        Ok(raw_density.relu()?)
+    }
+
+    /// `color_layer.0` on `[features, dir_embedding]` = `W_f·features + (W_d·dir_embedding + b)`,
+    /// split into its per-sample part and its per-ray part (computed once per ray).
+    ///
+    /// `trunk`: `(M, hidden)`, `directions`: `(N, 3)`; returns `(M, dir_hidden)` and
+    /// `(N, dir_hidden)`, to be added (then ReLU) by the caller.
+    fn color_hidden_parts(&self, trunk: &Tensor, directions: &Tensor) -> Result<(Tensor, Tensor)> {
+        let hidden = self.config.n_hidden_neurons_xyz;
+        let features = self.intermediate_linear.forward(trunk)?;
+        let w = self.color_layer_0.weight();
+        let (w_feat, w_dir) = (
+            w.narrow(1, 0, hidden)?,
+            w.narrow(1, hidden, w.dim(1)? - hidden)?,
+        );
+        let dir = harmonic_embedding(directions, self.config.n_harmonic_functions_dir)?;
+        let mut per_ray = dir.matmul(&w_dir.t()?)?;
+        if let Some(b) = self.color_layer_0.bias() {
+            per_ray = per_ray.broadcast_add(b)?;
+        }
+        Ok((features.matmul(&w_feat.t()?)?, per_ray))
+    }
+
+    /// `sigmoid(color_layer.2(relu(h)))`.
+    ///
+    /// `pre_activation`: `(M, dir_hidden)`; returns `(M, 3)`.
+    fn color_head(&self, pre_activation: &Tensor) -> Result<Tensor> {
+        Ok(candle_nn::ops::sigmoid(
+            &self.color_layer_2.forward(&pre_activation.relu()?)?,
+        )?)
+    }
+
     /// Density and colour at every sample.
     ///
     /// `points`: `(N, S, 3)`; `directions`: `(N, 3)` unit vectors. Returns density `(N, S, 1)`
@@ -128,47 +185,44 @@ impl Nerf {
         density_noise: f64,
     ) -> Result<FieldOutput> {
         let (n, s, _) = points.dims3()?;
-        let hidden = self.config.n_hidden_neurons_xyz;
-        let xyz = harmonic_embedding(
-            &points.reshape((n * s, 3))?,
-            self.config.n_harmonic_functions_xyz,
-        )?;
-        let mut y = xyz.clone();
-        for (i, layer) in self.mlp_xyz.iter().enumerate() {
-            if i > 0 && self.config.append_xyz.contains(&i) {
-                y = Tensor::cat(&[&y, &xyz], 1)?;
-            }
-            y = linear_relu(layer, &y)?;
-        }
-        let mut raw_density = self.density_layer.forward(&y)?;
-        if density_noise > 0.0 {
-            raw_density = (&raw_density + raw_density.randn_like(0.0, density_noise)?)?;
-        }
-        let density = raw_density.relu()?.reshape((n, s, 1))?;
-        let features = self.intermediate_linear.forward(&y)?;
-        // color_layer.0 on [features, dir_embedding] = W_f·features + (W_d·dir_embedding + b),
-        // the bracket computed once per ray.
-        let w = self.color_layer_0.weight();
-        let (w_feat, w_dir) = (
-            w.narrow(1, 0, hidden)?,
-            w.narrow(1, hidden, w.dim(1)? - hidden)?,
-        );
-        let dir = harmonic_embedding(directions, self.config.n_harmonic_functions_dir)?;
-        let mut per_ray = dir.matmul(&w_dir.t()?)?;
-        if let Some(b) = self.color_layer_0.bias() {
-            per_ray = per_ray.broadcast_add(b)?;
-        }
-        let per_sample = features.matmul(&w_feat.t()?)?.reshape((n, s, w.dim(0)?))?;
-        let h = per_sample.broadcast_add(&per_ray.unsqueeze(1)?)?.relu()?;
-        let color = candle_nn::ops::sigmoid(
-            &self
-                .color_layer_2
-                .forward(&h.reshape((n * s, w.dim(0)?))?)?,
-        )?;
+        let y = self.trunk(&points.reshape((n * s, 3))?)?;
+        let density = self.density_head(&y, density_noise)?.reshape((n, s, 1))?;
+        let (per_sample, per_ray) = self.color_hidden_parts(&y, directions)?;
+        let dh = per_ray.dim(1)?;
+        let h = per_sample
+            .reshape((n, s, dh))?
+            .broadcast_add(&per_ray.unsqueeze(1)?)?
+            .reshape((n * s, dh))?;
         Ok(FieldOutput {
             density,
-            feature: color.reshape((n, s, 3))?,
+            feature: self.color_head(&h)?.reshape((n, s, 3))?,
         })
+    }
+
+    /// Density and colour at M samples drawn from N rays (only the samples worth evaluating).
+    ///
+    /// `points`: `(M, 3)`; `ray_index`: `(M,)` u32, the ray of each sample; `directions`:
+    /// `(N, 3)` unit vectors. Returns density `(M, 1)` and colour `(M, 3)`, the same values
+    /// [`Nerf::forward`] gives at those samples.
+    pub fn forward_packed(
+        &self,
+        points: &Tensor,
+        ray_index: &Tensor,
+        directions: &Tensor,
+        density_noise: f64,
+    ) -> Result<(Tensor, Tensor)> {
+        let y = self.trunk(points)?;
+        let density = self.density_head(&y, density_noise)?;
+        let (per_sample, per_ray) = self.color_hidden_parts(&y, directions)?;
+        let h = per_sample.add(&per_ray.index_select(ray_index, 0)?)?;
+        Ok((density, self.color_head(&h)?))
+    }
+
+    /// Density alone (no colour branch, no noise), as the occupancy grid needs it.
+    ///
+    /// `points`: `(M, 3)`; returns `(M, 1)`.
+    pub fn density(&self, points: &Tensor) -> Result<Tensor> {
+        self.density_head(&self.trunk(points)?, 0.0)
     }
 
     /// The same model with weights detached from the autograd graph, for rendering: ops on it

@@ -20,6 +20,7 @@ use candle_core::{DType, Tensor, D};
 use crate::field::Field;
 use crate::rays::Rays;
 use crate::sampler::StratifiedSampler;
+use crate::skipping::SampleCounts;
 
 /// Spacing used for the last sample of every ray, as in the homework.
 pub const LAST_DELTA: f64 = 1e10;
@@ -108,6 +109,7 @@ pub fn composite(
             color: out.narrow(1, 0, c)?,
             depth: out.narrow(1, c, 1)?,
             opacity: out.narrow(1, c + 1, 1)?,
+            samples: SampleCounts::dense(density.elem_count()),
         });
     }
     let w = weights(density, deltas)?;
@@ -115,6 +117,7 @@ pub fn composite(
         color: aggregate(&w, feature)?,
         depth: aggregate(&w, lengths)?,
         opacity: w.sum(1)?,
+        samples: SampleCounts::dense(density.elem_count()),
     })
 }
 
@@ -127,6 +130,8 @@ pub struct RenderOutput {
     pub depth: Tensor,
     /// `(N, 1)` opacity `Σ w`.
     pub opacity: Tensor,
+    /// Samples drawn and evaluated (see [`crate::skipping`]).
+    pub samples: SampleCounts,
 }
 
 /// The homework's `VolumeRenderer`: renders rays in chunks of `chunk_size`.
@@ -135,6 +140,9 @@ pub struct VolumeRenderer {
     pub chunk_size: usize,
     /// Composite onto white (`colour + 1 − opacity`) instead of black.
     pub white_background: bool,
+    /// Transmittance below which a ray stops being evaluated (0 = off); see
+    /// [`crate::skipping`]. Applies to NeRF fields.
+    pub early_termination: f64,
 }
 
 impl VolumeRenderer {
@@ -145,7 +153,23 @@ impl VolumeRenderer {
         Ok(Self {
             chunk_size,
             white_background,
+            early_termination: 0.0,
         })
+    }
+
+    /// The same renderer with early ray termination at transmittance `threshold` (0 = off).
+    pub fn with_early_termination(mut self, threshold: f64) -> Result<Self> {
+        if !(0.0..1.0).contains(&threshold) {
+            bail!("renderer.early_termination must be in [0, 1) (got {threshold})");
+        }
+        self.early_termination = threshold;
+        Ok(self)
+    }
+
+    /// Whether `field` is rendered through [`crate::skipping`] (an occupancy grid or early
+    /// termination is in use) rather than evaluated densely.
+    pub fn skips_samples(&self, field: &Field) -> bool {
+        matches!(field, Field::Nerf { occupancy, .. } if occupancy.is_some() || self.early_termination > 0.0)
     }
 
     /// Renders one chunk of rays (no chunking): sample → field → weights → aggregate.
@@ -160,11 +184,29 @@ impl VolumeRenderer {
     ) -> Result<RenderOutput> {
         let samples = sampler.sample(rays, jitter)?;
         let deltas = deltas(&samples.lengths)?;
-        let out = field.evaluate(&samples, &deltas, &rays.directions)?;
+        let (out, counts) = match field {
+            Field::Nerf {
+                model,
+                density_noise,
+                occupancy,
+            } if self.skips_samples(field) => crate::skipping::evaluate_skipping(
+                model,
+                *density_noise,
+                occupancy.as_deref(),
+                self.early_termination,
+                &samples,
+                &rays.directions,
+            )?,
+            _ => (
+                field.evaluate(&samples, &deltas, &rays.directions)?,
+                SampleCounts::dense(samples.lengths.elem_count()),
+            ),
+        };
         let RenderOutput {
             mut color,
             depth,
             opacity,
+            ..
         } = composite(&out.density, &deltas, &out.feature, &samples.lengths)?;
         if self.white_background {
             color = color.add(&opacity.affine(-1.0, 1.0)?.broadcast_as(color.shape())?)?;
@@ -173,6 +215,7 @@ impl VolumeRenderer {
             color,
             depth,
             opacity,
+            samples: counts,
         })
     }
 
@@ -188,9 +231,15 @@ impl VolumeRenderer {
         mut jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
         let n = rays.len();
+        // Samples evaluated at once per ray: a segment when skipping, else all of them.
+        let per_ray = if self.skips_samples(field) {
+            crate::skipping::segment_length(sampler.n_pts_per_ray, self.early_termination)
+        } else {
+            sampler.n_pts_per_ray
+        };
         let chunk_size = self
             .chunk_size
-            .min((field.max_samples_per_chunk() / sampler.n_pts_per_ray).max(1));
+            .min((field.max_samples_per_chunk() / per_ray).max(1));
         let mut parts = Vec::with_capacity(n.div_ceil(chunk_size));
         let mut start = 0;
         while start < n {
@@ -210,6 +259,9 @@ impl VolumeRenderer {
                 color: cat(|o| &o.color)?,
                 depth: cat(|o| &o.depth)?,
                 opacity: cat(|o| &o.opacity)?,
+                samples: parts
+                    .iter()
+                    .fold(SampleCounts::default(), |a, o| a + o.samples),
             }
         };
         ensure_finite(&out.color, "colour")?;

@@ -22,6 +22,8 @@ pub struct Frame {
     pub color: RgbImage,
     /// `(H·W)` depth, row-major.
     pub depth: Vec<f32>,
+    /// Samples drawn and evaluated for it.
+    pub samples: crate::skipping::SampleCounts,
 }
 
 /// Renders one camera's full image (no jitter, no gradients needed).
@@ -41,6 +43,7 @@ pub fn render_view(
     Ok(Frame {
         color: RgbImage::new(width, height, color)?,
         depth,
+        samples: out.samples,
     })
 }
 
@@ -227,14 +230,14 @@ pub fn render_nerf_scene(
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    let nerf = crate::train::nerf_config(config)?;
+    crate::train::nerf_config(config)?;
     if !checkpoint.is_file() {
         anyhow::bail!(
             "checkpoint {} not found (train one with `nerf train --config nerf_lego`)",
             checkpoint.display()
         );
     }
-    let (state, _) = crate::train::NerfState::from_checkpoint(nerf, checkpoint, device)?;
+    let (state, _) = crate::train::NerfState::load(config, checkpoint, device)?;
     prepare_out_dir(out_dir)?;
     let field = state.field();
     let frames = render_views(

@@ -9,6 +9,7 @@
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -23,6 +24,7 @@ use crate::config::{Config, ImplicitFunctionConfig, NerfConfig};
 use crate::dataset::{Dataset, Split};
 use crate::field::Field;
 use crate::nerf_model::Nerf;
+use crate::occupancy::OccupancyGrid;
 use crate::rays::{random_pixel_indices, Rays};
 use crate::scene::progress_bar;
 
@@ -30,6 +32,8 @@ use crate::scene::progress_bar;
 pub struct NerfState {
     pub varmap: VarMap,
     pub model: Nerf,
+    /// Where the model can have density, when the config uses an occupancy grid.
+    pub occupancy: Option<OccupancyGrid>,
 }
 
 impl NerfState {
@@ -60,7 +64,11 @@ impl NerfState {
                 .collect();
             var.set(&Tensor::from_vec(values, var.shape(), device)?)?;
         }
-        Ok(Self { varmap, model })
+        Ok(Self {
+            varmap,
+            model,
+            occupancy: None,
+        })
     }
 
     /// A model loaded from a checkpoint (names and shapes checked).
@@ -75,11 +83,25 @@ impl NerfState {
         Ok((state, info))
     }
 
-    /// The field for rendering: detached weights (no gradient graph), no density noise.
+    /// A trained model for rendering with `config`: weights from the checkpoint, and the
+    /// occupancy grid the config asks for (saved in the checkpoint, or built from the model).
+    pub fn load(config: &Config, path: &Path, device: &Device) -> Result<(Self, CheckpointInfo)> {
+        let nerf = nerf_config(config)?;
+        let (tensors, info) = checkpoint::load(path, device)?;
+        let mut state = Self::new(nerf, device)?;
+        checkpoint::load_model_into(&state.varmap, &tensors, nerf, path)?;
+        state.occupancy =
+            crate::occupancy::grid_for_checkpoint(config, &tensors, &state.model, device)?;
+        Ok((state, info))
+    }
+
+    /// The field for rendering: detached weights (no gradient graph), no density noise, and
+    /// the occupancy grid if there is one.
     pub fn field(&self) -> Field {
         Field::Nerf {
             model: self.model.detached(),
             density_noise: 0.0,
+            occupancy: self.occupancy.clone().map(Arc::new),
         }
     }
 }
@@ -129,7 +151,76 @@ impl TrainPaths {
     }
 }
 
-/// One optimisation step on `batch_size` random pixels of one image; returns the MSE.
+/// A training batch: rays `(B, 3)`, their target colours `(B, 3)` on the dataset's
+/// background, and their transparencies `(B, 1)` (`1 − alpha`; zeros when the dataset has
+/// none). With
+/// `rays_from_all_images`, `batch_size` random pixels of random training images; otherwise
+/// `batch_size` random pixels of image `image_index` (the homework).
+pub fn training_batch(
+    dataset: &Dataset,
+    batch_size: usize,
+    rays_from_all_images: bool,
+    image_index: usize,
+    rng: &mut rand::rngs::StdRng,
+    device: &Device,
+) -> Result<(Rays, Tensor, Tensor)> {
+    use rand::Rng;
+    let (w, h) = (dataset.width, dataset.height);
+    // (image, pixels) groups; rays of one camera are made together.
+    let groups: Vec<(usize, Vec<usize>)> = if rays_from_all_images {
+        let mut picks: Vec<(usize, usize)> = (0..batch_size)
+            .map(|_| {
+                (
+                    rng.random_range(0..dataset.images.len()),
+                    rng.random_range(0..w * h),
+                )
+            })
+            .collect();
+        picks.sort_unstable();
+        let mut groups: Vec<(usize, Vec<usize>)> = Vec::new();
+        for (image, pixel) in picks {
+            match groups.last_mut() {
+                Some((i, pixels)) if *i == image => pixels.push(pixel),
+                _ => groups.push((image, vec![pixel])),
+            }
+        }
+        groups
+    } else {
+        vec![(image_index, random_pixel_indices(w, h, batch_size, rng))]
+    };
+    let mut origins = Vec::with_capacity(groups.len());
+    let mut directions = Vec::with_capacity(groups.len());
+    let mut target: Vec<f32> = Vec::with_capacity(3 * batch_size);
+    let mut transparency: Vec<f32> = Vec::with_capacity(batch_size);
+    for (image, pixels) in &groups {
+        let rays = Rays::for_pixels(&dataset.frames[*image].camera, w, h, pixels, device)?;
+        origins.push(rays.origins);
+        directions.push(rays.directions);
+        let data = &dataset.images[*image].data;
+        target.extend(
+            pixels
+                .iter()
+                .flat_map(|&p| data[3 * p..3 * p + 3].iter().copied()),
+        );
+        let t = dataset.transparency.get(*image);
+        transparency.extend(
+            pixels
+                .iter()
+                .map(|&p| t.and_then(|t| t.get(p)).copied().unwrap_or(0.0)),
+        );
+    }
+    let n = target.len() / 3;
+    Ok((
+        Rays {
+            origins: Tensor::cat(&origins, 0)?,
+            directions: Tensor::cat(&directions, 0)?,
+        },
+        Tensor::from_vec(target, (n, 3), device)?,
+        Tensor::from_vec(transparency, (n, 1), device)?,
+    ))
+}
+
+/// One optimisation step on a [`training_batch`]; returns the MSE and the sample counts.
 #[allow(clippy::too_many_arguments)]
 pub fn train_step(
     state: &NerfState,
@@ -140,31 +231,49 @@ pub fn train_step(
     adam: &mut Adam,
     rng: &mut rand::rngs::StdRng,
     device: &Device,
-) -> Result<f64> {
+) -> Result<(f64, crate::skipping::SampleCounts)> {
     let training = config
         .training
         .as_ref()
         .context("training: section missing")?;
-    let (w, h) = (dataset.width, dataset.height);
-    let pixels = random_pixel_indices(w, h, training.batch_size, rng);
-    let rays = Rays::for_pixels(&dataset.frames[image_index].camera, w, h, &pixels, device)?;
-    let image = &dataset.images[image_index];
-    let target: Vec<f32> = pixels
-        .iter()
-        .flat_map(|&p| image.data[3 * p..3 * p + 3].iter().copied())
-        .collect();
-    let target = Tensor::from_vec(target, (pixels.len(), 3), device)?;
+    let (rays, mut target, transparency) = training_batch(
+        dataset,
+        training.batch_size,
+        training.rays_from_all_images,
+        image_index,
+        rng,
+        device,
+    )?;
     let field = Field::Nerf {
         model: state.model.clone(),
         density_noise,
+        occupancy: state.occupancy.clone().map(Arc::new),
     };
-    let out = config
-        .renderer()?
-        .render(&field, &config.sampler()?, &rays, Some(rng))?;
-    let loss = out.color.sub(&target)?.sqr()?.mean_all()?;
+    let mut renderer = config.renderer()?;
+    let background = if training.random_background {
+        // b ~ U(0, 1)³ per ray; the target moves from the dataset's background to b.
+        use rand::Rng;
+        let n = rays.len();
+        let b: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>()).collect();
+        let b = Tensor::from_vec(b, (n, 3), device)?;
+        let dataset_bg = if renderer.white_background { 1.0 } else { 0.0 };
+        target = target.add(&transparency.broadcast_mul(&b.affine(1.0, -dataset_bg)?)?)?;
+        renderer.white_background = false;
+        Some(b)
+    } else {
+        None
+    };
+    let out = renderer.render(&field, &config.sampler()?, &rays, Some(rng))?;
+    let color = match &background {
+        Some(b) => out
+            .color
+            .add(&out.opacity.affine(-1.0, 1.0)?.broadcast_mul(b)?)?,
+        None => out.color,
+    };
+    let loss = color.sub(&target)?.sqr()?.mean_all()?;
     let grads = loss.backward()?;
     adam.step(&grads)?;
-    Ok(loss.to_scalar::<f32>()? as f64)
+    Ok((loss.to_scalar::<f32>()? as f64, out.samples))
 }
 
 /// Named parameters for the optimiser, in a fixed order.
@@ -225,7 +334,7 @@ pub fn train(
         h,
         config.renderer.white_background,
     )?;
-    let (state, mut info) = if training.resume && paths.checkpoint.is_file() {
+    let (mut state, mut info) = if training.resume && paths.checkpoint.is_file() {
         let (state, info) = NerfState::from_checkpoint(&nerf, &paths.checkpoint, device)?;
         (state, info)
     } else {
@@ -234,10 +343,21 @@ pub fn train(
             CheckpointInfo::default(),
         )
     };
+    let grid_settings = crate::occupancy::grid_settings(config);
+    if let Some((settings, threshold)) = &grid_settings {
+        // Every cell occupied until the first update probes them.
+        state.occupancy = Some(OccupancyGrid::new(settings, *threshold)?);
+    }
     let mut adam = Adam::new(named_vars(&state.varmap), training.lr)?;
     if info.epoch > 0 {
         let (tensors, _) = checkpoint::load(&paths.checkpoint, device)?;
         adam.load_state(&tensors, info.adam_step)?;
+        if let (Some((settings, threshold)), Some(saved)) = (
+            &grid_settings,
+            tensors.get(crate::occupancy::CHECKPOINT_KEY),
+        ) {
+            state.occupancy = Some(OccupancyGrid::from_tensor(settings, *threshold, saved)?);
+        }
         eprintln!(
             "resuming from {} at epoch {}",
             paths.checkpoint.display(),
@@ -264,9 +384,15 @@ pub fn train(
     let bar = progress_bar((planned * n_images) as u64, "training");
     let start = Instant::now();
     let wall_offset = info.wall_seconds;
-    let save = |info: &CheckpointInfo, adam: &Adam| -> Result<()> {
+    let save = |state: &NerfState, info: &CheckpointInfo, adam: &Adam| -> Result<()> {
         let mut tensors = checkpoint::model_tensors(&state.varmap);
         tensors.extend(adam.state_tensors());
+        if let Some(grid) = &state.occupancy {
+            tensors.push((
+                crate::occupancy::CHECKPOINT_KEY.to_string(),
+                grid.to_tensor(device)?,
+            ));
+        }
         checkpoint::save(&paths.checkpoint, &tensors, *info)
     };
     for epoch in info.epoch..info.epoch + planned {
@@ -286,7 +412,18 @@ pub fn train(
         order.shuffle(&mut rng);
         let mut epoch_loss = 0.0;
         for &i in &order {
-            let loss = train_step(
+            if let (Some(grid), Some((settings, _))) = (&mut state.occupancy, &grid_settings) {
+                if adam.step % settings.update_interval as u64 == 0 {
+                    grid.update(
+                        &state.model.detached(),
+                        adam.step < settings.warmup_steps as u64,
+                        settings.decay as f32,
+                        &mut rng,
+                        device,
+                    )?;
+                }
+            }
+            let (loss, samples) = train_step(
                 &state,
                 nerf.density_noise_std,
                 config,
@@ -303,15 +440,21 @@ pub fn train(
             let wall = wall_offset + start.elapsed().as_secs_f64();
             writeln!(
                 log,
-                "{{\"step\":{},\"epoch\":{},\"wall_s\":{:.3},\"loss\":{:.6e},\"psnr\":{:.3}}}",
+                "{{\"step\":{},\"epoch\":{},\"wall_s\":{:.3},\"loss\":{:.6e},\"psnr\":{:.3},\"evaluated\":{:.4}}}",
                 adam.step,
                 epoch,
                 wall,
                 loss,
-                psnr_from_mse(loss)
+                psnr_from_mse(loss),
+                samples.evaluated as f64 / samples.total.max(1) as f64
             )?;
+            let occupied = state
+                .occupancy
+                .as_ref()
+                .map(|g| format!(" occupied {:.1}%", 100.0 * g.occupied_fraction()))
+                .unwrap_or_default();
             bar.set_message(format!(
-                "epoch {epoch} loss {loss:.4} psnr {:.2}",
+                "epoch {epoch} loss {loss:.4} psnr {:.2}{occupied}",
                 psnr_from_mse(loss)
             ));
             bar.inc(1);
@@ -322,7 +465,7 @@ pub fn train(
             wall_seconds: wall_offset + start.elapsed().as_secs_f64(),
         };
         if (epoch + 1) % training.checkpoint_interval == 0 {
-            save(&info, &adam)?;
+            save(&state, &info, &adam)?;
         }
         if (epoch + 1) % training.render_interval == 0 {
             let gif = crate::scene::render_nerf_gif(
@@ -339,7 +482,7 @@ pub fn train(
             ));
         }
     }
-    save(&info, &adam)?;
+    save(&state, &info, &adam)?;
     bar.finish_and_clear();
     Ok(info)
 }

@@ -1,0 +1,96 @@
+//! `nerf import-torch`: a PyTorch state dict of the homework's NeRF (`torch.save(model.state_dict())`,
+//! or a training checkpoint holding it under `model`, `model_state_dict` or `state_dict`) into
+//! our safetensors checkpoint.
+//!
+//! Names are the pytorch3d-style module's (`mlp_xyz.mlp.{i}.0.weight`, `density_layer.0`,
+//! `intermediate_linear`, `color_layer.{0,2}`, see [`crate::nerf_model`]); a common prefix
+//! such as `implicit_fn.` (the homework's wrapper module) is accepted. Every parameter the
+//! config needs must be present with the config's shape; the error names the tensor and both
+//! shapes. Extra tensors (optimizer state, other modules) are ignored.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Result};
+use candle_core::{DType, Device, Tensor};
+
+use crate::checkpoint::{self, CheckpointInfo};
+use crate::config::NerfConfig;
+use crate::nerf_model::parameter_shapes;
+
+/// Keys under which training scripts commonly nest the state dict.
+const NESTED_KEYS: &[&str] = &["model", "model_state_dict", "state_dict"];
+
+/// Reads the NeRF parameters from a PyTorch `.pth` file, by our names, as f32 on the CPU.
+pub fn read_torch_state_dict(path: &Path, config: &NerfConfig) -> Result<Vec<(String, Tensor)>> {
+    if !path.is_file() {
+        bail!("PyTorch file {} not found", path.display());
+    }
+    let expected = parameter_shapes(config);
+    let read = |key: Option<&str>| -> Result<HashMap<String, Tensor>> {
+        let tensors = candle_core::pickle::read_all_with_key(path, key).map_err(|e| {
+            anyhow!(
+                "cannot read {} as a PyTorch state dict: {e}",
+                path.display()
+            )
+        })?;
+        Ok(tensors.into_iter().collect())
+    };
+    let mut found = read(None)?;
+    if !expected.iter().any(|(n, _)| lookup(&found, n).is_some()) {
+        for key in NESTED_KEYS {
+            if let Ok(nested) = read(Some(key)) {
+                if expected.iter().any(|(n, _)| lookup(&nested, n).is_some()) {
+                    found = nested;
+                    break;
+                }
+            }
+        }
+    }
+    let mut out = Vec::with_capacity(expected.len());
+    for (name, shape) in expected {
+        let t = lookup(&found, &name).ok_or_else(|| {
+            anyhow!(
+                "{} has no tensor {name} (a state dict of the homework's NeuralRadianceField is expected)",
+                path.display()
+            )
+        })?;
+        if t.dims() != &shape[..] {
+            bail!(
+                "{}: tensor {name} has shape {:?} but the config needs {:?}",
+                path.display(),
+                t.dims(),
+                shape
+            );
+        }
+        out.push((
+            name,
+            t.to_dtype(DType::F32)?
+                .to_device(&Device::Cpu)?
+                .contiguous()?,
+        ));
+    }
+    Ok(out)
+}
+
+/// The tensor named `name`, or the only one named `<prefix>.name`.
+fn lookup<'a>(tensors: &'a HashMap<String, Tensor>, name: &str) -> Option<&'a Tensor> {
+    if let Some(t) = tensors.get(name) {
+        return Some(t);
+    }
+    let suffix = format!(".{name}");
+    let mut matches = tensors.iter().filter(|(k, _)| k.ends_with(&suffix));
+    match (matches.next(), matches.next()) {
+        (Some((_, t)), None) => Some(t),
+        _ => None,
+    }
+}
+
+/// Converts `pth` into a checkpoint at `out` (weights only; epoch 0, so training started from
+/// it begins a fresh optimiser). Returns the number of parameters written.
+pub fn import_torch(pth: &Path, config: &NerfConfig, out: &Path) -> Result<usize> {
+    let tensors = read_torch_state_dict(pth, config)?;
+    let n = tensors.iter().map(|(_, t)| t.elem_count()).sum();
+    checkpoint::save(out, &tensors, CheckpointInfo::default())?;
+    Ok(n)
+}

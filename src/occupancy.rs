@@ -1,0 +1,414 @@
+//! Occupancy grid: which cells of the scene's bounding box can hold density, so the renderer
+//! evaluates the field only there (empty-space skipping, as nerfacc's `OccGridEstimator`).
+//!
+//! The grid keeps, per cell, a running maximum of the field's density at points in the cell
+//! (decayed by `decay` at every update, so cells that become empty during training are
+//! released). A cell is occupied when that value exceeds `min(density_threshold, mean)`; the
+//! threshold is the density at which one sample step has opacity `alpha_threshold`:
+//! `σ = −ln(1 − alpha_threshold) / step`. Points outside the bounding box are empty.
+//!
+//! Cells are indexed `(ix · R + iy) · R + iz`, x slowest.
+
+use std::collections::HashMap;
+
+use anyhow::{ensure, Context, Result};
+use candle_core::{Device, Tensor};
+use rand::Rng;
+
+use crate::config::{Config, OccupancyGridConfig};
+use crate::nerf_model::Nerf;
+
+/// Points evaluated per density batch when updating or building a grid.
+const DENSITY_BATCH: usize = 1 << 16;
+
+/// The occupancy grid of one field.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OccupancyGrid {
+    pub resolution: usize,
+    pub aabb_min: [f32; 3],
+    pub aabb_max: [f32; 3],
+    /// Density above which a cell counts as occupied (before the `mean` cap).
+    pub density_threshold: f32,
+    /// `R³` running maxima of the density seen in each cell.
+    pub density: Vec<f32>,
+    /// `R³` occupancy flags derived from `density`.
+    pub occupied: Vec<bool>,
+}
+
+/// Density at which one step of `step` has opacity `alpha`: `−ln(1 − alpha) / step`.
+pub fn density_threshold(alpha: f64, step: f64) -> f64 {
+    -(1.0 - alpha).ln() / step
+}
+
+/// The config's occupancy grid settings and its density threshold (one sample step of the
+/// sampler at `alpha_threshold` opacity), or `None` when the config has no grid.
+pub fn grid_settings(config: &Config) -> Option<(OccupancyGridConfig, f64)> {
+    let g = config.renderer.occupancy_grid.clone()?;
+    let n = config.sampler.n_pts_per_ray.max(2) - 1;
+    let step = ((config.sampler.max_depth - config.sampler.min_depth) / n as f64).max(1e-6);
+    let threshold = density_threshold(g.alpha_threshold, step);
+    Some((g, threshold))
+}
+
+/// The grid a config asks for, for a trained model: the one saved in the checkpoint's
+/// `occupancy.density` when present and of the configured resolution, else built from the
+/// model ([`OccupancyGrid::build`]). `None` when the config has no grid.
+pub fn grid_for_checkpoint(
+    config: &Config,
+    tensors: &HashMap<String, Tensor>,
+    model: &Nerf,
+    device: &Device,
+) -> Result<Option<OccupancyGrid>> {
+    let Some((settings, threshold)) = grid_settings(config) else {
+        return Ok(None);
+    };
+    let r = settings.resolution;
+    if let Some(saved) = tensors
+        .get(CHECKPOINT_KEY)
+        .filter(|t| t.dims() == [r, r, r])
+    {
+        return Ok(Some(OccupancyGrid::from_tensor(
+            &settings, threshold, saved,
+        )?));
+    }
+    let start = std::time::Instant::now();
+    let grid = OccupancyGrid::build(&settings, threshold, &model.detached(), device)?;
+    eprintln!(
+        "built a {r}^3 occupancy grid from the model in {:.1} s: {:.1}% of cells occupied",
+        start.elapsed().as_secs_f64(),
+        100.0 * grid.occupied_fraction()
+    );
+    Ok(Some(grid))
+}
+
+/// Name of the grid's tensor in a checkpoint.
+pub const CHECKPOINT_KEY: &str = "occupancy.density";
+
+impl OccupancyGrid {
+    /// A grid with every cell occupied (nothing is skipped until the first update).
+    pub fn new(config: &OccupancyGridConfig, density_threshold: f64) -> Result<Self> {
+        let r = config.resolution;
+        ensure!(r >= 1, "occupancy_grid.resolution must be at least 1");
+        let [x0, y0, z0, x1, y1, z1] = config.aabb.map(|v| v as f32);
+        ensure!(
+            x0 < x1 && y0 < y1 && z0 < z1,
+            "occupancy_grid.aabb must be [min_x, min_y, min_z, max_x, max_y, max_z] with min < max"
+        );
+        Ok(Self {
+            resolution: r,
+            aabb_min: [x0, y0, z0],
+            aabb_max: [x1, y1, z1],
+            density_threshold: density_threshold as f32,
+            density: vec![f32::MAX; r * r * r],
+            occupied: vec![true; r * r * r],
+        })
+    }
+
+    /// Number of cells, `R³`.
+    pub fn n_cells(&self) -> usize {
+        self.density.len()
+    }
+
+    /// The cell holding point `p`, or `None` outside the bounding box.
+    #[inline]
+    pub fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
+        let r = self.resolution;
+        let mut idx = 0;
+        for ((v, lo), hi) in p.iter().zip(&self.aabb_min).zip(&self.aabb_max) {
+            let u = (v - lo) / (hi - lo);
+            // Also rejects NaN.
+            if !(0.0..1.0).contains(&u) {
+                return None;
+            }
+            idx = idx * r + ((u * r as f32) as usize).min(r - 1);
+        }
+        Some(idx)
+    }
+
+    /// Whether the field may have density at `p`.
+    #[inline]
+    pub fn is_occupied(&self, p: [f32; 3]) -> bool {
+        self.cell_of(p).is_some_and(|c| self.occupied[c])
+    }
+
+    /// Fraction of cells marked occupied.
+    pub fn occupied_fraction(&self) -> f64 {
+        self.occupied.iter().filter(|o| **o).count() as f64 / self.n_cells() as f64
+    }
+
+    /// The point at fractional position `u ∈ [0, 1]³` of cell `cell`.
+    fn point_in_cell(&self, cell: usize, u: [f32; 3]) -> [f32; 3] {
+        let r = self.resolution;
+        let i = [cell / (r * r), (cell / r) % r, cell % r];
+        std::array::from_fn(|k| {
+            let size = (self.aabb_max[k] - self.aabb_min[k]) / r as f32;
+            self.aabb_min[k] + (i[k] as f32 + u[k]) * size
+        })
+    }
+
+    /// Recomputes the flags: occupied where the running density exceeds
+    /// `min(density_threshold, mean density)`.
+    pub fn refresh_occupied(&mut self) {
+        let mean = self.density.iter().map(|&d| d as f64).sum::<f64>() / self.n_cells() as f64;
+        let threshold = (self.density_threshold as f64).min(mean) as f32;
+        for (o, &d) in self.occupied.iter_mut().zip(&self.density) {
+            *o = d > threshold;
+        }
+    }
+
+    /// One training-time update (nerfacc's schedule): during warm-up every cell, afterwards the
+    /// occupied cells and a random quarter of all cells, each probed at one uniformly random
+    /// point; `density = max(density · decay, probe)` for the probed cells.
+    pub fn update(
+        &mut self,
+        model: &Nerf,
+        warmup: bool,
+        decay: f32,
+        rng: &mut impl Rng,
+        device: &Device,
+    ) -> Result<()> {
+        let n = self.n_cells();
+        let mut cells: Vec<usize> = if warmup {
+            (0..n).collect()
+        } else {
+            let mut c: Vec<usize> = (0..n).filter(|&i| self.occupied[i]).collect();
+            c.extend((0..n / 4).map(|_| rng.random_range(0..n)));
+            c
+        };
+        cells.sort_unstable();
+        cells.dedup();
+        let points: Vec<[f32; 3]> = cells
+            .iter()
+            .map(|&c| self.point_in_cell(c, std::array::from_fn(|_| rng.random::<f32>())))
+            .collect();
+        let probes = evaluate_density(model, &points, device)?;
+        for (&c, &d) in cells.iter().zip(&probes) {
+            let old = if self.density[c] == f32::MAX {
+                0.0
+            } else {
+                self.density[c] * decay
+            };
+            self.density[c] = old.max(d);
+        }
+        self.refresh_occupied();
+        Ok(())
+    }
+
+    /// A grid for a trained model that has none: every cell is probed at its centre and its
+    /// eight corners (shared with the neighbours), keeping the largest density.
+    pub fn build(
+        config: &OccupancyGridConfig,
+        density_threshold: f64,
+        model: &Nerf,
+        device: &Device,
+    ) -> Result<Self> {
+        let mut grid = Self::new(config, density_threshold)?;
+        let r = grid.resolution;
+        let centres: Vec<[f32; 3]> = (0..grid.n_cells())
+            .map(|c| grid.point_in_cell(c, [0.5; 3]))
+            .collect();
+        grid.density = evaluate_density(model, &centres, device)?;
+        let rc = r + 1;
+        let corners: Vec<[f32; 3]> = (0..rc * rc * rc)
+            .map(|c| {
+                let i = [c / (rc * rc), (c / rc) % rc, c % rc];
+                std::array::from_fn(|k| {
+                    let size = (grid.aabb_max[k] - grid.aabb_min[k]) / r as f32;
+                    grid.aabb_min[k] + i[k] as f32 * size
+                })
+            })
+            .collect();
+        let corner_density = evaluate_density(model, &corners, device)?;
+        for ix in 0..r {
+            for iy in 0..r {
+                for iz in 0..r {
+                    let cell = (ix * r + iy) * r + iz;
+                    for d in 0..8 {
+                        let (dx, dy, dz) = (d >> 2, (d >> 1) & 1, d & 1);
+                        let corner = ((ix + dx) * rc + iy + dy) * rc + iz + dz;
+                        grid.density[cell] = grid.density[cell].max(corner_density[corner]);
+                    }
+                }
+            }
+        }
+        grid.refresh_occupied();
+        Ok(grid)
+    }
+
+    /// The running densities as a `(R, R, R)` tensor, for checkpoints.
+    pub fn to_tensor(&self, device: &Device) -> Result<Tensor> {
+        let r = self.resolution;
+        let finite: Vec<f32> = self
+            .density
+            .iter()
+            .map(|&d| if d == f32::MAX { f32::INFINITY } else { d })
+            .collect();
+        Ok(Tensor::from_vec(finite, (r, r, r), device)?)
+    }
+
+    /// Restores a grid saved with [`OccupancyGrid::to_tensor`].
+    ///
+    /// `density`: `(R, R, R)` with `R = config.resolution`.
+    pub fn from_tensor(
+        config: &OccupancyGridConfig,
+        density_threshold: f64,
+        density: &Tensor,
+    ) -> Result<Self> {
+        let mut grid = Self::new(config, density_threshold)?;
+        let r = grid.resolution;
+        ensure!(
+            density.dims() == [r, r, r],
+            "occupancy grid of shape {:?} does not match renderer.occupancy_grid.resolution {r}",
+            density.dims()
+        );
+        grid.density = density
+            .flatten_all()?
+            .to_vec1::<f32>()
+            .context("occupancy grid")?
+            .into_iter()
+            .map(|d| if d == f32::INFINITY { f32::MAX } else { d })
+            .collect();
+        grid.refresh_occupied();
+        Ok(grid)
+    }
+}
+
+/// The model's density at `points`, in batches.
+fn evaluate_density(model: &Nerf, points: &[[f32; 3]], device: &Device) -> Result<Vec<f32>> {
+    let mut out = Vec::with_capacity(points.len());
+    for chunk in points.chunks(DENSITY_BATCH) {
+        let flat: Vec<f32> = chunk.iter().flatten().copied().collect();
+        let t = Tensor::from_vec(flat, (chunk.len(), 3), device)?;
+        out.extend(model.density(&t)?.flatten_all()?.to_vec1::<f32>()?);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(resolution: usize) -> OccupancyGridConfig {
+        OccupancyGridConfig {
+            resolution,
+            aabb: [-1.0, -2.0, -1.0, 1.0, 2.0, 3.0],
+            ..OccupancyGridConfig::default()
+        }
+    }
+
+    #[test]
+    fn cells_cover_the_box_and_nothing_else() {
+        let g = OccupancyGrid::new(&config(4), 1.0).unwrap();
+        assert_eq!(g.cell_of([-1.0, -2.0, -1.0]), Some(0));
+        assert_eq!(g.cell_of([0.99, 1.99, 2.99]), Some(63));
+        // x slowest: x in the second quarter → 16.
+        assert_eq!(g.cell_of([-0.4, -1.9, -0.9]), Some(16));
+        assert_eq!(g.cell_of([-0.9, -1.9, 0.1]), Some(1));
+        assert_eq!(g.cell_of([-0.9, -1.9, 1.1]), Some(2));
+        for p in [
+            [1.0, 0.0, 0.0],
+            [0.0, -2.1, 0.0],
+            [0.0, 0.0, 3.5],
+            [f32::NAN, 0.0, 0.0],
+        ] {
+            assert_eq!(g.cell_of(p), None, "{p:?}");
+            assert!(!g.is_occupied(p));
+        }
+        for c in [0, 5, 21, 63] {
+            let p = g.point_in_cell(c, [0.5; 3]);
+            assert_eq!(g.cell_of(p), Some(c));
+        }
+    }
+
+    #[test]
+    fn threshold_is_capped_by_the_mean() {
+        let mut g = OccupancyGrid::new(&config(2), 10.0).unwrap();
+        g.density = vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 100.0];
+        g.refresh_occupied();
+        // mean = 12.6 > 10: the threshold 10 applies.
+        assert_eq!(
+            g.occupied,
+            [false, false, false, false, false, false, false, true]
+        );
+        g.density = vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 2.0];
+        g.refresh_occupied();
+        // mean = 0.375 < 10: cells above the mean stay occupied.
+        assert_eq!(
+            g.occupied,
+            [false, false, false, false, false, false, true, true]
+        );
+    }
+
+    #[test]
+    fn threshold_matches_the_alpha_definition() {
+        let sigma = density_threshold(0.01, 0.5);
+        assert!(((1.0 - (-sigma * 0.5).exp()) - 0.01).abs() < 1e-12);
+    }
+
+    #[test]
+    fn tensor_round_trip() {
+        let cfg = config(3);
+        let mut g = OccupancyGrid::new(&cfg, 0.5).unwrap();
+        for (i, d) in g.density.iter_mut().enumerate() {
+            *d = i as f32 * 0.1;
+        }
+        g.density[4] = f32::MAX;
+        g.refresh_occupied();
+        let t = g.to_tensor(&Device::Cpu).unwrap();
+        let back = OccupancyGrid::from_tensor(&cfg, 0.5, &t).unwrap();
+        assert_eq!(back, g);
+        assert!(OccupancyGrid::from_tensor(&config(4), 0.5, &t).is_err());
+    }
+}
+
+#[cfg(test)]
+mod build_tests {
+    use super::*;
+    use crate::config::NerfConfig;
+    use candle_core::DType;
+    use candle_nn::{VarBuilder, VarMap};
+
+    #[test]
+    fn build_marks_every_cell_whose_centre_is_dense() {
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let cfg = NerfConfig {
+            kind: "nerf".into(),
+            n_harmonic_functions_xyz: 3,
+            n_harmonic_functions_dir: 1,
+            n_hidden_neurons_xyz: 16,
+            n_hidden_neurons_dir: 8,
+            density_noise_std: 0.0,
+            n_layers_xyz: 2,
+            append_xyz: vec![1],
+        };
+        let model = Nerf::new(&cfg, vb).unwrap();
+        let settings = OccupancyGridConfig {
+            resolution: 6,
+            ..OccupancyGridConfig::default()
+        };
+        let centres: Vec<[f32; 3]> = {
+            let g = OccupancyGrid::new(&settings, 0.0).unwrap();
+            (0..g.n_cells())
+                .map(|c| g.point_in_cell(c, [0.5; 3]))
+                .collect()
+        };
+        let density = evaluate_density(&model, &centres, &Device::Cpu).unwrap();
+        let mut sorted = density.clone();
+        sorted.sort_by(f32::total_cmp);
+        // A threshold between the densities, so that some cells are empty and some not.
+        let threshold = sorted[sorted.len() * 3 / 4] as f64;
+        let grid = OccupancyGrid::build(&settings, threshold, &model, &Device::Cpu).unwrap();
+        let mean = grid.density.iter().map(|&d| d as f64).sum::<f64>() / grid.n_cells() as f64;
+        let effective = threshold.min(mean) as f32;
+        for (c, d) in density.iter().enumerate() {
+            // The probe maximum includes the centre.
+            assert!(grid.density[c] >= *d);
+            if *d > effective {
+                assert!(grid.occupied[c], "cell {c}");
+            }
+        }
+        let f = grid.occupied_fraction();
+        assert!(f > 0.0 && f < 1.0, "{f}");
+    }
+}
