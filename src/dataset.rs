@@ -205,7 +205,13 @@ pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
     let path = split.transforms_path(data_dir);
     let bytes = std::fs::read(&path)
         .map_err(|e| anyhow!("cannot read {}: {e}; {DOWNLOAD_HINT}", path.display()))?;
-    let mut de = serde_json::Deserializer::from_slice(&bytes);
+    parse_split(&bytes, data_dir, &path)
+}
+
+/// Parses the text of a `transforms_{split}.json` (read from `path`, named in errors) into
+/// frames whose image paths are relative to `data_dir`; see [`read_split`].
+pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Frame>> {
+    let mut de = serde_json::Deserializer::from_slice(bytes);
     let file: TransformsFile = serde_path_to_error::deserialize(&mut de)
         .map_err(|e| anyhow!("cannot parse {}: {e}", path.display()))?;
     let fov = file.camera_angle_x;

@@ -9,6 +9,45 @@ use anyhow::{bail, Context, Result};
 use image::{ImageBuffer, Rgb};
 use npyz::WriterBuilder;
 
+/// Fault injection for the interrupted-training test: with `NERF_FAULT_WRITE_DELAY_MS` set,
+/// every atomic write waits that long between writing its temporary file and renaming it,
+/// so that a kill is likely to land mid-write.
+fn fault_injection_pause() {
+    if let Some(ms) = std::env::var("NERF_FAULT_WRITE_DELAY_MS")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+    {
+        std::thread::sleep(std::time::Duration::from_millis(ms));
+    }
+}
+
+/// Removes temporary files that [`write_atomically`] left beside `path` when a process was
+/// killed mid-write (`.<name>.<pid>.tmp`, any pid but this process's). The file at `path`
+/// itself is never touched: it is always a complete old or new version.
+pub fn remove_stale_temp_files(path: &Path) {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let Some(name) = path.file_name().map(|n| n.to_string_lossy().to_string()) else {
+        return;
+    };
+    let prefix = format!(".{name}.");
+    let own = format!(".{name}.{}.tmp", std::process::id());
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let file = entry.file_name().to_string_lossy().to_string();
+        if file.starts_with(&prefix) && file.ends_with(".tmp") && file != own {
+            let pid = &file[prefix.len()..file.len() - 4];
+            if pid.chars().all(|c| c.is_ascii_digit()) {
+                let _ = std::fs::remove_file(entry.path());
+            }
+        }
+    }
+}
+
 /// Runs `write` on a temp file beside `path`, then renames it over `path`. On error the temp
 /// file is removed and `path` is untouched.
 pub fn write_atomically(
@@ -34,6 +73,7 @@ pub fn write_atomically(
         write(&mut w)?;
         w.flush()?;
         w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        fault_injection_pause();
         std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
         Ok(())
     })();

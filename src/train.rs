@@ -372,6 +372,10 @@ pub fn train(
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create checkpoint directory {}", dir.display()))?;
     }
+    // A run killed while writing leaves its temporary file behind; the files themselves are
+    // whole (written atomically).
+    crate::images::remove_stale_temp_files(&paths.checkpoint);
+    crate::images::remove_stale_temp_files(&paths.log);
     rewind_log(&paths.log, info.adam_step)?;
     let mut log = std::fs::OpenOptions::new()
         .create(true)

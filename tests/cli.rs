@@ -182,6 +182,7 @@ fn unwritable_output_directory_is_an_error() {
         "data.image_size=[8,8]",
     ]);
     assert!(!o.status.success());
+    assert_eq!(stderr(&o).trim_end().lines().count(), 1, "{}", stderr(&o));
     assert!(
         stderr(&o).contains("cannot create output directory"),
         "{}",
@@ -499,4 +500,213 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
     assert_eq!(frames.len(), 4);
     // Not blank: the model is there.
     assert!(frames[0].iter().filter(|v| **v > 40).count() > 50);
+}
+
+#[test]
+fn wrong_shape_checkpoint_and_corrupt_png_name_what_is_wrong() {
+    let dir = tempfile::tempdir().unwrap();
+    // A 256-wide model where the lego config needs 128.
+    let wide_config = nerf::config::Config::load(
+        "lego",
+        &["implicit_function.n_hidden_neurons_xyz=256".into()],
+    )
+    .unwrap();
+    let wide = nerf::train::NerfState::seeded(
+        nerf::train::nerf_config(&wide_config).unwrap(),
+        0,
+        &candle_core::Device::Cpu,
+    )
+    .unwrap();
+    let path = dir.path().join("wide.safetensors");
+    nerf::checkpoint::save(
+        &path,
+        &nerf::checkpoint::model_tensors(&wide.varmap),
+        Default::default(),
+    )
+    .unwrap();
+    let p = path.to_str().unwrap();
+    assert_clean_failure(
+        &["--config", "lego", "--checkpoint", p],
+        "tensor mlp_xyz.mlp.0.0.weight has shape [256, 39] but the config needs [128, 39]",
+    );
+    // A dataset whose second image is not a PNG.
+    let data = dir.path().join("scene");
+    std::fs::create_dir_all(data.join("test")).unwrap();
+    let frame = |name: &str| {
+        format!(
+            r#"{{"file_path": "./test/{name}", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}}"#
+        )
+    };
+    std::fs::write(
+        data.join("transforms_test.json"),
+        format!(
+            r#"{{"camera_angle_x": 0.69, "frames": [{}, {}]}}"#,
+            frame("r_0"),
+            frame("r_1")
+        ),
+    )
+    .unwrap();
+    let png: image::RgbaImage = image::ImageBuffer::from_pixel(4, 4, image::Rgba([9, 9, 9, 255]));
+    png.save(data.join("test/r_0.png")).unwrap();
+    std::fs::write(data.join("test/r_1.png"), b"\x89PNG\r\n\x1a\nnot really").unwrap();
+    let images = dir.path().join("images");
+    let ckpt = Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints/nerf_lego.safetensors");
+    let o = nerf(&[
+        "eval",
+        "--config",
+        "lego",
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--data-dir",
+        data.to_str().unwrap(),
+        "--save-images",
+        images.to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("cannot decode PNG") && err.contains("r_1.png"),
+        "{err}"
+    );
+    assert!(!images.exists(), "eval wrote images before failing");
+}
+
+/// Runs `nerf train` on the lego data with a tiny model into `ckpt_dir`.
+fn tiny_train(ckpt_dir: &Path, data: &Path, epochs: usize) -> std::process::Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nerf"));
+    c.args([
+        "train",
+        "--config",
+        "nerf_lego",
+        "--data-dir",
+        data.to_str().unwrap(),
+        &format!("training.checkpoint_path={}", ckpt_dir.display()),
+        &format!("training.num_epochs={epochs}"),
+        "training.checkpoint_interval=1",
+        "training.render_interval=1000",
+        "training.batch_size=32",
+        "training.lr=0.002",
+        "implicit_function.n_hidden_neurons_xyz=16",
+        "implicit_function.n_hidden_neurons_dir=8",
+        "implicit_function.n_layers_xyz=3",
+        "implicit_function.append_xyz=[2]",
+        "sampler.n_pts_per_ray=8",
+        "data.image_size=[8,8]",
+    ]);
+    c.stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null());
+    c
+}
+
+#[test]
+fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego");
+    if !data.join("transforms_train.json").is_file() {
+        eprintln!("skipping: lego data not found at {}", data.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // About 0.1 s per epoch, a checkpoint after each: kills land anywhere, writes included.
+    let epochs = 30;
+    let straight = dir.path().join("straight");
+    assert!(tiny_train(&straight, &data, epochs)
+        .status()
+        .unwrap()
+        .success());
+    let killed = dir.path().join("killed");
+    let ckpt = killed.join("nerf_lego.safetensors");
+    // Kill at varied moments (seeded): while loading data, mid-epoch, mid-write.
+    let mut state = 12345u64;
+    let mut last_epoch = 0;
+    let (mut kills, mut mid_write) = (0, 0);
+    for round in 0..12 {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        let delay = 100 + (state >> 33) % 900;
+        // Each write pauses 150 ms before its rename, so many kills land mid-write.
+        let mut child = tiny_train(&killed, &data, epochs)
+            .env("NERF_FAULT_WRITE_DELAY_MS", "150")
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(delay));
+        let finished = child.try_wait().unwrap().is_some();
+        if !finished {
+            child.kill().unwrap(); // SIGKILL: no cleanup runs
+            kills += 1;
+        }
+        child.wait().unwrap();
+        // A temporary file left behind means the kill interrupted a write.
+        if std::fs::read_dir(&killed).is_ok_and(|d| {
+            d.flatten()
+                .any(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+        }) {
+            mid_write += 1;
+        }
+        if ckpt.exists() {
+            // Always a whole checkpoint: it loads, and it never goes back in time.
+            let (tensors, info) = nerf::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
+            assert!(tensors.contains_key("mlp_xyz.mlp.0.0.weight"));
+            assert!(
+                info.epoch >= last_epoch && info.epoch <= epochs,
+                "round {round}: {info:?}"
+            );
+            last_epoch = info.epoch;
+        }
+        if finished {
+            break;
+        }
+    }
+    eprintln!(
+        "{kills} killed runs ({mid_write} during a write) reached epoch {last_epoch} of {epochs}"
+    );
+    assert!(kills >= 3, "only {kills} runs were killed");
+    assert!(mid_write >= 1, "no kill landed during a write");
+    // Finish, then compare with the uninterrupted run.
+    assert!(tiny_train(&killed, &data, epochs)
+        .status()
+        .unwrap()
+        .success());
+    let (a, ia) = nerf::checkpoint::load(
+        &straight.join("nerf_lego.safetensors"),
+        &candle_core::Device::Cpu,
+    )
+    .unwrap();
+    let (b, ib) = nerf::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
+    assert_eq!((ia.epoch, ia.adam_step), (ib.epoch, ib.adam_step));
+    assert_eq!(a.len(), b.len());
+    let mut worst = 0f32;
+    for (name, t) in &a {
+        // Weights and the Adam moments alike.
+        let d = t
+            .sub(&b[name])
+            .unwrap()
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        worst = worst.max(d);
+    }
+    assert!(worst < 1e-5, "resumed run differs by {worst}");
+    // The log has each step once, and no temporary files are left.
+    let log = std::fs::read_to_string(killed.join("nerf_lego.log.jsonl")).unwrap();
+    let steps: Vec<u64> = log
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["step"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(steps, (1..=ib.adam_step).collect::<Vec<_>>());
+    let leftovers: Vec<_> = std::fs::read_dir(&killed)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
 }
