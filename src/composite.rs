@@ -26,10 +26,16 @@ use crate::renderer::{LAST_DELTA, MAX_OPTICAL_DEPTH};
 /// Rays per parallel work item.
 const RAYS_PER_TASK: usize = 256;
 
-/// Optical depth of one sample, clamped as in [`crate::renderer::optical_depth`].
+/// Optical depth of one sample, clamped as in [`crate::renderer::optical_depth`]: `σΔ` in
+/// `[0, MAX_OPTICAL_DEPTH]`, and 0 for zero spacing whatever σ is (the homework's SDF σ is
+/// `−ln(1 − density)/Δ`, which is ∞ or NaN at Δ = 0).
 #[inline]
 pub fn clamped_optical_depth(sigma: f32, delta: f32) -> f32 {
-    (sigma * delta).clamp(0.0, MAX_OPTICAL_DEPTH as f32)
+    if delta == 0.0 {
+        0.0
+    } else {
+        (sigma * delta).clamp(0.0, MAX_OPTICAL_DEPTH as f32)
+    }
 }
 
 /// Weights of one ray: `tau` (S) → `weights` (S) and `transmittance_after` (S), where

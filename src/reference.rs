@@ -50,7 +50,12 @@ pub fn render_ray(
             };
         let delta = if i + 1 < z.len() { z[i + 1] - zi } else { 1e10 };
         let sigma = -(1.0 - density).ln() / delta;
-        let a = (-sigma * delta).exp();
+        // The renderer's limit: zero spacing has zero optical depth, whatever σ is.
+        let a = if delta == 0.0 {
+            1.0
+        } else {
+            (-sigma * delta).exp()
+        };
         let w = transmittance * (1.0 - a);
         transmittance *= a;
         let rgb = if volume.rainbow {

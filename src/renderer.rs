@@ -11,7 +11,10 @@
 //! Stable limits: optical depths `σΔ` are clamped to [`MAX_OPTICAL_DEPTH`] before the sum.
 //! `exp(−x)` is exactly 0 in f32 for any x above about 104, so the clamp changes no weight, but
 //! it turns `σ = ∞` (the homework's `−ln(1 − density)` at density 1) into a finite number and
-//! keeps the tensor cumulative sum free of `∞ · 0 = NaN`. The same code path serves rendering
+//! keeps the tensor cumulative sum free of `∞ · 0 = NaN`. Samples with zero spacing (`near =
+//! far`, or coincident jittered depths) have zero optical depth whatever their σ: the limit of
+//! a bounded density over a vanishing interval, where the homework's SDF formula
+//! `σ = −ln(1 − density)/Δ` would give `∞ · 0`. The same code path serves rendering
 //! and training (everything is differentiable Candle ops).
 
 use anyhow::{bail, Result};
@@ -57,11 +60,14 @@ pub fn exclusive_cumsum(x: &Tensor) -> Result<Tensor> {
     Ok(x.matmul(&mask)?)
 }
 
-/// Clamped optical depth `σ·Δ` of each sample.
+/// Clamped optical depth `σ·Δ` of each sample (0 where `Δ = 0`).
 ///
 /// `density`, `deltas`: `(N, S, 1)`; returns `(N, S, 1)`.
 pub fn optical_depth(density: &Tensor, deltas: &Tensor) -> Result<Tensor> {
-    Ok(density.mul(deltas)?.clamp(0f32, MAX_OPTICAL_DEPTH as f32)?)
+    let tau = density.mul(deltas)?.clamp(0f32, MAX_OPTICAL_DEPTH as f32)?;
+    // Zero spacing: zero optical depth, even where σ is ∞ or NaN (σ = −ln(1 − d)/0).
+    let zero_spacing = deltas.eq(0f64)?;
+    Ok(zero_spacing.where_cond(&tau.zeros_like()?, &tau)?)
 }
 
 /// Exclusive transmittance `T_i = exp(−Σ_{j<i} τ_j)` from optical depths `τ`.
