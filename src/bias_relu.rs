@@ -227,3 +227,153 @@ mod tests {
         }
     }
 }
+
+/// `x + bias` for `x` `(M, H)` and `bias` `(H)`, with the bias gradient as one
+/// [`column_sum`] (Candle's broadcast-add backward reduces column by column). CPU f32; other
+/// devices use `broadcast_add`.
+pub fn bias_add(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
+    if x.device().is_cpu() && x.dtype() == DType::F32 {
+        x.contiguous()?
+            .apply_op2(&bias.contiguous()?, AddRows { group: 1 })
+    } else {
+        x.broadcast_add(bias)
+    }
+}
+
+/// `out[i] = x[i] + r[i / group]` for `x` `(N·group, C)` and `r` `(N, C)`: a per-ray term
+/// added to each of the ray's samples, with its gradient summed per ray in one pass. CPU f32;
+/// other devices use a broadcast add.
+pub fn add_per_group(x: &Tensor, r: &Tensor, group: usize) -> candle_core::Result<Tensor> {
+    if x.device().is_cpu() && x.dtype() == DType::F32 {
+        x.contiguous()?
+            .apply_op2(&r.contiguous()?, AddRows { group })
+    } else {
+        let (n, c) = r.dims2()?;
+        x.reshape((n, group, c))?
+            .broadcast_add(&r.unsqueeze(1)?)?
+            .reshape((n * group, c))
+    }
+}
+
+/// `x (N·group, C) + r (N, C)` row-group-wise; `r` `(C)` (a bias) when `group` is 1 and `r`
+/// is one-dimensional.
+struct AddRows {
+    group: usize,
+}
+
+impl CustomOp2 for AddRows {
+    fn name(&self) -> &'static str {
+        "add-rows"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let (x, r) = (
+            contiguous_f32(s1, l1, "add-rows")?,
+            contiguous_f32(s2, l2, "add-rows")?,
+        );
+        let (m, c) = l1.shape().dims2()?;
+        let bias = l2.shape().rank() == 1;
+        let expected = if bias { c } else { m / self.group.max(1) * c };
+        if r.len() != expected || (!bias && m % self.group.max(1) != 0) {
+            candle_core::bail!("add-rows: {} values to add to {m}×{c}", r.len());
+        }
+        let group = self.group.max(1);
+        let mut out = vec![0f32; m * c];
+        out.par_chunks_mut(ROWS_PER_TASK * c)
+            .zip(x.par_chunks(ROWS_PER_TASK * c))
+            .enumerate()
+            .for_each(|(task, (o, x))| {
+                for (k, (o, x)) in o.chunks_exact_mut(c).zip(x.chunks_exact(c)).enumerate() {
+                    let row = task * ROWS_PER_TASK + k;
+                    let add = if bias {
+                        r
+                    } else {
+                        &r[row / group * c..(row / group + 1) * c]
+                    };
+                    for ((o, x), a) in o.iter_mut().zip(x).zip(add) {
+                        *o = x + a;
+                    }
+                }
+            });
+        Ok((CpuStorage::F32(out), Shape::from((m, c))))
+    }
+
+    fn bwd(
+        &self,
+        _x: &Tensor,
+        r: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        let grad_r = if r.rank() == 1 {
+            column_sum(grad)?
+        } else {
+            let (n, c) = r.dims2()?;
+            let g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+            let group = self.group.max(1);
+            let mut sums = vec![0f32; n * c];
+            sums.par_chunks_mut(c)
+                .zip(g.par_chunks(group * c))
+                .for_each(|(s, rows)| {
+                    for row in rows.chunks_exact(c) {
+                        for (s, v) in s.iter_mut().zip(row) {
+                            *s += v;
+                        }
+                    }
+                });
+            Tensor::from_vec(sums, (n, c), r.device())?
+        };
+        Ok((Some(grad.clone()), Some(grad_r)))
+    }
+}
+
+#[cfg(test)]
+mod add_tests {
+    use super::*;
+    use candle_core::{Device, Var};
+
+    #[test]
+    fn bias_and_per_group_adds_match_broadcast_autodiff() {
+        let dev = Device::Cpu;
+        let x = Var::randn(0f32, 1.0, (12, 5), &dev).unwrap();
+        let b = Var::randn(0f32, 1.0, 5, &dev).unwrap();
+        let r = Var::randn(0f32, 1.0, (4, 5), &dev).unwrap();
+        let w = Tensor::randn(0f32, 1.0, (12, 5), &dev).unwrap();
+        let fast = add_per_group(&bias_add(&x, &b).unwrap(), &r, 3).unwrap();
+        let slow = x
+            .broadcast_add(&b)
+            .unwrap()
+            .reshape((4, 3, 5))
+            .unwrap()
+            .broadcast_add(&r.unsqueeze(1).unwrap())
+            .unwrap()
+            .reshape((12, 5))
+            .unwrap();
+        let diff = |a: &Tensor, c: &Tensor| {
+            a.sub(c)
+                .unwrap()
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap()
+        };
+        assert!(diff(&fast, &slow) < 1e-6);
+        let gf = fast.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
+        let gs = slow.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
+        for v in [&x, &b, &r] {
+            let (a, c) = (
+                gf.get(v.as_tensor()).unwrap(),
+                gs.get(v.as_tensor()).unwrap(),
+            );
+            assert!(diff(a, c) < 1e-5, "{}", diff(a, c));
+        }
+    }
+}

@@ -37,6 +37,7 @@ pub mod checkpoint;
 pub mod dataset;
 pub mod eval;
 pub mod import;
+pub mod mlp;
 pub mod nerf_model;
 pub mod occupancy;
 pub mod reference;

@@ -17,7 +17,7 @@
 //! initialisation, U(−1/√fan_in, 1/√fan_in).
 
 use anyhow::{ensure, Result};
-use candle_core::{Module, Tensor};
+use candle_core::Tensor;
 use candle_nn::{Init, Linear, VarBuilder};
 
 use crate::config::NerfConfig;
@@ -122,6 +122,17 @@ impl Nerf {
     /// `points`: `(M, 3)`; returns `(M, n_hidden_neurons_xyz)`.
     fn trunk(&self, points: &Tensor) -> Result<Tensor> {
         let xyz = harmonic_embedding(points, self.config.n_harmonic_functions_xyz)?;
+        if crate::mlp::fused_available(&xyz) {
+            let shape = crate::mlp::TrunkShape {
+                input_dim: xyz.dim(1)?,
+                hidden: self.config.n_hidden_neurons_xyz,
+                skip: (0..self.mlp_xyz.len())
+                    .map(|i| i > 0 && self.config.append_xyz.contains(&i))
+                    .collect(),
+            };
+            let params = crate::mlp::pack_parameters(&self.mlp_xyz)?;
+            return Ok(crate::mlp::trunk(&xyz, &params, &shape)?);
+        }
         let mut y = xyz.clone();
         for (i, layer) in self.mlp_xyz.iter().enumerate() {
             if i > 0 && self.config.append_xyz.contains(&i) {
@@ -136,7 +147,7 @@ impl Nerf {
     ///
     /// `trunk`: `(M, hidden)`; returns `(M, 1)`.
     fn density_head(&self, trunk: &Tensor, density_noise: f64) -> Result<Tensor> {
-        let mut raw_density = self.density_layer.forward(trunk)?;
+        let mut raw_density = linear(&self.density_layer, trunk)?;
         if density_noise > 0.0 {
             raw_density = (&raw_density + raw_density.randn_like(0.0, density_noise)?)?;
         }
@@ -150,7 +161,7 @@ impl Nerf {
     /// `(N, dir_hidden)`, to be added (then ReLU) by the caller.
     fn color_hidden_parts(&self, trunk: &Tensor, directions: &Tensor) -> Result<(Tensor, Tensor)> {
         let hidden = self.config.n_hidden_neurons_xyz;
-        let features = self.intermediate_linear.forward(trunk)?;
+        let features = linear(&self.intermediate_linear, trunk)?;
         let w = self.color_layer_0.weight();
         let (w_feat, w_dir) = (
             w.narrow(1, 0, hidden)?,
@@ -168,9 +179,10 @@ impl Nerf {
     ///
     /// `pre_activation`: `(M, dir_hidden)`; returns `(M, 3)`.
     fn color_head(&self, pre_activation: &Tensor) -> Result<Tensor> {
-        Ok(candle_nn::ops::sigmoid(
-            &self.color_layer_2.forward(&pre_activation.relu()?)?,
-        )?)
+        Ok(candle_nn::ops::sigmoid(&linear(
+            &self.color_layer_2,
+            &pre_activation.relu()?,
+        )?)?)
     }
 
     /// Density and colour at every sample.
@@ -188,11 +200,7 @@ impl Nerf {
         let y = self.trunk(&points.reshape((n * s, 3))?)?;
         let density = self.density_head(&y, density_noise)?.reshape((n, s, 1))?;
         let (per_sample, per_ray) = self.color_hidden_parts(&y, directions)?;
-        let dh = per_ray.dim(1)?;
-        let h = per_sample
-            .reshape((n, s, dh))?
-            .broadcast_add(&per_ray.unsqueeze(1)?)?
-            .reshape((n * s, dh))?;
+        let h = crate::bias_relu::add_per_group(&per_sample, &per_ray, s)?;
         Ok(FieldOutput {
             density,
             feature: self.color_head(&h)?.reshape((n, s, 3))?,
@@ -250,6 +258,17 @@ impl Nerf {
     }
 }
 
+/// `layer(x)` with the bias gradient summed in one pass ([`crate::bias_relu::bias_add`]).
+///
+/// `x`: `(M, in)`; returns `(M, out)`.
+pub fn linear(layer: &Linear, x: &Tensor) -> Result<Tensor> {
+    let pre = x.matmul(&layer.weight().t()?)?;
+    Ok(match layer.bias() {
+        Some(b) => crate::bias_relu::bias_add(&pre, b)?,
+        None => pre,
+    })
+}
+
 /// `relu(layer(x))` with the bias add and ReLU fused ([`crate::bias_relu`]).
 ///
 /// `x`: `(M, in)`; returns `(M, out)`.
@@ -291,7 +310,7 @@ pub fn parameter_shapes(config: &NerfConfig) -> Vec<(String, Vec<usize>)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use candle_core::{DType, Device};
+    use candle_core::{DType, Device, Module};
     use candle_nn::VarMap;
 
     fn homework_config() -> NerfConfig {

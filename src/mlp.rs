@@ -1,0 +1,419 @@
+//! The NeRF trunk (`mlp_xyz`: ReLU layers with the embedding re-appended before the skip
+//! layers) as one fused CPU op with a hand-written backward pass.
+//!
+//! Through Candle ops, every layer's backward pass allocates a zeroed gradient buffer per
+//! activation and adds into it, and the input embedding's gradient (never needed: the points
+//! are data) is computed too. Here the forward pass runs each layer as one `gemm` (two for a
+//! skip layer: `[y, x]·Wᵀ = y·W_yᵀ + x·W_xᵀ`, no concatenation) plus a fused bias + ReLU, and
+//! keeps the layer outputs; the backward pass walks the layers once, writing weight and bias
+//! gradients straight into one flat buffer. Other devices (and f64) use the Candle ops.
+//!
+//! Parameters are passed packed: for each layer `W_i` `(H, in_i)` row-major (PyTorch's
+//! layout) followed by `b_i` `(H)`; [`pack_parameters`] builds that from the layers, and
+//! Candle's `cat` backward hands each slice of the gradient back to its parameter.
+
+use std::sync::Mutex;
+
+use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
+use candle_nn::Linear;
+use rayon::prelude::*;
+
+use crate::storage::contiguous_f32;
+
+const ROWS_PER_TASK: usize = 256;
+
+/// Sizes of the trunk.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrunkShape {
+    /// Width of the input embedding `x`.
+    pub input_dim: usize,
+    /// Width of every layer.
+    pub hidden: usize,
+    /// Whether layer `i` takes `[y, x]` (true) or `y` alone; layer 0 takes `x`.
+    pub skip: Vec<bool>,
+}
+
+impl TrunkShape {
+    /// Input width of layer `i`.
+    pub fn in_dim(&self, i: usize) -> usize {
+        if i == 0 {
+            self.input_dim
+        } else if self.skip[i] {
+            self.hidden + self.input_dim
+        } else {
+            self.hidden
+        }
+    }
+
+    /// Offset of layer `i`'s weight in the packed parameters.
+    fn offset(&self, i: usize) -> usize {
+        (0..i).map(|j| self.hidden * (self.in_dim(j) + 1)).sum()
+    }
+
+    /// Number of packed parameters.
+    pub fn n_parameters(&self) -> usize {
+        self.offset(self.skip.len())
+    }
+}
+
+/// The layers' weights and biases flattened in the packed order. Differentiable (a `cat`).
+pub fn pack_parameters(layers: &[Linear]) -> candle_core::Result<Tensor> {
+    let mut parts = Vec::with_capacity(2 * layers.len());
+    for l in layers {
+        parts.push(l.weight().flatten_all()?);
+        let bias = match l.bias() {
+            Some(b) => b.clone(),
+            None => Tensor::zeros(l.weight().dim(0)?, l.weight().dtype(), l.weight().device())?,
+        };
+        parts.push(bias);
+    }
+    Tensor::cat(&parts, 0)
+}
+
+/// Whether [`trunk`] runs fused for these tensors.
+pub fn fused_available(x: &Tensor) -> bool {
+    x.device().is_cpu() && x.dtype() == DType::F32
+}
+
+/// The trunk's output `(M, H)` for the embedding `x` `(M, input_dim)` and the packed
+/// parameters (CPU, f32). Keeps activations for the backward pass only when the parameters
+/// track gradients.
+pub fn trunk(x: &Tensor, params: &Tensor, shape: &TrunkShape) -> candle_core::Result<Tensor> {
+    let op = FusedTrunk {
+        shape: shape.clone(),
+        saved: Mutex::new(None),
+        keep: params.track_op(),
+    };
+    let x = x.contiguous()?;
+    let params = params.contiguous()?;
+    if op.keep {
+        x.apply_op2(&params, op)
+    } else {
+        x.apply_op2_no_bwd(&params, &op)
+    }
+}
+
+struct FusedTrunk {
+    shape: TrunkShape,
+    /// Every layer's output, kept by the forward pass for the backward pass.
+    saved: Mutex<Option<Vec<Vec<f32>>>>,
+    keep: bool,
+}
+
+/// `dst (m×n) = [dst +] lhs · rhs` with explicit row and column strides, multi-threaded.
+#[allow(clippy::too_many_arguments)]
+fn gemm_f32(
+    (m, n, k): (usize, usize, usize),
+    dst: &mut [f32],
+    dst_rs: usize,
+    accumulate: bool,
+    lhs: &[f32],
+    (lhs_rs, lhs_cs): (usize, usize),
+    rhs: &[f32],
+    (rhs_rs, rhs_cs): (usize, usize),
+) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    // Bounds: the last element each operand is read or written at.
+    assert!(dst.len() > (m - 1) * dst_rs + (n - 1));
+    if k > 0 {
+        assert!(lhs.len() > (m - 1) * lhs_rs + (k - 1) * lhs_cs);
+        assert!(rhs.len() > (k - 1) * rhs_rs + (n - 1) * rhs_cs);
+    }
+    let threads = rayon::current_num_threads();
+    let parallelism = if threads > 1 {
+        gemm::Parallelism::Rayon(threads)
+    } else {
+        gemm::Parallelism::None
+    };
+    // SAFETY: the asserts above keep every access of the strided operands inside the slices;
+    // dst does not alias lhs or rhs (distinct borrows).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            dst_rs as isize,
+            accumulate,
+            lhs.as_ptr(),
+            lhs_cs as isize,
+            lhs_rs as isize,
+            rhs.as_ptr(),
+            rhs_cs as isize,
+            rhs_rs as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            parallelism,
+        )
+    }
+}
+
+impl FusedTrunk {
+    /// Forward pass: every layer's output, `(M, H)` each.
+    fn layers(&self, x: &[f32], params: &[f32], m: usize) -> Vec<Vec<f32>> {
+        let s = &self.shape;
+        let h = s.hidden;
+        let mut outputs: Vec<Vec<f32>> = Vec::with_capacity(s.skip.len());
+        for i in 0..s.skip.len() {
+            let in_i = s.in_dim(i);
+            let w = &params[s.offset(i)..s.offset(i) + h * in_i];
+            let b = &params[s.offset(i) + h * in_i..s.offset(i) + h * (in_i + 1)];
+            let mut out = vec![0f32; m * h];
+            // The hidden part of the input (the previous output), or x for layer 0.
+            let (y, y_dim) = match outputs.last() {
+                Some(prev) => (prev.as_slice(), h),
+                None => (x, s.input_dim),
+            };
+            // out = y · W[:, :y_dim]ᵀ: rhs(k, n) = W[n][k].
+            gemm_f32(
+                (m, h, y_dim),
+                &mut out,
+                h,
+                false,
+                y,
+                (y_dim, 1),
+                w,
+                (1, in_i),
+            );
+            if i > 0 && s.skip[i] {
+                // + x · W[:, h:]ᵀ.
+                gemm_f32(
+                    (m, h, s.input_dim),
+                    &mut out,
+                    h,
+                    true,
+                    x,
+                    (s.input_dim, 1),
+                    &w[h..],
+                    (1, in_i),
+                );
+            }
+            out.par_chunks_mut(ROWS_PER_TASK * h).for_each(|rows| {
+                for row in rows.chunks_exact_mut(h) {
+                    for (v, b) in row.iter_mut().zip(b) {
+                        *v = (*v + b).max(0.0);
+                    }
+                }
+            });
+            outputs.push(out);
+        }
+        outputs
+    }
+}
+
+impl CustomOp2 for FusedTrunk {
+    fn name(&self) -> &'static str {
+        "nerf-trunk"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let (x, params) = (
+            contiguous_f32(s1, l1, "nerf-trunk")?,
+            contiguous_f32(s2, l2, "nerf-trunk")?,
+        );
+        let (m, d) = l1.shape().dims2()?;
+        let s = &self.shape;
+        if d != s.input_dim || params.len() != s.n_parameters() || s.skip.is_empty() {
+            candle_core::bail!(
+                "nerf-trunk: input width {d} (expected {}), {} parameters (expected {})",
+                s.input_dim,
+                params.len(),
+                s.n_parameters()
+            );
+        }
+        let mut outputs = self.layers(x, params, m);
+        let result = if self.keep {
+            let last = outputs.last().expect("at least one layer").clone();
+            *self.saved.lock().expect("trunk lock") = Some(outputs);
+            last
+        } else {
+            outputs.pop().expect("at least one layer")
+        };
+        Ok((CpuStorage::F32(result), Shape::from((m, s.hidden))))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        params: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        let s = &self.shape;
+        let h = s.hidden;
+        let (m, _) = x.dims2()?;
+        let outputs = match self.saved.lock().expect("trunk lock").take() {
+            Some(o) => o,
+            None => {
+                let (xs, ps) = (
+                    x.flatten_all()?.to_vec1::<f32>()?,
+                    params.flatten_all()?.to_vec1::<f32>()?,
+                );
+                self.layers(&xs, &ps, m)
+            }
+        };
+        let xs = x.flatten_all()?.to_vec1::<f32>()?;
+        let ps = params.flatten_all()?.to_vec1::<f32>()?;
+        let mut g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let mut dparams = vec![0f32; s.n_parameters()];
+        for i in (0..s.skip.len()).rev() {
+            let in_i = s.in_dim(i);
+            let off = s.offset(i);
+            // G ⊙ [y_i > 0].
+            g.par_chunks_mut(ROWS_PER_TASK * h)
+                .zip(outputs[i].par_chunks(ROWS_PER_TASK * h))
+                .for_each(|(g, y)| {
+                    for (g, y) in g.iter_mut().zip(y) {
+                        if *y <= 0.0 {
+                            *g = 0.0;
+                        }
+                    }
+                });
+            let (dw, rest) = dparams[off..].split_at_mut(h * in_i);
+            // db = Σ_rows G.
+            let db = &mut rest[..h];
+            for row in g.chunks_exact(h) {
+                for (d, v) in db.iter_mut().zip(row) {
+                    *d += v;
+                }
+            }
+            let (y, y_dim) = if i == 0 {
+                (xs.as_slice(), s.input_dim)
+            } else {
+                (outputs[i - 1].as_slice(), h)
+            };
+            // dW[:, :y_dim] = Gᵀ · y: lhs(h_out, m) = G[m][h_out], rhs(m, k) = y[m][k].
+            gemm_f32((h, y_dim, m), dw, in_i, false, &g, (1, h), y, (y_dim, 1));
+            if i > 0 && s.skip[i] {
+                gemm_f32(
+                    (h, s.input_dim, m),
+                    &mut dw[h..],
+                    in_i,
+                    false,
+                    &g,
+                    (1, h),
+                    &xs,
+                    (s.input_dim, 1),
+                );
+            }
+            if i > 0 {
+                // G_{i-1} = G · W[:, :h]: rhs(k = h_out, n) = W[h_out][n].
+                let w = &ps[off..off + h * in_i];
+                let mut prev = vec![0f32; m * h];
+                gemm_f32((m, h, h), &mut prev, h, false, &g, (h, 1), w, (in_i, 1));
+                g = prev;
+            }
+        }
+        let dparams = Tensor::from_vec(dparams, s.n_parameters(), params.device())?;
+        Ok((None, Some(dparams)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{Device, Var};
+    use candle_nn::Module;
+
+    /// The same trunk through Candle ops.
+    fn reference(x: &Tensor, layers: &[Linear], shape: &TrunkShape) -> Tensor {
+        let mut y = x.clone();
+        for (i, l) in layers.iter().enumerate() {
+            if i > 0 && shape.skip[i] {
+                y = Tensor::cat(&[&y, x], 1).unwrap();
+            }
+            y = l.forward(&y).unwrap().relu().unwrap();
+        }
+        y
+    }
+
+    #[test]
+    fn forward_and_gradients_match_candle_autodiff() {
+        let dev = Device::Cpu;
+        let shape = TrunkShape {
+            input_dim: 7,
+            hidden: 12,
+            skip: vec![false, false, true, false],
+        };
+        let m = 300;
+        let x = Tensor::randn(0f32, 1.0, (m, 7), &dev).unwrap();
+        let vars: Vec<(Var, Var)> = (0..4)
+            .map(|i| {
+                let w = Var::randn(0f32, 0.4, (12, shape.in_dim(i)), &dev).unwrap();
+                let b = Var::randn(0.05f32, 0.1, 12, &dev).unwrap();
+                (w, b)
+            })
+            .collect();
+        let layers: Vec<Linear> = vars
+            .iter()
+            .map(|(w, b)| Linear::new(w.as_tensor().clone(), Some(b.as_tensor().clone())))
+            .collect();
+        let weight = Tensor::randn(0f32, 1.0, (m, 12), &dev).unwrap();
+        let slow = reference(&x, &layers, &shape);
+        let fast = trunk(&x, &pack_parameters(&layers).unwrap(), &shape).unwrap();
+        let diff = |a: &Tensor, b: &Tensor| {
+            a.sub(b)
+                .unwrap()
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap()
+        };
+        assert!(diff(&slow, &fast) < 1e-5, "forward {}", diff(&slow, &fast));
+        let g_slow = slow
+            .mul(&weight)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap();
+        let g_fast = fast
+            .mul(&weight)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap();
+        for (i, (w, b)) in vars.iter().enumerate() {
+            for v in [w, b] {
+                let (a, c) = (
+                    g_slow.get(v.as_tensor()).unwrap(),
+                    g_fast.get(v.as_tensor()).unwrap(),
+                );
+                let scale = a
+                    .abs()
+                    .unwrap()
+                    .max_all()
+                    .unwrap()
+                    .to_scalar::<f32>()
+                    .unwrap();
+                assert!(
+                    diff(a, c) <= 1e-5 * scale.max(1.0),
+                    "layer {i}: {} (scale {scale})",
+                    diff(a, c)
+                );
+            }
+        }
+        // Without gradient tracking nothing is kept and the output is the same.
+        let detached: Vec<Linear> = layers
+            .iter()
+            .map(|l| Linear::new(l.weight().detach(), l.bias().map(|b| b.detach())))
+            .collect();
+        let plain = trunk(&x, &pack_parameters(&detached).unwrap(), &shape).unwrap();
+        assert!(diff(&plain, &fast) == 0.0);
+    }
+}
