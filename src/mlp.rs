@@ -271,21 +271,27 @@ impl CustomOp2 for FusedTrunk {
         for i in (0..s.skip.len()).rev() {
             let in_i = s.in_dim(i);
             let off = s.offset(i);
-            // G ⊙ [y_i > 0].
-            g.par_chunks_mut(ROWS_PER_TASK * h)
+            // G ⊙ [y_i > 0], and db = Σ_rows of it, in one parallel pass.
+            let partial_sums: Vec<Vec<f32>> = g
+                .par_chunks_mut(ROWS_PER_TASK * h)
                 .zip(outputs[i].par_chunks(ROWS_PER_TASK * h))
-                .for_each(|(g, y)| {
-                    for (g, y) in g.iter_mut().zip(y) {
-                        if *y <= 0.0 {
-                            *g = 0.0;
+                .map(|(g, y)| {
+                    let mut acc = vec![0f32; h];
+                    for (g, y) in g.chunks_exact_mut(h).zip(y.chunks_exact(h)) {
+                        for ((g, y), a) in g.iter_mut().zip(y).zip(acc.iter_mut()) {
+                            if *y <= 0.0 {
+                                *g = 0.0;
+                            }
+                            *a += *g;
                         }
                     }
-                });
+                    acc
+                })
+                .collect();
             let (dw, rest) = dparams[off..].split_at_mut(h * in_i);
-            // db = Σ_rows G.
             let db = &mut rest[..h];
-            for row in g.chunks_exact(h) {
-                for (d, v) in db.iter_mut().zip(row) {
+            for part in &partial_sums {
+                for (d, v) in db.iter_mut().zip(part) {
                     *d += v;
                 }
             }
