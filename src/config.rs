@@ -242,6 +242,10 @@ pub struct TrainingConfig {
     /// transparent costs loss even when its colour matches the background.
     #[serde(default)]
     pub random_background: bool,
+    /// Extension: at every checkpoint, log the test PSNR over the first this many test views
+    /// (0 = off).
+    #[serde(default)]
+    pub eval_views: usize,
 }
 
 /// `cameras` (extension): the surround views rendered by `nerf render`.

@@ -710,3 +710,42 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
 }
+
+#[test]
+fn training_logs_test_psnr_at_checkpoints() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego");
+    if !data.join("transforms_test.json").is_file() {
+        eprintln!("skipping: lego data not found at {}", data.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let status = tiny_train(dir.path(), &data, 2)
+        .arg("training.eval_views=3")
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let log = std::fs::read_to_string(dir.path().join("nerf_lego.log.jsonl")).unwrap();
+    let lines: Vec<serde_json::Value> = log
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let tests: Vec<&serde_json::Value> = lines
+        .iter()
+        .filter(|v| v.get("test_psnr").is_some())
+        .collect();
+    assert_eq!(tests.len(), 2, "{log}");
+    for (k, t) in tests.iter().enumerate() {
+        assert_eq!(t["epoch"].as_u64(), Some(k as u64 + 1));
+        assert_eq!(t["step"].as_u64(), Some(100 * (k as u64 + 1)));
+        assert_eq!(t["test_views"].as_u64(), Some(3));
+        let psnr = t["test_psnr"].as_f64().unwrap();
+        assert!(psnr.is_finite() && psnr > 5.0, "{psnr}");
+    }
+    // Training steps are still logged once each.
+    let steps: Vec<u64> = lines
+        .iter()
+        .filter(|v| v.get("loss").is_some())
+        .map(|v| v["step"].as_u64().unwrap())
+        .collect();
+    assert_eq!(steps, (1..=200).collect::<Vec<_>>());
+}
