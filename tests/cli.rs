@@ -478,7 +478,7 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
         100.0 * evaluated
     );
     // A regression guard, not the score (the README reports all 200 views: these three score
-    // 25.7 dB with the shipped model); the grid must skip most samples.
+    // 27.2 dB with the shipped model); the grid must skip most samples.
     assert!(psnr > 24.0, "{psnr}");
     assert!(evaluated < 0.1, "{evaluated}");
     // The render command writes the GIF from the checkpoint alone (no dataset).
