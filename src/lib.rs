@@ -32,7 +32,7 @@ pub fn tune_allocator() {
     }
 }
 pub mod adam;
-pub mod bias_relu;
+pub mod bias;
 pub mod checkpoint;
 pub mod dataset;
 pub mod eval;

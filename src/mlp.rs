@@ -56,7 +56,8 @@ impl TrunkShape {
     }
 }
 
-/// The layers' weights and biases flattened in the packed order. Differentiable (a `cat`).
+/// The layers' weights and biases flattened in the packed order: `(P)` with
+/// `P = Σ_i H·(in_i + 1)`. Differentiable (a `cat`).
 pub fn pack_parameters(layers: &[Linear]) -> candle_core::Result<Tensor> {
     let mut parts = Vec::with_capacity(2 * layers.len());
     for l in layers {
@@ -254,18 +255,13 @@ impl CustomOp2 for FusedTrunk {
         let s = &self.shape;
         let h = s.hidden;
         let (m, _) = x.dims2()?;
-        let outputs = match self.saved.lock().expect("trunk lock").take() {
-            Some(o) => o,
-            None => {
-                let (xs, ps) = (
-                    x.flatten_all()?.to_vec1::<f32>()?,
-                    params.flatten_all()?.to_vec1::<f32>()?,
-                );
-                self.layers(&xs, &ps, m)
-            }
-        };
         let xs = x.flatten_all()?.to_vec1::<f32>()?;
         let ps = params.flatten_all()?.to_vec1::<f32>()?;
+        let saved = self.saved.lock().expect("trunk lock").take();
+        let outputs = match saved {
+            Some(o) => o,
+            None => self.layers(&xs, &ps, m),
+        };
         let mut g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
         let mut dparams = vec![0f32; s.n_parameters()];
         for i in (0..s.skip.len()).rev() {

@@ -200,7 +200,7 @@ impl Nerf {
         let y = self.trunk(&points.reshape((n * s, 3))?)?;
         let density = self.density_head(&y, density_noise)?.reshape((n, s, 1))?;
         let (per_sample, per_ray) = self.color_hidden_parts(&y, directions)?;
-        let h = crate::bias_relu::add_per_group(&per_sample, &per_ray, s)?;
+        let h = crate::bias::add_per_group(&per_sample, &per_ray, s)?;
         Ok(FieldOutput {
             density,
             feature: self.color_head(&h)?.reshape((n, s, 3))?,
@@ -258,26 +258,22 @@ impl Nerf {
     }
 }
 
-/// `layer(x)` with the bias gradient summed in one pass ([`crate::bias_relu::bias_add`]).
+/// `layer(x)` with the bias gradient summed in one pass ([`crate::bias::bias_add`]).
 ///
 /// `x`: `(M, in)`; returns `(M, out)`.
 pub fn linear(layer: &Linear, x: &Tensor) -> Result<Tensor> {
     let pre = x.matmul(&layer.weight().t()?)?;
     Ok(match layer.bias() {
-        Some(b) => crate::bias_relu::bias_add(&pre, b)?,
+        Some(b) => crate::bias::bias_add(&pre, b)?,
         None => pre,
     })
 }
 
-/// `relu(layer(x))` with the bias add and ReLU fused ([`crate::bias_relu`]).
+/// `relu(layer(x))`.
 ///
 /// `x`: `(M, in)`; returns `(M, out)`.
 pub fn linear_relu(layer: &Linear, x: &Tensor) -> Result<Tensor> {
-    let pre = x.matmul(&layer.weight().t()?)?;
-    Ok(match layer.bias() {
-        Some(b) => crate::bias_relu::bias_relu(&pre, b)?,
-        None => pre.relu()?,
-    })
+    Ok(linear(layer, x)?.relu()?)
 }
 
 /// Shapes of every parameter, by PyTorch name, for a config (used to check checkpoints).

@@ -369,24 +369,30 @@ fn train_render_and_eval_a_tiny_nerf() {
     );
 }
 
-#[test]
-fn bad_checkpoints_and_missing_data_give_one_clear_line() {
-    let dir = tempfile::tempdir().unwrap();
-    // A real checkpoint of the lego config, then a truncated copy and random bytes.
-    let config = nerf::config::Config::load("lego", &[]).unwrap();
+/// Writes the freshly initialised model of the lego config (with overrides) to `path`.
+fn save_seeded_checkpoint(path: &Path, overrides: &[&str]) {
+    let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+    let config = nerf::config::Config::load("lego", &overrides).unwrap();
     let state = nerf::train::NerfState::seeded(
         nerf::train::nerf_config(&config).unwrap(),
         0,
         &candle_core::Device::Cpu,
     )
     .unwrap();
-    let good = dir.path().join("good.safetensors");
     nerf::checkpoint::save(
-        &good,
+        path,
         &nerf::checkpoint::model_tensors(&state.varmap),
         Default::default(),
     )
     .unwrap();
+}
+
+#[test]
+fn bad_checkpoints_and_missing_data_give_one_clear_line() {
+    let dir = tempfile::tempdir().unwrap();
+    // A real checkpoint of the lego config, then a truncated copy and random bytes.
+    let good = dir.path().join("good.safetensors");
+    save_seeded_checkpoint(&good, &[]);
     let bytes = std::fs::read(&good).unwrap();
     let truncated = dir.path().join("truncated.safetensors");
     std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
@@ -506,24 +512,8 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
 fn wrong_shape_checkpoint_and_corrupt_png_name_what_is_wrong() {
     let dir = tempfile::tempdir().unwrap();
     // A 256-wide model where the lego config needs 128.
-    let wide_config = nerf::config::Config::load(
-        "lego",
-        &["implicit_function.n_hidden_neurons_xyz=256".into()],
-    )
-    .unwrap();
-    let wide = nerf::train::NerfState::seeded(
-        nerf::train::nerf_config(&wide_config).unwrap(),
-        0,
-        &candle_core::Device::Cpu,
-    )
-    .unwrap();
     let path = dir.path().join("wide.safetensors");
-    nerf::checkpoint::save(
-        &path,
-        &nerf::checkpoint::model_tensors(&wide.varmap),
-        Default::default(),
-    )
-    .unwrap();
+    save_seeded_checkpoint(&path, &["implicit_function.n_hidden_neurons_xyz=256"]);
     let p = path.to_str().unwrap();
     assert_clean_failure(
         &["--config", "lego", "--checkpoint", p],
