@@ -274,11 +274,11 @@ impl CustomOp2 for FusedTrunk {
                 .map(|(g, y)| {
                     let mut acc = vec![0f32; h];
                     for (g, y) in g.chunks_exact_mut(h).zip(y.chunks_exact(h)) {
+                        // Branch-free so that it vectorises (the mask is data-dependent).
                         for ((g, y), a) in g.iter_mut().zip(y).zip(acc.iter_mut()) {
-                            if *y <= 0.0 {
-                                *g = 0.0;
-                            }
-                            *a += *g;
+                            let masked = if *y > 0.0 { *g } else { 0.0 };
+                            *g = masked;
+                            *a += masked;
                         }
                     }
                     acc
