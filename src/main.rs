@@ -124,6 +124,29 @@ enum Command {
         /// Hydra-style overrides for the config.
         overrides: Vec<String>,
     },
+    /// Measure error against run time (box, lego, training) and write a Markdown report with
+    /// PNG plots.
+    Report {
+        /// Output directory (report.md, report.json, plots).
+        #[arg(long, default_value = "reports")]
+        out_dir: PathBuf,
+        /// CI-sized run: small images, fewer sample counts and views, one repeat.
+        #[arg(long)]
+        quick: bool,
+        /// Trained NeRF for the lego section (skipped with a note when missing).
+        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
+        checkpoint: PathBuf,
+        /// Lego dataset directory (default ../shared/data/lego).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Test views for the lego section (default 5; 2 with --quick).
+        #[arg(long)]
+        views: Option<usize>,
+        /// Training logs to plot (default: the checkpoint's .log.jsonl and
+        /// checkpoints/homework/nerf_lego.log.jsonl).
+        #[arg(long = "log")]
+        logs: Vec<PathBuf>,
+    },
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -279,6 +302,37 @@ fn run(cli: Cli) -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
                 print!("{}", nerf::bench::format_table(&report));
+            }
+        }
+        Command::Report {
+            out_dir,
+            quick,
+            checkpoint,
+            data_dir,
+            views,
+            logs,
+        } => {
+            if views == Some(0) {
+                anyhow::bail!("--views must be at least 1");
+            }
+            let training_logs = if logs.is_empty() {
+                vec![
+                    checkpoint.with_extension("log.jsonl"),
+                    PathBuf::from("checkpoints/homework/nerf_lego.log.jsonl"),
+                ]
+            } else {
+                logs
+            };
+            let options = nerf::report::ReportOptions {
+                out_dir,
+                quick,
+                checkpoint,
+                data_dir: data_dir.unwrap_or_else(|| nerf::dataset::default_data_dir("lego")),
+                views,
+                training_logs,
+            };
+            for p in nerf::report::write_report(&options, &device)? {
+                println!("wrote {}", p.display());
             }
         }
     }

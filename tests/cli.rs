@@ -739,3 +739,123 @@ fn training_logs_test_psnr_at_checkpoints() {
         .collect();
     assert_eq!(steps, (1..=200).collect::<Vec<_>>());
 }
+
+#[test]
+fn report_quick_measures_and_writes_markdown_json_and_plots() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let data = root.join("../shared/data/lego");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    let missing_log = dir.path().join("no_such.log.jsonl");
+    let o = nerf(&[
+        "report",
+        "--quick",
+        "--views",
+        "1",
+        "--out-dir",
+        out.to_str().unwrap(),
+        "--data-dir",
+        data.to_str().unwrap(),
+        "--checkpoint",
+        root.join("checkpoints/nerf_lego.safetensors")
+            .to_str()
+            .unwrap(),
+        "--log",
+        root.join("checkpoints/nerf_lego.log.jsonl")
+            .to_str()
+            .unwrap(),
+        "--log",
+        missing_log.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+
+    // Box: the hard box converges to the analytic surface; every number is finite.
+    let rows = json["hard_box"]["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 6, "8 … 256 samples per ray");
+    let depth_err = |r: &serde_json::Value| r["vs_analytic"]["depth_mae"].as_f64().unwrap();
+    let first = depth_err(&rows[0]);
+    let last = depth_err(rows.last().unwrap());
+    assert!(last < first / 10.0, "depth error {first} -> {last}");
+    assert!(last < 5.0 / 256.0, "below one sample spacing: {last}");
+    for study in ["hard_box", "homework_box"] {
+        for r in json[study]["rows"].as_array().unwrap() {
+            assert!(r["seconds_per_frame"].as_f64().unwrap() > 0.0);
+            assert!(r["vs_reference"]["color_rmse"]
+                .as_f64()
+                .unwrap()
+                .is_finite());
+        }
+    }
+    for png in ["box_error_vs_time.png", "training_psnr_vs_time.png"] {
+        let img = image::open(out.join(png)).unwrap();
+        assert_eq!((img.width(), img.height()), (900, 560), "{png}");
+        assert!(
+            md.contains(&format!("]({png})")),
+            "{png} linked from report.md"
+        );
+    }
+    // Each table states machine, profile and threads.
+    assert!(md.matches("Machine: ").count() >= 3, "{md}");
+    assert!(md.contains("threads") && md.contains("release build"));
+
+    // Training: the shipped log's test PSNR curve, and a clear note for the missing log.
+    let training = json["training"].as_array().unwrap();
+    let test = training[0]["Ok"]["test"].as_array().unwrap();
+    assert!(test.len() >= 10, "{} evaluations", test.len());
+    assert!(training[1]["Err"]
+        .as_str()
+        .unwrap()
+        .contains("no_such.log.jsonl"));
+    assert!(md.contains("Skipped a training log"));
+
+    // Lego (where the data is): every acceleration at 32 and 128 samples per ray.
+    if data.is_dir() {
+        let lego = json["lego"]["Ok"]["rows"].as_array().unwrap();
+        assert_eq!(lego.len(), 8);
+        for r in lego {
+            let psnr = r["psnr_vs_truth"].as_f64().unwrap();
+            assert!((15.0..40.0).contains(&psnr), "{r}");
+            if r["acceleration"] == "grid + early termination" {
+                assert!(r["evaluated"].as_f64().unwrap() < 0.2, "{r}");
+            }
+        }
+        assert!(out.join("lego_psnr_vs_time.png").is_file());
+    } else {
+        eprintln!("lego section skipped: no data at {}", data.display());
+        assert!(json["lego"]["Err"].is_string());
+    }
+    // Nothing half-written.
+    for entry in std::fs::read_dir(&out).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().to_string();
+        assert!(!name.ends_with(".tmp"), "{name}");
+    }
+}
+
+#[test]
+fn report_rejects_bad_arguments_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("a_file");
+    std::fs::write(&file, b"x").unwrap();
+    for (args, needle) in [
+        (vec!["report", "--quick", "--views", "0"], "--views"),
+        (
+            vec![
+                "report",
+                "--quick",
+                "--out-dir",
+                file.join("sub").to_str().unwrap(),
+            ],
+            "a_file",
+        ),
+    ] {
+        let o = nerf(&args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains(needle), "{err}");
+        assert!(!err.contains("panicked"));
+    }
+}
