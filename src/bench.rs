@@ -55,6 +55,16 @@ pub fn machine_info() -> MachineInfo {
     }
 }
 
+/// PSNR in dB of a mean squared error of colours in [0, 1]: `−10·log10(mse)`, infinite for
+/// identical images.
+pub fn psnr_from_mse(mse: f64) -> f64 {
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        -10.0 * mse.log10()
+    }
+}
+
 /// PSNR in dB between two colour images in [0, 1].
 pub fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
     let mse = a
@@ -64,11 +74,23 @@ pub fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
         .map(|(x, y)| ((x - y) as f64).powi(2))
         .sum::<f64>()
         / a.data.len() as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        -10.0 * mse.log10()
-    }
+    psnr_from_mse(mse)
+}
+
+/// Mean of `values` (0 when empty).
+pub fn mean(values: &[f64]) -> f64 {
+    values.iter().sum::<f64>() / values.len().max(1) as f64
+}
+
+/// Mean over views of the PSNR of each frame's colour against its image.
+pub fn mean_psnr(frames: &[Frame], images: &[RgbImage]) -> f64 {
+    mean(
+        &frames
+            .iter()
+            .zip(images)
+            .map(|(f, i)| psnr(&f.color, i))
+            .collect::<Vec<_>>(),
+    )
 }
 
 /// Times the box render (all surround views of `config`) `repeats` times; the error column is
@@ -327,15 +349,6 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
         runs: fast_runs,
         load_seconds: grid_seconds,
     } = render_all(&fast_config)?;
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    let mean_psnr = |a: &[Frame], b: &[RgbImage]| {
-        mean(
-            &a.iter()
-                .zip(b)
-                .map(|(x, y)| psnr(&x.color, y))
-                .collect::<Vec<_>>(),
-        )
-    };
     let dense_colors: Vec<RgbImage> = dense.iter().map(|f| f.color.clone()).collect();
     let vs_dense = mean_psnr(&fast, &dense_colors);
     let counts = fast

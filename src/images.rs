@@ -48,6 +48,15 @@ pub fn remove_stale_temp_files(path: &Path) {
     }
 }
 
+/// Writes `text` to `path` atomically.
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    write_atomically(path, |w| {
+        use std::io::Write;
+        w.write_all(text.as_bytes())?;
+        Ok(())
+    })
+}
+
 /// Runs `write` on a temp file beside `path`, then renames it over `path`. On error the temp
 /// file is removed and `path` is untouched.
 pub fn write_atomically(

@@ -16,7 +16,7 @@ use anyhow::{Context, Result};
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::bench::{machine_info, psnr, MachineInfo};
+use crate::bench::{machine_info, mean_psnr, psnr_from_mse, MachineInfo};
 use crate::camera::PerspectiveCamera;
 use crate::config::Config;
 use crate::images::RgbImage;
@@ -130,7 +130,7 @@ pub fn image_error(
         });
     ImageError {
         color_rmse: mse.sqrt(),
-        psnr: -10.0 * mse.log10(),
+        psnr: psnr_from_mse(mse),
         depth_mae: if count > 0 {
             sum / count as f64
         } else {
@@ -403,20 +403,6 @@ pub fn accelerations() -> Vec<(&'static str, Vec<&'static str>)> {
         ("occupancy grid", vec!["renderer.early_termination=0"]),
         ("grid + early termination", vec![]),
     ]
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len().max(1) as f64
-}
-
-fn mean_psnr(frames: &[Frame], images: &[RgbImage]) -> f64 {
-    mean(
-        &frames
-            .iter()
-            .zip(images)
-            .map(|(f, i)| psnr(&f.color, i))
-            .collect::<Vec<_>>(),
-    )
 }
 
 /// The lego study, or why it was skipped.
@@ -1008,20 +994,10 @@ pub fn write_report(options: &ReportOptions, device: &Device) -> Result<Vec<Path
         )?;
     }
     let md = options.out_dir.join("report.md");
-    let text = markdown(&report, &plots);
-    crate::images::write_atomically(&md, |w| {
-        use std::io::Write;
-        w.write_all(text.as_bytes())?;
-        Ok(())
-    })?;
+    crate::images::write_text(&md, &markdown(&report, &plots))?;
     written.push(md);
     let json = options.out_dir.join("report.json");
-    let json_text = serde_json::to_string_pretty(&report)?;
-    crate::images::write_atomically(&json, |w| {
-        use std::io::Write;
-        w.write_all(json_text.as_bytes())?;
-        Ok(())
-    })?;
+    crate::images::write_text(&json, &serde_json::to_string_pretty(&report)?)?;
     written.push(json);
     Ok(written)
 }

@@ -121,9 +121,10 @@ pub fn learning_rate(lr: f64, gamma: f64, step_size: usize, epoch: usize) -> f64
     lr * gamma.powf(epoch as f64 / step_size as f64)
 }
 
-/// PSNR in dB of a mean squared error of colours in [0, 1].
-pub fn psnr_from_mse(mse: f64) -> f64 {
-    -10.0 * mse.max(1e-12).log10()
+/// PSNR in dB of a training loss (an MSE of colours in [0, 1]), capped at 120 dB so that the
+/// log never holds an infinity.
+pub fn logged_psnr(mse: f64) -> f64 {
+    crate::bench::psnr_from_mse(mse.max(1e-12))
 }
 
 /// Where a training run writes.
@@ -470,7 +471,7 @@ pub fn train(
                 epoch,
                 wall,
                 loss,
-                psnr_from_mse(loss),
+                logged_psnr(loss),
                 samples.evaluated as f64 / samples.total.max(1) as f64
             )?;
             let occupied = state
@@ -480,7 +481,7 @@ pub fn train(
                 .unwrap_or_default();
             bar.set_message(format!(
                 "epoch {epoch} loss {loss:.4} psnr {:.2}{occupied}",
-                psnr_from_mse(loss)
+                logged_psnr(loss)
             ));
             bar.inc(1);
         }
