@@ -178,8 +178,7 @@ pub fn evaluate_skipping(
 mod tests {
     use std::sync::Arc;
 
-    use candle_core::{DType, Device, Tensor};
-    use candle_nn::{VarBuilder, VarMap};
+    use candle_core::{Device, Tensor};
 
     use super::*;
     use crate::config::{NerfConfig, OccupancyGridConfig};
@@ -190,8 +189,6 @@ mod tests {
 
     /// A small NeRF whose density bias is `density_bias` (large values make rays terminate).
     fn model(density_bias: f32) -> Nerf {
-        let varmap = VarMap::new();
-        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
         let cfg = NerfConfig {
             kind: "nerf".into(),
             n_harmonic_functions_xyz: 4,
@@ -202,12 +199,12 @@ mod tests {
             n_layers_xyz: 3,
             append_xyz: vec![2],
         };
-        let m = Nerf::new(&cfg, vb).unwrap();
-        let data = varmap.data().lock().unwrap();
-        data["density_layer.0.bias"]
+        // Seeded, so every run tests the same weights.
+        let state = crate::train::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
+        state.varmap.data().lock().unwrap()["density_layer.0.bias"]
             .set(&Tensor::new(&[density_bias], &Device::Cpu).unwrap())
             .unwrap();
-        m
+        state.model
     }
 
     fn rays() -> Rays {
