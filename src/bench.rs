@@ -27,6 +27,28 @@ pub struct BenchResult {
     pub error: Option<String>,
 }
 
+/// The PyTorch CPU reference figures of the speed issue (2-core machine), for exactly the work
+/// they timed, else `None`: a ratio against different work would mean nothing.
+pub fn pytorch_seconds(work: ReferenceWork) -> Option<f64> {
+    match work {
+        ReferenceWork::Box(20, 256, 256, 64) => Some(3.65),
+        ReferenceWork::Frame(128, 128, 128) => Some(6.7),
+        ReferenceWork::Step(1024, 128) => Some(1.0),
+        _ => None,
+    }
+}
+
+/// What a PyTorch reference figure timed (see [`pytorch_seconds`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ReferenceWork {
+    /// Surround frames of the box: frames, width, height, points per ray.
+    Box(usize, usize, usize, usize),
+    /// One NeRF frame: width, height, points per ray.
+    Frame(usize, usize, usize),
+    /// One training step: rays, points per ray.
+    Step(usize, usize),
+}
+
 /// Machine facts printed with every table.
 #[derive(Debug, Clone, Serialize)]
 pub struct MachineInfo {
@@ -127,7 +149,12 @@ pub fn bench_sdf_render(
             work,
             seconds: best,
             runs,
-            pytorch_seconds: Some(3.65),
+            pytorch_seconds: pytorch_seconds(ReferenceWork::Box(
+                cameras.len(),
+                w,
+                h,
+                sampler.n_pts_per_ray,
+            )),
             error: None,
         },
         frames,
@@ -239,7 +266,10 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             ),
             seconds: best(&step_runs),
             runs: step_runs,
-            pytorch_seconds: Some(1.0),
+            pytorch_seconds: pytorch_seconds(ReferenceWork::Step(
+                training.batch_size,
+                sampler.n_pts_per_ray,
+            )),
             error: None,
         },
         BenchResult {
@@ -250,7 +280,7 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             ),
             seconds: best(&frame_runs),
             runs: frame_runs,
-            pytorch_seconds: Some(6.7),
+            pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, sampler.n_pts_per_ray)),
             error: None,
         },
     ])
@@ -380,7 +410,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
             work: format!("1 frame {w}x{h} x {points} points (mean of {n})"),
             seconds: mean(&dense_runs),
             runs: dense_runs,
-            pytorch_seconds: Some(6.7),
+            pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             error: Some(dense_error),
         },
         BenchResult {
@@ -390,7 +420,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
             ),
             seconds: mean(&fast_runs),
             runs: fast_runs,
-            pytorch_seconds: Some(6.7),
+            pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             error: Some(fast_error),
         },
     ])
@@ -420,4 +450,34 @@ pub fn format_table(report: &BenchReport) -> String {
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pytorch_figures_apply_only_to_the_work_they_timed() {
+        // The built-in configs describe exactly the reference work.
+        let boxed = Config::load("box", &[]).unwrap();
+        let (w, h) = boxed.image_size();
+        let work = ReferenceWork::Box(boxed.cameras.n_poses, w, h, boxed.sampler.n_pts_per_ray);
+        assert_eq!(pytorch_seconds(work), Some(3.65));
+        let lego = Config::load("nerf_lego", &[]).unwrap();
+        let (w, h) = lego.image_size();
+        let points = lego.sampler.n_pts_per_ray;
+        assert_eq!(
+            pytorch_seconds(ReferenceWork::Frame(w, h, points)),
+            Some(6.7)
+        );
+        let rays = lego.training.as_ref().unwrap().batch_size;
+        assert_eq!(
+            pytorch_seconds(ReferenceWork::Step(rays, points)),
+            Some(1.0)
+        );
+        // Other sizes have no figure.
+        assert_eq!(pytorch_seconds(ReferenceWork::Box(20, 16, 16, 64)), None);
+        assert_eq!(pytorch_seconds(ReferenceWork::Frame(128, 128, 64)), None);
+        assert_eq!(pytorch_seconds(ReferenceWork::Step(512, 128)), None);
+    }
 }

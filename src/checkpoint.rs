@@ -78,6 +78,20 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     })
 }
 
+/// An error unless `path` is a file: "not found" (with how to make one) or "is a directory".
+pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
+    if path.is_dir() {
+        bail!("checkpoint {} is a directory, not a file", path.display());
+    }
+    if !path.is_file() {
+        bail!(
+            "checkpoint {} not found (train one with `nerf train --config nerf_lego_fast`)",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 /// Reads every tensor and the metadata of a checkpoint.
 pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
     let bytes = std::fs::read(path)
@@ -125,9 +139,25 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
             .chunks_exact(4)
             .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
             .collect();
+        ensure_finite_values(path, &name, &values)?;
         tensors.insert(name, Tensor::from_vec(values, view.shape(), device)?);
     }
     Ok((tensors, info))
+}
+
+/// An error naming the file and tensor when any of `values` is NaN or infinite: such a weight
+/// makes the ReLU density NaN, which the occupancy grid then reads as empty space and renders
+/// as black, silently.
+pub fn ensure_finite_values(origin: &Path, name: &str, values: &[f32]) -> Result<()> {
+    let bad = values.iter().filter(|v| !v.is_finite()).count();
+    if bad > 0 {
+        bail!(
+            "{}: tensor {name} has {bad} non-finite values (NaN or inf) of {}",
+            origin.display(),
+            values.len()
+        );
+    }
+    Ok(())
 }
 
 /// Copies the model parameters of a checkpoint into `varmap`, checking every name and shape

@@ -18,6 +18,37 @@ use crate::renderer::VolumeRenderer;
 use crate::sampler::StratifiedSampler;
 use crate::sdf::{Sdf, SdfVolume};
 
+/// Upper limits on sizes, so that a typo such as an extra zero is a one-line error naming the
+/// key instead of an allocation that exhausts memory. Each is far above what the homework's
+/// scenes use (400×400 images, 128 samples per ray, 1024-ray batches, 20 poses).
+pub mod limits {
+    /// Largest image width or height.
+    pub const IMAGE_SIDE: usize = 4096;
+    /// Most samples per ray.
+    pub const PTS_PER_RAY: usize = 16384;
+    /// Most surround poses.
+    pub const POSES: usize = 3600;
+    /// Most pixels over all surround frames (every frame is kept in memory for the GIF).
+    pub const FRAME_PIXELS: usize = 1 << 26;
+    /// Most samples in one training batch (`batch_size × n_pts_per_ray`), all held with
+    /// their activations for the backward pass.
+    pub const BATCH_SAMPLES: usize = 1 << 21;
+    /// Most harmonic functions of a positional embedding (2^31 is past f32 precision).
+    pub const HARMONICS: usize = 32;
+    /// Widest hidden layer.
+    pub const HIDDEN: usize = 4096;
+    /// Deepest trunk.
+    pub const LAYERS: usize = 64;
+}
+
+/// An error naming `key` when `v` is not in `1..=max`.
+fn count_in_range(key: &str, v: usize, max: usize) -> Result<()> {
+    if v == 0 || v > max {
+        bail!("{key}: must be 1 to {max} (got {v})");
+    }
+    Ok(())
+}
+
 /// Configs shipped with the binary, found by name when `configs/NAME.yaml` is not on disk.
 const BUILT_IN: &[(&str, &str)] = &[
     ("box", include_str!("../configs/box.yaml")),
@@ -362,6 +393,9 @@ pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
     let looks_like_path = name_or_path.contains('/')
         || name_or_path.ends_with(".yaml")
         || name_or_path.ends_with(".yml");
+    if looks_like_path && path.is_dir() {
+        bail!("config {name_or_path} is a directory, not a YAML file");
+    }
     if !looks_like_path {
         let local = Path::new("configs").join(format!("{name_or_path}.yaml"));
         if local.is_file() {
@@ -439,9 +473,17 @@ impl Config {
     /// Checks every value's range, naming the key of the first bad one.
     pub fn validate(&self) -> Result<()> {
         let [w, h] = self.data.image_size;
-        if w == 0 || h == 0 {
-            bail!("data.image_size: width and height must be at least 1 (got [{w}, {h}])");
+        if w == 0 || h == 0 || w > limits::IMAGE_SIDE || h > limits::IMAGE_SIDE {
+            bail!(
+                "data.image_size: width and height must be 1 to {} (got [{w}, {h}])",
+                limits::IMAGE_SIDE
+            );
         }
+        count_in_range(
+            "sampler.n_pts_per_ray",
+            self.sampler.n_pts_per_ray,
+            limits::PTS_PER_RAY,
+        )?;
         if self.renderer.kind != "volume" {
             bail!(
                 "renderer.type: unknown renderer `{}` (expected volume)",
@@ -498,8 +540,13 @@ impl Config {
                 c.focal_length
             );
         }
-        if c.n_poses == 0 {
-            bail!("cameras.n_poses: must be at least 1");
+        count_in_range("cameras.n_poses", c.n_poses, limits::POSES)?;
+        if c.n_poses * w * h > limits::FRAME_PIXELS {
+            bail!(
+                "cameras.n_poses: {} frames of {w}x{h} exceed {} pixels in all (fewer poses or a smaller data.image_size)",
+                c.n_poses,
+                limits::FRAME_PIXELS
+            );
         }
         if c.up.iter().all(|v| *v == 0.0) {
             bail!("cameras.up: must be a non-zero vector");
@@ -513,6 +560,21 @@ impl Config {
             finite("training.lr_scheduler_gamma", t.lr_scheduler_gamma)?;
             if t.lr <= 0.0 {
                 bail!("training.lr: must be positive (got {})", t.lr);
+            }
+            if t.lr_scheduler_gamma <= 0.0 {
+                bail!(
+                    "training.lr_scheduler_gamma: must be positive (got {})",
+                    t.lr_scheduler_gamma
+                );
+            }
+            let samples = t.batch_size.saturating_mul(self.sampler.n_pts_per_ray);
+            if samples > limits::BATCH_SAMPLES {
+                bail!(
+                    "training.batch_size: {} rays x {} points is {samples} samples per step, more than {}",
+                    t.batch_size,
+                    self.sampler.n_pts_per_ray,
+                    limits::BATCH_SAMPLES
+                );
             }
             for (key, v) in [
                 ("training.num_epochs", t.num_epochs),
@@ -690,14 +752,24 @@ fn validate_sdf(s: &SdfVolumeConfig) -> Result<()> {
 
 fn validate_nerf(n: &NerfConfig) -> Result<()> {
     let p = "implicit_function";
-    if n.n_hidden_neurons_xyz == 0 {
-        bail!("{p}.n_hidden_neurons_xyz: must be at least 1");
-    }
-    if n.n_hidden_neurons_dir == 0 {
-        bail!("{p}.n_hidden_neurons_dir: must be at least 1");
-    }
-    if n.n_layers_xyz == 0 {
-        bail!("{p}.n_layers_xyz: must be at least 1");
+    count_in_range(
+        &format!("{p}.n_hidden_neurons_xyz"),
+        n.n_hidden_neurons_xyz,
+        limits::HIDDEN,
+    )?;
+    count_in_range(
+        &format!("{p}.n_hidden_neurons_dir"),
+        n.n_hidden_neurons_dir,
+        limits::HIDDEN,
+    )?;
+    count_in_range(&format!("{p}.n_layers_xyz"), n.n_layers_xyz, limits::LAYERS)?;
+    for (key, v) in [
+        ("n_harmonic_functions_xyz", n.n_harmonic_functions_xyz),
+        ("n_harmonic_functions_dir", n.n_harmonic_functions_dir),
+    ] {
+        if v > limits::HARMONICS {
+            bail!("{p}.{key}: must be at most {} (got {v})", limits::HARMONICS);
+        }
     }
     finite(&format!("{p}.density_noise_std"), n.density_noise_std)?;
     if n.density_noise_std < 0.0 {

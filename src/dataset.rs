@@ -196,6 +196,12 @@ fn image_path(data_dir: &Path, file_path: &str) -> PathBuf {
 /// [`DOWNLOAD_HINT`]), when the JSON does not parse (with the offending key path), or when a
 /// frame's matrix or the field of view is unusable. Images are not opened here.
 pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
+    if data_dir.exists() && !data_dir.is_dir() {
+        bail!(
+            "dataset directory {} is a file, not a directory; {DOWNLOAD_HINT}",
+            data_dir.display()
+        );
+    }
     if !data_dir.is_dir() {
         bail!(
             "dataset directory {} does not exist; {DOWNLOAD_HINT}",

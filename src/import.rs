@@ -63,12 +63,12 @@ pub fn read_torch_state_dict(path: &Path, config: &NerfConfig) -> Result<Vec<(St
                 shape
             );
         }
-        out.push((
-            name,
-            t.to_dtype(DType::F32)?
-                .to_device(&Device::Cpu)?
-                .contiguous()?,
-        ));
+        let t = t
+            .to_dtype(DType::F32)?
+            .to_device(&Device::Cpu)?
+            .contiguous()?;
+        checkpoint::ensure_finite_values(path, &name, &t.flatten_all()?.to_vec1::<f32>()?)?;
+        out.push((name, t));
     }
     Ok(out)
 }
@@ -89,6 +89,16 @@ fn lookup<'a>(tensors: &'a HashMap<String, Tensor>, name: &str) -> Option<&'a Te
 /// Converts `pth` into a checkpoint at `out` (weights only; epoch 0, so training started from
 /// it begins a fresh optimiser). Returns the number of parameters written.
 pub fn import_torch(pth: &Path, config: &NerfConfig, out: &Path) -> Result<usize> {
+    if out
+        .canonicalize()
+        .ok()
+        .is_some_and(|o| pth.canonicalize().ok() == Some(o))
+    {
+        bail!(
+            "--out {} is the PyTorch file itself; choose another path",
+            out.display()
+        );
+    }
     let tensors = read_torch_state_dict(pth, config)?;
     let n = tensors.iter().map(|(_, t)| t.elem_count()).sum();
     checkpoint::save(out, &tensors, CheckpointInfo::default())?;

@@ -38,9 +38,10 @@ enum Command {
         /// Also write color_{i:03}.npy (H,W,3) and depth_{i:03}.npy (H,W) float32 per frame.
         #[arg(long)]
         raw: bool,
-        /// NeRF checkpoint to render (NeRF configs only).
-        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-        checkpoint: PathBuf,
+        /// NeRF checkpoint to render (NeRF configs only; default
+        /// checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
         /// Hydra-style overrides, e.g. sampler.n_pts_per_ray=32 data.image_size=[200,150].
         overrides: Vec<String>,
     },
@@ -79,7 +80,7 @@ enum Command {
         #[arg(long)]
         save_images: Option<PathBuf>,
         /// Score only the first N views.
-        #[arg(long)]
+        #[arg(long, value_parser = at_least_one)]
         limit: Option<usize>,
         /// Print JSON instead of a summary.
         #[arg(long)]
@@ -107,7 +108,7 @@ enum Command {
         #[arg(long, default_value = "box")]
         config: String,
         /// Repeats per measurement (the best is reported).
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 3, value_parser = at_least_one)]
         repeats: usize,
         /// Print JSON instead of a table.
         #[arg(long)]
@@ -119,7 +120,7 @@ enum Command {
         #[arg(long)]
         data_dir: Option<PathBuf>,
         /// Test views rendered for the trained-NeRF benchmark.
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = at_least_one)]
         views: usize,
         /// Hydra-style overrides for the config.
         overrides: Vec<String>,
@@ -140,13 +141,22 @@ enum Command {
         #[arg(long)]
         data_dir: Option<PathBuf>,
         /// Test views for the lego section (default 5; 2 with --quick).
-        #[arg(long)]
+        #[arg(long, value_parser = at_least_one)]
         views: Option<usize>,
         /// Training logs to plot (default: the checkpoint's .log.jsonl and
         /// checkpoints/homework/nerf_lego.log.jsonl).
         #[arg(long = "log")]
         logs: Vec<PathBuf>,
     },
+}
+
+/// A count of at least 1, for clap.
+fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -187,9 +197,17 @@ fn run(cli: Cli) -> Result<()> {
             let config = Config::load(&config, &overrides)?;
             let written = match &config.implicit_function {
                 ImplicitFunctionConfig::SdfVolume(_) => {
+                    if let Some(c) = checkpoint {
+                        anyhow::bail!(
+                            "--checkpoint {}: an SDF scene has no checkpoint (NeRF configs only)",
+                            c.display()
+                        );
+                    }
                     nerf::scene::render_sdf_scene(&config, &out_dir, raw, &device)?
                 }
                 ImplicitFunctionConfig::Nerf(_) => {
+                    let checkpoint = checkpoint
+                        .unwrap_or_else(|| PathBuf::from("checkpoints/nerf_lego.safetensors"));
                     nerf::scene::render_nerf_scene(&config, &checkpoint, &out_dir, raw, &device)?
                 }
             };
@@ -226,9 +244,7 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            if !checkpoint.is_file() {
-                anyhow::bail!("checkpoint {} not found", checkpoint.display());
-            }
+            nerf::checkpoint::ensure_checkpoint_file(&checkpoint)?;
             let (w, h) = config.image_size();
             let data_dir = data_dir_for(&config, data_dir);
             let split: nerf::dataset::Split = split.into();
@@ -312,9 +328,6 @@ fn run(cli: Cli) -> Result<()> {
             views,
             logs,
         } => {
-            if views == Some(0) {
-                anyhow::bail!("--views must be at least 1");
-            }
             let training_logs = if logs.is_empty() {
                 vec![
                     checkpoint.with_extension("log.jsonl"),
@@ -355,8 +368,13 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            // One line: the chain of causes joined by ": ".
-            eprintln!("error: {e:#}");
+            // One line: the chain of causes joined by ": ", each cut to its first line (Candle
+            // appends a backtrace to its errors' text when RUST_BACKTRACE is set).
+            let causes: Vec<String> = e
+                .chain()
+                .map(|c| c.to_string().lines().next().unwrap_or("").to_string())
+                .collect();
+            eprintln!("error: {}", causes.join(": "));
             ExitCode::FAILURE
         }
     }

@@ -12,7 +12,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use candle_core::Device;
 use serde::Serialize;
 
@@ -300,7 +300,7 @@ pub fn box_study(
     let reference_config = box_config(beta, size, sizes.box_reference_pts)?;
     let field = reference_config.sdf_field()?;
     let crate::field::Field::Sdf(volume) = field.clone() else {
-        anyhow::bail!("the box config is not an SDF volume");
+        bail!("the box config is not an SDF volume");
     };
     let all_cameras = reference_config.surround_cameras();
     let cameras: Vec<PerspectiveCamera> = sizes
@@ -412,11 +412,7 @@ pub fn lego_study(
     device: &Device,
     progress: &indicatif::ProgressBar,
 ) -> Result<LegoStudy> {
-    anyhow::ensure!(
-        options.checkpoint.is_file(),
-        "checkpoint {} not found",
-        options.checkpoint.display()
-    );
+    crate::checkpoint::ensure_checkpoint_file(&options.checkpoint)?;
     let size = sizes.lego_size;
     let config_for = |n: usize, extra: &[&str]| -> Result<Config> {
         let mut overrides = vec![
@@ -509,7 +505,7 @@ pub fn read_training_log(path: &Path) -> Result<TrainingCurve> {
             .with_context(|| format!("{} line {}: not JSON", path.display(), i + 1))?;
         let num = |k: &str| v.get(k).and_then(|x| x.as_f64());
         let (Some(wall), Some(epoch)) = (num("wall_s"), num("epoch")) else {
-            anyhow::bail!("{} line {}: no wall_s or epoch", path.display(), i + 1);
+            bail!("{} line {}: no wall_s or epoch", path.display(), i + 1);
         };
         if let Some(p) = num("test_psnr") {
             test.push((wall, epoch as usize, p));
@@ -519,10 +515,13 @@ pub fn read_training_log(path: &Path) -> Result<TrainingCurve> {
             *e = (e.0.max(wall), e.1 + p, e.2 + 1);
         }
     }
-    let train = epochs
+    let train: Vec<_> = epochs
         .into_iter()
         .map(|(epoch, (wall, sum, n))| (wall, epoch, sum / n as f64))
         .collect();
+    if train.is_empty() && test.is_empty() {
+        bail!("{}: no training steps logged", path.display());
+    }
     Ok(TrainingCurve {
         log: path.to_path_buf(),
         test,
@@ -1070,6 +1069,10 @@ mod tests {
         std::fs::write(&path, "{\"step\":1}\nnot json\n").unwrap();
         let err = read_training_log(&path).unwrap_err().to_string();
         assert!(err.contains("line 1"), "{err}");
+        // An empty log is an error (the report notes it and leaves the plot out).
+        std::fs::write(&path, "\n").unwrap();
+        let err = read_training_log(&path).unwrap_err().to_string();
+        assert!(err.contains("no training steps"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

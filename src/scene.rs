@@ -59,6 +59,17 @@ pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
     bar
 }
 
+/// Prints `message` as a line above `bar`, or on stderr when the bar is hidden (stderr is not
+/// a terminal, as when training runs in the background with its output in a file): indicatif
+/// drops the lines of a hidden bar.
+pub fn print_above(bar: &ProgressBar, message: &str) {
+    if bar.is_hidden() {
+        eprintln!("{message}");
+    } else {
+        bar.println(message);
+    }
+}
+
 /// Renders every camera with a progress bar.
 pub fn render_views(
     field: &Field,
@@ -231,12 +242,7 @@ pub fn render_nerf_scene(
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
     crate::train::nerf_config(config)?;
-    if !checkpoint.is_file() {
-        anyhow::bail!(
-            "checkpoint {} not found (train one with `nerf train --config nerf_lego`)",
-            checkpoint.display()
-        );
-    }
+    crate::checkpoint::ensure_checkpoint_file(checkpoint)?;
     let (state, _) = crate::train::NerfState::load(config, checkpoint, device)?;
     prepare_out_dir(out_dir)?;
     let field = state.field();

@@ -28,7 +28,7 @@ use crate::field::Field;
 use crate::nerf_model::Nerf;
 use crate::occupancy::OccupancyGrid;
 use crate::rays::{random_pixel_indices, Rays};
-use crate::scene::progress_bar;
+use crate::scene::{print_above, progress_bar};
 
 /// A NeRF with its parameters.
 pub struct NerfState {
@@ -375,6 +375,12 @@ pub fn train(
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create checkpoint directory {}", dir.display()))?;
     }
+    if training.render_interval <= training.num_epochs {
+        // The progress GIFs' directory, made now so that a bad --out-dir fails before training.
+        std::fs::create_dir_all(&paths.images).with_context(|| {
+            format!("cannot create output directory {}", paths.images.display())
+        })?;
+    }
     // A run killed while writing leaves its temporary file behind; the files themselves are
     // whole (written atomically).
     crate::images::remove_stale_temp_files(&paths.checkpoint);
@@ -402,7 +408,7 @@ pub fn train(
         ) {
             Ok(d) => Some(d),
             Err(e) => {
-                bar.println(format!("no test-PSNR logging: {e:#}"));
+                print_above(&bar, &format!("warning: no test-PSNR logging: {e:#}"));
                 None
             }
         }
@@ -511,12 +517,15 @@ pub fn train(
                     report.mean_psnr,
                     report.views.len()
                 )?;
-                bar.println(format!(
-                    "epoch {}: test PSNR {:.2} dB on {} views",
-                    epoch + 1,
-                    report.mean_psnr,
-                    report.views.len()
-                ));
+                print_above(
+                    &bar,
+                    &format!(
+                        "epoch {}: test PSNR {:.2} dB on {} views",
+                        epoch + 1,
+                        report.mean_psnr,
+                        report.views.len()
+                    ),
+                );
                 excluded += t.elapsed().as_secs_f64();
             }
             save(&state, &info, &adam)?;
@@ -529,12 +538,15 @@ pub fn train(
                 &paths.images.join("render_nerf_training.gif"),
                 device,
             )?;
-            bar.println(format!(
-                "epoch {}: mean train loss {:.5}, wrote {}",
-                epoch + 1,
-                epoch_loss / n_images as f64,
-                gif.display()
-            ));
+            print_above(
+                &bar,
+                &format!(
+                    "epoch {}: mean train loss {:.5}, wrote {}",
+                    epoch + 1,
+                    epoch_loss / n_images as f64,
+                    gif.display()
+                ),
+            );
             excluded += t.elapsed().as_secs_f64();
         }
     }

@@ -150,6 +150,10 @@ fn bad_input_gives_one_clear_line() {
     );
     assert_clean_failure(&["--config", "box", "sampler.typo=3"], "typo");
     assert_clean_failure(
+        &["--config", "box", "--checkpoint", "x.safetensors"],
+        "NeRF configs only",
+    );
+    assert_clean_failure(
         &["--config", "box", "sampler.n_pts_per_ray=many"],
         "sampler.n_pts_per_ray",
     );
@@ -161,6 +165,37 @@ fn bad_input_gives_one_clear_line() {
         &["--config", "box", "cameras.focal_length=.inf"],
         "cameras.focal_length",
     );
+    // Sizes past the limits are refused before anything is allocated (u64::MAX once
+    // overflowed a capacity computation; 1e5 × 1e5 pixels ran out of memory).
+    let max = u64::MAX.to_string();
+    for (config, key, value) in [
+        ("box", "data.image_size", "[100000,100000]".to_string()),
+        ("box", "data.image_size", format!("[{max},{max}]")),
+        ("box", "sampler.n_pts_per_ray", max.clone()),
+        ("box", "sampler.n_pts_per_ray", "1000000000".into()),
+        ("box", "cameras.n_poses", "1000000000".into()),
+        ("box", "cameras.n_poses", "3000".into()), // 3000 frames of 256² pixels
+        (
+            "lego",
+            "implicit_function.n_harmonic_functions_xyz",
+            max.clone(),
+        ),
+        (
+            "lego",
+            "implicit_function.n_hidden_neurons_xyz",
+            max.clone(),
+        ),
+        ("nerf_lego", "training.batch_size", max.clone()),
+        ("nerf_lego", "training.lr_scheduler_gamma", "-1".into()),
+    ] {
+        let arg = format!("{key}={value}");
+        let needle = if key == "cameras.n_poses" && value == "3000" {
+            "pixels".to_string()
+        } else {
+            key.to_string()
+        };
+        assert_clean_failure(&["--config", config, &arg], &needle);
+    }
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.yaml");
     std::fs::write(&bad, "data: [1, 2\nsampler: {").unwrap();
@@ -405,10 +440,24 @@ fn bad_checkpoints_and_missing_data_give_one_clear_line() {
     )
     .unwrap();
     let missing = dir.path().join("missing.safetensors");
+    // A NaN weight: the ReLU density turns NaN, which the occupancy grid would read as empty
+    // space and render black; the loader names the tensor instead.
+    let nan = dir.path().join("nan.safetensors");
+    {
+        let (mut tensors, info) = nerf::checkpoint::load(&good, &candle_core::Device::Cpu).unwrap();
+        let name = "density_layer.0.bias".to_string();
+        tensors.insert(
+            name.clone(),
+            candle_core::Tensor::new(&[f32::NAN], &candle_core::Device::Cpu).unwrap(),
+        );
+        let list: Vec<_> = tensors.into_iter().collect();
+        nerf::checkpoint::save(&nan, &list, info).unwrap();
+    }
     for (ckpt, needle) in [
         (&missing, "not found"),
         (&truncated, "corrupt"),
         (&garbage, "corrupt"),
+        (&nan, "density_layer.0.bias has 1 non-finite"),
     ] {
         let c = ckpt.to_str().unwrap();
         assert_clean_failure(&["--config", "lego", "--checkpoint", c], needle);
@@ -835,27 +884,37 @@ fn report_quick_measures_and_writes_markdown_json_and_plots() {
 }
 
 #[test]
-fn report_rejects_bad_arguments_in_one_line() {
+fn report_rejects_an_unusable_output_directory_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("a_file");
     std::fs::write(&file, b"x").unwrap();
-    for (args, needle) in [
-        (vec!["report", "--quick", "--views", "0"], "--views"),
-        (
-            vec![
-                "report",
-                "--quick",
-                "--out-dir",
-                file.join("sub").to_str().unwrap(),
-            ],
-            "a_file",
-        ),
+    let o = nerf(&[
+        "report",
+        "--quick",
+        "--out-dir",
+        file.join("sub").to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("a_file"), "{err}");
+    assert!(!err.contains("panicked"));
+}
+
+#[test]
+fn counts_of_zero_are_usage_errors() {
+    for args in [
+        vec!["report", "--quick", "--views", "0"],
+        vec!["eval", "--config", "lego", "--limit", "0"],
+        vec!["bench", "--views", "0"],
+        vec!["bench", "--repeats", "0"],
     ] {
         let o = nerf(&args);
         let err = stderr(&o);
-        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-        assert!(err.contains(needle), "{err}");
-        assert!(!err.contains("panicked"));
+        // clap's usage error: exit 2, the option and the rule on the first line.
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        let first = err.lines().next().unwrap_or("");
+        assert!(first.contains(args[args.len() - 2]), "{err}");
+        assert!(first.contains("must be at least 1"), "{err}");
     }
 }
