@@ -60,7 +60,8 @@ impl Adam {
         Ok(())
     }
 
-    /// State tensors by name: `adam.exp_avg.<param>` and `adam.exp_avg_sq.<param>`.
+    /// State tensors by name: `adam.exp_avg.<param>` and `adam.exp_avg_sq.<param>`, each of
+    /// its parameter's shape.
     pub fn state_tensors(&self) -> Vec<(String, Tensor)> {
         let mut out = Vec::new();
         for (name, _) in &self.params {
@@ -71,7 +72,8 @@ impl Adam {
         out
     }
 
-    /// Restores moments (from [`Adam::state_tensors`] names) and the step count.
+    /// Restores moments (from [`Adam::state_tensors`] names, each of its parameter's shape;
+    /// an error names a missing or misshapen one) and the step count.
     pub fn load_state(&mut self, tensors: &HashMap<String, Tensor>, step: u64) -> Result<()> {
         for (name, var) in &self.params {
             let get = |key: String| -> Result<Tensor> {

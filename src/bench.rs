@@ -57,6 +57,7 @@ pub struct MachineInfo {
     pub cpu: String,
 }
 
+/// This machine: CPU model (from /proc/cpuinfo), threads Candle uses, build profile.
 pub fn machine_info() -> MachineInfo {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
@@ -115,8 +116,9 @@ pub fn mean_psnr(frames: &[Frame], images: &[RgbImage]) -> f64 {
     )
 }
 
-/// Times the box render (all surround views of `config`) `repeats` times; the error column is
-/// the PSNR of the last run's frames against a dense render with 16× the samples.
+/// Times the box render (all surround views of `config`) `repeats` times and returns the best
+/// time with the last run's frames; [`run_benchmarks`] fills in the error column (frame 0
+/// against the float64 recomputation).
 pub fn bench_sdf_render(
     config: &Config,
     repeats: usize,

@@ -27,7 +27,8 @@ pub struct CheckpointInfo {
     pub wall_seconds: f64,
 }
 
-/// Writes `tensors` and `info` to `path` (temp file + rename).
+/// Writes `tensors` (any shapes and float dtype; stored as f32) and `info` to `path` (temp
+/// file + rename).
 pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> Result<()> {
     let mut data = Vec::with_capacity(tensors.len());
     for (name, t) in tensors {
@@ -92,7 +93,8 @@ pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Reads every tensor and the metadata of a checkpoint.
+/// Reads every tensor (f32, its stored shape, on `device`) and the metadata of a checkpoint;
+/// an error names a non-finite tensor.
 pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
     let bytes = std::fs::read(path)
         .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
@@ -189,7 +191,8 @@ pub fn load_model_into(
     Ok(())
 }
 
-/// The model parameters of `varmap`, by name, sorted.
+/// The model parameters of `varmap`, by name, sorted (shapes as
+/// [`crate::nerf_model::parameter_shapes`]).
 pub fn model_tensors(varmap: &VarMap) -> Vec<(String, Tensor)> {
     let data = varmap.data().lock().expect("varmap lock");
     let mut v: Vec<(String, Tensor)> = data

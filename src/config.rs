@@ -70,6 +70,7 @@ pub struct Param<T> {
     pub opt: bool,
 }
 
+/// The `data` section.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct DataConfig {
@@ -82,6 +83,7 @@ pub struct DataConfig {
     pub data_dir: Option<PathBuf>,
 }
 
+/// The `renderer` section (the homework's keys plus the acceleration extensions).
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RendererConfig {
@@ -157,6 +159,7 @@ fn d256() -> usize {
     256
 }
 
+/// The `sampler` section.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SamplerConfig {
@@ -171,6 +174,7 @@ fn default_sampler_type() -> String {
     "stratified".into()
 }
 
+/// `implicit_function.sdf`: the shape (`box` with `side_lengths`, or `sphere` with `radius`).
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SdfShapeConfig {
@@ -183,6 +187,7 @@ pub struct SdfShapeConfig {
     pub radius: Option<Param<f64>>,
 }
 
+/// `implicit_function.feature`: a constant colour, or the homework's rainbow colouring.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct FeatureConfig {
@@ -596,6 +601,7 @@ impl Config {
         (self.data.image_size[0], self.data.image_size[1])
     }
 
+    /// The `sampler` section as a sampler (range-checked).
     pub fn sampler(&self) -> Result<StratifiedSampler> {
         StratifiedSampler::new(
             self.sampler.n_pts_per_ray,
@@ -604,6 +610,8 @@ impl Config {
         )
     }
 
+    /// The `renderer` section as a renderer: chunk size, background, early termination (the
+    /// occupancy grid belongs to the field; see [`crate::occupancy::grid_settings`]).
     pub fn renderer(&self) -> Result<VolumeRenderer> {
         VolumeRenderer::new(self.renderer.chunk_size, self.renderer.white_background)?
             .with_early_termination(self.renderer.early_termination)

@@ -27,8 +27,9 @@ use crate::images::RgbImage;
 
 /// Where to get the data, appended to errors about a missing scene directory or transforms file.
 pub const DOWNLOAD_HINT: &str = "download the NeRF-synthetic lego scene (nerf_synthetic.zip \
-    from the original NeRF project's data release) and point data.data_dir at it, or run \
-    scripts/download_lego.sh";
+    from the original NeRF project's data release) and pass --data-dir or set data.data_dir, \
+    or run scripts/download_lego.sh (the default, ../shared/data/lego, is relative to the \
+    working directory)";
 
 /// A dataset split, naming `transforms_{split}.json` and the `{split}/` image folder.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -108,6 +108,7 @@ pub struct RgbImage {
 }
 
 impl RgbImage {
+    /// An image from `width · height · 3` row-major RGB values (an error for any other count).
     pub fn new(width: usize, height: usize, data: Vec<f32>) -> Result<Self> {
         if data.len() != width * height * 3 {
             bail!(
@@ -124,6 +125,7 @@ impl RgbImage {
         })
     }
 
+    /// The pixels as 8-bit RGB (values clamped to [0, 1], then as matplotlib's `imsave`).
     pub fn to_bytes(&self) -> Vec<u8> {
         self.data.iter().map(|&v| to_byte(v)).collect()
     }

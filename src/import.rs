@@ -21,7 +21,9 @@ use crate::nerf_model::parameter_shapes;
 /// Keys under which training scripts commonly nest the state dict.
 const NESTED_KEYS: &[&str] = &["model", "model_state_dict", "state_dict"];
 
-/// Reads the NeRF parameters from a PyTorch `.pth` file, by our names, as f32 on the CPU.
+/// Reads the NeRF parameters from a PyTorch `.pth` file, by our names, as f32 on the CPU, each
+/// of the shape [`parameter_shapes`] gives for `config` (checked); an error names a missing,
+/// misshapen or non-finite tensor.
 pub fn read_torch_state_dict(path: &Path, config: &NerfConfig) -> Result<Vec<(String, Tensor)>> {
     if !path.is_file() {
         bail!("PyTorch file {} not found", path.display());

@@ -19,7 +19,8 @@ pub mod scene;
 pub mod sdf;
 pub mod skipping;
 
-/// Tunes glibc's allocator for tensor work: tensors of many megabytes are allocated and freed
+/// For programs that use this library on the system allocator (the `nerf` binary uses mimalloc
+/// instead, and its test binaries use glibc): tunes glibc's allocator for tensor work: tensors of many megabytes are allocated and freed
 /// for every op, and by default glibc hands each back to the OS, so the next op pays page
 /// faults to get it again (measured: about 40% of the box render's time). Raising the mmap and
 /// trim thresholds keeps freed buffers for reuse. A no-op on other platforms.

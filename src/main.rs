@@ -9,8 +9,9 @@ use clap::{Parser, Subcommand};
 
 use nerf::config::{Config, ImplicitFunctionConfig};
 
-/// mimalloc keeps freed segments for reuse (see `nerf::tune_allocator`): Candle allocates a
-/// fresh buffer of up to tens of megabytes per op.
+/// mimalloc keeps freed segments for reuse: Candle allocates a fresh buffer of up to tens of
+/// megabytes per op, and an allocator that returns each to the OS pays page faults on the next
+/// op (`nerf::tune_allocator` does the same for glibc, for programs on the system allocator).
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
@@ -54,7 +55,7 @@ enum Command {
         #[arg(long)]
         data_dir: Option<PathBuf>,
         /// Stop after this many epochs in this run (a checkpoint is written; resume continues).
-        #[arg(long)]
+        #[arg(long, value_parser = at_least_one)]
         epochs: Option<usize>,
         /// Where training GIFs go.
         #[arg(long, default_value = "images")]
@@ -107,7 +108,10 @@ enum Command {
         /// Config of the SDF scene to time.
         #[arg(long, default_value = "box")]
         config: String,
-        /// Repeats per measurement (the best is reported).
+        /// Repeats of the box render and the training step (the best is reported; the first
+        /// training step is a cold one, so use at least 2); the untrained frame is rendered
+        /// min(repeats, 2) times; the trained-NeRF rows render each view once and report the
+        /// mean.
         #[arg(long, default_value_t = 3, value_parser = at_least_one)]
         repeats: usize,
         /// Print JSON instead of a table.
@@ -122,7 +126,8 @@ enum Command {
         /// Test views rendered for the trained-NeRF benchmark.
         #[arg(long, default_value_t = 5, value_parser = at_least_one)]
         views: usize,
-        /// Hydra-style overrides for the config.
+        /// Hydra-style overrides for the SDF config (the NeRF rows use the built-in nerf_lego
+        /// and lego configs, at the work of the PyTorch figures).
         overrides: Vec<String>,
     },
     /// Measure error against run time (box, lego, training) and write a Markdown report with
@@ -353,9 +358,9 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    nerf::tune_allocator();
     // Keep freed mimalloc segments instead of returning them to the OS after 10 ms: training
-    // allocates and frees 64 MB activations every op (measured: 3.8 → 1.9 s per step).
+    // allocates and frees large activations every op (measured when they were 64 MB: 3.8 →
+    // 1.9 s per step).
     // SAFETY: sets a process-wide allocator option before any worker threads start.
     // The binding does not export these two enum values of mimalloc v2's `mi_option_e`.
     const MI_OPTION_ARENA_EAGER_COMMIT: libmimalloc_sys::mi_option_t = 4;

@@ -71,7 +71,7 @@ pub fn pack_parameters(layers: &[Linear]) -> candle_core::Result<Tensor> {
     Tensor::cat(&parts, 0)
 }
 
-/// Whether [`trunk`] runs fused for these tensors.
+/// Whether [`trunk`] runs fused for input `x` (any shape): f32 on the CPU.
 pub fn fused_available(x: &Tensor) -> bool {
     x.device().is_cpu() && x.dtype() == DType::F32
 }

@@ -247,7 +247,8 @@ impl Nerf {
         }
     }
 
-    /// [`Nerf::forward`] on sampled rays.
+    /// [`Nerf::forward`] on sampled rays: `samples.points` `(N, S, 3)`, `directions` `(N, 3)`;
+    /// density `(N, S, 1)` and colour `(N, S, 3)`.
     pub fn evaluate(
         &self,
         samples: &RaySamples,

@@ -52,7 +52,8 @@ pub fn grid_settings(config: &Config) -> Option<(OccupancyGridConfig, f64)> {
 
 /// The grid a config asks for, for a trained model: the one saved in the checkpoint's
 /// `occupancy.density` when present and of the configured resolution, else built from the
-/// model ([`OccupancyGrid::build`]). `None` when the config has no grid.
+/// model ([`OccupancyGrid::build`]). `tensors`: the checkpoint's, where `occupancy.density`
+/// is `(R, R, R)` for resolution R. `None` when the config has no grid.
 pub fn grid_for_checkpoint(
     config: &Config,
     tensors: &HashMap<String, Tensor>,

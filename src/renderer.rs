@@ -152,6 +152,8 @@ pub struct VolumeRenderer {
 }
 
 impl VolumeRenderer {
+    /// A renderer of `chunk_size` rays at a time (at least 1), compositing on white when
+    /// `white_background`; early termination off.
     pub fn new(chunk_size: usize, white_background: bool) -> Result<Self> {
         if chunk_size == 0 {
             bail!("renderer.chunk_size must be at least 1");
@@ -276,7 +278,7 @@ impl VolumeRenderer {
     }
 }
 
-/// Fails with a clear message if `t` holds a NaN or an infinity.
+/// Fails with a clear message if `t` (any shape) holds a NaN or an infinity; `what` names it.
 pub fn ensure_finite(t: &Tensor, what: &str) -> Result<()> {
     let total = t.to_dtype(DType::F64)?.sum_all()?.to_scalar::<f64>()?;
     if !total.is_finite() {

@@ -56,6 +56,8 @@ pub struct Sizes {
 }
 
 impl Sizes {
+    /// The full report's sizes, or the CI-sized ones with `quick`; `views` overrides the
+    /// number of lego test views.
     pub fn new(quick: bool, views: Option<usize>) -> Self {
         if quick {
             Self {
@@ -543,8 +545,9 @@ pub struct Report {
     pub training: Vec<std::result::Result<TrainingCurve, String>>,
 }
 
-/// β of the homework's box and of the hard box.
+/// β of the homework's box.
 pub const HOMEWORK_BETA: f64 = 0.05;
+/// β of the hard box, whose surface is sharp enough to compare with the analytic hit.
 pub const HARD_BETA: f64 = 1e-4;
 
 /// Runs every measurement.

@@ -28,6 +28,8 @@ pub struct StratifiedSampler {
 }
 
 impl StratifiedSampler {
+    /// `n_pts_per_ray` (≥ 1) samples per ray between `min_depth` and `max_depth`
+    /// (finite, 0 ≤ min ≤ max).
     pub fn new(n_pts_per_ray: usize, min_depth: f64, max_depth: f64) -> Result<Self> {
         ensure!(
             n_pts_per_ray >= 1,
@@ -132,7 +134,9 @@ pub fn sample_points(origins: &Tensor, directions: &Tensor, lengths: &Tensor) ->
     sample_points_tensor_ops(origins, directions, lengths)
 }
 
-/// [`sample_points`] as Candle broadcast ops.
+/// [`sample_points`] as Candle broadcast ops (any device and dtype, differentiable).
+///
+/// `origins`, `directions`: `(N, 3)`; `lengths`: `(N, S, 1)`. Returns points `(N, S, 3)`.
 pub fn sample_points_tensor_ops(
     origins: &Tensor,
     directions: &Tensor,

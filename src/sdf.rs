@@ -22,6 +22,7 @@ pub enum Sdf {
 }
 
 impl Sdf {
+    /// The shape's centre in world coordinates.
     pub fn center(&self) -> [f32; 3] {
         match self {
             Sdf::Box { center, .. } | Sdf::Sphere { center, .. } => *center,
@@ -156,6 +157,9 @@ impl SdfVolume {
     }
 
     /// [`SdfVolume::evaluate`] written as Candle tensor ops (any device, differentiable).
+    ///
+    /// `samples.points`: `(N, S, 3)`; `deltas`: `(N, S, 1)`. Returns density σ `(N, S, 1)` and
+    /// colour `(N, S, 3)`.
     pub fn evaluate_tensor_ops(
         &self,
         samples: &RaySamples,

@@ -908,6 +908,7 @@ fn counts_of_zero_are_usage_errors() {
         vec!["eval", "--config", "lego", "--limit", "0"],
         vec!["bench", "--views", "0"],
         vec!["bench", "--repeats", "0"],
+        vec!["train", "--config", "nerf_lego", "--epochs", "0"],
     ] {
         let o = nerf(&args);
         let err = stderr(&o);
