@@ -3,7 +3,10 @@
 //! The homework renders the sample points with pytorch3d's points renderer: an
 //! `FoVPerspectiveCameras` (60°) at `look_at_view_transform(dist=10, elev=10, azim=96)`, points
 //! of NDC radius 0.01 and colour 0.5·(0.7, 0.7, 1) on black, alpha-composited with
-//! `α = 1 − d²/r²`. All points share one colour, so the composite is order-independent:
+//! `α = 1 − d²/r²`. Like pytorch3d's rasteriser (`points_per_pixel`, default 8), each pixel
+//! keeps only the nearest few points in depth that cover it; where many more overlap (the
+//! rays converge towards the camera) this gives the reference's ring pattern. All points share
+//! one colour, so the composite of the kept points is order-independent:
 //! `colour · (1 − Π(1 − α))`.
 
 use anyhow::Result;
@@ -21,6 +24,8 @@ pub struct PointView {
     /// Splat radius in NDC units.
     pub radius: f64,
     pub color: [f32; 3],
+    /// Points kept per pixel, nearest in depth first (pytorch3d's `points_per_pixel`).
+    pub points_per_pixel: usize,
 }
 
 impl Default for PointView {
@@ -33,13 +38,21 @@ impl Default for PointView {
             camera: PerspectiveCamera::new(r, t, focal),
             radius: 0.01,
             color: [0.35, 0.35, 0.5],
+            points_per_pixel: 8,
         }
     }
 }
 
 /// Splats points (`P × 3` world positions, flattened) into a `size × size` image.
 pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<RgbImage> {
-    let mut log_clear = vec![0f64; size * size];
+    anyhow::ensure!(
+        view.points_per_pixel >= 1,
+        "points_per_pixel must be at least 1"
+    );
+    let k = view.points_per_pixel;
+    // Per pixel, the (depth, α) of the nearest `k` covering points seen so far.
+    let mut kept = vec![(0f64, 0f64); size * size * k];
+    let mut n_kept = vec![0usize; size * size];
     let r = view.radius;
     let half_px = size as f64 / 2.0;
     for p in points.chunks_exact(3) {
@@ -70,17 +83,44 @@ pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<Rg
                 let dy = (1.0 - (2 * i + 1) as f64 / size as f64) - q.y;
                 let alpha = 1.0 - (dx * dx + dy * dy) / (r * r);
                 if alpha > 0.0 {
-                    log_clear[i * size + j] += (1.0 - alpha).max(1e-12).ln();
+                    let pixel = i * size + j;
+                    keep_nearest(
+                        &mut kept[pixel * k..(pixel + 1) * k],
+                        &mut n_kept[pixel],
+                        (q.z, alpha),
+                    );
                 }
             }
         }
     }
     let mut data = Vec::with_capacity(size * size * 3);
-    for l in log_clear {
-        let coverage = 1.0 - l.exp();
-        data.extend(view.color.map(|c| c * coverage as f32));
+    for (pixel, &n) in n_kept.iter().enumerate() {
+        let clear: f64 = kept[pixel * k..pixel * k + n]
+            .iter()
+            .map(|&(_, alpha)| 1.0 - alpha)
+            .product();
+        data.extend(view.color.map(|c| c * (1.0 - clear) as f32));
     }
     RgbImage::new(size, size, data)
+}
+
+/// Adds `point` (depth, α) to the `*n` points in `kept`, keeping the `kept.len()` nearest:
+/// when full, it replaces the farthest if nearer (ties keep the earlier point, as the order
+/// of the input decides in pytorch3d).
+fn keep_nearest(kept: &mut [(f64, f64)], n: &mut usize, point: (f64, f64)) {
+    if *n < kept.len() {
+        kept[*n] = point;
+        *n += 1;
+        return;
+    }
+    let (far, &(far_depth, _)) = kept
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1 .0.total_cmp(&b.1 .0))
+        .expect("at least one kept point");
+    if point.0 < far_depth {
+        kept[far] = point;
+    }
 }
 
 #[cfg(test)]
@@ -111,5 +151,47 @@ mod tests {
         )
         .unwrap();
         assert!(img.data.iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn only_the_nearest_points_per_pixel_count() {
+        // 20 points on the line of sight through the image centre, all with the same α at the
+        // centre pixel: it composites only `points_per_pixel` of them.
+        // A radius just over the centre pixel's offset, so that α ≈ 0.22 and the counts differ.
+        let view = PointView {
+            radius: 0.025,
+            ..Default::default()
+        };
+        let eye = view.camera.center();
+        // All in front of the camera (eye · t with t < 1).
+        let points: Vec<f32> = (0..20)
+            .flat_map(|i| {
+                let p = eye * (0.05 * i as f64 - 0.5);
+                [p.x as f32, p.y as f32, p.z as f32]
+            })
+            .collect();
+        let size = 64;
+        let q = view.camera.project(DVec3::ZERO);
+        let centre = (size / 2) * size + size / 2;
+        let dx = (1.0 - (2 * (size / 2) + 1) as f64 / size as f64) - q.x;
+        let dy = (1.0 - (2 * (size / 2) + 1) as f64 / size as f64) - q.y;
+        let alpha = 1.0 - (dx * dx + dy * dy) / (view.radius * view.radius);
+        for (k, expected_count) in [(1, 1), (8, 8), (100, 20)] {
+            let v = PointView {
+                points_per_pixel: k,
+                ..view
+            };
+            let img = render_points(&points, size, &v).unwrap();
+            let coverage = 1.0 - (1.0 - alpha).powi(expected_count);
+            let got = img.data[centre * 3 + 2] as f64 / v.color[2] as f64;
+            assert!((0.1..0.3).contains(&alpha), "{alpha}");
+            assert!((got - coverage).abs() < 1e-5, "k={k}: {got} vs {coverage}");
+        }
+        let mut kept = [(0.0, 0.0); 2];
+        let mut n = 0;
+        for p in [(3.0, 0.1), (1.0, 0.2), (2.0, 0.3), (5.0, 0.4)] {
+            keep_nearest(&mut kept, &mut n, p);
+        }
+        assert_eq!((n, kept), (2, [(2.0, 0.3), (1.0, 0.2)]));
     }
 }

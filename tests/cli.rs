@@ -302,6 +302,54 @@ fn box_render_agrees_with_the_homework_reference_images() {
         .filter(|(a, b)| a.abs_diff(**b) <= 2)
         .count();
     assert!(close as f64 / ours.as_raw().len() as f64 > 0.95);
+    // The point cloud: as many covered pixels (within 5%), the outline within 3 px and a small
+    // mean difference; the fine rings of the 8-nearest-points compositing fall on other pixels.
+    let ours = image::open(out.join("point_vis.png")).unwrap().to_rgb8();
+    let theirs = image::open(reference.join("point_vis.png"))
+        .unwrap()
+        .to_rgb8();
+    // Covered pixels: their count and bounding box.
+    let coverage = |img: &image::RgbImage| -> (usize, [u32; 4]) {
+        let mut n = 0;
+        let mut bbox = [u32::MAX, u32::MAX, 0, 0];
+        for (x, y, p) in img.enumerate_pixels() {
+            if p.0.iter().any(|&c| c > 0) {
+                n += 1;
+                bbox = [
+                    bbox[0].min(x),
+                    bbox[1].min(y),
+                    bbox[2].max(x),
+                    bbox[3].max(y),
+                ];
+            }
+        }
+        (n, bbox)
+    };
+    let ((n_ours, box_ours), (n_theirs, box_theirs)) = (coverage(&ours), coverage(&theirs));
+    let mean_abs = ours
+        .as_raw()
+        .iter()
+        .zip(theirs.as_raw())
+        .map(|(x, y)| x.abs_diff(*y) as f64)
+        .sum::<f64>()
+        / ours.as_raw().len() as f64;
+    eprintln!(
+        "point_vis vs reference: {n_ours} vs {n_theirs} covered pixels, bounding box {box_ours:?} vs {box_theirs:?}, mean abs difference {mean_abs:.2}/255"
+    );
+    assert!(
+        n_ours.abs_diff(n_theirs) * 20 < n_theirs,
+        "{n_ours} vs {n_theirs}"
+    );
+    for k in 0..4 {
+        assert!(
+            box_ours[k].abs_diff(box_theirs[k]) <= 3,
+            "{box_ours:?} vs {box_theirs:?}"
+        );
+    }
+    assert!(
+        mean_abs < 4.0,
+        "point_vis mean abs difference {mean_abs:.2}"
+    );
 }
 
 #[test]
