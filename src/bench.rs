@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use crate::config::Config;
 use crate::images::RgbImage;
-use crate::scene::{render_views, Frame};
+use crate::scene::{render_views, RenderedView};
 
 /// One benchmark result.
 #[derive(Debug, Clone, Serialize)]
@@ -106,7 +106,7 @@ pub fn mean(values: &[f64]) -> f64 {
 }
 
 /// Mean over views of the PSNR of each frame's colour against its image.
-pub fn mean_psnr(frames: &[Frame], images: &[RgbImage]) -> f64 {
+pub fn mean_psnr(frames: &[RenderedView], images: &[RgbImage]) -> f64 {
     mean(
         &frames
             .iter()
@@ -123,7 +123,7 @@ pub fn bench_sdf_render(
     config: &Config,
     repeats: usize,
     device: &Device,
-) -> Result<(BenchResult, Vec<Frame>)> {
+) -> Result<(BenchResult, Vec<RenderedView>)> {
     let field = config.sdf_field()?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
@@ -309,7 +309,7 @@ pub fn dense_overrides() -> Vec<String> {
 /// Frames of one configuration, with per-frame seconds and the time to load the checkpoint (and
 /// build or load its grid).
 struct RenderRun {
-    frames: Vec<Frame>,
+    frames: Vec<RenderedView>,
     runs: Vec<f64>,
     load_seconds: f64,
 }

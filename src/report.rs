@@ -21,7 +21,7 @@ use crate::camera::PerspectiveCamera;
 use crate::config::Config;
 use crate::images::RgbImage;
 use crate::plot::{write_line_plot, LinePlot, Series};
-use crate::scene::{render_view, Frame};
+use crate::scene::{render_view, RenderedView};
 
 /// What `nerf report` measures and where it writes.
 #[derive(Debug, Clone)]
@@ -187,7 +187,7 @@ fn timed_frames(
     cameras: &[PerspectiveCamera],
     repeats: usize,
     device: &Device,
-) -> Result<(Vec<Frame>, f64)> {
+) -> Result<(Vec<RenderedView>, f64)> {
     let (sampler, renderer) = (config.sampler()?, config.renderer()?);
     let mut frames = Vec::with_capacity(cameras.len());
     let mut total = 0.0;
@@ -213,7 +213,7 @@ fn timed_frames(
 }
 
 /// Concatenated colours and depths of frames, as f64.
-fn stacked(frames: &[Frame]) -> (Vec<f64>, Vec<f64>) {
+fn stacked(frames: &[RenderedView]) -> (Vec<f64>, Vec<f64>) {
     (
         frames
             .iter()
@@ -441,7 +441,7 @@ pub fn lego_study(
         .map(|f| f.camera)
         .collect();
     let truth: Vec<RgbImage> = dataset.images.iter().take(views).cloned().collect();
-    let run = |config: &Config| -> Result<(Vec<Frame>, f64)> {
+    let run = |config: &Config| -> Result<(Vec<RenderedView>, f64)> {
         let (state, _) = crate::train::NerfState::load(config, &options.checkpoint, device)?;
         timed_frames(config, &state.field(), &cameras, sizes.repeats, device)
     };

@@ -17,7 +17,7 @@ use crate::sampler::StratifiedSampler;
 
 /// One rendered view.
 #[derive(Debug, Clone)]
-pub struct Frame {
+pub struct RenderedView {
     /// `(H·W·3)` colour, row-major.
     pub color: RgbImage,
     /// `(H·W)` depth, row-major.
@@ -34,13 +34,13 @@ pub fn render_view(
     sampler: &StratifiedSampler,
     renderer: &VolumeRenderer,
     device: &Device,
-) -> Result<Frame> {
+) -> Result<RenderedView> {
     camera.validate()?;
     let rays = Rays::for_image(camera, width, height, device)?;
     let out = renderer.render(field, sampler, &rays, None)?;
     let color = out.color.flatten_all()?.to_vec1::<f32>()?;
     let depth = out.depth.flatten_all()?.to_vec1::<f32>()?;
-    Ok(Frame {
+    Ok(RenderedView {
         color: RgbImage::new(width, height, color)?,
         depth,
         samples: out.samples,
@@ -78,7 +78,7 @@ pub fn render_views(
     sampler: &StratifiedSampler,
     renderer: &VolumeRenderer,
     device: &Device,
-) -> Result<Vec<Frame>> {
+) -> Result<Vec<RenderedView>> {
     let bar = progress_bar(cameras.len() as u64, "rendering");
     let frames = cameras
         .iter()
@@ -144,7 +144,7 @@ pub fn prepare_out_dir(dir: &Path) -> Result<()> {
 }
 
 /// Writes `color_{i:03}.npy` `(H, W, 3)` and `depth_{i:03}.npy` `(H, W)` for every frame.
-pub fn write_raw_frames(out_dir: &Path, frames: &[Frame]) -> Result<Vec<PathBuf>> {
+pub fn write_raw_frames(out_dir: &Path, frames: &[RenderedView]) -> Result<Vec<PathBuf>> {
     let mut written = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         let (w, h) = (f.color.width as u64, f.color.height as u64);
