@@ -181,16 +181,7 @@ mod add_tests {
             .unwrap()
             .reshape((12, 5))
             .unwrap();
-        let diff = |a: &Tensor, c: &Tensor| {
-            a.sub(c)
-                .unwrap()
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-        };
+        let diff = |a: &Tensor, c: &Tensor| crate::compare::max_abs_difference(a, c).unwrap();
         assert!(diff(&fast, &slow) < 1e-6);
         let gf = fast.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
         let gs = slow.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
@@ -269,22 +260,17 @@ mod tests {
             .unwrap()
             .backward()
             .unwrap();
+        let values = |grads: &candle_core::backprop::GradStore, v: &Tensor| {
+            grads
+                .get(v)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap()
+        };
         for v in [&x, &b] {
-            let a = gf
-                .get(v.as_tensor())
-                .unwrap()
-                .flatten_all()
-                .unwrap()
-                .to_vec1::<f32>()
-                .unwrap();
-            let r = gr
-                .get(v.as_tensor())
-                .unwrap()
-                .flatten_all()
-                .unwrap()
-                .to_vec1::<f32>()
-                .unwrap();
-            assert_eq!(a, r);
+            assert_eq!(values(&gf, v.as_tensor()), values(&gr, v.as_tensor()));
         }
     }
 }

@@ -314,15 +314,7 @@ mod tests {
             1,
         )
         .unwrap();
-        let diff = fused
-            .sub(&reference)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::compare::max_abs_difference(&fused, &reference).unwrap();
         assert!(diff < 1e-5, "max diff {diff}");
     }
 
@@ -358,15 +350,7 @@ mod tests {
         for var in [&sv, &vv] {
             let a = gf.get(var.as_tensor()).unwrap();
             let b = gr.get(var.as_tensor()).unwrap();
-            let diff = a
-                .sub(b)
-                .unwrap()
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap();
+            let diff = crate::compare::max_abs_difference(a, b).unwrap();
             let scale = b
                 .abs()
                 .unwrap()

@@ -6,6 +6,7 @@
 
 pub mod bench;
 pub mod camera;
+pub mod compare;
 pub mod composite;
 pub mod config;
 pub mod field;

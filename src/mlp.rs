@@ -365,16 +365,7 @@ mod tests {
         let weight = Tensor::randn(0f32, 1.0, (m, 12), &dev).unwrap();
         let slow = reference(&x, &layers, &shape);
         let fast = trunk(&x, &pack_parameters(&layers).unwrap(), &shape).unwrap();
-        let diff = |a: &Tensor, b: &Tensor| {
-            a.sub(b)
-                .unwrap()
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-        };
+        let diff = |a: &Tensor, b: &Tensor| crate::compare::max_abs_difference(a, b).unwrap();
         assert!(diff(&slow, &fast) < 1e-5, "forward {}", diff(&slow, &fast));
         let g_slow = slow
             .mul(&weight)

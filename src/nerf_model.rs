@@ -406,15 +406,7 @@ mod tests {
             .unwrap()
             .reshape((4, 3, 3))
             .unwrap();
-        let diff = fast
-            .sub(&slow)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::compare::max_abs_difference(&fast, &slow).unwrap();
         assert!(diff < 1e-6, "{diff}");
     }
 }

@@ -244,16 +244,7 @@ mod tests {
         let mut rng = rand::rngs::StdRng::seed_from_u64(9);
         let s = sampler.sample(&r, Some(&mut rng)).unwrap();
         let b = sample_points_tensor_ops(&r.origins, &r.directions, &s.lengths).unwrap();
-        let diff = s
-            .points
-            .sub(&b)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::compare::max_abs_difference(&s.points, &b).unwrap();
         assert!(diff < 1e-6);
     }
 

@@ -221,14 +221,7 @@ mod tests {
     }
 
     fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
-        a.sub(b)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
+        crate::compare::max_abs_difference(a, b).unwrap()
     }
 
     fn field(model: &Nerf, grid: Option<OccupancyGrid>) -> Field {

@@ -766,15 +766,7 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
     let mut worst = 0f32;
     for (name, t) in &a {
         // Weights and the Adam moments alike.
-        let d = t
-            .sub(&b[name])
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let d = nerf::compare::max_abs_difference(t, &b[name]).unwrap();
         worst = worst.max(d);
     }
     assert!(worst < 1e-5, "resumed run differs by {worst}");

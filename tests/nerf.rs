@@ -435,18 +435,7 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
             .model
             .forward(&points, &expected["directions"], 0.0)
             .unwrap();
-        let diff = |a: &Tensor, b: &Tensor| {
-            a.flatten_all()
-                .unwrap()
-                .sub(&b.flatten_all().unwrap())
-                .unwrap()
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-        };
+        let diff = |a: &Tensor, b: &Tensor| nerf::compare::max_abs_difference(a, b).unwrap();
         let (d, c) = (
             diff(&out.density, &expected["density"]),
             diff(&out.feature, &expected["colour"]),
