@@ -4,21 +4,14 @@
 //! The pipeline: [`camera`] → [`rays`] → [`sampler`] → [`field`] ([`sdf`] volumes) →
 //! [`renderer`] → images.
 
-pub mod bench;
-pub mod camera;
-pub mod compare;
-pub mod composite;
-pub mod config;
+pub mod app;
+pub mod core;
+pub mod eval;
 pub mod field;
-pub mod images;
-pub mod plot;
-pub mod pointcloud;
-pub mod rays;
-pub mod renderer;
-pub mod sampler;
-pub mod scene;
-pub mod sdf;
-pub mod skipping;
+pub mod io;
+pub mod kernels;
+pub mod render;
+pub mod train;
 
 /// For programs that use this library on the system allocator (the `nerf` binary uses mimalloc
 /// instead, and its test binaries use glibc): tunes glibc's allocator for tensor work: tensors of many megabytes are allocated and freed
@@ -34,16 +27,3 @@ pub fn tune_allocator() {
         libc::mallopt(libc::M_TOP_PAD, 64 << 20);
     }
 }
-pub mod adam;
-pub mod bias;
-pub mod checkpoint;
-pub mod dataset;
-pub mod eval;
-pub mod import;
-pub mod mlp;
-pub mod nerf_model;
-pub mod occupancy;
-pub mod reference;
-pub mod report;
-pub mod storage;
-pub mod train;

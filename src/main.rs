@@ -7,7 +7,7 @@ use anyhow::Result;
 use candle_core::Device;
 use clap::{Parser, Subcommand};
 
-use nerf::config::{Config, ImplicitFunctionConfig};
+use nerf::app::config::{Config, ImplicitFunctionConfig};
 
 /// mimalloc keeps freed segments for reuse: Candle allocates a fresh buffer of up to tens of
 /// megabytes per op, and an allocator that returns each to the OS pays page faults on the next
@@ -171,7 +171,7 @@ enum SplitArg {
     Test,
 }
 
-impl From<SplitArg> for nerf::dataset::Split {
+impl From<SplitArg> for nerf::io::dataset::Split {
     fn from(s: SplitArg) -> Self {
         match s {
             SplitArg::Train => Self::Train,
@@ -185,7 +185,9 @@ fn data_dir_for(config: &Config, given: Option<PathBuf>) -> PathBuf {
     given
         .or_else(|| config.data.data_dir.clone())
         .unwrap_or_else(|| {
-            nerf::dataset::default_data_dir(config.data.dataset_name.as_deref().unwrap_or("lego"))
+            nerf::io::dataset::default_data_dir(
+                config.data.dataset_name.as_deref().unwrap_or("lego"),
+            )
         })
 }
 
@@ -208,12 +210,18 @@ fn run(cli: Cli) -> Result<()> {
                             c.display()
                         );
                     }
-                    nerf::scene::render_sdf_scene(&config, &out_dir, raw, &device)?
+                    nerf::app::scene::render_sdf_scene(&config, &out_dir, raw, &device)?
                 }
                 ImplicitFunctionConfig::Nerf(_) => {
                     let checkpoint = checkpoint
                         .unwrap_or_else(|| PathBuf::from("checkpoints/nerf_lego.safetensors"));
-                    nerf::scene::render_nerf_scene(&config, &checkpoint, &out_dir, raw, &device)?
+                    nerf::app::scene::render_nerf_scene(
+                        &config,
+                        &checkpoint,
+                        &out_dir,
+                        raw,
+                        &device,
+                    )?
                 }
             };
             for p in written {
@@ -229,8 +237,8 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let config = Config::load(&config, &overrides)?;
             let data_dir = data_dir_for(&config, data_dir);
-            let paths = nerf::train::TrainPaths::for_config(&config, &out_dir)?;
-            let info = nerf::train::train(&config, &data_dir, &paths, epochs, &device)?;
+            let paths = nerf::train::fit::TrainPaths::for_config(&config, &out_dir)?;
+            let info = nerf::train::fit::train(&config, &data_dir, &paths, epochs, &device)?;
             println!(
                 "trained to epoch {} ({} Adam steps); checkpoint {}",
                 info.epoch,
@@ -249,19 +257,19 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            nerf::checkpoint::ensure_checkpoint_file(&checkpoint)?;
+            nerf::io::checkpoint::ensure_checkpoint_file(&checkpoint)?;
             let (w, h) = config.image_size();
             let data_dir = data_dir_for(&config, data_dir);
-            let split: nerf::dataset::Split = split.into();
-            let dataset = nerf::dataset::Dataset::load(
+            let split: nerf::io::dataset::Split = split.into();
+            let dataset = nerf::io::dataset::Dataset::load(
                 &data_dir,
                 split,
                 w,
                 h,
                 config.renderer.white_background,
             )?;
-            let (state, _) = nerf::train::NerfState::load(&config, &checkpoint, &device)?;
-            let report = nerf::eval::evaluate(
+            let (state, _) = nerf::train::fit::NerfState::load(&config, &checkpoint, &device)?;
+            let report = nerf::eval::evaluate::evaluate(
                 &config,
                 &state.field(),
                 &dataset,
@@ -295,8 +303,8 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let nerf_cfg = nerf::train::nerf_config(&config)?;
-            let n = nerf::import::import_torch(&pth, nerf_cfg, &out)?;
+            let nerf_cfg = nerf::train::fit::nerf_config(&config)?;
+            let n = nerf::io::torch::import_torch(&pth, nerf_cfg, &out)?;
             eprintln!(
                 "wrote {} ({n} parameters from {})",
                 out.display(),
@@ -313,16 +321,16 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let lego = nerf::bench::LegoBench {
+            let lego = nerf::app::bench::LegoBench {
                 checkpoint,
-                data_dir: data_dir.unwrap_or_else(|| nerf::dataset::default_data_dir("lego")),
+                data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
                 views,
             };
-            let report = nerf::bench::run_benchmarks(&config, repeats, Some(&lego), &device)?;
+            let report = nerf::app::bench::run_benchmarks(&config, repeats, Some(&lego), &device)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
-                print!("{}", nerf::bench::format_table(&report));
+                print!("{}", nerf::app::bench::format_table(&report));
             }
         }
         Command::Report {
@@ -341,15 +349,15 @@ fn run(cli: Cli) -> Result<()> {
             } else {
                 logs
             };
-            let options = nerf::report::ReportOptions {
+            let options = nerf::app::report::ReportOptions {
                 out_dir,
                 quick,
                 checkpoint,
-                data_dir: data_dir.unwrap_or_else(|| nerf::dataset::default_data_dir("lego")),
+                data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
                 views,
                 training_logs,
             };
-            for p in nerf::report::write_report(&options, &device)? {
+            for p in nerf::app::report::write_report(&options, &device)? {
                 println!("wrote {}", p.display());
             }
         }

@@ -284,7 +284,10 @@ fn box_render_agrees_with_the_homework_reference_images() {
     for (i, r) in reference_frames.iter().enumerate() {
         let r = rgb_of_rgba(r);
         let (_, color) = read_npy(&out.join(format!("color_{i:03}.npy")));
-        let ours: Vec<u8> = color.iter().map(|&v| nerf::images::to_byte(v)).collect();
+        let ours: Vec<u8> = color
+            .iter()
+            .map(|&v| nerf::io::images::to_byte(v))
+            .collect();
         float_psnr += psnr_u8(&ours, &r) / 20.0;
         gif_psnr += psnr_u8(&rgb_of_rgba(&our_gif[i]), &r) / 20.0;
     }
@@ -455,16 +458,16 @@ fn train_render_and_eval_a_tiny_nerf() {
 /// Writes the freshly initialised model of the lego config (with overrides) to `path`.
 fn save_seeded_checkpoint(path: &Path, overrides: &[&str]) {
     let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
-    let config = nerf::config::Config::load("lego", &overrides).unwrap();
-    let state = nerf::train::NerfState::seeded(
-        nerf::train::nerf_config(&config).unwrap(),
+    let config = nerf::app::config::Config::load("lego", &overrides).unwrap();
+    let state = nerf::train::fit::NerfState::seeded(
+        nerf::train::fit::nerf_config(&config).unwrap(),
         0,
         &candle_core::Device::Cpu,
     )
     .unwrap();
-    nerf::checkpoint::save(
+    nerf::io::checkpoint::save(
         path,
-        &nerf::checkpoint::model_tensors(&state.varmap),
+        &nerf::io::checkpoint::model_tensors(&state.varmap),
         Default::default(),
     )
     .unwrap();
@@ -492,14 +495,15 @@ fn bad_checkpoints_and_missing_data_give_one_clear_line() {
     // space and render black; the loader names the tensor instead.
     let nan = dir.path().join("nan.safetensors");
     {
-        let (mut tensors, info) = nerf::checkpoint::load(&good, &candle_core::Device::Cpu).unwrap();
+        let (mut tensors, info) =
+            nerf::io::checkpoint::load(&good, &candle_core::Device::Cpu).unwrap();
         let name = "density_layer.0.bias".to_string();
         tensors.insert(
             name.clone(),
             candle_core::Tensor::new(&[f32::NAN], &candle_core::Device::Cpu).unwrap(),
         );
         let list: Vec<_> = tensors.into_iter().collect();
-        nerf::checkpoint::save(&nan, &list, info).unwrap();
+        nerf::io::checkpoint::save(&nan, &list, info).unwrap();
     }
     for (ckpt, needle) in [
         (&missing, "not found"),
@@ -733,7 +737,8 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
         }
         if ckpt.exists() {
             // Always a whole checkpoint: it loads, and it never goes back in time.
-            let (tensors, info) = nerf::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
+            let (tensors, info) =
+                nerf::io::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
             assert!(tensors.contains_key("mlp_xyz.mlp.0.0.weight"));
             assert!(
                 info.epoch >= last_epoch && info.epoch <= epochs,
@@ -755,18 +760,18 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
         .status()
         .unwrap()
         .success());
-    let (a, ia) = nerf::checkpoint::load(
+    let (a, ia) = nerf::io::checkpoint::load(
         &straight.join("nerf_lego.safetensors"),
         &candle_core::Device::Cpu,
     )
     .unwrap();
-    let (b, ib) = nerf::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
+    let (b, ib) = nerf::io::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
     assert_eq!((ia.epoch, ia.adam_step), (ib.epoch, ib.adam_step));
     assert_eq!(a.len(), b.len());
     let mut worst = 0f32;
     for (name, t) in &a {
         // Weights and the Adam moments alike.
-        let d = nerf::compare::max_abs_difference(t, &b[name]).unwrap();
+        let d = nerf::core::compare::max_abs_difference(t, &b[name]).unwrap();
         worst = worst.max(d);
     }
     assert!(worst < 1e-5, "resumed run differs by {worst}");

@@ -4,15 +4,15 @@
 
 use std::path::Path;
 
-use nerf::config::{apply_override, Config};
-use nerf::dataset::parse_split;
+use nerf::app::config::{apply_override, Config};
+use nerf::io::dataset::parse_split;
 use proptest::prelude::*;
 
 /// The built-in configs' text, as seeds for mutation.
 fn seeds() -> Vec<String> {
     ["box", "sphere", "lego", "nerf_lego", "nerf_lego_fast"]
         .iter()
-        .map(|n| nerf::config::config_text(n).unwrap().0)
+        .map(|n| nerf::app::config::config_text(n).unwrap().0)
         .collect()
 }
 

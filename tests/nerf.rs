@@ -5,12 +5,12 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
-use nerf::adam::Adam;
-use nerf::checkpoint::{self, CheckpointInfo};
-use nerf::config::Config;
-use nerf::dataset::{Dataset, Frame};
-use nerf::scene::render_view;
-use nerf::train::{train, train_step, NerfState, TrainPaths};
+use nerf::app::config::Config;
+use nerf::app::scene::render_view;
+use nerf::io::checkpoint::{self, CheckpointInfo};
+use nerf::io::dataset::{Dataset, Frame};
+use nerf::train::adam::Adam;
+use nerf::train::fit::{train, train_step, NerfState, TrainPaths};
 use rand::SeedableRng;
 
 /// A small NeRF config (the homework's architecture, smaller sizes) with overrides.
@@ -68,7 +68,7 @@ fn named_vars(state: &NerfState) -> Vec<(String, candle_core::Var)> {
 fn a_few_steps_lower_the_loss() {
     let config = tiny_config(&["training.lr=0.005"]);
     let dataset = box_dataset(&config);
-    let nerf_cfg = nerf::train::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
     let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
     let mut adam = Adam::new(named_vars(&state), 0.005).unwrap();
     let mut rng = rand::rngs::StdRng::seed_from_u64(5);
@@ -109,18 +109,19 @@ fn gradients_reach_every_parameter() {
             &[]
         };
         let config = tiny_config(extra);
-        let nerf_cfg = nerf::train::nerf_config(&config).unwrap().clone();
+        let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
         let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
-        let occupancy = nerf::occupancy::grid_settings(&config)
-            .map(|(g, t)| std::sync::Arc::new(nerf::occupancy::OccupancyGrid::new(&g, t).unwrap()));
+        let occupancy = nerf::render::occupancy::grid_settings(&config).map(|(g, t)| {
+            std::sync::Arc::new(nerf::render::occupancy::OccupancyGrid::new(&g, t).unwrap())
+        });
         let cam = config.surround_cameras()[0];
-        let rays = nerf::rays::Rays::for_image(&cam, 6, 6, &Device::Cpu).unwrap();
+        let rays = nerf::core::rays::Rays::for_image(&cam, 6, 6, &Device::Cpu).unwrap();
         let mut rng = rand::rngs::StdRng::seed_from_u64(1);
         let out = config
             .renderer()
             .unwrap()
             .render(
-                &nerf::field::Field::Nerf {
+                &nerf::render::field::Field::Nerf {
                     model: state.model.clone(),
                     density_noise: 0.0,
                     occupancy,
@@ -165,10 +166,11 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
         "renderer.occupancy_grid.warmup_steps=8",
     ]);
     let dataset = box_dataset(&config);
-    let nerf_cfg = nerf::train::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
     let mut state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
-    let (settings, threshold) = nerf::occupancy::grid_settings(&config).unwrap();
-    state.occupancy = Some(nerf::occupancy::OccupancyGrid::new(&settings, threshold).unwrap());
+    let (settings, threshold) = nerf::render::occupancy::grid_settings(&config).unwrap();
+    state.occupancy =
+        Some(nerf::render::occupancy::OccupancyGrid::new(&settings, threshold).unwrap());
     let mut adam = Adam::new(named_vars(&state), 0.005).unwrap();
     let mut rng = rand::rngs::StdRng::seed_from_u64(5);
     let mut losses = Vec::new();
@@ -219,7 +221,7 @@ fn batches_from_all_images_pair_rays_with_their_pixels() {
     let dataset = box_dataset(&config);
     let mut rng = rand::rngs::StdRng::seed_from_u64(3);
     let (rays, target, transparency) =
-        nerf::train::training_batch(&dataset, 50, true, 0, &mut rng, &Device::Cpu).unwrap();
+        nerf::train::fit::training_batch(&dataset, 50, true, 0, &mut rng, &Device::Cpu).unwrap();
     assert_eq!(rays.len(), 50);
     assert_eq!(target.dims(), &[50, 3]);
     assert_eq!(transparency.dims(), &[50, 1]);
@@ -231,9 +233,13 @@ fn batches_from_all_images_pair_rays_with_their_pixels() {
         // Find the image by its camera centre and the pixel by its ray direction.
         let (image, all) = (0..dataset.frames.len())
             .map(|i| {
-                let r =
-                    nerf::rays::Rays::for_image(&dataset.frames[i].camera, 12, 12, &Device::Cpu)
-                        .unwrap();
+                let r = nerf::core::rays::Rays::for_image(
+                    &dataset.frames[i].camera,
+                    12,
+                    12,
+                    &Device::Cpu,
+                )
+                .unwrap();
                 (i, r)
             })
             .find(|(_, r)| {
@@ -262,7 +268,7 @@ fn batches_from_all_images_pair_rays_with_their_pixels() {
 #[test]
 fn checkpoint_round_trips_bit_exactly() {
     let config = tiny_config(&[]);
-    let nerf_cfg = nerf::train::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
     let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("m.safetensors");
@@ -288,7 +294,7 @@ fn checkpoint_round_trips_bit_exactly() {
     // A model of another width is refused with the tensor and both shapes named.
     let wide = tiny_config(&["implicit_function.n_hidden_neurons_xyz=48"]);
     let err = NerfState::from_checkpoint(
-        nerf::train::nerf_config(&wide).unwrap(),
+        nerf::train::fit::nerf_config(&wide).unwrap(),
         &path,
         &Device::Cpu,
     )
@@ -381,12 +387,12 @@ fn resume_continues_exactly() {
 #[test]
 fn nerf_render_does_not_depend_on_chunking() {
     let config = tiny_config(&[]);
-    let nerf_cfg = nerf::train::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
     let state = NerfState::seeded(&nerf_cfg, 3, &Device::Cpu).unwrap();
     let cam = config.surround_cameras()[5];
     let sampler = config.sampler().unwrap();
     let render = |chunk: usize| {
-        let renderer = nerf::renderer::VolumeRenderer::new(chunk, false).unwrap();
+        let renderer = nerf::render::renderer::VolumeRenderer::new(chunk, false).unwrap();
         render_view(
             &state.field(),
             &cam,
@@ -418,7 +424,7 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
     // Made by scripts/make_torch_state_dict.py: a tiny homework NeRF saved by torch.save, and
     // PyTorch's float64 density and colour at 16 points.
     let config = Config::load(fixtures().join("tiny_nerf.yaml").to_str().unwrap(), &[]).unwrap();
-    let nerf_cfg = nerf::train::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
     let (expected, _) = checkpoint::load(
         &fixtures().join("tiny_nerf_outputs.safetensors"),
         &Device::Cpu,
@@ -427,7 +433,7 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
     let dir = tempfile::tempdir().unwrap();
     for pth in ["tiny_nerf.pth", "tiny_nerf_nested.pth"] {
         let out = dir.path().join(format!("{pth}.safetensors"));
-        nerf::import::import_torch(&fixtures().join(pth), &nerf_cfg, &out).unwrap();
+        nerf::io::torch::import_torch(&fixtures().join(pth), &nerf_cfg, &out).unwrap();
         let (state, info) = NerfState::from_checkpoint(&nerf_cfg, &out, &Device::Cpu).unwrap();
         assert_eq!(info.epoch, 0);
         let points = expected["points"].unsqueeze(1).unwrap();
@@ -435,7 +441,7 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
             .model
             .forward(&points, &expected["directions"], 0.0)
             .unwrap();
-        let diff = |a: &Tensor, b: &Tensor| nerf::compare::max_abs_difference(a, b).unwrap();
+        let diff = |a: &Tensor, b: &Tensor| nerf::core::compare::max_abs_difference(a, b).unwrap();
         let (d, c) = (
             diff(&out.density, &expected["density"]),
             diff(&out.feature, &expected["colour"]),
@@ -459,10 +465,10 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
 fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
     // The homework-size config against the tiny state dict.
     let config = Config::load("nerf_lego", &[]).unwrap();
-    let nerf_cfg = nerf::train::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.safetensors");
-    let err = nerf::import::import_torch(&fixtures().join("tiny_nerf.pth"), &nerf_cfg, &out)
+    let err = nerf::io::torch::import_torch(&fixtures().join("tiny_nerf.pth"), &nerf_cfg, &out)
         .unwrap_err()
         .to_string();
     assert!(
@@ -470,7 +476,7 @@ fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
         "{err}"
     );
     assert!(!out.exists());
-    let missing = nerf::import::import_torch(&dir.path().join("none.pth"), &nerf_cfg, &out)
+    let missing = nerf::io::torch::import_torch(&dir.path().join("none.pth"), &nerf_cfg, &out)
         .unwrap_err()
         .to_string();
     assert!(missing.contains("not found"), "{missing}");

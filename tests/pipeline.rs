@@ -3,12 +3,12 @@
 
 use candle_core::{Device, Tensor};
 use glam::DVec3;
-use nerf::camera::{surround_cameras, PerspectiveCamera};
-use nerf::config::Config;
-use nerf::field::Field;
-use nerf::rays::{pixel_grid_values, ray_through_ndc, Rays};
-use nerf::renderer::{deltas, weights, VolumeRenderer};
-use nerf::sampler::StratifiedSampler;
+use nerf::app::config::Config;
+use nerf::core::camera::{surround_cameras, PerspectiveCamera};
+use nerf::core::rays::{pixel_grid_values, ray_through_ndc, Rays};
+use nerf::render::field::Field;
+use nerf::render::renderer::{deltas, weights, VolumeRenderer};
+use nerf::render::sampler::StratifiedSampler;
 
 fn box_config(overrides: &[&str]) -> Config {
     let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
@@ -115,7 +115,7 @@ fn box_render_agrees_with_float64_recomputation() {
         let (color, depth) = render(&field, cam, w, h, &sampler, 500);
         for (i, [x, y]) in pixel_grid_values(w, h).into_iter().enumerate() {
             let (o, d) = ray_through_ndc(cam, x, y);
-            let (rc, rd) = nerf::reference::render_ray(volume, o, d, &sampler);
+            let (rc, rd) = nerf::eval::reference::render_ray(volume, o, d, &sampler);
             for k in 0..3 {
                 max_color = max_color.max((color[3 * i + k] as f64 - rc[k]).abs());
             }

@@ -2,12 +2,12 @@
 //! [0, 1] with Σw ≤ 1 + 1e-6, and agree with a float64 recomputation where that is meaningful.
 
 use candle_core::{Device, Tensor};
-use nerf::config::Config;
-use nerf::field::Field;
-use nerf::rays::Rays;
-use nerf::renderer::{composite, deltas, weights, VolumeRenderer, MAX_OPTICAL_DEPTH};
-use nerf::sampler::StratifiedSampler;
-use nerf::scene::render_view;
+use nerf::app::config::Config;
+use nerf::app::scene::render_view;
+use nerf::core::rays::Rays;
+use nerf::render::field::Field;
+use nerf::render::renderer::{composite, deltas, weights, VolumeRenderer, MAX_OPTICAL_DEPTH};
+use nerf::render::sampler::StratifiedSampler;
 
 fn all_finite(t: &Tensor) -> bool {
     t.flatten_all()
@@ -145,7 +145,8 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
         let out = field.evaluate(&samples, &d, &rays.directions).unwrap();
         check_weights(&out.density, &samples.lengths);
         // Float64: the homework's formula evaluated literally.
-        let (colours, depths) = nerf::reference::render_image(volume, &cam, (24, 18), &sampler);
+        let (colours, depths) =
+            nerf::eval::reference::render_image(volume, &cam, (24, 18), &sampler);
         let colour_error = frame
             .color
             .data
@@ -273,7 +274,8 @@ fn float32_against_float64_at_64_and_1024_samples() {
             &Device::Cpu,
         )
         .unwrap();
-        let (colours, depths) = nerf::reference::render_image(volume, &cam, (32, 32), &sampler);
+        let (colours, depths) =
+            nerf::eval::reference::render_image(volume, &cam, (32, 32), &sampler);
         let max = |a: &[f32], b: &[f64]| {
             a.iter()
                 .zip(b)
@@ -292,11 +294,11 @@ fn float32_against_float64_at_64_and_1024_samples() {
 fn nerf_gradients_and_adam_stay_finite_at_extremes() {
     use candle_nn::{VarBuilder, VarMap};
     let config = Config::load("nerf_lego", &[]).unwrap();
-    let nerf_cfg = nerf::train::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
     for (density_bias, colour_bias) in [(1e4f32, 50f32), (1e4, -50.0), (-1e4, 0.0), (3e4, 80.0)] {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, candle_core::DType::F32, &Device::Cpu);
-        let model = nerf::nerf_model::Nerf::new(&nerf_cfg, vb).unwrap();
+        let model = nerf::field::nerf::Nerf::new(&nerf_cfg, vb).unwrap();
         {
             let data = varmap.data().lock().unwrap();
             data["density_layer.0.bias"]
@@ -306,8 +308,8 @@ fn nerf_gradients_and_adam_stay_finite_at_extremes() {
                 .set(&Tensor::new(&[colour_bias; 3], &Device::Cpu).unwrap())
                 .unwrap();
         }
-        let vars = nerf::train::named_vars(&varmap);
-        let mut adam = nerf::adam::Adam::new(vars.clone(), 5e-4).unwrap();
+        let vars = nerf::train::fit::named_vars(&varmap);
+        let mut adam = nerf::train::adam::Adam::new(vars.clone(), 5e-4).unwrap();
         let cam = config.surround_cameras()[0];
         let rays = Rays::for_image(&cam, 8, 8, &Device::Cpu).unwrap();
         let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();

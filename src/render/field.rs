@@ -5,10 +5,10 @@ use candle_core::Tensor;
 
 use std::sync::Arc;
 
-use crate::nerf_model::Nerf;
-use crate::occupancy::OccupancyGrid;
-use crate::sampler::RaySamples;
-use crate::sdf::SdfVolume;
+use crate::field::nerf::Nerf;
+use crate::field::sdf::SdfVolume;
+use crate::render::occupancy::OccupancyGrid;
+use crate::render::sampler::RaySamples;
 
 /// Volume density and feature (colour) at every sample.
 #[derive(Debug, Clone)]

@@ -15,8 +15,8 @@ use anyhow::{ensure, Context, Result};
 use candle_core::{Device, Tensor};
 use rand::Rng;
 
-use crate::config::{Config, OccupancyGridConfig};
-use crate::nerf_model::Nerf;
+use crate::app::config::{Config, OccupancyGridConfig};
+use crate::field::nerf::Nerf;
 
 /// Points evaluated per density batch when updating or building a grid.
 const DENSITY_BATCH: usize = 1 << 16;
@@ -365,7 +365,7 @@ mod tests {
 #[cfg(test)]
 mod build_tests {
     use super::*;
-    use crate::config::NerfConfig;
+    use crate::app::config::NerfConfig;
 
     #[test]
     fn build_marks_every_cell_whose_centre_is_dense() {
@@ -381,7 +381,7 @@ mod build_tests {
         };
         // A seeded initialisation, so the test sees the same densities on every run (an
         // unseeded one sometimes gives a ReLU density that is zero at every cell centre).
-        let model = crate::train::NerfState::seeded(&cfg, 7, &Device::Cpu)
+        let model = crate::train::fit::NerfState::seeded(&cfg, 7, &Device::Cpu)
             .unwrap()
             .model;
         let settings = OccupancyGridConfig {

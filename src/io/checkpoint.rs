@@ -12,9 +12,9 @@ use anyhow::{bail, Context, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
-use crate::config::NerfConfig;
-use crate::images::write_atomically;
-use crate::nerf_model::parameter_shapes;
+use crate::app::config::NerfConfig;
+use crate::field::nerf::parameter_shapes;
+use crate::io::images::write_atomically;
 
 /// What a checkpoint holds besides tensors.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -192,7 +192,7 @@ pub fn load_model_into(
 }
 
 /// The model parameters of `varmap`, by name, sorted (shapes as
-/// [`crate::nerf_model::parameter_shapes`]).
+/// [`crate::field::nerf::parameter_shapes`]).
 pub fn model_tensors(varmap: &VarMap) -> Vec<(String, Tensor)> {
     let data = varmap.data().lock().expect("varmap lock");
     let mut v: Vec<(String, Tensor)> = data

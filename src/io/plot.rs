@@ -9,7 +9,7 @@ use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 
 /// DejaVu Sans (Bitstream Vera licence, assets/fonts/DejaVuSans-LICENSE.txt).
-static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
 static REGISTER_FONT: Once = Once::new();
 
 /// One line of a plot: `(x, y)` points in drawing order, each drawn as a dot too.
@@ -188,7 +188,7 @@ pub fn write_line_plot(path: &Path, plot: &LinePlot) -> Result<()> {
     let (w, h) = PLOT_SIZE;
     let image: image::RgbImage =
         image::ImageBuffer::from_raw(w, h, bytes).ok_or_else(|| anyhow!("plot buffer size"))?;
-    crate::images::write_atomically(path, |out| {
+    crate::io::images::write_atomically(path, |out| {
         image.write_to(out, image::ImageFormat::Png)?;
         Ok(())
     })

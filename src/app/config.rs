@@ -12,11 +12,11 @@ use serde::de::DeserializeOwned;
 use serde::Deserialize;
 use serde_yaml_ng::{Mapping, Value};
 
-use crate::camera::{surround_cameras, PerspectiveCamera};
-use crate::field::Field;
-use crate::renderer::VolumeRenderer;
-use crate::sampler::StratifiedSampler;
-use crate::sdf::{Sdf, SdfVolume};
+use crate::core::camera::{surround_cameras, PerspectiveCamera};
+use crate::field::sdf::{Sdf, SdfVolume};
+use crate::render::field::Field;
+use crate::render::renderer::VolumeRenderer;
+use crate::render::sampler::StratifiedSampler;
 
 /// Upper limits on sizes, so that a typo such as an extra zero is a one-line error naming the
 /// key instead of an allocation that exhausts memory. Each is far above what the homework's
@@ -51,13 +51,13 @@ fn count_in_range(key: &str, v: usize, max: usize) -> Result<()> {
 
 /// Configs shipped with the binary, found by name when `configs/NAME.yaml` is not on disk.
 const BUILT_IN: &[(&str, &str)] = &[
-    ("box", include_str!("../configs/box.yaml")),
-    ("sphere", include_str!("../configs/sphere.yaml")),
-    ("lego", include_str!("../configs/lego.yaml")),
-    ("nerf_lego", include_str!("../configs/nerf_lego.yaml")),
+    ("box", include_str!("../../configs/box.yaml")),
+    ("sphere", include_str!("../../configs/sphere.yaml")),
+    ("lego", include_str!("../../configs/lego.yaml")),
+    ("nerf_lego", include_str!("../../configs/nerf_lego.yaml")),
     (
         "nerf_lego_fast",
-        include_str!("../configs/nerf_lego_fast.yaml"),
+        include_str!("../../configs/nerf_lego_fast.yaml"),
     ),
 ];
 
@@ -611,7 +611,7 @@ impl Config {
     }
 
     /// The `renderer` section as a renderer: chunk size, background, early termination (the
-    /// occupancy grid belongs to the field; see [`crate::occupancy::grid_settings`]).
+    /// occupancy grid belongs to the field; see [`crate::render::occupancy::grid_settings`]).
     pub fn renderer(&self) -> Result<VolumeRenderer> {
         VolumeRenderer::new(self.renderer.chunk_size, self.renderer.white_background)?
             .with_early_termination(self.renderer.early_termination)

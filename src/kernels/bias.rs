@@ -6,7 +6,7 @@
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::storage::contiguous_f32;
+use crate::kernels::storage::contiguous_f32;
 
 const ROWS_PER_TASK: usize = 512;
 
@@ -181,7 +181,7 @@ mod add_tests {
             .unwrap()
             .reshape((12, 5))
             .unwrap();
-        let diff = |a: &Tensor, c: &Tensor| crate::compare::max_abs_difference(a, c).unwrap();
+        let diff = |a: &Tensor, c: &Tensor| crate::core::compare::max_abs_difference(a, c).unwrap();
         assert!(diff(&fast, &slow) < 1e-6);
         let gf = fast.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
         let gs = slow.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();

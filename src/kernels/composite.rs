@@ -6,7 +6,7 @@
 //! [`LAST_DELTA`] for the last sample. Output `(N, C + 2)`: colour `Σ_i w_i v_ic`, depth
 //! `Σ_i w_i t_i`, opacity `Σ_i w_i`, where `τ_i = clamp(σ_i Δ_i, 0, MAX_OPTICAL_DEPTH)`,
 //! `T_i = Π_{j<i} e^{−τ_j}`, `w_i = T_i (1 − e^{−τ_i})` — the maths of
-//! [`crate::renderer::weights`].
+//! [`crate::render::renderer::weights`].
 //!
 //! Backward, with `g_i = Σ_c G_c v_ic + G_depth t_i + G_opacity` for the output gradient G:
 //! `∂L/∂v_ic = w_i G_c` and `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, so
@@ -19,14 +19,14 @@
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::storage::contiguous_f32;
+use crate::kernels::storage::contiguous_f32;
 
-use crate::renderer::{LAST_DELTA, MAX_OPTICAL_DEPTH};
+use crate::render::renderer::{LAST_DELTA, MAX_OPTICAL_DEPTH};
 
 /// Rays per parallel work item.
 const RAYS_PER_TASK: usize = 256;
 
-/// Optical depth of one sample, clamped as in [`crate::renderer::optical_depth`]: `σΔ` in
+/// Optical depth of one sample, clamped as in [`crate::render::renderer::optical_depth`]: `σΔ` in
 /// `[0, MAX_OPTICAL_DEPTH]`, and 0 for zero spacing whatever σ is (the homework's SDF σ is
 /// `−ln(1 − density)/Δ`, which is ∞ or NaN at Δ = 0).
 #[inline]
@@ -262,7 +262,7 @@ impl candle_core::CustomOp2 for CompositeBackward {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::renderer::{aggregate, deltas, weights};
+    use crate::render::renderer::{aggregate, deltas, weights};
     use candle_core::{Device, Var};
 
     /// Random inputs; `zero` is the value used for the 30% empty samples.
@@ -314,7 +314,7 @@ mod tests {
             1,
         )
         .unwrap();
-        let diff = crate::compare::max_abs_difference(&fused, &reference).unwrap();
+        let diff = crate::core::compare::max_abs_difference(&fused, &reference).unwrap();
         assert!(diff < 1e-5, "max diff {diff}");
     }
 
@@ -350,7 +350,7 @@ mod tests {
         for var in [&sv, &vv] {
             let a = gf.get(var.as_tensor()).unwrap();
             let b = gr.get(var.as_tensor()).unwrap();
-            let diff = crate::compare::max_abs_difference(a, b).unwrap();
+            let diff = crate::core::compare::max_abs_difference(a, b).unwrap();
             let scale = b
                 .abs()
                 .unwrap()

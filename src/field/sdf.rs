@@ -4,10 +4,10 @@ use anyhow::Result;
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor, D};
 use rayon::prelude::*;
 
-use crate::storage::contiguous_f32;
+use crate::kernels::storage::contiguous_f32;
 
-use crate::field::FieldOutput;
-use crate::sampler::RaySamples;
+use crate::render::field::FieldOutput;
+use crate::render::sampler::RaySamples;
 
 /// An analytic signed distance function.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -236,16 +236,16 @@ mod tests {
 
     #[test]
     fn fused_kernel_matches_tensor_ops() {
-        use crate::camera::surround_cameras;
-        use crate::rays::Rays;
-        use crate::sampler::StratifiedSampler;
+        use crate::core::camera::surround_cameras;
+        use crate::core::rays::Rays;
+        use crate::render::sampler::StratifiedSampler;
         let cam = surround_cameras(3.0, 20, glam::DVec3::Y, 1.0)[3];
         let rays = Rays::for_image(&cam, 13, 9, &Device::Cpu).unwrap();
         let samples = StratifiedSampler::new(17, 0.0, 5.0)
             .unwrap()
             .sample(&rays, None)
             .unwrap();
-        let deltas = crate::renderer::deltas(&samples.lengths).unwrap();
+        let deltas = crate::render::renderer::deltas(&samples.lengths).unwrap();
         for (sdf, rainbow) in [
             (
                 Sdf::Box {
@@ -358,7 +358,10 @@ mod tests {
             lengths: lengths.clone(),
         };
         let out = v
-            .evaluate(&samples, &crate::renderer::deltas(&lengths).unwrap())
+            .evaluate(
+                &samples,
+                &crate::render::renderer::deltas(&lengths).unwrap(),
+            )
             .unwrap();
         assert_eq!(out.feature.dims(), &[1, 2, 3]);
         assert_eq!(out.density.dims(), &[1, 2, 1]);

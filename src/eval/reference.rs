@@ -5,10 +5,10 @@
 
 use glam::DVec3;
 
-use crate::camera::PerspectiveCamera;
-use crate::rays::{pixel_grid_values, ray_through_ndc};
-use crate::sampler::StratifiedSampler;
-use crate::sdf::{Sdf, SdfVolume};
+use crate::core::camera::PerspectiveCamera;
+use crate::core::rays::{pixel_grid_values, ray_through_ndc};
+use crate::field::sdf::{Sdf, SdfVolume};
+use crate::render::sampler::StratifiedSampler;
 
 /// Signed distance in f64.
 pub fn signed_distance(sdf: &Sdf, p: DVec3) -> f64 {

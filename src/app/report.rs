@@ -3,7 +3,7 @@
 //!
 //! * **Box**: the box scene at `n_pts_per_ray` 8 … 1024, timed per frame, against the same
 //!   scene at far more samples and, for a hard surface (β = 1e-4), against the analytic
-//!   ray–box hit ([`crate::reference::analytic_hit`]).
+//!   ray–box hit ([`crate::eval::reference::analytic_hit`]).
 //! * **Lego**: a trained checkpoint at several sample counts with each acceleration the
 //!   renderer offers, against the ground truth and against the dense render.
 //! * **Training**: test PSNR against wall-clock time, from training logs.
@@ -16,12 +16,12 @@ use anyhow::{bail, Context, Result};
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::bench::{machine_info, mean_psnr, psnr_from_mse, MachineInfo};
-use crate::camera::PerspectiveCamera;
-use crate::config::Config;
-use crate::images::RgbImage;
-use crate::plot::{write_line_plot, LinePlot, Series};
-use crate::scene::{render_view, RenderedView};
+use crate::app::bench::{machine_info, mean_psnr, psnr_from_mse, MachineInfo};
+use crate::app::config::Config;
+use crate::app::scene::{render_view, RenderedView};
+use crate::core::camera::PerspectiveCamera;
+use crate::io::images::RgbImage;
+use crate::io::plot::{write_line_plot, LinePlot, Series};
 
 /// What `nerf report` measures and where it writes.
 #[derive(Debug, Clone)]
@@ -183,7 +183,7 @@ fn box_config(beta: f64, size: usize, n_pts: usize) -> Result<Config> {
 /// of each view's fastest time.
 fn timed_frames(
     config: &Config,
-    field: &crate::field::Field,
+    field: &crate::render::field::Field,
     cameras: &[PerspectiveCamera],
     repeats: usize,
     device: &Device,
@@ -250,19 +250,19 @@ impl AnalyticImage {
 
 /// [`AnalyticImage`] of `volume` seen by `camera`, rays sampled up to `max_depth`.
 pub fn analytic_image(
-    volume: &crate::sdf::SdfVolume,
+    volume: &crate::field::sdf::SdfVolume,
     camera: &PerspectiveCamera,
     (width, height): (usize, usize),
     max_depth: f64,
 ) -> AnalyticImage {
     let mut image = AnalyticImage::default();
-    for [x, y] in crate::rays::pixel_grid_values(width, height) {
-        let (o, d) = crate::rays::ray_through_ndc(camera, x, y);
-        match crate::reference::analytic_hit(&volume.sdf, o, d) {
+    for [x, y] in crate::core::rays::pixel_grid_values(width, height) {
+        let (o, d) = crate::core::rays::ray_through_ndc(camera, x, y);
+        match crate::eval::reference::analytic_hit(&volume.sdf, o, d) {
             Some(t) => {
                 image
                     .colors
-                    .extend(crate::reference::surface_color(volume, o + d * t));
+                    .extend(crate::eval::reference::surface_color(volume, o + d * t));
                 image.depths.push(t);
                 image.hits.push(true);
                 image.clearance.push(0.0);
@@ -271,12 +271,14 @@ pub fn analytic_image(
                 image.colors.extend([0.0; 3]);
                 image.depths.push(0.0);
                 image.hits.push(false);
-                image.clearance.push(crate::reference::closest_approach(
-                    &volume.sdf,
-                    o,
-                    d,
-                    max_depth,
-                ));
+                image
+                    .clearance
+                    .push(crate::eval::reference::closest_approach(
+                        &volume.sdf,
+                        o,
+                        d,
+                        max_depth,
+                    ));
             }
         }
     }
@@ -301,7 +303,7 @@ pub fn box_study(
     let size = sizes.box_size;
     let reference_config = box_config(beta, size, sizes.box_reference_pts)?;
     let field = reference_config.sdf_field()?;
-    let crate::field::Field::Sdf(volume) = field.clone() else {
+    let crate::render::field::Field::Sdf(volume) = field.clone() else {
         bail!("the box config is not an SDF volume");
     };
     let all_cameras = reference_config.surround_cameras();
@@ -414,7 +416,7 @@ pub fn lego_study(
     device: &Device,
     progress: &indicatif::ProgressBar,
 ) -> Result<LegoStudy> {
-    crate::checkpoint::ensure_checkpoint_file(&options.checkpoint)?;
+    crate::io::checkpoint::ensure_checkpoint_file(&options.checkpoint)?;
     let size = sizes.lego_size;
     let config_for = |n: usize, extra: &[&str]| -> Result<Config> {
         let mut overrides = vec![
@@ -425,9 +427,9 @@ pub fn lego_study(
         Config::load("lego", &overrides)
     };
     let base = config_for(sizes.lego_reference_pts, &[])?;
-    let dataset = crate::dataset::Dataset::load(
+    let dataset = crate::io::dataset::Dataset::load(
         &options.data_dir,
-        crate::dataset::Split::Test,
+        crate::io::dataset::Split::Test,
         size,
         size,
         base.renderer.white_background,
@@ -442,7 +444,7 @@ pub fn lego_study(
         .collect();
     let truth: Vec<RgbImage> = dataset.images.iter().take(views).cloned().collect();
     let run = |config: &Config| -> Result<(Vec<RenderedView>, f64)> {
-        let (state, _) = crate::train::NerfState::load(config, &options.checkpoint, device)?;
+        let (state, _) = crate::train::fit::NerfState::load(config, &options.checkpoint, device)?;
         timed_frames(config, &state.field(), &cameras, sizes.repeats, device)
     };
     let dense_overrides = &accelerations()[0].1;
@@ -455,7 +457,7 @@ pub fn lego_study(
             let (frames, seconds) = run(&config_for(n, &overrides)?)?;
             let counts = frames
                 .iter()
-                .fold(crate::skipping::SampleCounts::default(), |a, f| {
+                .fold(crate::render::skipping::SampleCounts::default(), |a, f| {
                     a + f.samples
                 });
             rows.push(LegoRow {
@@ -556,7 +558,7 @@ pub fn measure(options: &ReportOptions, device: &Device) -> Result<Report> {
     let sizes = Sizes::new(options.quick, options.views);
     let box_renders = 2 * (1 + sizes.box_pts.len());
     let lego_renders = 1 + accelerations().len() * sizes.lego_pts.len();
-    let progress = crate::scene::progress_bar((box_renders + lego_renders) as u64, "report");
+    let progress = crate::app::scene::progress_bar((box_renders + lego_renders) as u64, "report");
     let homework_box = box_study(HOMEWORK_BETA, false, &sizes, device, &progress)?;
     let hard_box = box_study(HARD_BETA, true, &sizes, device, &progress)?;
     let lego = lego_study(options, &sizes, device, &progress).map_err(|e| format!("{e:#}"));
@@ -968,7 +970,7 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
 pub fn write_report(options: &ReportOptions, device: &Device) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(&options.out_dir)
         .with_context(|| format!("creating {}", options.out_dir.display()))?;
-    crate::images::remove_stale_temp_files(&options.out_dir);
+    crate::io::images::remove_stale_temp_files(&options.out_dir);
     let report = measure(options, device)?;
     let mut written = Vec::new();
     let mut plots = Vec::new();
@@ -996,10 +998,10 @@ pub fn write_report(options: &ReportOptions, device: &Device) -> Result<Vec<Path
         )?;
     }
     let md = options.out_dir.join("report.md");
-    crate::images::write_text(&md, &markdown(&report, &plots))?;
+    crate::io::images::write_text(&md, &markdown(&report, &plots))?;
     written.push(md);
     let json = options.out_dir.join("report.json");
-    crate::images::write_text(&json, &serde_json::to_string_pretty(&report)?)?;
+    crate::io::images::write_text(&json, &serde_json::to_string_pretty(&report)?)?;
     written.push(json);
     Ok(written)
 }

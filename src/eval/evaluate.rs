@@ -6,12 +6,12 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::bench::psnr;
-use crate::config::Config;
-use crate::dataset::{Dataset, Split};
-use crate::field::Field;
-use crate::images::write_png;
-use crate::scene::{prepare_out_dir, progress_bar, render_view};
+use crate::app::bench::psnr;
+use crate::app::config::Config;
+use crate::app::scene::{prepare_out_dir, progress_bar, render_view};
+use crate::io::dataset::{Dataset, Split};
+use crate::io::images::write_png;
+use crate::render::field::Field;
 
 /// PSNR of one view.
 #[derive(Debug, Clone, Serialize)]
@@ -59,7 +59,7 @@ pub fn evaluate(
     let bar = progress_bar(n as u64, "evaluating");
     let mut views = Vec::with_capacity(n);
     let mut render_seconds = 0.0;
-    let mut counts = crate::skipping::SampleCounts::default();
+    let mut counts = crate::render::skipping::SampleCounts::default();
     for (frame, truth) in dataset.frames.iter().zip(&dataset.images).take(n) {
         let t = std::time::Instant::now();
         let predicted = render_view(field, &frame.camera, size, &sampler, &renderer, device)?;

@@ -18,7 +18,7 @@ use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
 use candle_nn::Linear;
 use rayon::prelude::*;
 
-use crate::storage::contiguous_f32;
+use crate::kernels::storage::contiguous_f32;
 
 const ROWS_PER_TASK: usize = 256;
 
@@ -365,7 +365,7 @@ mod tests {
         let weight = Tensor::randn(0f32, 1.0, (m, 12), &dev).unwrap();
         let slow = reference(&x, &layers, &shape);
         let fast = trunk(&x, &pack_parameters(&layers).unwrap(), &shape).unwrap();
-        let diff = |a: &Tensor, b: &Tensor| crate::compare::max_abs_difference(a, b).unwrap();
+        let diff = |a: &Tensor, b: &Tensor| crate::core::compare::max_abs_difference(a, b).unwrap();
         assert!(diff(&slow, &fast) < 1e-5, "forward {}", diff(&slow, &fast));
         let g_slow = slow
             .mul(&weight)

@@ -10,7 +10,7 @@ use glam::DVec3;
 use rand::seq::index::sample;
 use rand::Rng;
 
-use crate::camera::PerspectiveCamera;
+use crate::core::camera::PerspectiveCamera;
 
 /// `linspace(start, end, n)` computed in f64 (torch's values up to one f32 rounding).
 pub fn linspace(start: f64, end: f64, n: usize) -> Vec<f64> {
@@ -157,7 +157,7 @@ impl Rays {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::surround_cameras;
+    use crate::core::camera::surround_cameras;
 
     #[test]
     fn linspace_matches_endpoints() {

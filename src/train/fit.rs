@@ -20,15 +20,15 @@ use candle_nn::{VarBuilder, VarMap};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 
-use crate::adam::Adam;
-use crate::checkpoint::{self, CheckpointInfo};
-use crate::config::{Config, ImplicitFunctionConfig, NerfConfig};
-use crate::dataset::{Dataset, Split};
-use crate::field::Field;
-use crate::nerf_model::Nerf;
-use crate::occupancy::OccupancyGrid;
-use crate::rays::{random_pixel_indices, Rays};
-use crate::scene::{print_above, progress_bar};
+use crate::app::config::{Config, ImplicitFunctionConfig, NerfConfig};
+use crate::app::scene::{print_above, progress_bar};
+use crate::core::rays::{random_pixel_indices, Rays};
+use crate::field::nerf::Nerf;
+use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::dataset::{Dataset, Split};
+use crate::render::field::Field;
+use crate::render::occupancy::OccupancyGrid;
+use crate::train::adam::Adam;
 
 /// A NeRF with its parameters.
 pub struct NerfState {
@@ -93,7 +93,7 @@ impl NerfState {
         let mut state = Self::new(nerf, device)?;
         checkpoint::load_model_into(&state.varmap, &tensors, nerf, path)?;
         state.occupancy =
-            crate::occupancy::grid_for_checkpoint(config, &tensors, &state.model, device)?;
+            crate::render::occupancy::grid_for_checkpoint(config, &tensors, &state.model, device)?;
         Ok((state, info))
     }
 
@@ -124,7 +124,7 @@ pub fn learning_rate(lr: f64, gamma: f64, step_size: usize, epoch: usize) -> f64
 /// PSNR in dB of a training loss (an MSE of colours in [0, 1]), capped at 120 dB so that the
 /// log never holds an infinity.
 pub fn logged_psnr(mse: f64) -> f64 {
-    crate::bench::psnr_from_mse(mse.max(1e-12))
+    crate::app::bench::psnr_from_mse(mse.max(1e-12))
 }
 
 /// Where a training run writes.
@@ -234,7 +234,7 @@ pub fn train_step(
     adam: &mut Adam,
     rng: &mut rand::rngs::StdRng,
     device: &Device,
-) -> Result<(f64, crate::skipping::SampleCounts)> {
+) -> Result<(f64, crate::render::skipping::SampleCounts)> {
     let training = config
         .training
         .as_ref()
@@ -307,7 +307,7 @@ pub fn rewind_log(log: &Path, last_step: u64) -> Result<()> {
     if kept.len() == text.lines().count() {
         return Ok(());
     }
-    crate::images::write_atomically(log, |w| {
+    crate::io::images::write_atomically(log, |w| {
         for line in kept {
             writeln!(w, "{line}")?;
         }
@@ -346,7 +346,7 @@ pub fn train(
             CheckpointInfo::default(),
         )
     };
-    let grid_settings = crate::occupancy::grid_settings(config);
+    let grid_settings = crate::render::occupancy::grid_settings(config);
     if let Some((settings, threshold)) = &grid_settings {
         // Every cell occupied until the first update probes them.
         state.occupancy = Some(OccupancyGrid::new(settings, *threshold)?);
@@ -357,7 +357,7 @@ pub fn train(
         adam.load_state(&tensors, info.adam_step)?;
         if let (Some((settings, threshold)), Some(saved)) = (
             &grid_settings,
-            tensors.get(crate::occupancy::CHECKPOINT_KEY),
+            tensors.get(crate::render::occupancy::CHECKPOINT_KEY),
         ) {
             state.occupancy = Some(OccupancyGrid::from_tensor(settings, *threshold, saved)?);
         }
@@ -383,8 +383,8 @@ pub fn train(
     }
     // A run killed while writing leaves its temporary file behind; the files themselves are
     // whole (written atomically).
-    crate::images::remove_stale_temp_files(&paths.checkpoint);
-    crate::images::remove_stale_temp_files(&paths.log);
+    crate::io::images::remove_stale_temp_files(&paths.checkpoint);
+    crate::io::images::remove_stale_temp_files(&paths.log);
     rewind_log(&paths.log, info.adam_step)?;
     let mut log = std::fs::OpenOptions::new()
         .create(true)
@@ -421,7 +421,7 @@ pub fn train(
         tensors.extend(adam.state_tensors());
         if let Some(grid) = &state.occupancy {
             tensors.push((
-                crate::occupancy::CHECKPOINT_KEY.to_string(),
+                crate::render::occupancy::CHECKPOINT_KEY.to_string(),
                 grid.to_tensor(device)?,
             ));
         }
@@ -499,7 +499,7 @@ pub fn train(
         if (epoch + 1) % training.checkpoint_interval == 0 {
             if let Some(test) = &test_views {
                 let t = Instant::now();
-                let report = crate::eval::evaluate(
+                let report = crate::eval::evaluate::evaluate(
                     config,
                     &state.field(),
                     test,
@@ -532,7 +532,7 @@ pub fn train(
         }
         if (epoch + 1) % training.render_interval == 0 {
             let t = Instant::now();
-            let gif = crate::scene::render_nerf_gif(
+            let gif = crate::app::scene::render_nerf_gif(
                 config,
                 &state.field(),
                 &paths.images.join("render_nerf_training.gif"),

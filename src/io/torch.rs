@@ -14,9 +14,9 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Result};
 use candle_core::{DType, Device, Tensor};
 
-use crate::checkpoint::{self, CheckpointInfo};
-use crate::config::NerfConfig;
-use crate::nerf_model::parameter_shapes;
+use crate::app::config::NerfConfig;
+use crate::field::nerf::parameter_shapes;
+use crate::io::checkpoint::{self, CheckpointInfo};
 
 /// Keys under which training scripts commonly nest the state dict.
 const NESTED_KEYS: &[&str] = &["model", "model_state_dict", "state_dict"];

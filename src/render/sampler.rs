@@ -5,9 +5,9 @@ use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::storage::contiguous_f32;
+use crate::kernels::storage::contiguous_f32;
 
-use crate::rays::{linspace, Rays};
+use crate::core::rays::{linspace, Rays};
 
 /// Sample points along a batch of rays.
 #[derive(Debug, Clone)]
@@ -199,7 +199,7 @@ impl rand::RngCore for RngRef<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::surround_cameras;
+    use crate::core::camera::surround_cameras;
     use candle_core::Device;
     use glam::DVec3;
     use rand::SeedableRng;
@@ -244,7 +244,7 @@ mod tests {
         let mut rng = rand::rngs::StdRng::seed_from_u64(9);
         let s = sampler.sample(&r, Some(&mut rng)).unwrap();
         let b = sample_points_tensor_ops(&r.origins, &r.directions, &s.lengths).unwrap();
-        let diff = crate::compare::max_abs_difference(&s.points, &b).unwrap();
+        let diff = crate::core::compare::max_abs_difference(&s.points, &b).unwrap();
         assert!(diff < 1e-6);
     }
 

@@ -20,10 +20,10 @@
 use anyhow::{bail, Result};
 use candle_core::{DType, Tensor, D};
 
-use crate::field::Field;
-use crate::rays::Rays;
-use crate::sampler::StratifiedSampler;
-use crate::skipping::SampleCounts;
+use crate::core::rays::Rays;
+use crate::render::field::Field;
+use crate::render::sampler::StratifiedSampler;
+use crate::render::skipping::SampleCounts;
 
 /// Spacing used for the last sample of every ray, as in the homework.
 pub const LAST_DELTA: f64 = 1e10;
@@ -110,7 +110,7 @@ pub fn composite(
     if density.device().is_cpu() && density.dtype() == DType::F32 {
         // The kernel derives the same deltas from the lengths itself; σ and the features are
         // read through their strides, so the fused field's output is not copied.
-        let out = density.apply_op3(lengths, feature, crate::composite::Composite)?;
+        let out = density.apply_op3(lengths, feature, crate::kernels::composite::Composite)?;
         return Ok(RenderOutput {
             color: out.narrow(1, 0, c)?,
             depth: out.narrow(1, c, 1)?,
@@ -197,7 +197,7 @@ impl VolumeRenderer {
                 model,
                 density_noise,
                 occupancy,
-            } if self.skips_samples(field) => crate::skipping::evaluate_skipping(
+            } if self.skips_samples(field) => crate::render::skipping::evaluate_skipping(
                 model,
                 *density_noise,
                 occupancy.as_deref(),
@@ -241,7 +241,7 @@ impl VolumeRenderer {
         let n = rays.len();
         // Samples evaluated at once per ray: a segment when skipping, else all of them.
         let per_ray = if self.skips_samples(field) {
-            crate::skipping::segment_length(sampler.n_pts_per_ray, self.early_termination)
+            crate::render::skipping::segment_length(sampler.n_pts_per_ray, self.early_termination)
         } else {
             sampler.n_pts_per_ray
         };

@@ -20,9 +20,9 @@ use anyhow::{ensure, Result};
 use candle_core::Tensor;
 use candle_nn::{Init, Linear, VarBuilder};
 
-use crate::config::NerfConfig;
-use crate::field::FieldOutput;
-use crate::sampler::RaySamples;
+use crate::app::config::NerfConfig;
+use crate::render::field::FieldOutput;
+use crate::render::sampler::RaySamples;
 
 /// `[sin(x·f), cos(x·f), x]` with `f = 2^0 … 2^(L−1)`.
 ///
@@ -122,16 +122,16 @@ impl Nerf {
     /// `points`: `(M, 3)`; returns `(M, n_hidden_neurons_xyz)`.
     fn trunk(&self, points: &Tensor) -> Result<Tensor> {
         let xyz = harmonic_embedding(points, self.config.n_harmonic_functions_xyz)?;
-        if crate::mlp::fused_available(&xyz) {
-            let shape = crate::mlp::TrunkShape {
+        if crate::kernels::trunk::fused_available(&xyz) {
+            let shape = crate::kernels::trunk::TrunkShape {
                 input_dim: xyz.dim(1)?,
                 hidden: self.config.n_hidden_neurons_xyz,
                 skip: (0..self.mlp_xyz.len())
                     .map(|i| i > 0 && self.config.append_xyz.contains(&i))
                     .collect(),
             };
-            let params = crate::mlp::pack_parameters(&self.mlp_xyz)?;
-            return Ok(crate::mlp::trunk(&xyz, &params, &shape)?);
+            let params = crate::kernels::trunk::pack_parameters(&self.mlp_xyz)?;
+            return Ok(crate::kernels::trunk::trunk(&xyz, &params, &shape)?);
         }
         let mut y = xyz.clone();
         for (i, layer) in self.mlp_xyz.iter().enumerate() {
@@ -200,7 +200,7 @@ impl Nerf {
         let y = self.trunk(&points.reshape((n * s, 3))?)?;
         let density = self.density_head(&y, density_noise)?.reshape((n, s, 1))?;
         let (per_sample, per_ray) = self.color_hidden_parts(&y, directions)?;
-        let h = crate::bias::add_per_group(&per_sample, &per_ray, s)?;
+        let h = crate::kernels::bias::add_per_group(&per_sample, &per_ray, s)?;
         Ok(FieldOutput {
             density,
             feature: self.color_head(&h)?.reshape((n, s, 3))?,
@@ -259,13 +259,13 @@ impl Nerf {
     }
 }
 
-/// `layer(x)` with the bias gradient summed in one pass ([`crate::bias::bias_add`]).
+/// `layer(x)` with the bias gradient summed in one pass ([`crate::kernels::bias::bias_add`]).
 ///
 /// `x`: `(M, in)`; returns `(M, out)`.
 pub fn linear(layer: &Linear, x: &Tensor) -> Result<Tensor> {
     let pre = x.matmul(&layer.weight().t()?)?;
     Ok(match layer.bias() {
-        Some(b) => crate::bias::bias_add(&pre, b)?,
+        Some(b) => crate::kernels::bias::bias_add(&pre, b)?,
         None => pre,
     })
 }
@@ -406,7 +406,7 @@ mod tests {
             .unwrap()
             .reshape((4, 3, 3))
             .unwrap();
-        let diff = crate::compare::max_abs_difference(&fast, &slow).unwrap();
+        let diff = crate::core::compare::max_abs_difference(&fast, &slow).unwrap();
         assert!(diff < 1e-6, "{diff}");
     }
 }

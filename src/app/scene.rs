@@ -6,14 +6,14 @@ use anyhow::{Context, Result};
 use candle_core::{Device, Tensor};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::camera::PerspectiveCamera;
-use crate::config::Config;
-use crate::field::Field;
-use crate::images::{viridis_image, write_gif, write_npy, write_png, RgbImage};
-use crate::pointcloud::{render_points, PointView};
-use crate::rays::{pixel_grid, Rays};
-use crate::renderer::VolumeRenderer;
-use crate::sampler::StratifiedSampler;
+use crate::app::config::Config;
+use crate::core::camera::PerspectiveCamera;
+use crate::core::rays::{pixel_grid, Rays};
+use crate::io::images::{viridis_image, write_gif, write_npy, write_png, RgbImage};
+use crate::render::field::Field;
+use crate::render::pointcloud::{render_points, PointView};
+use crate::render::renderer::VolumeRenderer;
+use crate::render::sampler::StratifiedSampler;
 
 /// One rendered view.
 #[derive(Debug, Clone)]
@@ -23,7 +23,7 @@ pub struct RenderedView {
     /// `(H·W)` depth, row-major.
     pub depth: Vec<f32>,
     /// Samples drawn and evaluated for it.
-    pub samples: crate::skipping::SampleCounts,
+    pub samples: crate::render::skipping::SampleCounts,
 }
 
 /// Renders one camera's full image (no jitter, no gradients needed).
@@ -241,9 +241,9 @@ pub fn render_nerf_scene(
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    crate::train::nerf_config(config)?;
-    crate::checkpoint::ensure_checkpoint_file(checkpoint)?;
-    let (state, _) = crate::train::NerfState::load(config, checkpoint, device)?;
+    crate::train::fit::nerf_config(config)?;
+    crate::io::checkpoint::ensure_checkpoint_file(checkpoint)?;
+    let (state, _) = crate::train::fit::NerfState::load(config, checkpoint, device)?;
     prepare_out_dir(out_dir)?;
     let field = state.field();
     let frames = render_views(

@@ -17,12 +17,12 @@
 use anyhow::Result;
 use candle_core::{DType, Tensor};
 
-use crate::composite::clamped_optical_depth;
-use crate::field::FieldOutput;
-use crate::nerf_model::Nerf;
-use crate::occupancy::OccupancyGrid;
-use crate::renderer::LAST_DELTA;
-use crate::sampler::RaySamples;
+use crate::field::nerf::Nerf;
+use crate::kernels::composite::clamped_optical_depth;
+use crate::render::field::FieldOutput;
+use crate::render::occupancy::OccupancyGrid;
+use crate::render::renderer::LAST_DELTA;
+use crate::render::sampler::RaySamples;
 
 /// Samples per ray evaluated between early-termination checks.
 pub const SEGMENT: usize = 4;
@@ -181,11 +181,11 @@ mod tests {
     use candle_core::{Device, Tensor};
 
     use super::*;
-    use crate::config::{NerfConfig, OccupancyGridConfig};
-    use crate::field::Field;
-    use crate::rays::Rays;
-    use crate::renderer::{composite, deltas, RenderOutput, VolumeRenderer};
-    use crate::sampler::StratifiedSampler;
+    use crate::app::config::{NerfConfig, OccupancyGridConfig};
+    use crate::core::rays::Rays;
+    use crate::render::field::Field;
+    use crate::render::renderer::{composite, deltas, RenderOutput, VolumeRenderer};
+    use crate::render::sampler::StratifiedSampler;
 
     /// A small NeRF whose density bias is `density_bias` (large values make rays terminate).
     fn model(density_bias: f32) -> Nerf {
@@ -200,7 +200,7 @@ mod tests {
             append_xyz: vec![2],
         };
         // Seeded, so every run tests the same weights.
-        let state = crate::train::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
+        let state = crate::train::fit::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
         state.varmap.data().lock().unwrap()["density_layer.0.bias"]
             .set(&Tensor::new(&[density_bias], &Device::Cpu).unwrap())
             .unwrap();
@@ -208,7 +208,7 @@ mod tests {
     }
 
     fn rays() -> Rays {
-        let cam = crate::camera::surround_cameras(4.0, 3, glam::DVec3::Z, 2.0)[1];
+        let cam = crate::core::camera::surround_cameras(4.0, 3, glam::DVec3::Z, 2.0)[1];
         Rays::for_image(&cam, 9, 7, &Device::Cpu).unwrap()
     }
 
@@ -221,7 +221,7 @@ mod tests {
     }
 
     fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
-        crate::compare::max_abs_difference(a, b).unwrap()
+        crate::core::compare::max_abs_difference(a, b).unwrap()
     }
 
     fn field(model: &Nerf, grid: Option<OccupancyGrid>) -> Field {

@@ -22,8 +22,8 @@ use image::{ImageBuffer, ImageFormat, Rgba};
 use rayon::prelude::*;
 use serde::Deserialize;
 
-use crate::camera::PerspectiveCamera;
-use crate::images::RgbImage;
+use crate::core::camera::PerspectiveCamera;
+use crate::io::images::RgbImage;
 
 /// Where to get the data, appended to errors about a missing scene directory or transforms file.
 pub const DOWNLOAD_HINT: &str = "download the NeRF-synthetic lego scene (nerf_synthetic.zip \
@@ -382,8 +382,8 @@ pub fn default_data_dir(dataset_name: &str) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::look_at_rotation;
-    use crate::rays::ray_through_ndc;
+    use crate::core::camera::look_at_rotation;
+    use crate::core::rays::ray_through_ndc;
     use glam::DVec3;
     use std::time::Instant;
 

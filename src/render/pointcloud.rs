@@ -12,10 +12,10 @@
 use anyhow::Result;
 use glam::DVec3;
 
-use crate::camera::{
+use crate::core::camera::{
     camera_position_from_spherical_angles, look_at_view_transform, PerspectiveCamera,
 };
-use crate::images::RgbImage;
+use crate::io::images::RgbImage;
 
 /// Settings of the point view.
 #[derive(Debug, Clone, Copy)]

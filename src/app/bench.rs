@@ -7,9 +7,9 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::config::Config;
-use crate::images::RgbImage;
-use crate::scene::{render_views, RenderedView};
+use crate::app::config::Config;
+use crate::app::scene::{render_views, RenderedView};
+use crate::io::images::RgbImage;
 
 /// One benchmark result.
 #[derive(Debug, Clone, Serialize)]
@@ -180,12 +180,16 @@ pub fn run_benchmarks(
     device: &Device,
 ) -> Result<BenchReport> {
     let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
-    let crate::field::Field::Sdf(volume) = config.sdf_field()? else {
+    let crate::render::field::Field::Sdf(volume) = config.sdf_field()? else {
         anyhow::bail!("nerf bench needs an SDF config");
     };
     let cam = config.surround_cameras()[0];
-    let (colors, depths) =
-        crate::reference::render_image(&volume, &cam, config.image_size(), &config.sampler()?);
+    let (colors, depths) = crate::eval::reference::render_image(
+        &volume,
+        &cam,
+        config.image_size(),
+        &config.sampler()?,
+    );
     let max_abs = |a: &[f32], b: &[f64]| {
         a.iter()
             .zip(b)
@@ -224,25 +228,26 @@ pub fn run_benchmarks(
 /// rendered frame at the config's size. Errors are not measured here (`nerf eval` does that).
 pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Vec<BenchResult>> {
     use rand::SeedableRng;
-    let nerf = crate::train::nerf_config(config)?;
+    let nerf = crate::train::fit::nerf_config(config)?;
     let training = config
         .training
         .clone()
         .ok_or_else(|| anyhow::anyhow!("training: section missing"))?;
-    let state = crate::train::NerfState::seeded(nerf, 0, device)?;
+    let state = crate::train::fit::NerfState::seeded(nerf, 0, device)?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
     let (w, h) = config.image_size();
-    let camera = crate::camera::surround_cameras(4.0, 20, glam::DVec3::Z, 2.0)[0];
+    let camera = crate::core::camera::surround_cameras(4.0, 20, glam::DVec3::Z, 2.0)[0];
     let mut rng = rand::rngs::StdRng::seed_from_u64(0);
-    let mut adam = crate::adam::Adam::new(crate::train::named_vars(&state.varmap), training.lr)?;
+    let mut adam =
+        crate::train::adam::Adam::new(crate::train::fit::named_vars(&state.varmap), training.lr)?;
     let mut step_runs = Vec::new();
     for _ in 0..repeats.max(1) {
         let t = Instant::now();
-        let pixels = crate::rays::random_pixel_indices(w, h, training.batch_size, &mut rng);
-        let rays = crate::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
+        let pixels = crate::core::rays::random_pixel_indices(w, h, training.batch_size, &mut rng);
+        let rays = crate::core::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
         let target = candle_core::Tensor::full(0.5f32, (pixels.len(), 3), device)?;
-        let field = crate::field::Field::Nerf {
+        let field = crate::render::field::Field::Nerf {
             model: state.model.clone(),
             density_noise: 0.0,
             occupancy: None,
@@ -255,7 +260,14 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
     let mut frame_runs = Vec::new();
     for _ in 0..repeats.clamp(1, 2) {
         let t = Instant::now();
-        crate::scene::render_view(&state.field(), &camera, (w, h), &sampler, &renderer, device)?;
+        crate::app::scene::render_view(
+            &state.field(),
+            &camera,
+            (w, h),
+            &sampler,
+            &renderer,
+            device,
+        )?;
         frame_runs.push(t.elapsed().as_secs_f64());
     }
     let best = |r: &[f64]| r.iter().cloned().fold(f64::INFINITY, f64::min);
@@ -321,9 +333,9 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
     let fast_config = Config::load("lego", &[])?;
     let dense_config = Config::load("lego", &dense_overrides())?;
     let (w, h) = fast_config.image_size();
-    let (cameras, truth): (Vec<_>, Option<Vec<RgbImage>>) = match crate::dataset::Dataset::load(
+    let (cameras, truth): (Vec<_>, Option<Vec<RgbImage>>) = match crate::io::dataset::Dataset::load(
         &lego.data_dir,
-        crate::dataset::Split::Test,
+        crate::io::dataset::Split::Test,
         w,
         h,
         fast_config.renderer.white_background,
@@ -347,7 +359,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
     let n = cameras.len();
     let render_all = |config: &Config| -> Result<RenderRun> {
         let t = Instant::now();
-        let (state, _) = crate::train::NerfState::load(config, &lego.checkpoint, device)?;
+        let (state, _) = crate::train::fit::NerfState::load(config, &lego.checkpoint, device)?;
         let load_seconds = t.elapsed().as_secs_f64();
         let field = state.field();
         let (sampler, renderer) = (config.sampler()?, config.renderer()?);
@@ -355,7 +367,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
         let mut runs = Vec::with_capacity(n);
         for cam in &cameras {
             let t = Instant::now();
-            frames.push(crate::scene::render_view(
+            frames.push(crate::app::scene::render_view(
                 &field,
                 cam,
                 (w, h),
@@ -385,7 +397,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
     let vs_dense = mean_psnr(&fast, &dense_colors);
     let counts = fast
         .iter()
-        .fold(crate::skipping::SampleCounts::default(), |a, f| {
+        .fold(crate::render::skipping::SampleCounts::default(), |a, f| {
             a + f.samples
         });
     let evaluated = 100.0 * counts.evaluated as f64 / counts.total.max(1) as f64;

@@ -1,0 +1,6 @@
+//! The application layer: config files, jobs, bench and report.
+
+pub mod bench;
+pub mod config;
+pub mod report;
+pub mod scene;

@@ -1,0 +1,5 @@
+//! Core: cameras, rays and the pixel grid, and small shared maths. Imports nothing else of the crate.
+
+pub mod camera;
+pub mod compare;
+pub mod rays;

@@ -1,0 +1,7 @@
+//! Files: images, plots, datasets, checkpoints and PyTorch import.
+
+pub mod checkpoint;
+pub mod dataset;
+pub mod images;
+pub mod plot;
+pub mod torch;

@@ -1,0 +1,4 @@
+//! Training: the Adam optimiser and the NeRF training loop.
+
+pub mod adam;
+pub mod fit;
