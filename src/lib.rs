@@ -1,8 +1,41 @@
 //! `nerf`: differentiable volume rendering and Neural Radiance Fields on Candle, following the
 //! conventions of the PyTorch + pytorch3d NeRF homework.
 //!
-//! The pipeline: [`camera`] → [`rays`] → [`sampler`] → [`field`] ([`sdf`] volumes) →
-//! [`renderer`] → images.
+//! The pipeline, one layer a folder, each importing only the layers before it:
+//!
+//! * [`core`]: pytorch3d cameras, the homework's pixel grid and rays, the volume-rendering
+//!   maths, SDF maths, images and metrics;
+//! * [`kernels`]: fused CPU ops, each with its backward pass and tensor-op twin, and the one
+//!   switch between them ([`KernelChoice`]);
+//! * [`render`]: the stratified sampler, the [`Field`] trait, the volume renderer, occupancy
+//!   grid and empty-space skipping;
+//! * [`field`]: the fields — SDF volumes ([`SdfField`]) and the NeRF MLP ([`NerfField`]);
+//! * [`io`]: images, plots, datasets, checkpoints, PyTorch import, progress;
+//! * [`train`]: Adam, the NeRF state, one training step and the loop;
+//! * [`eval`]: PSNR over a dataset split, and the float64 reference renderer;
+//! * [`app`]: config files (the homework's YAML), turned into the plain parameters above, and
+//!   the jobs of the `nerf` command.
+//!
+//! ```no_run
+//! use nerf::{render_view, PerspectiveCamera, SdfField, SdfVolume, Sdf, StratifiedSampler, VolumeRenderer};
+//! # fn main() -> anyhow::Result<()> {
+//! let device = candle_core::Device::Cpu;
+//! let volume = SdfVolume {
+//!     sdf: Sdf::Box { center: [0.0; 3], side_lengths: [1.75; 3] },
+//!     alpha: 1.0,
+//!     beta: 0.05,
+//!     rainbow: true,
+//!     feature: [1.0; 3],
+//! };
+//! let field = SdfField::fixed(&volume, &device)?;
+//! let camera = nerf::surround_cameras(3.0, 20, glam::DVec3::Y, 1.0)[0];
+//! let sampler = StratifiedSampler::new(64, 0.0, 5.0)?;
+//! let renderer = VolumeRenderer::new(32768, false)?;
+//! let view = render_view(&field, &camera, (256, 256), &sampler, &renderer, &device)?;
+//! nerf::io::images::write_png(std::path::Path::new("box.png"), &view.color)?;
+//! # Ok(())
+//! # }
+//! ```
 
 pub mod app;
 pub mod core;
@@ -12,6 +45,24 @@ pub mod io;
 pub mod kernels;
 pub mod render;
 pub mod train;
+
+pub use crate::core::camera::{look_at_view_transform, surround_cameras, PerspectiveCamera};
+pub use crate::core::image::RgbImage;
+pub use crate::core::rays::{pixel_grid, Rays};
+pub use crate::core::sdf::{Sdf, SdfVolume};
+pub use crate::field::nerf::{Nerf, NerfField, NerfParams};
+pub use crate::field::sdf::{SdfField, SdfTrainable};
+pub use crate::io::checkpoint::CheckpointInfo;
+pub use crate::io::dataset::{Dataset, Split};
+pub use crate::kernels::{set_kernel_choice, with_kernel_choice, KernelChoice};
+pub use crate::render::field::{Field, FieldOutput};
+pub use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams};
+pub use crate::render::renderer::{RenderOutput, VolumeRenderer};
+pub use crate::render::sampler::{RaySamples, StratifiedSampler};
+pub use crate::render::view::{render_view, RenderedView};
+pub use crate::train::adam::Adam;
+pub use crate::train::fit::{fit, Hooks, TrainPaths, TrainSettings};
+pub use crate::train::state::NerfState;
 
 /// For programs that use this library on the system allocator (the `nerf` binary uses mimalloc
 /// instead, and its test binaries use glibc): tunes glibc's allocator for tensor work: tensors of many megabytes are allocated and freed

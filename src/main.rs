@@ -22,8 +22,44 @@ static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
     about = "Differentiable volume rendering and NeRF on Candle (pytorch3d conventions)"
 )]
 struct Cli {
+    /// Fused CPU kernels where they exist, or the generic tensor ops everywhere.
+    #[arg(long, global = true, value_enum, default_value = "fused")]
+    kernels: KernelsArg,
+    /// Where tensors live (cuda and metal need the binary built with that feature).
+    #[arg(long, global = true, value_enum, default_value = "cpu")]
+    device: DeviceArg,
     #[command(subcommand)]
     command: Command,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum KernelsArg {
+    Fused,
+    Generic,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum DeviceArg {
+    Cpu,
+    Cuda,
+    Metal,
+}
+
+/// The device asked for, or an error saying how to get it.
+fn device(arg: DeviceArg) -> Result<Device> {
+    Ok(match arg {
+        DeviceArg::Cpu => Device::Cpu,
+        DeviceArg::Cuda => Device::new_cuda(0).map_err(|e| {
+            anyhow::anyhow!(
+                "--device cuda: {e} (build with `cargo build --release --features cuda`)"
+            )
+        })?,
+        DeviceArg::Metal => Device::new_metal(0).map_err(|e| {
+            anyhow::anyhow!(
+                "--device metal: {e} (build with `cargo build --release --features metal`)"
+            )
+        })?,
+    })
 }
 
 #[derive(Subcommand)]
@@ -192,7 +228,11 @@ fn data_dir_for(config: &Config, given: Option<PathBuf>) -> PathBuf {
 }
 
 fn run(cli: Cli) -> Result<()> {
-    let device = Device::Cpu;
+    nerf::kernels::set_kernel_choice(match cli.kernels {
+        KernelsArg::Fused => nerf::kernels::KernelChoice::Fused,
+        KernelsArg::Generic => nerf::kernels::KernelChoice::Generic,
+    });
+    let device = device(cli.device)?;
     match cli.command {
         Command::Render {
             config,
@@ -237,8 +277,8 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let config = Config::load(&config, &overrides)?;
             let data_dir = data_dir_for(&config, data_dir);
-            let paths = nerf::train::fit::TrainPaths::for_config(&config, &out_dir)?;
-            let info = nerf::train::fit::train(&config, &data_dir, &paths, epochs, &device)?;
+            let paths = config.train_paths(&out_dir)?;
+            let info = nerf::app::train::train_nerf(&config, &data_dir, &paths, epochs, &device)?;
             println!(
                 "trained to epoch {} ({} Adam steps); checkpoint {}",
                 info.epoch,
@@ -257,23 +297,12 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            nerf::io::checkpoint::ensure_checkpoint_file(&checkpoint)?;
-            let (w, h) = config.image_size();
             let data_dir = data_dir_for(&config, data_dir);
-            let split: nerf::io::dataset::Split = split.into();
-            let dataset = nerf::io::dataset::Dataset::load(
-                &data_dir,
-                split,
-                w,
-                h,
-                config.renderer.white_background,
-            )?;
-            let (state, _) = nerf::train::fit::NerfState::load(&config, &checkpoint, &device)?;
-            let report = nerf::eval::evaluate::evaluate(
+            let report = nerf::app::evaluate::eval_nerf(
                 &config,
-                &state.field(),
-                &dataset,
-                split,
+                &checkpoint,
+                &data_dir,
+                split.into(),
                 save_images.as_deref(),
                 limit,
                 &device,
@@ -303,8 +332,7 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let nerf_cfg = nerf::train::fit::nerf_config(&config)?;
-            let n = nerf::io::torch::import_torch(&pth, nerf_cfg, &out)?;
+            let n = nerf::io::torch::import_torch(&pth, &config.nerf_params()?, &out)?;
             eprintln!(
                 "wrote {} ({n} parameters from {})",
                 out.display(),

@@ -1,25 +1,10 @@
 //! Integration tests that run the `nerf` binary as a user would.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
-fn nerf(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nerf"))
-        .args(args)
-        .output()
-        .expect("run nerf")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).to_string()
-}
-
-fn read_npy(path: &Path) -> (Vec<u64>, Vec<f32>) {
-    let bytes = std::fs::read(path).unwrap();
-    let npy = npyz::NpyFile::new(&bytes[..]).unwrap();
-    let shape = npy.shape().to_vec();
-    (shape, npy.into_vec::<f32>().unwrap())
-}
+mod common;
+use common::{nerf, read_npy, stderr};
 
 fn gif_frames(path: &Path) -> Vec<Vec<u8>> {
     let mut options = gif::DecodeOptions::new();
@@ -225,16 +210,6 @@ fn unwritable_output_directory_is_an_error() {
     );
 }
 
-fn reference_dir() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/reference_images");
-    if p.is_dir() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} not found", p.display());
-        None
-    }
-}
-
 fn psnr_u8(a: &[u8], b: &[u8]) -> f64 {
     let mse = a
         .iter()
@@ -251,7 +226,9 @@ fn rgb_of_rgba(v: &[u8]) -> Vec<u8> {
 
 #[test]
 fn box_render_agrees_with_the_homework_reference_images() {
-    let Some(reference) = reference_dir() else {
+    let Some(reference) =
+        common::reference_dir("box_render_agrees_with_the_homework_reference_images")
+    else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -357,11 +334,9 @@ fn box_render_agrees_with_the_homework_reference_images() {
 
 #[test]
 fn train_render_and_eval_a_tiny_nerf() {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego");
-    if !data.join("transforms_train.json").is_file() {
-        eprintln!("skipping: lego data not found at {}", data.display());
+    let Some(data) = common::lego_dir("train_render_and_eval_a_tiny_nerf") else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
     let ckpt_dir = dir.path().join("ckpt");
     let model = [
@@ -459,12 +434,9 @@ fn train_render_and_eval_a_tiny_nerf() {
 fn save_seeded_checkpoint(path: &Path, overrides: &[&str]) {
     let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
     let config = nerf::app::config::Config::load("lego", &overrides).unwrap();
-    let state = nerf::train::fit::NerfState::seeded(
-        nerf::train::fit::nerf_config(&config).unwrap(),
-        0,
-        &candle_core::Device::Cpu,
-    )
-    .unwrap();
+    let state =
+        nerf::NerfState::seeded(&config.nerf_params().unwrap(), 0, &candle_core::Device::Cpu)
+            .unwrap();
     nerf::io::checkpoint::save(
         path,
         &nerf::io::checkpoint::model_tensors(&state.varmap),
@@ -550,11 +522,9 @@ fn bad_checkpoints_and_missing_data_give_one_clear_line() {
 #[test]
 fn shipped_checkpoint_renders_and_scores_on_test_views() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let data = root.join("../shared/data/lego");
-    if !data.join("transforms_test.json").is_file() {
-        eprintln!("skipping: lego data not found at {}", data.display());
+    let Some(data) = common::lego_dir("shipped_checkpoint_renders_and_scores_on_test_views") else {
         return;
-    }
+    };
     let checkpoint = root.join("checkpoints/nerf_lego.safetensors");
     let ckpt = checkpoint.to_str().unwrap();
     let data_arg = data.to_str().unwrap();
@@ -692,11 +662,11 @@ fn tiny_train(ckpt_dir: &Path, data: &Path, epochs: usize) -> std::process::Comm
 
 #[test]
 fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego");
-    if !data.join("transforms_train.json").is_file() {
-        eprintln!("skipping: lego data not found at {}", data.display());
+    let Some(data) =
+        common::lego_dir("killed_training_leaves_a_whole_checkpoint_and_resumes_exactly")
+    else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
     // About 0.1 s per epoch, a checkpoint after each: kills land anywhere, writes included.
     let epochs = 30;
@@ -797,11 +767,9 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
 
 #[test]
 fn training_logs_test_psnr_at_checkpoints() {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego");
-    if !data.join("transforms_test.json").is_file() {
-        eprintln!("skipping: lego data not found at {}", data.display());
+    let Some(data) = common::lego_dir("training_logs_test_psnr_at_checkpoints") else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
     let status = tiny_train(dir.path(), &data, 2)
         .arg("training.eval_views=3")

@@ -5,12 +5,14 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
+mod common;
+
 use nerf::app::config::Config;
-use nerf::app::scene::render_view;
+use nerf::app::train::train_nerf;
 use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::dataset::{Dataset, Frame};
-use nerf::train::adam::Adam;
-use nerf::train::fit::{train, train_step, NerfState, TrainPaths};
+use nerf::train::step::train_step;
+use nerf::{render_view, Adam, NerfField, NerfState};
 use rand::SeedableRng;
 
 /// A small NeRF config (the homework's architecture, smaller sizes) with overrides.
@@ -34,7 +36,7 @@ fn tiny_config(extra: &[&str]) -> Config {
 /// Ground truth rendered from the box SDF, seen by NeRF-style cameras (radius 4, z up).
 fn box_dataset(config: &Config) -> Dataset {
     let box_config = Config::load("box", &["data.image_size=[12,12]".into()]).unwrap();
-    let field = box_config.sdf_field().unwrap();
+    let field = box_config.sdf_field(&Device::Cpu).unwrap();
     let sampler = box_config.sampler().unwrap();
     let renderer = box_config.renderer().unwrap();
     let cameras = config.surround_cameras();
@@ -68,7 +70,7 @@ fn named_vars(state: &NerfState) -> Vec<(String, candle_core::Var)> {
 fn a_few_steps_lower_the_loss() {
     let config = tiny_config(&["training.lr=0.005"]);
     let dataset = box_dataset(&config);
-    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = config.nerf_params().unwrap();
     let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
     let mut adam = Adam::new(named_vars(&state), 0.005).unwrap();
     let mut rng = rand::rngs::StdRng::seed_from_u64(5);
@@ -77,8 +79,7 @@ fn a_few_steps_lower_the_loss() {
         losses.push(
             train_step(
                 &state,
-                0.0,
-                &config,
+                &config.train_settings().unwrap().step,
                 &dataset,
                 step % 4,
                 &mut adam,
@@ -109,11 +110,11 @@ fn gradients_reach_every_parameter() {
             &[]
         };
         let config = tiny_config(extra);
-        let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
+        let nerf_cfg = config.nerf_params().unwrap();
         let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
-        let occupancy = nerf::render::occupancy::grid_settings(&config).map(|(g, t)| {
-            std::sync::Arc::new(nerf::render::occupancy::OccupancyGrid::new(&g, t).unwrap())
-        });
+        let occupancy = config
+            .occupancy_grid()
+            .map(|g| std::sync::Arc::new(nerf::OccupancyGrid::new(&g).unwrap()));
         let cam = config.surround_cameras()[0];
         let rays = nerf::core::rays::Rays::for_image(&cam, 6, 6, &Device::Cpu).unwrap();
         let mut rng = rand::rngs::StdRng::seed_from_u64(1);
@@ -121,7 +122,7 @@ fn gradients_reach_every_parameter() {
             .renderer()
             .unwrap()
             .render(
-                &nerf::render::field::Field::Nerf {
+                &NerfField {
                     model: state.model.clone(),
                     density_noise: 0.0,
                     occupancy,
@@ -166,11 +167,10 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
         "renderer.occupancy_grid.warmup_steps=8",
     ]);
     let dataset = box_dataset(&config);
-    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = config.nerf_params().unwrap();
     let mut state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
-    let (settings, threshold) = nerf::render::occupancy::grid_settings(&config).unwrap();
-    state.occupancy =
-        Some(nerf::render::occupancy::OccupancyGrid::new(&settings, threshold).unwrap());
+    let settings = config.occupancy_grid().unwrap();
+    state.occupancy = Some(nerf::OccupancyGrid::new(&settings).unwrap());
     let mut adam = Adam::new(named_vars(&state), 0.005).unwrap();
     let mut rng = rand::rngs::StdRng::seed_from_u64(5);
     let mut losses = Vec::new();
@@ -178,13 +178,18 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
         if step % 4 == 0 {
             let model = state.model.detached();
             let grid = state.occupancy.as_mut().unwrap();
-            grid.update(&model, step < 8, 0.95, &mut rng, &Device::Cpu)
-                .unwrap();
+            grid.update(
+                &|p| model.density(p),
+                step < 8,
+                0.95,
+                &mut rng,
+                &Device::Cpu,
+            )
+            .unwrap();
         }
         let (loss, samples) = train_step(
             &state,
-            0.0,
-            &config,
+            &config.train_settings().unwrap().step,
             &dataset,
             0,
             &mut adam,
@@ -221,7 +226,7 @@ fn batches_from_all_images_pair_rays_with_their_pixels() {
     let dataset = box_dataset(&config);
     let mut rng = rand::rngs::StdRng::seed_from_u64(3);
     let (rays, target, transparency) =
-        nerf::train::fit::training_batch(&dataset, 50, true, 0, &mut rng, &Device::Cpu).unwrap();
+        nerf::train::step::training_batch(&dataset, 50, true, 0, &mut rng, &Device::Cpu).unwrap();
     assert_eq!(rays.len(), 50);
     assert_eq!(target.dims(), &[50, 3]);
     assert_eq!(transparency.dims(), &[50, 1]);
@@ -268,7 +273,7 @@ fn batches_from_all_images_pair_rays_with_their_pixels() {
 #[test]
 fn checkpoint_round_trips_bit_exactly() {
     let config = tiny_config(&[]);
-    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = config.nerf_params().unwrap();
     let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("m.safetensors");
@@ -293,13 +298,9 @@ fn checkpoint_round_trips_bit_exactly() {
     }
     // A model of another width is refused with the tensor and both shapes named.
     let wide = tiny_config(&["implicit_function.n_hidden_neurons_xyz=48"]);
-    let err = NerfState::from_checkpoint(
-        nerf::train::fit::nerf_config(&wide).unwrap(),
-        &path,
-        &Device::Cpu,
-    )
-    .err()
-    .unwrap();
+    let err = NerfState::from_checkpoint(&wide.nerf_params().unwrap(), &path, &Device::Cpu)
+        .err()
+        .unwrap();
     let msg = format!("{err:#}");
     assert!(
         msg.contains("mlp_xyz.mlp.0.0.weight")
@@ -310,13 +311,7 @@ fn checkpoint_round_trips_bit_exactly() {
 }
 
 fn lego_dir() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego");
-    if p.join("transforms_train.json").is_file() {
-        Some(p)
-    } else {
-        eprintln!("skipping: lego data not found at {}", p.display());
-        None
-    }
+    common::lego_dir("nerf lego tests")
 }
 
 fn weights_of(path: &Path) -> HashMap<String, Vec<f32>> {
@@ -345,8 +340,8 @@ fn resume_continues_exactly() {
         let mut o: Vec<String> = base.iter().map(|s| s.to_string()).collect();
         o.push(format!("training.checkpoint_path={}", dir.display()));
         let config = Config::load("nerf_lego", &o).unwrap();
-        let paths = TrainPaths::for_config(&config, &dir.join("images")).unwrap();
-        train(&config, &data, &paths, stop, &Device::Cpu).unwrap();
+        let paths = config.train_paths(&dir.join("images")).unwrap();
+        train_nerf(&config, &data, &paths, stop, &Device::Cpu).unwrap();
         paths.checkpoint
     };
     let straight = tempfile::tempdir().unwrap();
@@ -387,7 +382,7 @@ fn resume_continues_exactly() {
 #[test]
 fn nerf_render_does_not_depend_on_chunking() {
     let config = tiny_config(&[]);
-    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = config.nerf_params().unwrap();
     let state = NerfState::seeded(&nerf_cfg, 3, &Device::Cpu).unwrap();
     let cam = config.surround_cameras()[5];
     let sampler = config.sampler().unwrap();
@@ -424,7 +419,7 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
     // Made by scripts/make_torch_state_dict.py: a tiny homework NeRF saved by torch.save, and
     // PyTorch's float64 density and colour at 16 points.
     let config = Config::load(fixtures().join("tiny_nerf.yaml").to_str().unwrap(), &[]).unwrap();
-    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = config.nerf_params().unwrap();
     let (expected, _) = checkpoint::load(
         &fixtures().join("tiny_nerf_outputs.safetensors"),
         &Device::Cpu,
@@ -465,7 +460,7 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
 fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
     // The homework-size config against the tiny state dict.
     let config = Config::load("nerf_lego", &[]).unwrap();
-    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = config.nerf_params().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.safetensors");
     let err = nerf::io::torch::import_torch(&fixtures().join("tiny_nerf.pth"), &nerf_cfg, &out)

@@ -6,8 +6,9 @@ use glam::DVec3;
 use nerf::app::config::Config;
 use nerf::core::camera::{surround_cameras, PerspectiveCamera};
 use nerf::core::rays::{pixel_grid_values, ray_through_ndc, Rays};
+use nerf::core::volume::{deltas, weights};
 use nerf::render::field::Field;
-use nerf::render::renderer::{deltas, weights, VolumeRenderer};
+use nerf::render::renderer::VolumeRenderer;
 use nerf::render::sampler::StratifiedSampler;
 
 fn box_config(overrides: &[&str]) -> Config {
@@ -16,7 +17,7 @@ fn box_config(overrides: &[&str]) -> Config {
 }
 
 fn render(
-    field: &Field,
+    field: &dyn Field,
     cam: &PerspectiveCamera,
     w: usize,
     h: usize,
@@ -61,7 +62,7 @@ fn hard_box_depth_matches_analytic_intersection() {
         "implicit_function.beta.val=1e-4",
         "implicit_function.feature.rainbow=False",
     ]);
-    let field = config.sdf_field().unwrap();
+    let field = config.sdf_field(&Device::Cpu).unwrap();
     let sampler = config.sampler().unwrap();
     let step = (sampler.max_depth - sampler.min_depth) / (sampler.n_pts_per_ray - 1) as f64;
     let (w, h) = (48, 40);
@@ -103,10 +104,8 @@ fn hard_box_depth_matches_analytic_intersection() {
 #[test]
 fn box_render_agrees_with_float64_recomputation() {
     let config = box_config(&[]);
-    let field = config.sdf_field().unwrap();
-    let Field::Sdf(volume) = &field else {
-        unreachable!()
-    };
+    let field = config.sdf_field(&Device::Cpu).unwrap();
+    let volume = &config.sdf_volume().unwrap();
     let sampler = config.sampler().unwrap();
     let (w, h) = (40, 30);
     let mut max_color: f64 = 0.0;
@@ -130,7 +129,7 @@ fn box_render_agrees_with_float64_recomputation() {
 #[test]
 fn chunk_size_does_not_change_the_image() {
     let config = box_config(&[]);
-    let field = config.sdf_field().unwrap();
+    let field = config.sdf_field(&Device::Cpu).unwrap();
     let sampler = config.sampler().unwrap();
     let cam = config.surround_cameras()[2];
     let (w, h) = (64, 48);
@@ -179,7 +178,7 @@ fn sphere_and_non_square_images_work_through_config() {
         "data.image_size=[20,15]",
         "sampler.n_pts_per_ray=32",
     ]);
-    let field = config.sdf_field().unwrap();
+    let field = config.sdf_field(&Device::Cpu).unwrap();
     let sampler = config.sampler().unwrap();
     let cam = config.surround_cameras()[0];
     let (_, depth) = render(&field, &cam, 20, 15, &sampler, 100);

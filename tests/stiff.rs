@@ -3,11 +3,10 @@
 
 use candle_core::{Device, Tensor};
 use nerf::app::config::Config;
-use nerf::app::scene::render_view;
 use nerf::core::rays::Rays;
-use nerf::render::field::Field;
-use nerf::render::renderer::{composite, deltas, weights, VolumeRenderer, MAX_OPTICAL_DEPTH};
-use nerf::render::sampler::StratifiedSampler;
+use nerf::core::volume::{deltas, weights, MAX_OPTICAL_DEPTH};
+use nerf::kernels::composite::composite;
+use nerf::{render_view, Field, NerfField, StratifiedSampler, VolumeRenderer};
 
 fn all_finite(t: &Tensor) -> bool {
     t.flatten_all()
@@ -93,17 +92,17 @@ fn extreme_densities_and_spacings() {
             );
         }
         // The fused kernel (CPU f32) gives the same colour, depth and opacity.
-        let out = composite(&density, &deltas(&len).unwrap(), &colour, &len).unwrap();
-        for t in [&out.color, &out.depth, &out.opacity] {
+        let (color, depth, opacity) = composite(&density, &colour, &len).unwrap();
+        for t in [&color, &depth, &opacity] {
             assert!(all_finite(t), "{name}: {t}");
         }
-        let opacity = out.opacity.flatten_all().unwrap().to_vec1::<f32>().unwrap()[0];
+        let opacity = opacity.flatten_all().unwrap().to_vec1::<f32>().unwrap()[0];
         let expected_opacity: f64 = expected.iter().sum();
         assert!(
             (opacity as f64 - expected_opacity).abs() < 1e-6,
             "{name}: {opacity} vs {expected_opacity}"
         );
-        let depth = out.depth.flatten_all().unwrap().to_vec1::<f32>().unwrap()[0] as f64;
+        let depth = depth.flatten_all().unwrap().to_vec1::<f32>().unwrap()[0] as f64;
         let expected_depth: f64 = expected
             .iter()
             .zip(&lengths)
@@ -128,10 +127,8 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
             ],
         )
         .unwrap();
-        let field = config.sdf_field().unwrap();
-        let Field::Sdf(volume) = &field else {
-            unreachable!()
-        };
+        let field = config.sdf_field(&Device::Cpu).unwrap();
+        let volume = &config.sdf_volume().unwrap();
         let sampler = config.sampler().unwrap();
         let renderer = config.renderer().unwrap();
         let cam = config.surround_cameras()[3];
@@ -209,7 +206,7 @@ fn rays_along_each_axis_with_signed_zeros_hit_the_box_where_expected() {
         ],
     )
     .unwrap();
-    let field = config.sdf_field().unwrap();
+    let field = config.sdf_field(&Device::Cpu).unwrap();
     let sampler = config.sampler().unwrap();
     let step = (sampler.max_depth - sampler.min_depth) / (sampler.n_pts_per_ray - 1) as f64;
     let mut origins = Vec::new();
@@ -259,10 +256,8 @@ fn float32_against_float64_at_64_and_1024_samples() {
             ],
         )
         .unwrap();
-        let field = config.sdf_field().unwrap();
-        let Field::Sdf(volume) = &field else {
-            unreachable!()
-        };
+        let field = config.sdf_field(&Device::Cpu).unwrap();
+        let volume = &config.sdf_volume().unwrap();
         let sampler = config.sampler().unwrap();
         let cam = config.surround_cameras()[1];
         let frame = render_view(
@@ -294,7 +289,7 @@ fn float32_against_float64_at_64_and_1024_samples() {
 fn nerf_gradients_and_adam_stay_finite_at_extremes() {
     use candle_nn::{VarBuilder, VarMap};
     let config = Config::load("nerf_lego", &[]).unwrap();
-    let nerf_cfg = nerf::train::fit::nerf_config(&config).unwrap().clone();
+    let nerf_cfg = config.nerf_params().unwrap();
     for (density_bias, colour_bias) in [(1e4f32, 50f32), (1e4, -50.0), (-1e4, 0.0), (3e4, 80.0)] {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, candle_core::DType::F32, &Device::Cpu);
@@ -308,12 +303,12 @@ fn nerf_gradients_and_adam_stay_finite_at_extremes() {
                 .set(&Tensor::new(&[colour_bias; 3], &Device::Cpu).unwrap())
                 .unwrap();
         }
-        let vars = nerf::train::fit::named_vars(&varmap);
+        let vars = nerf::train::state::named_vars(&varmap);
         let mut adam = nerf::train::adam::Adam::new(vars.clone(), 5e-4).unwrap();
         let cam = config.surround_cameras()[0];
         let rays = Rays::for_image(&cam, 8, 8, &Device::Cpu).unwrap();
         let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
-        let field = Field::Nerf {
+        let field = NerfField {
             model,
             density_noise: 0.0,
             occupancy: None,

@@ -8,8 +8,13 @@ use candle_core::Device;
 use serde::Serialize;
 
 use crate::app::config::Config;
-use crate::app::scene::{render_views, RenderedView};
-use crate::io::images::RgbImage;
+use crate::app::scene::render_views;
+use crate::core::image::RgbImage;
+use crate::core::metrics::{fastest, mean, mean_psnr, time_runs};
+use crate::field::nerf::NerfField;
+use crate::render::view::{render_view, RenderedView};
+use crate::train::adam::Adam;
+use crate::train::state::{named_vars, NerfState};
 
 /// One benchmark result.
 #[derive(Debug, Clone, Serialize)]
@@ -78,42 +83,9 @@ pub fn machine_info() -> MachineInfo {
     }
 }
 
-/// PSNR in dB of a mean squared error of colours in [0, 1]: `−10·log10(mse)`, infinite for
-/// identical images.
-pub fn psnr_from_mse(mse: f64) -> f64 {
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        -10.0 * mse.log10()
-    }
-}
-
-/// PSNR in dB between two colour images in [0, 1].
-pub fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
-    let mse = a
-        .data
-        .iter()
-        .zip(&b.data)
-        .map(|(x, y)| ((x - y) as f64).powi(2))
-        .sum::<f64>()
-        / a.data.len() as f64;
-    psnr_from_mse(mse)
-}
-
-/// Mean of `values` (0 when empty).
-pub fn mean(values: &[f64]) -> f64 {
-    values.iter().sum::<f64>() / values.len().max(1) as f64
-}
-
 /// Mean over views of the PSNR of each frame's colour against its image.
-pub fn mean_psnr(frames: &[RenderedView], images: &[RgbImage]) -> f64 {
-    mean(
-        &frames
-            .iter()
-            .zip(images)
-            .map(|(f, i)| psnr(&f.color, i))
-            .collect::<Vec<_>>(),
-    )
+pub fn mean_psnr_of_views(frames: &[RenderedView], images: &[RgbImage]) -> f64 {
+    mean_psnr(&frames.iter().map(|f| &f.color).collect::<Vec<_>>(), images)
 }
 
 /// Times the box render (all surround views of `config`) `repeats` times and returns the best
@@ -124,18 +96,14 @@ pub fn bench_sdf_render(
     repeats: usize,
     device: &Device,
 ) -> Result<(BenchResult, Vec<RenderedView>)> {
-    let field = config.sdf_field()?;
+    let field = config.sdf_field(device)?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
     let cameras = config.surround_cameras();
     let size = config.image_size();
-    let mut runs = Vec::new();
-    let mut frames = Vec::new();
-    for _ in 0..repeats.max(1) {
-        let t = Instant::now();
-        frames = render_views(&field, &cameras, size, &sampler, &renderer, device)?;
-        runs.push(t.elapsed().as_secs_f64());
-    }
+    let (runs, frames) = time_runs(repeats, || {
+        render_views(&field, &cameras, size, &sampler, &renderer, device)
+    })?;
     let (w, h) = size;
     let work = format!(
         "{} frames {}x{} x {} points",
@@ -144,12 +112,11 @@ pub fn bench_sdf_render(
         h,
         sampler.n_pts_per_ray
     );
-    let best = runs.iter().cloned().fold(f64::INFINITY, f64::min);
     Ok((
         BenchResult {
             name: "box render".into(),
             work,
-            seconds: best,
+            seconds: fastest(&runs),
             runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Box(
                 cameras.len(),
@@ -172,7 +139,7 @@ pub struct BenchReport {
 
 /// Runs every benchmark that applies to `config`. The box render's error column is the largest
 /// colour and depth difference of its frame 0 against the float64 recomputation
-/// ([`crate::reference`]).
+/// ([`crate::eval::reference`]).
 pub fn run_benchmarks(
     config: &Config,
     repeats: usize,
@@ -180,9 +147,7 @@ pub fn run_benchmarks(
     device: &Device,
 ) -> Result<BenchReport> {
     let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
-    let crate::render::field::Field::Sdf(volume) = config.sdf_field()? else {
-        anyhow::bail!("nerf bench needs an SDF config");
-    };
+    let volume = config.sdf_volume()?;
     let cam = config.surround_cameras()[0];
     let (colors, depths) = crate::eval::reference::render_image(
         &volume,
@@ -228,26 +193,20 @@ pub fn run_benchmarks(
 /// rendered frame at the config's size. Errors are not measured here (`nerf eval` does that).
 pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Vec<BenchResult>> {
     use rand::SeedableRng;
-    let nerf = crate::train::fit::nerf_config(config)?;
-    let training = config
-        .training
-        .clone()
-        .ok_or_else(|| anyhow::anyhow!("training: section missing"))?;
-    let state = crate::train::fit::NerfState::seeded(nerf, 0, device)?;
+    let nerf = config.nerf_params()?;
+    let training = config.training()?;
+    let state = NerfState::seeded(&nerf, 0, device)?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
     let (w, h) = config.image_size();
     let camera = crate::core::camera::surround_cameras(4.0, 20, glam::DVec3::Z, 2.0)[0];
     let mut rng = rand::rngs::StdRng::seed_from_u64(0);
-    let mut adam =
-        crate::train::adam::Adam::new(crate::train::fit::named_vars(&state.varmap), training.lr)?;
-    let mut step_runs = Vec::new();
-    for _ in 0..repeats.max(1) {
-        let t = Instant::now();
+    let mut adam = Adam::new(named_vars(&state.varmap), training.lr)?;
+    let (step_runs, ()) = time_runs(repeats, || {
         let pixels = crate::core::rays::random_pixel_indices(w, h, training.batch_size, &mut rng);
         let rays = crate::core::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
         let target = candle_core::Tensor::full(0.5f32, (pixels.len(), 3), device)?;
-        let field = crate::render::field::Field::Nerf {
+        let field = NerfField {
             model: state.model.clone(),
             density_noise: 0.0,
             occupancy: None,
@@ -255,22 +214,11 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
         let out = renderer.render(&field, &sampler, &rays, Some(&mut rng))?;
         let loss = out.color.sub(&target)?.sqr()?.mean_all()?;
         adam.step(&loss.backward()?)?;
-        step_runs.push(t.elapsed().as_secs_f64());
-    }
-    let mut frame_runs = Vec::new();
-    for _ in 0..repeats.clamp(1, 2) {
-        let t = Instant::now();
-        crate::app::scene::render_view(
-            &state.field(),
-            &camera,
-            (w, h),
-            &sampler,
-            &renderer,
-            device,
-        )?;
-        frame_runs.push(t.elapsed().as_secs_f64());
-    }
-    let best = |r: &[f64]| r.iter().cloned().fold(f64::INFINITY, f64::min);
+        Ok(())
+    })?;
+    let (frame_runs, _) = time_runs(repeats.clamp(1, 2), || {
+        render_view(&state.field(), &camera, (w, h), &sampler, &renderer, device)
+    })?;
     Ok(vec![
         BenchResult {
             name: "NeRF training step".into(),
@@ -278,7 +226,7 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
                 "{} rays x {} points, fwd+bwd+Adam",
                 training.batch_size, sampler.n_pts_per_ray
             ),
-            seconds: best(&step_runs),
+            seconds: fastest(&step_runs),
             runs: step_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Step(
                 training.batch_size,
@@ -292,7 +240,7 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
                 "1 frame {w}x{h} x {} points, dense, untrained",
                 sampler.n_pts_per_ray
             ),
-            seconds: best(&frame_runs),
+            seconds: fastest(&frame_runs),
             runs: frame_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, sampler.n_pts_per_ray)),
             error: None,
@@ -359,7 +307,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
     let n = cameras.len();
     let render_all = |config: &Config| -> Result<RenderRun> {
         let t = Instant::now();
-        let (state, _) = crate::train::fit::NerfState::load(config, &lego.checkpoint, device)?;
+        let (state, _) = config.load_nerf(&lego.checkpoint, device)?;
         let load_seconds = t.elapsed().as_secs_f64();
         let field = state.field();
         let (sampler, renderer) = (config.sampler()?, config.renderer()?);
@@ -367,7 +315,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
         let mut runs = Vec::with_capacity(n);
         for cam in &cameras {
             let t = Instant::now();
-            frames.push(crate::app::scene::render_view(
+            frames.push(render_view(
                 &field,
                 cam,
                 (w, h),
@@ -394,16 +342,16 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
         load_seconds: grid_seconds,
     } = render_all(&fast_config)?;
     let dense_colors: Vec<RgbImage> = dense.iter().map(|f| f.color.clone()).collect();
-    let vs_dense = mean_psnr(&fast, &dense_colors);
+    let vs_dense = mean_psnr_of_views(&fast, &dense_colors);
     let counts = fast
         .iter()
         .fold(crate::render::skipping::SampleCounts::default(), |a, f| {
             a + f.samples
         });
-    let evaluated = 100.0 * counts.evaluated as f64 / counts.total.max(1) as f64;
+    let evaluated = 100.0 * counts.evaluated_fraction();
     let (dense_error, fast_error) = match &truth {
         Some(t) => {
-            let (d, f) = (mean_psnr(&dense, t), mean_psnr(&fast, t));
+            let (d, f) = (mean_psnr_of_views(&dense, t), mean_psnr_of_views(&fast, t));
             (
                 format!("PSNR {d:.2} dB vs ground truth ({n} test views)"),
                 format!(

@@ -7,16 +7,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
-use glam::DVec3;
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
 use serde_yaml_ng::{Mapping, Value};
-
-use crate::core::camera::{surround_cameras, PerspectiveCamera};
-use crate::field::sdf::{Sdf, SdfVolume};
-use crate::render::field::Field;
-use crate::render::renderer::VolumeRenderer;
-use crate::render::sampler::StratifiedSampler;
 
 /// Upper limits on sizes, so that a typo such as an extra zero is a one-line error naming the
 /// key instead of an allocation that exhausts memory. Each is far above what the homework's
@@ -87,8 +80,8 @@ pub struct DataConfig {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RendererConfig {
-    #[serde(rename = "type", default = "default_renderer_type")]
-    pub kind: String,
+    #[serde(rename = "type", default)]
+    pub kind: RendererKind,
     pub chunk_size: usize,
     #[serde(default)]
     pub white_background: bool,
@@ -101,8 +94,28 @@ pub struct RendererConfig {
     pub occupancy_grid: Option<OccupancyGridConfig>,
 }
 
-fn default_renderer_type() -> String {
-    "volume".into()
+/// `renderer.type`: the homework's one renderer.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum RendererKind {
+    #[default]
+    Volume,
+}
+
+/// `sampler.type`: the homework's one sampler.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum SamplerKind {
+    #[default]
+    Stratified,
+}
+
+/// `implicit_function.sdf.type`.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum SdfKind {
+    Box,
+    Sphere,
 }
 
 /// `renderer.occupancy_grid` (extension): the empty-space skipping grid, and how training
@@ -163,15 +176,11 @@ fn d256() -> usize {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SamplerConfig {
-    #[serde(rename = "type", default = "default_sampler_type")]
-    pub kind: String,
+    #[serde(rename = "type", default)]
+    pub kind: SamplerKind,
     pub n_pts_per_ray: usize,
     pub min_depth: f64,
     pub max_depth: f64,
-}
-
-fn default_sampler_type() -> String {
-    "stratified".into()
 }
 
 /// `implicit_function.sdf`: the shape (`box` with `side_lengths`, or `sphere` with `radius`).
@@ -179,7 +188,7 @@ fn default_sampler_type() -> String {
 #[serde(deny_unknown_fields)]
 pub struct SdfShapeConfig {
     #[serde(rename = "type")]
-    pub kind: String,
+    pub kind: SdfKind,
     pub center: Param<[f64; 3]>,
     #[serde(default)]
     pub side_lengths: Option<Param<[f64; 3]>>,
@@ -489,19 +498,9 @@ impl Config {
             self.sampler.n_pts_per_ray,
             limits::PTS_PER_RAY,
         )?;
-        if self.renderer.kind != "volume" {
-            bail!(
-                "renderer.type: unknown renderer `{}` (expected volume)",
-                self.renderer.kind
-            );
+        if self.renderer.chunk_size == 0 {
+            bail!("renderer.chunk_size: must be at least 1");
         }
-        if self.sampler.kind != "stratified" {
-            bail!(
-                "sampler.type: unknown sampler `{}` (expected stratified)",
-                self.sampler.kind
-            );
-        }
-        self.renderer()?;
         let early = self.renderer.early_termination;
         finite("renderer.early_termination", early)?;
         if !(0.0..1.0).contains(&early) {
@@ -529,7 +528,6 @@ impl Config {
                 self.sampler.max_depth
             );
         }
-        self.sampler()?;
         let c = &self.cameras;
         finite("cameras.radius", c.radius)?;
         finite("cameras.focal_length", c.focal_length)?;
@@ -594,65 +592,6 @@ impl Config {
             }
         }
         Ok(())
-    }
-
-    /// Image width and height.
-    pub fn image_size(&self) -> (usize, usize) {
-        (self.data.image_size[0], self.data.image_size[1])
-    }
-
-    /// The `sampler` section as a sampler (range-checked).
-    pub fn sampler(&self) -> Result<StratifiedSampler> {
-        StratifiedSampler::new(
-            self.sampler.n_pts_per_ray,
-            self.sampler.min_depth,
-            self.sampler.max_depth,
-        )
-    }
-
-    /// The `renderer` section as a renderer: chunk size, background, early termination (the
-    /// occupancy grid belongs to the field; see [`crate::render::occupancy::grid_settings`]).
-    pub fn renderer(&self) -> Result<VolumeRenderer> {
-        VolumeRenderer::new(self.renderer.chunk_size, self.renderer.white_background)?
-            .with_early_termination(self.renderer.early_termination)
-    }
-
-    /// The surround cameras of the `cameras` section.
-    pub fn surround_cameras(&self) -> Vec<PerspectiveCamera> {
-        let c = &self.cameras;
-        surround_cameras(c.radius, c.n_poses, DVec3::from_array(c.up), c.focal_length)
-    }
-
-    /// The SDF volume field, when the config describes one.
-    pub fn sdf_field(&self) -> Result<Field> {
-        let ImplicitFunctionConfig::SdfVolume(s) = &self.implicit_function else {
-            bail!("implicit_function.type: this command needs sdf_volume");
-        };
-        let center = s.sdf.center.val.map(|v| v as f32);
-        let sdf = match s.sdf.kind.as_str() {
-            "box" => Sdf::Box {
-                center,
-                side_lengths: s
-                    .sdf
-                    .side_lengths
-                    .as_ref()
-                    .expect("validated")
-                    .val
-                    .map(|v| v as f32),
-            },
-            "sphere" => Sdf::Sphere {
-                center,
-                radius: s.sdf.radius.as_ref().expect("validated").val as f32,
-            },
-            other => bail!("implicit_function.sdf.type: unknown shape `{other}`"),
-        };
-        Ok(Field::Sdf(SdfVolume {
-            sdf,
-            alpha: s.alpha.val,
-            beta: s.beta.val,
-            rainbow: s.feature.rainbow,
-            feature: s.feature.val.map(|v| v as f32),
-        }))
     }
 }
 
@@ -732,8 +671,8 @@ fn validate_sdf(s: &SdfVolumeConfig) -> Result<()> {
     if s.beta.val <= 0.0 {
         bail!("{p}.beta.val: must be positive (got {})", s.beta.val);
     }
-    match s.sdf.kind.as_str() {
-        "box" => {
+    match s.sdf.kind {
+        SdfKind::Box => {
             let Some(sides) = &s.sdf.side_lengths else {
                 bail!("{p}.sdf.side_lengths: required for a box");
             };
@@ -744,7 +683,7 @@ fn validate_sdf(s: &SdfVolumeConfig) -> Result<()> {
                 }
             }
         }
-        "sphere" => {
+        SdfKind::Sphere => {
             let Some(radius) = &s.sdf.radius else {
                 bail!("{p}.sdf.radius: required for a sphere");
             };
@@ -753,7 +692,6 @@ fn validate_sdf(s: &SdfVolumeConfig) -> Result<()> {
                 bail!("{p}.sdf.radius.val: must be positive (got {})", radius.val);
             }
         }
-        other => bail!("{p}.sdf.type: unknown shape `{other}` (expected box or sphere)"),
     }
     Ok(())
 }
@@ -837,11 +775,8 @@ mod tests {
         ])
         .unwrap();
         assert!(matches!(
-            c.sdf_field().unwrap(),
-            Field::Sdf(SdfVolume {
-                sdf: Sdf::Sphere { .. },
-                ..
-            })
+            c.sdf_volume().unwrap().sdf,
+            crate::core::sdf::Sdf::Sphere { .. }
         ));
     }
 

@@ -2,5 +2,8 @@
 
 pub mod bench;
 pub mod config;
+pub mod evaluate;
 pub mod report;
+pub mod runtime;
 pub mod scene;
+pub mod train;

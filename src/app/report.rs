@@ -16,12 +16,15 @@ use anyhow::{bail, Context, Result};
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::app::bench::{machine_info, mean_psnr, psnr_from_mse, MachineInfo};
+use crate::app::bench::{machine_info, mean_psnr_of_views, MachineInfo};
 use crate::app::config::Config;
-use crate::app::scene::{render_view, RenderedView};
 use crate::core::camera::PerspectiveCamera;
+use crate::core::metrics::psnr_from_mse;
+use crate::core::metrics::{fastest, time_runs};
 use crate::io::images::RgbImage;
 use crate::io::plot::{write_line_plot, LinePlot, Series};
+use crate::render::field::Field;
+use crate::render::view::{render_view, RenderedView};
 
 /// What `nerf report` measures and where it writes.
 #[derive(Debug, Clone)]
@@ -183,7 +186,7 @@ fn box_config(beta: f64, size: usize, n_pts: usize) -> Result<Config> {
 /// of each view's fastest time.
 fn timed_frames(
     config: &Config,
-    field: &crate::render::field::Field,
+    field: &dyn Field,
     cameras: &[PerspectiveCamera],
     repeats: usize,
     device: &Device,
@@ -192,22 +195,18 @@ fn timed_frames(
     let mut frames = Vec::with_capacity(cameras.len());
     let mut total = 0.0;
     for camera in cameras {
-        let mut best = f64::INFINITY;
-        let mut frame = None;
-        for _ in 0..repeats.max(1) {
-            let t = Instant::now();
-            frame = Some(render_view(
+        let (runs, frame) = time_runs(repeats, || {
+            render_view(
                 field,
                 camera,
                 config.image_size(),
                 &sampler,
                 &renderer,
                 device,
-            )?);
-            best = best.min(t.elapsed().as_secs_f64());
-        }
-        frames.push(frame.expect("at least one repeat"));
-        total += best;
+            )
+        })?;
+        frames.push(frame);
+        total += fastest(&runs);
     }
     Ok((frames, total / cameras.len().max(1) as f64))
 }
@@ -250,7 +249,7 @@ impl AnalyticImage {
 
 /// [`AnalyticImage`] of `volume` seen by `camera`, rays sampled up to `max_depth`.
 pub fn analytic_image(
-    volume: &crate::field::sdf::SdfVolume,
+    volume: &crate::core::sdf::SdfVolume,
     camera: &PerspectiveCamera,
     (width, height): (usize, usize),
     max_depth: f64,
@@ -302,10 +301,8 @@ pub fn box_study(
 ) -> Result<BoxStudy> {
     let size = sizes.box_size;
     let reference_config = box_config(beta, size, sizes.box_reference_pts)?;
-    let field = reference_config.sdf_field()?;
-    let crate::render::field::Field::Sdf(volume) = field.clone() else {
-        bail!("the box config is not an SDF volume");
-    };
+    let field = reference_config.sdf_field(device)?;
+    let volume = reference_config.sdf_volume()?;
     let all_cameras = reference_config.surround_cameras();
     let cameras: Vec<PerspectiveCamera> = sizes
         .box_views
@@ -444,7 +441,7 @@ pub fn lego_study(
         .collect();
     let truth: Vec<RgbImage> = dataset.images.iter().take(views).cloned().collect();
     let run = |config: &Config| -> Result<(Vec<RenderedView>, f64)> {
-        let (state, _) = crate::train::fit::NerfState::load(config, &options.checkpoint, device)?;
+        let (state, _) = config.load_nerf(&options.checkpoint, device)?;
         timed_frames(config, &state.field(), &cameras, sizes.repeats, device)
     };
     let dense_overrides = &accelerations()[0].1;
@@ -464,9 +461,9 @@ pub fn lego_study(
                 acceleration: name.to_string(),
                 n_pts: n,
                 seconds_per_frame: seconds,
-                psnr_vs_truth: mean_psnr(&frames, &truth),
-                psnr_vs_dense: mean_psnr(&frames, &reference),
-                evaluated: counts.evaluated as f64 / counts.total.max(1) as f64,
+                psnr_vs_truth: mean_psnr_of_views(&frames, &truth),
+                psnr_vs_dense: mean_psnr_of_views(&frames, &reference),
+                evaluated: counts.evaluated_fraction(),
             });
             progress.inc(1);
         }
@@ -558,7 +555,7 @@ pub fn measure(options: &ReportOptions, device: &Device) -> Result<Report> {
     let sizes = Sizes::new(options.quick, options.views);
     let box_renders = 2 * (1 + sizes.box_pts.len());
     let lego_renders = 1 + accelerations().len() * sizes.lego_pts.len();
-    let progress = crate::app::scene::progress_bar((box_renders + lego_renders) as u64, "report");
+    let progress = crate::io::progress::progress_bar((box_renders + lego_renders) as u64, "report");
     let homework_box = box_study(HOMEWORK_BETA, false, &sizes, device, &progress)?;
     let hard_box = box_study(HARD_BETA, true, &sizes, device, &progress)?;
     let lego = lego_study(options, &sizes, device, &progress).map_err(|e| format!("{e:#}"));

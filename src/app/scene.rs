@@ -2,77 +2,25 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use candle_core::{Device, Tensor};
-use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::app::config::Config;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::rays::{pixel_grid, Rays};
-use crate::io::images::{viridis_image, write_gif, write_npy, write_png, RgbImage};
+use crate::io::images::{
+    prepare_out_dir, viridis_image, write_gif, write_npy, write_png, RgbImage,
+};
+use crate::io::progress::progress_bar;
 use crate::render::field::Field;
 use crate::render::pointcloud::{render_points, PointView};
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
-
-/// One rendered view.
-#[derive(Debug, Clone)]
-pub struct RenderedView {
-    /// `(H·W·3)` colour, row-major.
-    pub color: RgbImage,
-    /// `(H·W)` depth, row-major.
-    pub depth: Vec<f32>,
-    /// Samples drawn and evaluated for it.
-    pub samples: crate::render::skipping::SampleCounts,
-}
-
-/// Renders one camera's full image (no jitter, no gradients needed).
-pub fn render_view(
-    field: &Field,
-    camera: &PerspectiveCamera,
-    (width, height): (usize, usize),
-    sampler: &StratifiedSampler,
-    renderer: &VolumeRenderer,
-    device: &Device,
-) -> Result<RenderedView> {
-    camera.validate()?;
-    let rays = Rays::for_image(camera, width, height, device)?;
-    let out = renderer.render(field, sampler, &rays, None)?;
-    let color = out.color.flatten_all()?.to_vec1::<f32>()?;
-    let depth = out.depth.flatten_all()?.to_vec1::<f32>()?;
-    Ok(RenderedView {
-        color: RgbImage::new(width, height, color)?,
-        depth,
-        samples: out.samples,
-    })
-}
-
-/// A progress bar on stderr (drawn only on a terminal).
-pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
-}
-
-/// Prints `message` as a line above `bar`, or on stderr when the bar is hidden (stderr is not
-/// a terminal, as when training runs in the background with its output in a file): indicatif
-/// drops the lines of a hidden bar.
-pub fn print_above(bar: &ProgressBar, message: &str) {
-    if bar.is_hidden() {
-        eprintln!("{message}");
-    } else {
-        bar.println(message);
-    }
-}
+use crate::render::view::{render_view, RenderedView};
 
 /// Renders every camera with a progress bar.
 pub fn render_views(
-    field: &Field,
+    field: &dyn Field,
     cameras: &[PerspectiveCamera],
     size: (usize, usize),
     sampler: &StratifiedSampler,
@@ -132,17 +80,6 @@ pub fn point_image(
     render_points(&points, size, &PointView::default())
 }
 
-/// Creates `dir` (and parents), with an error that names it.
-pub fn prepare_out_dir(dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("cannot create output directory {}", dir.display()))?;
-    let probe = dir.join(format!(".nerf-write-test.{}", std::process::id()));
-    std::fs::write(&probe, b"")
-        .with_context(|| format!("output directory {} is not writable", dir.display()))?;
-    let _ = std::fs::remove_file(probe);
-    Ok(())
-}
-
 /// Writes `color_{i:03}.npy` `(H, W, 3)` and `depth_{i:03}.npy` `(H, W)` for every frame.
 pub fn write_raw_frames(out_dir: &Path, frames: &[RenderedView]) -> Result<Vec<PathBuf>> {
     let mut written = Vec::new();
@@ -171,7 +108,7 @@ pub fn render_sdf_scene(
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    let field = config.sdf_field()?;
+    let field = config.sdf_field(device)?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
     let (w, h) = config.image_size();
@@ -209,7 +146,7 @@ pub fn render_sdf_scene(
 /// Renders the config's surround views of a NeRF field into an animated GIF at `path`.
 pub fn render_nerf_gif(
     config: &Config,
-    field: &Field,
+    field: &dyn Field,
     path: &Path,
     device: &Device,
 ) -> Result<PathBuf> {
@@ -241,9 +178,9 @@ pub fn render_nerf_scene(
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    crate::train::fit::nerf_config(config)?;
+    config.nerf_params()?;
     crate::io::checkpoint::ensure_checkpoint_file(checkpoint)?;
-    let (state, _) = crate::train::fit::NerfState::load(config, checkpoint, device)?;
+    let (state, _) = config.load_nerf(checkpoint, device)?;
     prepare_out_dir(out_dir)?;
     let field = state.field();
     let frames = render_views(

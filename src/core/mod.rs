@@ -2,4 +2,8 @@
 
 pub mod camera;
 pub mod compare;
+pub mod image;
+pub mod metrics;
 pub mod rays;
+pub mod sdf;
+pub mod volume;

@@ -6,12 +6,15 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::app::bench::psnr;
-use crate::app::config::Config;
-use crate::app::scene::{prepare_out_dir, progress_bar, render_view};
+use crate::core::metrics::{mean, psnr};
 use crate::io::dataset::{Dataset, Split};
-use crate::io::images::write_png;
+use crate::io::images::{prepare_out_dir, write_png};
+use crate::io::progress::progress_bar;
 use crate::render::field::Field;
+use crate::render::renderer::VolumeRenderer;
+use crate::render::sampler::StratifiedSampler;
+use crate::render::skipping::SampleCounts;
+use crate::render::view::render_view;
 
 /// PSNR of one view.
 #[derive(Debug, Clone, Serialize)]
@@ -38,19 +41,19 @@ pub struct EvalReport {
     pub views: Vec<ViewScore>,
 }
 
-/// Renders every view of `dataset` with `field` and scores it; with `save_images`, writes each
+/// Renders every view of `dataset` with `field` (through `sampler` and `renderer`) and scores it; with `save_images`, writes each
 /// prediction as `<frame>.png` there. `limit` evaluates only the first views.
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate(
-    config: &Config,
-    field: &Field,
+    field: &dyn Field,
+    sampler: &StratifiedSampler,
+    renderer: &VolumeRenderer,
     dataset: &Dataset,
     split: Split,
     save_images: Option<&Path>,
     limit: Option<usize>,
     device: &Device,
 ) -> Result<EvalReport> {
-    let sampler = config.sampler()?;
-    let renderer = config.renderer()?;
     let size = (dataset.width, dataset.height);
     if let Some(dir) = save_images {
         prepare_out_dir(dir)?;
@@ -59,10 +62,10 @@ pub fn evaluate(
     let bar = progress_bar(n as u64, "evaluating");
     let mut views = Vec::with_capacity(n);
     let mut render_seconds = 0.0;
-    let mut counts = crate::render::skipping::SampleCounts::default();
+    let mut counts = SampleCounts::default();
     for (frame, truth) in dataset.frames.iter().zip(&dataset.images).take(n) {
         let t = std::time::Instant::now();
-        let predicted = render_view(field, &frame.camera, size, &sampler, &renderer, device)?;
+        let predicted = render_view(field, &frame.camera, size, sampler, renderer, device)?;
         render_seconds += t.elapsed().as_secs_f64();
         counts = counts + predicted.samples;
         let name = frame
@@ -86,8 +89,8 @@ pub fn evaluate(
         height: size.1,
         n_pts_per_ray: sampler.n_pts_per_ray,
         seconds_per_view: render_seconds / n.max(1) as f64,
-        evaluated_fraction: counts.evaluated as f64 / counts.total.max(1) as f64,
-        mean_psnr: values.iter().sum::<f64>() / values.len().max(1) as f64,
+        evaluated_fraction: counts.evaluated_fraction(),
+        mean_psnr: mean(&values),
         min_psnr: values.iter().cloned().fold(f64::INFINITY, f64::min),
         max_psnr: values.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
         views,

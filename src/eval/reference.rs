@@ -7,7 +7,7 @@ use glam::DVec3;
 
 use crate::core::camera::PerspectiveCamera;
 use crate::core::rays::{pixel_grid_values, ray_through_ndc};
-use crate::field::sdf::{Sdf, SdfVolume};
+use crate::core::sdf::{Sdf, SdfVolume};
 use crate::render::sampler::StratifiedSampler;
 
 /// Signed distance in f64.

@@ -16,13 +16,41 @@
 //! `.bias`), with PyTorch's shapes (`(out, in)`) and PyTorch's default `nn.Linear`
 //! initialisation, U(−1/√fan_in, 1/√fan_in).
 
+use std::sync::Arc;
+
 use anyhow::{ensure, Result};
 use candle_core::Tensor;
 use candle_nn::{Init, Linear, VarBuilder};
 
-use crate::app::config::NerfConfig;
-use crate::render::field::FieldOutput;
+use crate::render::field::{Field, FieldOutput};
+use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
+
+/// The sizes of the homework's NeRF (its `implicit_function` keys).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NerfParams {
+    pub n_harmonic_functions_xyz: usize,
+    pub n_harmonic_functions_dir: usize,
+    pub n_hidden_neurons_xyz: usize,
+    pub n_hidden_neurons_dir: usize,
+    pub n_layers_xyz: usize,
+    /// Trunk layers before which the xyz embedding is concatenated again.
+    pub append_xyz: Vec<usize>,
+}
+
+impl Default for NerfParams {
+    /// The homework's defaults: 6 and 2 harmonics, widths 128 and 64, 6 layers, skip at 3.
+    fn default() -> Self {
+        Self {
+            n_harmonic_functions_xyz: 6,
+            n_harmonic_functions_dir: 2,
+            n_hidden_neurons_xyz: 128,
+            n_hidden_neurons_dir: 64,
+            n_layers_xyz: 6,
+            append_xyz: vec![3],
+        }
+    }
+}
 
 /// `[sin(x·f), cos(x·f), x]` with `f = 2^0 … 2^(L−1)`.
 ///
@@ -63,7 +91,7 @@ fn torch_linear(in_dim: usize, out_dim: usize, vb: VarBuilder) -> Result<Linear>
 
 /// Input width of layer `i` of `mlp_xyz`: the xyz embedding for the first layer, hidden plus
 /// the embedding where `append_xyz` concatenates it again, hidden otherwise.
-pub fn mlp_input_dim(config: &NerfConfig, i: usize) -> usize {
+pub fn mlp_input_dim(config: &NerfParams, i: usize) -> usize {
     let dim_xyz = embedding_dim(config.n_harmonic_functions_xyz);
     if i == 0 {
         dim_xyz
@@ -77,7 +105,7 @@ pub fn mlp_input_dim(config: &NerfConfig, i: usize) -> usize {
 /// The NeRF MLP.
 #[derive(Debug, Clone)]
 pub struct Nerf {
-    pub config: NerfConfig,
+    pub config: NerfParams,
     mlp_xyz: Vec<Linear>,
     density_layer: Linear,
     intermediate_linear: Linear,
@@ -87,7 +115,7 @@ pub struct Nerf {
 
 impl Nerf {
     /// Builds the model; parameters are created in (or loaded from) `vb`.
-    pub fn new(config: &NerfConfig, vb: VarBuilder) -> Result<Self> {
+    pub fn new(config: &NerfParams, vb: VarBuilder) -> Result<Self> {
         let hidden = config.n_hidden_neurons_xyz;
         let dim_dir = embedding_dim(config.n_harmonic_functions_dir);
         ensure!(
@@ -122,25 +150,18 @@ impl Nerf {
     /// `points`: `(M, 3)`; returns `(M, n_hidden_neurons_xyz)`.
     fn trunk(&self, points: &Tensor) -> Result<Tensor> {
         let xyz = harmonic_embedding(points, self.config.n_harmonic_functions_xyz)?;
-        if crate::kernels::trunk::fused_available(&xyz) {
-            let shape = crate::kernels::trunk::TrunkShape {
-                input_dim: xyz.dim(1)?,
-                hidden: self.config.n_hidden_neurons_xyz,
-                skip: (0..self.mlp_xyz.len())
-                    .map(|i| i > 0 && self.config.append_xyz.contains(&i))
-                    .collect(),
-            };
-            let params = crate::kernels::trunk::pack_parameters(&self.mlp_xyz)?;
-            return Ok(crate::kernels::trunk::trunk(&xyz, &params, &shape)?);
-        }
-        let mut y = xyz.clone();
-        for (i, layer) in self.mlp_xyz.iter().enumerate() {
-            if i > 0 && self.config.append_xyz.contains(&i) {
-                y = Tensor::cat(&[&y, &xyz], 1)?;
-            }
-            y = linear_relu(layer, &y)?;
-        }
-        Ok(y)
+        let shape = crate::kernels::trunk::TrunkShape {
+            input_dim: xyz.dim(1)?,
+            hidden: self.config.n_hidden_neurons_xyz,
+            skip: (0..self.mlp_xyz.len())
+                .map(|i| i > 0 && self.config.append_xyz.contains(&i))
+                .collect(),
+        };
+        Ok(crate::kernels::trunk::trunk_forward(
+            &xyz,
+            &self.mlp_xyz,
+            &shape,
+        )?)
     }
 
     /// Density head: `relu(density_layer(y) + noise)`.
@@ -259,6 +280,52 @@ impl Nerf {
     }
 }
 
+/// A NeRF as a field: the model, the training-time density noise (0 when rendering) and,
+/// when present, the occupancy grid that marks where it can have density.
+#[derive(Debug, Clone)]
+pub struct NerfField {
+    pub model: Nerf,
+    /// Standard deviation of the Gaussian noise added before the density ReLU (0 = off).
+    pub density_noise: f64,
+    pub occupancy: Option<Arc<OccupancyGrid>>,
+}
+
+impl Field for NerfField {
+    fn max_samples_per_chunk(&self) -> usize {
+        // Activations of 128 floats per sample per layer: 2^15 samples are 16 MiB each,
+        // small enough for the allocator to reuse instead of mapping fresh pages each time
+        // (the dense training step went from 1.45 s to 1.32 s against 2^18).
+        1 << 15
+    }
+
+    fn evaluate(
+        &self,
+        samples: &RaySamples,
+        _deltas: &Tensor,
+        directions: &Tensor,
+    ) -> Result<FieldOutput> {
+        self.model.evaluate(samples, directions, self.density_noise)
+    }
+
+    fn supports_packed(&self) -> bool {
+        true
+    }
+
+    fn evaluate_packed(
+        &self,
+        points: &Tensor,
+        ray_index: &Tensor,
+        directions: &Tensor,
+    ) -> Result<(Tensor, Tensor)> {
+        self.model
+            .forward_packed(points, ray_index, directions, self.density_noise)
+    }
+
+    fn occupancy(&self) -> Option<&OccupancyGrid> {
+        self.occupancy.as_deref()
+    }
+}
+
 /// `layer(x)` with the bias gradient summed in one pass ([`crate::kernels::bias::bias_add`]).
 ///
 /// `x`: `(M, in)`; returns `(M, out)`.
@@ -278,7 +345,7 @@ pub fn linear_relu(layer: &Linear, x: &Tensor) -> Result<Tensor> {
 }
 
 /// Shapes of every parameter, by PyTorch name, for a config (used to check checkpoints).
-pub fn parameter_shapes(config: &NerfConfig) -> Vec<(String, Vec<usize>)> {
+pub fn parameter_shapes(config: &NerfParams) -> Vec<(String, Vec<usize>)> {
     let hidden = config.n_hidden_neurons_xyz;
     let dim_dir = embedding_dim(config.n_harmonic_functions_dir);
     let mut out = Vec::new();
@@ -310,17 +377,8 @@ mod tests {
     use candle_core::{DType, Device, Module};
     use candle_nn::VarMap;
 
-    fn homework_config() -> NerfConfig {
-        NerfConfig {
-            kind: "nerf".into(),
-            n_harmonic_functions_xyz: 6,
-            n_harmonic_functions_dir: 2,
-            n_hidden_neurons_xyz: 128,
-            n_hidden_neurons_dir: 64,
-            density_noise_std: 0.0,
-            n_layers_xyz: 6,
-            append_xyz: vec![3],
-        }
+    fn homework_config() -> NerfParams {
+        NerfParams::default()
     }
 
     #[test]
@@ -367,7 +425,7 @@ mod tests {
     fn per_ray_direction_branch_equals_concatenation() {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
-        let cfg = NerfConfig {
+        let cfg = NerfParams {
             n_hidden_neurons_xyz: 16,
             n_hidden_neurons_dir: 8,
             n_layers_xyz: 3,

@@ -12,8 +12,8 @@ use anyhow::{bail, Context, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
-use crate::app::config::NerfConfig;
 use crate::field::nerf::parameter_shapes;
+use crate::field::nerf::NerfParams;
 use crate::io::images::write_atomically;
 
 /// What a checkpoint holds besides tensors.
@@ -167,7 +167,7 @@ pub fn ensure_finite_values(origin: &Path, name: &str, values: &[f32]) -> Result
 pub fn load_model_into(
     varmap: &VarMap,
     tensors: &HashMap<String, Tensor>,
-    config: &NerfConfig,
+    config: &NerfParams,
     origin: &Path,
 ) -> Result<()> {
     let data = varmap.data().lock().expect("varmap lock");

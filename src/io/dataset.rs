@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use serde::Deserialize;
 
 use crate::core::camera::PerspectiveCamera;
-use crate::io::images::RgbImage;
+use crate::core::image::RgbImage;
 
 /// Where to get the data, appended to errors about a missing scene directory or transforms file.
 pub const DOWNLOAD_HINT: &str = "download the NeRF-synthetic lego scene (nerf_synthetic.zip \

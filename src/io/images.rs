@@ -5,6 +5,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+pub use crate::core::image::{to_byte, RgbImage};
 use anyhow::{bail, Context, Result};
 use image::{ImageBuffer, Rgb};
 use npyz::WriterBuilder;
@@ -92,45 +93,6 @@ pub fn write_atomically(
     result
 }
 
-/// Float colour in [0, 1] → byte, as matplotlib's `imsave` does (`(x·255).astype(uint8)`, so
-/// truncation); values outside [0, 1] are clamped.
-pub fn to_byte(v: f32) -> u8 {
-    (v.clamp(0.0, 1.0) * 255.0) as u8
-}
-
-/// An RGB image with float channels in [0, 1], row-major.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RgbImage {
-    pub width: usize,
-    pub height: usize,
-    /// `width · height · 3` values.
-    pub data: Vec<f32>,
-}
-
-impl RgbImage {
-    /// An image from `width · height · 3` row-major RGB values (an error for any other count).
-    pub fn new(width: usize, height: usize, data: Vec<f32>) -> Result<Self> {
-        if data.len() != width * height * 3 {
-            bail!(
-                "image data has {} values, expected {}×{}×3",
-                data.len(),
-                width,
-                height
-            );
-        }
-        Ok(Self {
-            width,
-            height,
-            data,
-        })
-    }
-
-    /// The pixels as 8-bit RGB (values clamped to [0, 1], then as matplotlib's `imsave`).
-    pub fn to_bytes(&self) -> Vec<u8> {
-        self.data.iter().map(|&v| to_byte(v)).collect()
-    }
-}
-
 /// Writes an 8-bit RGB PNG.
 pub fn write_png(path: &Path, image: &RgbImage) -> Result<()> {
     let buffer: ImageBuffer<Rgb<u8>, Vec<u8>> =
@@ -204,6 +166,17 @@ pub fn viridis_image(width: usize, height: usize, values: &[f32]) -> Result<RgbI
         data.extend([c.r, c.g, c.b].map(|b| (b as f32 + 0.5) / 255.0));
     }
     RgbImage::new(width, height, data)
+}
+
+/// Creates `dir` (and parents), with an error that names it.
+pub fn prepare_out_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create output directory {}", dir.display()))?;
+    let probe = dir.join(format!(".nerf-write-test.{}", std::process::id()));
+    std::fs::write(&probe, b"")
+        .with_context(|| format!("output directory {} is not writable", dir.display()))?;
+    let _ = std::fs::remove_file(probe);
+    Ok(())
 }
 
 #[cfg(test)]

@@ -4,4 +4,5 @@ pub mod checkpoint;
 pub mod dataset;
 pub mod images;
 pub mod plot;
+pub mod progress;
 pub mod torch;

@@ -14,8 +14,8 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Result};
 use candle_core::{DType, Device, Tensor};
 
-use crate::app::config::NerfConfig;
 use crate::field::nerf::parameter_shapes;
+use crate::field::nerf::NerfParams;
 use crate::io::checkpoint::{self, CheckpointInfo};
 
 /// Keys under which training scripts commonly nest the state dict.
@@ -24,7 +24,7 @@ const NESTED_KEYS: &[&str] = &["model", "model_state_dict", "state_dict"];
 /// Reads the NeRF parameters from a PyTorch `.pth` file, by our names, as f32 on the CPU, each
 /// of the shape [`parameter_shapes`] gives for `config` (checked); an error names a missing,
 /// misshapen or non-finite tensor.
-pub fn read_torch_state_dict(path: &Path, config: &NerfConfig) -> Result<Vec<(String, Tensor)>> {
+pub fn read_torch_state_dict(path: &Path, config: &NerfParams) -> Result<Vec<(String, Tensor)>> {
     if !path.is_file() {
         bail!("PyTorch file {} not found", path.display());
     }
@@ -90,7 +90,7 @@ fn lookup<'a>(tensors: &'a HashMap<String, Tensor>, name: &str) -> Option<&'a Te
 
 /// Converts `pth` into a checkpoint at `out` (weights only; epoch 0, so training started from
 /// it begins a fresh optimiser). Returns the number of parameters written.
-pub fn import_torch(pth: &Path, config: &NerfConfig, out: &Path) -> Result<usize> {
+pub fn import_torch(pth: &Path, config: &NerfParams, out: &Path) -> Result<usize> {
     if out
         .canonicalize()
         .ok()

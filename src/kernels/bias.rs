@@ -1,19 +1,20 @@
 //! Adding a bias, or a per-ray term, to the rows of an activation matrix on the CPU, with the
 //! gradient of the added term summed in one multi-threaded pass over the rows (Candle's
 //! broadcast-add backward reduces column by column, which cost 7% of a training step).
-//! Other devices use the Candle ops.
+//! Elsewhere (another device or dtype, or generic kernels chosen) the Candle ops run.
 
-use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::kernels::storage::contiguous_f32;
+use crate::kernels::use_fused;
 
 const ROWS_PER_TASK: usize = 512;
 
 /// Sums of the columns of `x` `(M, H)`: `(H)`. On the CPU one multi-threaded pass over the
 /// rows (Candle's `sum(0)` walks the matrix column by column); elsewhere `sum(0)`.
 pub fn column_sum(x: &Tensor) -> candle_core::Result<Tensor> {
-    if x.device().is_cpu() && x.dtype() == DType::F32 {
+    if use_fused(x) {
         x.contiguous()?.apply_op1_no_bwd(&ColumnSum)
     } else {
         x.sum(0)
@@ -58,7 +59,7 @@ impl candle_core::CustomOp1 for ColumnSum {
 /// [`column_sum`] (Candle's broadcast-add backward reduces column by column). CPU f32; other
 /// devices use `broadcast_add`.
 pub fn bias_add(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
-    if x.device().is_cpu() && x.dtype() == DType::F32 {
+    if use_fused(x) {
         x.contiguous()?
             .apply_op2(&bias.contiguous()?, AddRows { group: 1 })
     } else {
@@ -70,7 +71,7 @@ pub fn bias_add(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
 /// added to each of the ray's samples, with its gradient summed per ray in one pass. CPU f32;
 /// other devices use a broadcast add.
 pub fn add_per_group(x: &Tensor, r: &Tensor, group: usize) -> candle_core::Result<Tensor> {
-    if x.device().is_cpu() && x.dtype() == DType::F32 {
+    if use_fused(x) {
         x.contiguous()?
             .apply_op2(&r.contiguous()?, AddRows { group })
     } else {
@@ -198,6 +199,7 @@ mod add_tests {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use candle_core::DType;
 
     #[test]
     fn column_sum_matches_candle() {

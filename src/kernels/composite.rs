@@ -6,7 +6,7 @@
 //! [`LAST_DELTA`] for the last sample. Output `(N, C + 2)`: colour `Σ_i w_i v_ic`, depth
 //! `Σ_i w_i t_i`, opacity `Σ_i w_i`, where `τ_i = clamp(σ_i Δ_i, 0, MAX_OPTICAL_DEPTH)`,
 //! `T_i = Π_{j<i} e^{−τ_j}`, `w_i = T_i (1 − e^{−τ_i})` — the maths of
-//! [`crate::render::renderer::weights`].
+//! [`crate::core::volume::weights`].
 //!
 //! Backward, with `g_i = Σ_c G_c v_ic + G_depth t_i + G_opacity` for the output gradient G:
 //! `∂L/∂v_ic = w_i G_c` and `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, so
@@ -16,40 +16,56 @@
 // Index loops walk several per-ray arrays in step; iterator chains would hide that.
 #![allow(clippy::needless_range_loop)]
 
+use anyhow::Result;
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::kernels::storage::contiguous_f32;
 
-use crate::render::renderer::{LAST_DELTA, MAX_OPTICAL_DEPTH};
+use crate::core::volume::{
+    aggregate, clamped_optical_depth, deltas, ray_weights, spacing, weights, MAX_OPTICAL_DEPTH,
+};
+use crate::kernels::use_fused;
 
 /// Rays per parallel work item.
 const RAYS_PER_TASK: usize = 256;
 
-/// Optical depth of one sample, clamped as in [`crate::render::renderer::optical_depth`]: `σΔ` in
-/// `[0, MAX_OPTICAL_DEPTH]`, and 0 for zero spacing whatever σ is (the homework's SDF σ is
-/// `−ln(1 − density)/Δ`, which is ∞ or NaN at Δ = 0).
-#[inline]
-pub fn clamped_optical_depth(sigma: f32, delta: f32) -> f32 {
-    if delta == 0.0 {
-        0.0
-    } else {
-        (sigma * delta).clamp(0.0, MAX_OPTICAL_DEPTH as f32)
+/// Colour, depth and opacity of each ray from its samples: the weights and their weighted
+/// sums, with spacings derived from the lengths ([`crate::core::volume::deltas`]). The fused
+/// [`Composite`] kernel (forward and backward) where [`use_fused`] allows, else
+/// [`composite_tensor_ops`].
+///
+/// `density`, `lengths`: `(N, S, 1)`; `feature`: `(N, S, C)`. Returns colour `(N, C)`, depth
+/// `(N, 1)` and opacity `(N, 1)`.
+pub fn composite(
+    density: &Tensor,
+    feature: &Tensor,
+    lengths: &Tensor,
+) -> Result<(Tensor, Tensor, Tensor)> {
+    if !use_fused(density) {
+        return composite_tensor_ops(density, feature, lengths);
     }
+    let c = feature.dim(2)?;
+    // σ and the features are read through their strides, so a field's output is not copied.
+    let out = density.apply_op3(lengths, feature, Composite)?;
+    Ok((
+        out.narrow(1, 0, c)?,
+        out.narrow(1, c, 1)?,
+        out.narrow(1, c + 1, 1)?,
+    ))
 }
 
-/// Weights of one ray: `tau` (S) → `weights` (S) and `transmittance_after` (S), where
-/// `transmittance_after[i] = T_{i+1}`. Transmittance is the running product of `e^{−τ}`, as
-/// the homework's cumprod.
-#[inline]
-pub fn ray_weights(tau: &[f32], weights: &mut [f32], transmittance_after: &mut [f32]) {
-    let mut t = 1f32;
-    for i in 0..tau.len() {
-        let a = (-tau[i]).exp();
-        weights[i] = t * (1.0 - a);
-        t *= a;
-        transmittance_after[i] = t;
-    }
+/// [`composite`] as Candle tensor ops ([`weights`] and [`aggregate`]; any device, differentiable).
+///
+/// `density`, `lengths`: `(N, S, 1)`; `feature`: `(N, S, C)`. Returns colour `(N, C)`, depth
+/// `(N, 1)` and opacity `(N, 1)`.
+pub fn composite_tensor_ops(
+    density: &Tensor,
+    feature: &Tensor,
+    lengths: &Tensor,
+) -> Result<(Tensor, Tensor, Tensor)> {
+    let w = weights(density, &deltas(lengths)?)?;
+    Ok((aggregate(&w, feature)?, aggregate(&w, lengths)?, w.sum(1)?))
 }
 
 /// A read-only `(N, S, K)` view with arbitrary strides.
@@ -91,6 +107,7 @@ struct Scratch {
     w: Vec<f32>,
     t_after: Vec<f32>,
     delta: Vec<f32>,
+    length: Vec<f32>,
 }
 
 impl Scratch {
@@ -100,6 +117,7 @@ impl Scratch {
             w: vec![0.0; s],
             t_after: vec![0.0; s],
             delta: vec![0.0; s],
+            length: vec![0.0; s],
         }
     }
 
@@ -107,11 +125,10 @@ impl Scratch {
     fn ray(&mut self, sigma: &View, lengths: &View, ray: usize) {
         let s = self.tau.len();
         for i in 0..s {
-            self.delta[i] = if i + 1 < s {
-                lengths.at(ray, i + 1, 0) - lengths.at(ray, i, 0)
-            } else {
-                LAST_DELTA as f32
-            };
+            self.length[i] = lengths.at(ray, i, 0);
+        }
+        for i in 0..s {
+            self.delta[i] = spacing(&self.length, i);
             self.tau[i] = clamped_optical_depth(sigma.at(ray, i, 0), self.delta[i]);
         }
         ray_weights(&self.tau, &mut self.w, &mut self.t_after);
@@ -262,7 +279,6 @@ impl candle_core::CustomOp2 for CompositeBackward {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::renderer::{aggregate, deltas, weights};
     use candle_core::{Device, Var};
 
     /// Random inputs; `zero` is the value used for the 30% empty samples.

@@ -6,7 +6,8 @@
 //! are data) is computed too. Here the forward pass runs each layer as one `gemm` (two for a
 //! skip layer: `[y, x]·Wᵀ = y·W_yᵀ + x·W_xᵀ`, no concatenation) plus a fused bias + ReLU, and
 //! keeps the layer outputs; the backward pass walks the layers once, writing weight and bias
-//! gradients straight into one flat buffer. Other devices (and f64) use the Candle ops.
+//! gradients straight into one flat buffer. Other devices (and f64, and `--kernels generic`) use
+//! the tensor-op twin [`trunk_tensor_ops`].
 //!
 //! Parameters are passed packed: for each layer `W_i` `(H, in_i)` row-major (PyTorch's
 //! layout) followed by `b_i` `(H)`; [`pack_parameters`] builds that from the layers, and
@@ -14,11 +15,13 @@
 
 use std::sync::Mutex;
 
-use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 use candle_nn::Linear;
 use rayon::prelude::*;
 
+use crate::kernels::bias::bias_add;
 use crate::kernels::storage::contiguous_f32;
+use crate::kernels::use_fused;
 
 const ROWS_PER_TASK: usize = 256;
 
@@ -71,9 +74,40 @@ pub fn pack_parameters(layers: &[Linear]) -> candle_core::Result<Tensor> {
     Tensor::cat(&parts, 0)
 }
 
-/// Whether [`trunk`] runs fused for input `x` (any shape): f32 on the CPU.
-pub fn fused_available(x: &Tensor) -> bool {
-    x.device().is_cpu() && x.dtype() == DType::F32
+/// The trunk's output `(M, H)` for the embedding `x` `(M, input_dim)`: the fused [`trunk`] where
+/// [`use_fused`] allows, else [`trunk_tensor_ops`].
+pub fn trunk_forward(
+    x: &Tensor,
+    layers: &[Linear],
+    shape: &TrunkShape,
+) -> candle_core::Result<Tensor> {
+    if use_fused(x) {
+        return trunk(x, &pack_parameters(layers)?, shape);
+    }
+    trunk_tensor_ops(x, layers, shape)
+}
+
+/// The trunk as Candle ops (any device and dtype, differentiable): `relu(y·Wᵀ + b)` per layer,
+/// with `y = [y, x]` before the skip layers.
+///
+/// `x`: `(M, input_dim)`; returns `(M, H)`.
+pub fn trunk_tensor_ops(
+    x: &Tensor,
+    layers: &[Linear],
+    shape: &TrunkShape,
+) -> candle_core::Result<Tensor> {
+    let mut y = x.clone();
+    for (i, layer) in layers.iter().enumerate() {
+        if i > 0 && shape.skip[i] {
+            y = Tensor::cat(&[&y, x], 1)?;
+        }
+        y = y.matmul(&layer.weight().t()?)?;
+        if let Some(b) = layer.bias() {
+            y = bias_add(&y, b)?;
+        }
+        y = y.relu()?;
+    }
+    Ok(y)
 }
 
 /// The trunk's output `(M, H)` for the embedding `x` `(M, input_dim)` and the packed

@@ -6,3 +6,4 @@ pub mod pointcloud;
 pub mod renderer;
 pub mod sampler;
 pub mod skipping;
+pub mod view;

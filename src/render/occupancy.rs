@@ -15,9 +15,6 @@ use anyhow::{ensure, Context, Result};
 use candle_core::{Device, Tensor};
 use rand::Rng;
 
-use crate::app::config::{Config, OccupancyGridConfig};
-use crate::field::nerf::Nerf;
-
 /// Points evaluated per density batch when updating or building a grid.
 const DENSITY_BATCH: usize = 1 << 16;
 
@@ -40,46 +37,46 @@ pub fn density_threshold(alpha: f64, step: f64) -> f64 {
     -(1.0 - alpha).ln() / step
 }
 
-/// The config's occupancy grid settings and its density threshold (one sample step of the
-/// sampler at `alpha_threshold` opacity), or `None` when the config has no grid.
-pub fn grid_settings(config: &Config) -> Option<(OccupancyGridConfig, f64)> {
-    let g = config.renderer.occupancy_grid.clone()?;
-    let n = config.sampler.n_pts_per_ray.max(2) - 1;
-    let step = ((config.sampler.max_depth - config.sampler.min_depth) / n as f64).max(1e-6);
-    let threshold = density_threshold(g.alpha_threshold, step);
-    Some((g, threshold))
+/// What an occupancy grid covers and when a cell counts as occupied.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OccupancyGridParams {
+    /// Cells per side.
+    pub resolution: usize,
+    /// `[min_x, min_y, min_z, max_x, max_y, max_z]`; outside it the field is taken as empty.
+    pub aabb: [f64; 6],
+    /// Density above which a cell counts as occupied (before the `mean` cap); see
+    /// [`density_threshold`].
+    pub density_threshold: f64,
 }
 
-/// The grid a config asks for, for a trained model: the one saved in the checkpoint's
-/// `occupancy.density` when present and of the configured resolution, else built from the
-/// model ([`OccupancyGrid::build`]). `tensors`: the checkpoint's, where `occupancy.density`
-/// is `(R, R, R)` for resolution R. `None` when the config has no grid.
+/// A field's density at points: `(M, 3)` → `(M, 1)`.
+pub type DensityFn<'a> = &'a dyn Fn(&Tensor) -> Result<Tensor>;
+
+/// The grid for a trained model: the one saved in the checkpoint's `occupancy.density` when
+/// present and of the configured resolution, else built from the model's `density`
+/// ([`OccupancyGrid::build`]). `tensors`: the checkpoint's, where `occupancy.density` is
+/// `(R, R, R)` for resolution R.
 pub fn grid_for_checkpoint(
-    config: &Config,
+    params: &OccupancyGridParams,
     tensors: &HashMap<String, Tensor>,
-    model: &Nerf,
+    density: DensityFn,
     device: &Device,
-) -> Result<Option<OccupancyGrid>> {
-    let Some((settings, threshold)) = grid_settings(config) else {
-        return Ok(None);
-    };
-    let r = settings.resolution;
+) -> Result<OccupancyGrid> {
+    let r = params.resolution;
     if let Some(saved) = tensors
         .get(CHECKPOINT_KEY)
         .filter(|t| t.dims() == [r, r, r])
     {
-        return Ok(Some(OccupancyGrid::from_tensor(
-            &settings, threshold, saved,
-        )?));
+        return OccupancyGrid::from_tensor(params, saved);
     }
     let start = std::time::Instant::now();
-    let grid = OccupancyGrid::build(&settings, threshold, &model.detached(), device)?;
+    let grid = OccupancyGrid::build(params, density, device)?;
     eprintln!(
         "built a {r}^3 occupancy grid from the model in {:.1} s: {:.1}% of cells occupied",
         start.elapsed().as_secs_f64(),
         100.0 * grid.occupied_fraction()
     );
-    Ok(Some(grid))
+    Ok(grid)
 }
 
 /// Name of the grid's tensor in a checkpoint.
@@ -87,10 +84,10 @@ pub const CHECKPOINT_KEY: &str = "occupancy.density";
 
 impl OccupancyGrid {
     /// A grid with every cell occupied (nothing is skipped until the first update).
-    pub fn new(config: &OccupancyGridConfig, density_threshold: f64) -> Result<Self> {
-        let r = config.resolution;
+    pub fn new(params: &OccupancyGridParams) -> Result<Self> {
+        let r = params.resolution;
         ensure!(r >= 1, "occupancy_grid.resolution must be at least 1");
-        let [x0, y0, z0, x1, y1, z1] = config.aabb.map(|v| v as f32);
+        let [x0, y0, z0, x1, y1, z1] = params.aabb.map(|v| v as f32);
         ensure!(
             x0 < x1 && y0 < y1 && z0 < z1,
             "occupancy_grid.aabb must be [min_x, min_y, min_z, max_x, max_y, max_z] with min < max"
@@ -99,7 +96,7 @@ impl OccupancyGrid {
             resolution: r,
             aabb_min: [x0, y0, z0],
             aabb_max: [x1, y1, z1],
-            density_threshold: density_threshold as f32,
+            density_threshold: params.density_threshold as f32,
             density: vec![f32::MAX; r * r * r],
             occupied: vec![true; r * r * r],
         })
@@ -162,7 +159,7 @@ impl OccupancyGrid {
     /// point; `density = max(density · decay, probe)` for the probed cells.
     pub fn update(
         &mut self,
-        model: &Nerf,
+        density: DensityFn,
         warmup: bool,
         decay: f32,
         rng: &mut impl Rng,
@@ -182,7 +179,7 @@ impl OccupancyGrid {
             .iter()
             .map(|&c| self.point_in_cell(c, std::array::from_fn(|_| rng.random::<f32>())))
             .collect();
-        let probes = evaluate_density(model, &points, device)?;
+        let probes = evaluate_density(density, &points, device)?;
         for (&c, &d) in cells.iter().zip(&probes) {
             let old = if self.density[c] == f32::MAX {
                 0.0
@@ -198,17 +195,16 @@ impl OccupancyGrid {
     /// A grid for a trained model that has none: every cell is probed at its centre and its
     /// eight corners (shared with the neighbours), keeping the largest density.
     pub fn build(
-        config: &OccupancyGridConfig,
-        density_threshold: f64,
-        model: &Nerf,
+        params: &OccupancyGridParams,
+        density: DensityFn,
         device: &Device,
     ) -> Result<Self> {
-        let mut grid = Self::new(config, density_threshold)?;
+        let mut grid = Self::new(params)?;
         let r = grid.resolution;
         let centres: Vec<[f32; 3]> = (0..grid.n_cells())
             .map(|c| grid.point_in_cell(c, [0.5; 3]))
             .collect();
-        grid.density = evaluate_density(model, &centres, device)?;
+        grid.density = evaluate_density(density, &centres, device)?;
         let rc = r + 1;
         let corners: Vec<[f32; 3]> = (0..rc * rc * rc)
             .map(|c| {
@@ -219,7 +215,7 @@ impl OccupancyGrid {
                 })
             })
             .collect();
-        let corner_density = evaluate_density(model, &corners, device)?;
+        let corner_density = evaluate_density(density, &corners, device)?;
         for ix in 0..r {
             for iy in 0..r {
                 for iz in 0..r {
@@ -249,13 +245,9 @@ impl OccupancyGrid {
 
     /// Restores a grid saved with [`OccupancyGrid::to_tensor`].
     ///
-    /// `density`: `(R, R, R)` with `R = config.resolution`.
-    pub fn from_tensor(
-        config: &OccupancyGridConfig,
-        density_threshold: f64,
-        density: &Tensor,
-    ) -> Result<Self> {
-        let mut grid = Self::new(config, density_threshold)?;
+    /// `density`: `(R, R, R)` with `R = params.resolution`.
+    pub fn from_tensor(params: &OccupancyGridParams, density: &Tensor) -> Result<Self> {
+        let mut grid = Self::new(params)?;
         let r = grid.resolution;
         ensure!(
             density.dims() == [r, r, r],
@@ -274,13 +266,13 @@ impl OccupancyGrid {
     }
 }
 
-/// The model's density at `points`, in batches.
-fn evaluate_density(model: &Nerf, points: &[[f32; 3]], device: &Device) -> Result<Vec<f32>> {
+/// The field's density at `points`, in batches.
+fn evaluate_density(density: DensityFn, points: &[[f32; 3]], device: &Device) -> Result<Vec<f32>> {
     let mut out = Vec::with_capacity(points.len());
     for chunk in points.chunks(DENSITY_BATCH) {
         let flat: Vec<f32> = chunk.iter().flatten().copied().collect();
         let t = Tensor::from_vec(flat, (chunk.len(), 3), device)?;
-        out.extend(model.density(&t)?.flatten_all()?.to_vec1::<f32>()?);
+        out.extend(density(&t)?.flatten_all()?.to_vec1::<f32>()?);
     }
     Ok(out)
 }
@@ -289,17 +281,17 @@ fn evaluate_density(model: &Nerf, points: &[[f32; 3]], device: &Device) -> Resul
 mod tests {
     use super::*;
 
-    fn config(resolution: usize) -> OccupancyGridConfig {
-        OccupancyGridConfig {
+    fn config(resolution: usize, density_threshold: f64) -> OccupancyGridParams {
+        OccupancyGridParams {
             resolution,
             aabb: [-1.0, -2.0, -1.0, 1.0, 2.0, 3.0],
-            ..OccupancyGridConfig::default()
+            density_threshold,
         }
     }
 
     #[test]
     fn cells_cover_the_box_and_nothing_else() {
-        let g = OccupancyGrid::new(&config(4), 1.0).unwrap();
+        let g = OccupancyGrid::new(&config(4, 1.0)).unwrap();
         assert_eq!(g.cell_of([-1.0, -2.0, -1.0]), Some(0));
         assert_eq!(g.cell_of([0.99, 1.99, 2.99]), Some(63));
         // x slowest: x in the second quarter → 16.
@@ -323,7 +315,7 @@ mod tests {
 
     #[test]
     fn threshold_is_capped_by_the_mean() {
-        let mut g = OccupancyGrid::new(&config(2), 10.0).unwrap();
+        let mut g = OccupancyGrid::new(&config(2, 10.0)).unwrap();
         g.density = vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 100.0];
         g.refresh_occupied();
         // mean = 12.6 > 10: the threshold 10 applies.
@@ -348,53 +340,43 @@ mod tests {
 
     #[test]
     fn tensor_round_trip() {
-        let cfg = config(3);
-        let mut g = OccupancyGrid::new(&cfg, 0.5).unwrap();
+        let cfg = config(3, 0.5);
+        let mut g = OccupancyGrid::new(&cfg).unwrap();
         for (i, d) in g.density.iter_mut().enumerate() {
             *d = i as f32 * 0.1;
         }
         g.density[4] = f32::MAX;
         g.refresh_occupied();
         let t = g.to_tensor(&Device::Cpu).unwrap();
-        let back = OccupancyGrid::from_tensor(&cfg, 0.5, &t).unwrap();
+        let back = OccupancyGrid::from_tensor(&cfg, &t).unwrap();
         assert_eq!(back, g);
-        assert!(OccupancyGrid::from_tensor(&config(4), 0.5, &t).is_err());
+        assert!(OccupancyGrid::from_tensor(&config(4, 0.5), &t).is_err());
     }
 }
 
 #[cfg(test)]
 mod build_tests {
     use super::*;
-    use crate::app::config::NerfConfig;
+
+    /// A ball of density `3 − 4|p|²` (clamped at 0): dense at the centre, empty at the edges.
+    fn ball(points: &Tensor) -> Result<Tensor> {
+        Ok(points.sqr()?.sum_keepdim(1)?.affine(-4.0, 3.0)?.relu()?)
+    }
 
     #[test]
     fn build_marks_every_cell_whose_centre_is_dense() {
-        let cfg = NerfConfig {
-            kind: "nerf".into(),
-            n_harmonic_functions_xyz: 3,
-            n_harmonic_functions_dir: 1,
-            n_hidden_neurons_xyz: 16,
-            n_hidden_neurons_dir: 8,
-            density_noise_std: 0.0,
-            n_layers_xyz: 2,
-            append_xyz: vec![1],
-        };
-        // A seeded initialisation, so the test sees the same densities on every run (an
-        // unseeded one sometimes gives a ReLU density that is zero at every cell centre).
-        let model = crate::train::fit::NerfState::seeded(&cfg, 7, &Device::Cpu)
-            .unwrap()
-            .model;
-        let settings = OccupancyGridConfig {
+        let settings = |density_threshold| OccupancyGridParams {
             resolution: 6,
-            ..OccupancyGridConfig::default()
+            aabb: [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5],
+            density_threshold,
         };
         let centres: Vec<[f32; 3]> = {
-            let g = OccupancyGrid::new(&settings, 0.0).unwrap();
+            let g = OccupancyGrid::new(&settings(0.0)).unwrap();
             (0..g.n_cells())
                 .map(|c| g.point_in_cell(c, [0.5; 3]))
                 .collect()
         };
-        let density = evaluate_density(&model, &centres, &Device::Cpu).unwrap();
+        let density = evaluate_density(&ball, &centres, &Device::Cpu).unwrap();
         let mut sorted = density.clone();
         sorted.sort_by(f32::total_cmp);
         assert!(
@@ -403,7 +385,7 @@ mod build_tests {
         );
         // A threshold between the densities, so that some cells are empty and some not.
         let threshold = sorted[sorted.len() * 3 / 4] as f64;
-        let grid = OccupancyGrid::build(&settings, threshold, &model, &Device::Cpu).unwrap();
+        let grid = OccupancyGrid::build(&settings(threshold), &ball, &Device::Cpu).unwrap();
         let mean = grid.density.iter().map(|&d| d as f64).sum::<f64>() / grid.n_cells() as f64;
         let effective = threshold.min(mean) as f32;
         for (c, d) in density.iter().enumerate() {

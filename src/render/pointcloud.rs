@@ -15,7 +15,7 @@ use glam::DVec3;
 use crate::core::camera::{
     camera_position_from_spherical_angles, look_at_view_transform, PerspectiveCamera,
 };
-use crate::io::images::RgbImage;
+use crate::core::image::RgbImage;
 
 /// Settings of the point view.
 #[derive(Debug, Clone, Copy)]

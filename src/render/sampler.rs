@@ -1,13 +1,11 @@
 //! Stratified sampling of points along rays.
 
 use anyhow::{ensure, Result};
-use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
+use candle_core::Tensor;
 use rand::Rng;
-use rayon::prelude::*;
-
-use crate::kernels::storage::contiguous_f32;
 
 use crate::core::rays::{linspace, Rays};
+use crate::kernels::sample_points::sample_points;
 
 /// Sample points along a batch of rays.
 #[derive(Debug, Clone)]
@@ -118,69 +116,6 @@ impl StratifiedSampler {
     }
 }
 
-/// `origins[:, None] + lengths · directions[:, None]`. On the CPU with f32 data this is one
-/// multi-threaded pass (no gradient flows to rays or lengths, which are never trained);
-/// elsewhere Candle broadcast ops.
-///
-/// `origins`, `directions`: `(N, 3)`; `lengths`: `(N, S, 1)`; returns `(N, S, 3)`.
-pub fn sample_points(origins: &Tensor, directions: &Tensor, lengths: &Tensor) -> Result<Tensor> {
-    if origins.device().is_cpu() && origins.dtype() == DType::F32 {
-        return Ok(origins.contiguous()?.apply_op3_no_bwd(
-            &directions.contiguous()?,
-            &lengths.contiguous()?,
-            &SamplePointsKernel,
-        )?);
-    }
-    sample_points_tensor_ops(origins, directions, lengths)
-}
-
-/// [`sample_points`] as Candle broadcast ops (any device and dtype, differentiable).
-///
-/// `origins`, `directions`: `(N, 3)`; `lengths`: `(N, S, 1)`. Returns points `(N, S, 3)`.
-pub fn sample_points_tensor_ops(
-    origins: &Tensor,
-    directions: &Tensor,
-    lengths: &Tensor,
-) -> Result<Tensor> {
-    let (n, s, _) = lengths.dims3()?;
-    let o = origins.unsqueeze(1)?.broadcast_as((n, s, 3))?;
-    let d = directions.unsqueeze(1)?.broadcast_as((n, s, 3))?;
-    Ok(o.add(&d.broadcast_mul(lengths)?)?)
-}
-
-struct SamplePointsKernel;
-
-impl CustomOp3 for SamplePointsKernel {
-    fn name(&self) -> &'static str {
-        "sample-points"
-    }
-
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let o = contiguous_f32(s1, l1, "sample-points")?;
-        let d = contiguous_f32(s2, l2, "sample-points")?;
-        let t = contiguous_f32(s3, l3, "sample-points")?;
-        let (n, s, _) = l3.shape().dims3()?;
-        let mut out = vec![0f32; n * s * 3];
-        out.par_chunks_mut(s * 3).enumerate().for_each(|(r, p)| {
-            for (i, q) in p.chunks_exact_mut(3).enumerate() {
-                let ti = t[r * s + i];
-                for k in 0..3 {
-                    q[k] = o[r * 3 + k] + ti * d[r * 3 + k];
-                }
-            }
-        });
-        Ok((CpuStorage::F32(out), Shape::from((n, s, 3))))
-    }
-}
-
 /// Adapts a `dyn RngCore` to the generic `Rng` methods.
 struct RngRef<'a>(&'a mut dyn rand::RngCore);
 
@@ -235,17 +170,6 @@ mod tests {
                 }
             }
         }
-    }
-
-    #[test]
-    fn fused_points_match_broadcast_ops() {
-        let r = rays(7, 5);
-        let sampler = StratifiedSampler::new(11, 0.0, 4.0).unwrap();
-        let mut rng = rand::rngs::StdRng::seed_from_u64(9);
-        let s = sampler.sample(&r, Some(&mut rng)).unwrap();
-        let b = sample_points_tensor_ops(&r.origins, &r.directions, &s.lengths).unwrap();
-        let diff = crate::core::compare::max_abs_difference(&s.points, &b).unwrap();
-        assert!(diff < 1e-6);
     }
 
     #[test]

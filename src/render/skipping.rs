@@ -17,11 +17,8 @@
 use anyhow::Result;
 use candle_core::{DType, Tensor};
 
-use crate::field::nerf::Nerf;
-use crate::kernels::composite::clamped_optical_depth;
-use crate::render::field::FieldOutput;
-use crate::render::occupancy::OccupancyGrid;
-use crate::render::renderer::LAST_DELTA;
+use crate::core::volume::{clamped_optical_depth, spacing};
+use crate::render::field::{Field, FieldOutput};
 use crate::render::sampler::RaySamples;
 
 /// Samples per ray evaluated between early-termination checks.
@@ -47,6 +44,11 @@ pub struct SampleCounts {
 }
 
 impl SampleCounts {
+    /// The fraction of drawn samples at which the field was evaluated (0 when none were drawn).
+    pub fn evaluated_fraction(&self) -> f64 {
+        self.evaluated as f64 / self.total.max(1) as f64
+    }
+
     /// Counts of a dense evaluation of `total` samples.
     pub fn dense(total: usize) -> Self {
         Self {
@@ -69,15 +71,15 @@ impl std::ops::Add for SampleCounts {
     }
 }
 
-/// The NeRF at the samples that matter; zeros elsewhere.
+/// The field at the samples that matter; zeros elsewhere. The field must support packed
+/// evaluation ([`Field::supports_packed`]); its occupancy grid, if any, decides which samples
+/// lie in occupied cells.
 ///
 /// `samples`: points `(N, S, 3)`, lengths `(N, S, 1)`; `directions`: `(N, 3)`. Returns density
 /// `(N, S, 1)` and colour `(N, S, 3)`, and the sample counts. `grid = None` keeps every sample
 /// (early termination only); `early_termination = 0` keeps every live sample (skipping only).
 pub fn evaluate_skipping(
-    model: &Nerf,
-    density_noise: f64,
-    grid: Option<&OccupancyGrid>,
+    field: &dyn Field,
     early_termination: f64,
     samples: &RaySamples,
     directions: &Tensor,
@@ -94,7 +96,7 @@ pub fn evaluate_skipping(
         .to_dtype(DType::F32)?
         .flatten_all()?
         .to_vec1::<f32>()?;
-    let keep: Vec<bool> = match grid {
+    let keep: Vec<bool> = match field.occupancy() {
         Some(g) => points
             .chunks_exact(3)
             .map(|p| g.is_occupied([p[0], p[1], p[2]]))
@@ -134,22 +136,17 @@ pub fn evaluate_skipping(
             .flat_map(|&k| points[3 * k as usize..3 * k as usize + 3].iter().copied())
             .collect();
         let ray_index: Vec<u32> = index.iter().map(|&k| k / s as u32).collect();
-        let (density, colour) = model.forward_packed(
+        let (density, colour) = field.evaluate_packed(
             &Tensor::from_vec(packed, (m, 3), device)?,
             &Tensor::from_vec(ray_index, m, device)?,
             directions,
-            density_noise,
         )?;
         if depth_limit.is_finite() && end < s {
             let values = density.flatten_all()?.to_vec1::<f32>()?;
             for (&k, &sigma) in index.iter().zip(&values) {
-                let k = k as usize;
-                let delta = if k % s + 1 < s {
-                    lengths[k + 1] - lengths[k]
-                } else {
-                    LAST_DELTA as f32
-                };
-                ray_depth[k / s] += clamped_optical_depth(sigma, delta);
+                let (ray, i) = (k as usize / s, k as usize % s);
+                let delta = spacing(&lengths[ray * s..(ray + 1) * s], i);
+                ray_depth[ray] += clamped_optical_depth(sigma, delta);
             }
         }
         all_index.extend(index);
@@ -178,29 +175,28 @@ pub fn evaluate_skipping(
 mod tests {
     use std::sync::Arc;
 
-    use candle_core::{Device, Tensor};
+    use candle_core::Device;
 
     use super::*;
-    use crate::app::config::{NerfConfig, OccupancyGridConfig};
     use crate::core::rays::Rays;
-    use crate::render::field::Field;
-    use crate::render::renderer::{composite, deltas, RenderOutput, VolumeRenderer};
+    use crate::field::nerf::{Nerf, NerfField, NerfParams};
+    use crate::kernels::composite::composite;
+    use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams};
+    use crate::render::renderer::{RenderOutput, VolumeRenderer};
     use crate::render::sampler::StratifiedSampler;
 
     /// A small NeRF whose density bias is `density_bias` (large values make rays terminate).
     fn model(density_bias: f32) -> Nerf {
-        let cfg = NerfConfig {
-            kind: "nerf".into(),
+        let cfg = NerfParams {
             n_harmonic_functions_xyz: 4,
             n_harmonic_functions_dir: 2,
             n_hidden_neurons_xyz: 32,
             n_hidden_neurons_dir: 16,
-            density_noise_std: 0.0,
             n_layers_xyz: 3,
             append_xyz: vec![2],
         };
         // Seeded, so every run tests the same weights.
-        let state = crate::train::fit::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
+        let state = crate::train::state::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
         state.varmap.data().lock().unwrap()["density_layer.0.bias"]
             .set(&Tensor::new(&[density_bias], &Device::Cpu).unwrap())
             .unwrap();
@@ -214,7 +210,7 @@ mod tests {
 
     fn render(
         renderer: VolumeRenderer,
-        field: &Field,
+        field: &NerfField,
         sampler: &StratifiedSampler,
     ) -> RenderOutput {
         renderer.render(field, sampler, &rays(), None).unwrap()
@@ -224,8 +220,8 @@ mod tests {
         crate::core::compare::max_abs_difference(a, b).unwrap()
     }
 
-    fn field(model: &Nerf, grid: Option<OccupancyGrid>) -> Field {
-        Field::Nerf {
+    fn field(model: &Nerf, grid: Option<OccupancyGrid>) -> NerfField {
+        NerfField {
             model: model.clone(),
             density_noise: 0.0,
             occupancy: grid.map(Arc::new),
@@ -264,11 +260,12 @@ mod tests {
         let m = model(0.3);
         let sampler = StratifiedSampler::new(24, 2.0, 6.0).unwrap();
         // Large enough to hold every sample.
-        let config = OccupancyGridConfig {
+        let config = OccupancyGridParams {
+            resolution: 64,
             aabb: [-10.0, -10.0, -10.0, 10.0, 10.0, 10.0],
-            ..OccupancyGridConfig::default()
+            density_threshold: 1.0,
         };
-        let grid = OccupancyGrid::new(&config, 1.0).unwrap();
+        let grid = OccupancyGrid::new(&config).unwrap();
         let renderer = VolumeRenderer::new(1000, false).unwrap();
         let dense = render(renderer, &field(&m, None), &sampler);
         let skipped = render(renderer, &field(&m, Some(grid)), &sampler);
@@ -313,12 +310,12 @@ mod tests {
     fn empty_cells_render_as_zero_density() {
         let m = model(1.0);
         let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
-        let config = OccupancyGridConfig {
+        let config = OccupancyGridParams {
             resolution: 4,
             aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
-            ..OccupancyGridConfig::default()
+            density_threshold: 1.0,
         };
-        let mut grid = OccupancyGrid::new(&config, 1.0).unwrap();
+        let mut grid = OccupancyGrid::new(&config).unwrap();
         for (c, o) in grid.occupied.iter_mut().enumerate() {
             *o = c % 3 != 0;
         }
@@ -340,14 +337,8 @@ mod tests {
             .collect();
         let mask = Tensor::from_vec(mask, samples.lengths.shape(), &Device::Cpu).unwrap();
         let density = dense.density.mul(&mask).unwrap();
-        let reference = composite(
-            &density,
-            &deltas(&samples.lengths).unwrap(),
-            &dense.feature,
-            &samples.lengths,
-        )
-        .unwrap();
-        assert!(max_diff(&reference.color, &out.color) < 1e-6);
-        assert!(max_diff(&reference.depth, &out.depth) < 1e-5);
+        let (color, depth, _) = composite(&density, &dense.feature, &samples.lengths).unwrap();
+        assert!(max_diff(&color, &out.color) < 1e-6);
+        assert!(max_diff(&depth, &out.depth) < 1e-5);
     }
 }

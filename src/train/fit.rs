@@ -1,130 +1,67 @@
-//! `nerf train`: the homework's NeRF training loop with checkpoints and resume.
+//! The homework's NeRF training loop with checkpoints and resume.
 //!
 //! Each iteration takes one training image (shuffled per epoch) and `batch_size` random pixels,
 //! renders their rays with jittered stratified samples, and takes an Adam step on the MSE.
 //! The learning rate is `lr · gamma^(epoch / step_size)` (the homework's LambdaLR). Every
 //! `checkpoint_interval` epochs, and at the end, the model and Adam state are written atomically;
-//! with `eval_views`, the test PSNR of the first views is logged at each checkpoint (the
-//! logged wall time leaves out evaluation and progress renders).
+//! the [`Hooks`] can evaluate the model at each checkpoint and render previews (the logged wall
+//! time leaves out both).
 //! Randomness is seeded per epoch from `seed`, so a run resumed from epoch k continues exactly
 //! as an uninterrupted run would.
 
+use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use candle_core::{DType, Device, Tensor};
-use candle_nn::{VarBuilder, VarMap};
+use candle_core::Device;
+use indicatif::ProgressBar;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 
-use crate::app::config::{Config, ImplicitFunctionConfig, NerfConfig};
-use crate::app::scene::{print_above, progress_bar};
-use crate::core::rays::{random_pixel_indices, Rays};
-use crate::field::nerf::Nerf;
+use crate::field::nerf::{NerfField, NerfParams};
 use crate::io::checkpoint::{self, CheckpointInfo};
-use crate::io::dataset::{Dataset, Split};
-use crate::render::field::Field;
-use crate::render::occupancy::OccupancyGrid;
+use crate::io::dataset::Dataset;
+use crate::io::images::{remove_stale_temp_files, write_atomically};
+use crate::io::progress::{print_above, progress_bar};
+use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
+use crate::render::skipping::SampleCounts;
 use crate::train::adam::Adam;
+use crate::train::state::{named_vars, NerfState};
+use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings};
 
-/// A NeRF with its parameters.
-pub struct NerfState {
-    pub varmap: VarMap,
-    pub model: Nerf,
-    /// Where the model can have density, when the config uses an occupancy grid.
-    pub occupancy: Option<OccupancyGrid>,
+/// How training keeps an occupancy grid up to date (nerfacc's schedule).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridSchedule {
+    pub grid: OccupancyGridParams,
+    /// Update the grid every this many steps.
+    pub update_interval: usize,
+    /// Probe every cell at each update for the first this many steps.
+    pub warmup_steps: usize,
+    /// Decay of each cell's running density maximum per update.
+    pub decay: f64,
 }
 
-impl NerfState {
-    /// A freshly initialised model: PyTorch's default `nn.Linear` init, U(−1/√fan_in,
-    /// 1/√fan_in) for weights and biases, drawn from a generator seeded with `seed` (parameters
-    /// in name order), so runs are reproducible.
-    pub fn new(config: &NerfConfig, device: &Device) -> Result<Self> {
-        Self::seeded(config, 0, device)
-    }
-
-    /// [`NerfState::new`] with an explicit seed.
-    pub fn seeded(config: &NerfConfig, seed: u64, device: &Device) -> Result<Self> {
-        use rand::Rng;
-        let varmap = VarMap::new();
-        let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
-        let model = Nerf::new(config, vb)?;
-        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        for (name, var) in named_vars(&varmap) {
-            // fan_in is the weight's second dimension; a bias shares its layer's weight fan_in.
-            let weight_name = name
-                .strip_suffix(".bias")
-                .map(|p| format!("{p}.weight"))
-                .unwrap_or(name.clone());
-            let fan_in = varmap.data().lock().expect("varmap lock")[&weight_name].dims()[1];
-            let bound = 1.0 / (fan_in as f64).sqrt();
-            let values: Vec<f32> = (0..var.elem_count())
-                .map(|_| rng.random_range(-bound..bound) as f32)
-                .collect();
-            var.set(&Tensor::from_vec(values, var.shape(), device)?)?;
-        }
-        Ok(Self {
-            varmap,
-            model,
-            occupancy: None,
-        })
-    }
-
-    /// A model loaded from a checkpoint (names and shapes checked).
-    pub fn from_checkpoint(
-        config: &NerfConfig,
-        path: &Path,
-        device: &Device,
-    ) -> Result<(Self, CheckpointInfo)> {
-        let (tensors, info) = checkpoint::load(path, device)?;
-        let state = Self::new(config, device)?;
-        checkpoint::load_model_into(&state.varmap, &tensors, config, path)?;
-        Ok((state, info))
-    }
-
-    /// A trained model for rendering with `config`: weights from the checkpoint, and the
-    /// occupancy grid the config asks for (saved in the checkpoint, or built from the model).
-    pub fn load(config: &Config, path: &Path, device: &Device) -> Result<(Self, CheckpointInfo)> {
-        let nerf = nerf_config(config)?;
-        let (tensors, info) = checkpoint::load(path, device)?;
-        let mut state = Self::new(nerf, device)?;
-        checkpoint::load_model_into(&state.varmap, &tensors, nerf, path)?;
-        state.occupancy =
-            crate::render::occupancy::grid_for_checkpoint(config, &tensors, &state.model, device)?;
-        Ok((state, info))
-    }
-
-    /// The field for rendering: detached weights (no gradient graph), no density noise, and
-    /// the occupancy grid if there is one.
-    pub fn field(&self) -> Field {
-        Field::Nerf {
-            model: self.model.detached(),
-            density_noise: 0.0,
-            occupancy: self.occupancy.clone().map(Arc::new),
-        }
-    }
-}
-
-/// The NeRF section of a config, or an error naming the key.
-pub fn nerf_config(config: &Config) -> Result<&NerfConfig> {
-    match &config.implicit_function {
-        ImplicitFunctionConfig::Nerf(n) => Ok(n),
-        _ => bail!("implicit_function.type: this command needs nerf"),
-    }
-}
-
-/// Learning rate after `epoch` epochs: `lr · gamma^(epoch / step_size)`.
-pub fn learning_rate(lr: f64, gamma: f64, step_size: usize, epoch: usize) -> f64 {
-    lr * gamma.powf(epoch as f64 / step_size as f64)
-}
-
-/// PSNR in dB of a training loss (an MSE of colours in [0, 1]), capped at 120 dB so that the
-/// log never holds an infinity.
-pub fn logged_psnr(mse: f64) -> f64 {
-    crate::app::bench::psnr_from_mse(mse.max(1e-12))
+/// Everything a training run needs besides the data: the model's sizes, the schedule and the
+/// per-step settings.
+#[derive(Debug, Clone)]
+pub struct TrainSettings {
+    pub model: NerfParams,
+    pub step: StepSettings,
+    pub seed: u64,
+    pub num_epochs: usize,
+    pub lr: f64,
+    pub lr_scheduler_step_size: usize,
+    pub lr_scheduler_gamma: f64,
+    /// Write a checkpoint (and call [`Hooks::evaluate`]) every this many epochs.
+    pub checkpoint_interval: usize,
+    /// Call [`Hooks::preview`] every this many epochs.
+    pub render_interval: usize,
+    /// Continue from the checkpoint when one exists.
+    pub resume: bool,
+    /// The occupancy grid, when training uses one.
+    pub grid: Option<GridSchedule>,
 }
 
 /// Where a training run writes.
@@ -135,159 +72,21 @@ pub struct TrainPaths {
     pub images: PathBuf,
 }
 
-impl TrainPaths {
-    /// `<checkpoint_path>/nerf_<dataset>.safetensors` and `.log.jsonl` beside it.
-    pub fn for_config(config: &Config, images: &Path) -> Result<Self> {
-        let training = config
-            .training
-            .as_ref()
-            .context("training: section missing from the config")?;
-        let name = format!(
-            "nerf_{}",
-            config.data.dataset_name.as_deref().unwrap_or("scene")
-        );
-        Ok(Self {
-            checkpoint: training.checkpoint_path.join(format!("{name}.safetensors")),
-            log: training.checkpoint_path.join(format!("{name}.log.jsonl")),
-            images: images.to_path_buf(),
-        })
-    }
+/// A test score at a checkpoint: mean PSNR over `views` views.
+#[derive(Debug, Clone, Copy)]
+pub struct CheckpointScore {
+    pub psnr: f64,
+    pub views: usize,
 }
 
-/// A training batch: rays `(B, 3)`, their target colours `(B, 3)` on the dataset's
-/// background, and their transparencies `(B, 1)` (`1 − alpha`; zeros when the dataset has
-/// none). With
-/// `rays_from_all_images`, `batch_size` random pixels of random training images; otherwise
-/// `batch_size` random pixels of image `image_index` (the homework).
-pub fn training_batch(
-    dataset: &Dataset,
-    batch_size: usize,
-    rays_from_all_images: bool,
-    image_index: usize,
-    rng: &mut rand::rngs::StdRng,
-    device: &Device,
-) -> Result<(Rays, Tensor, Tensor)> {
-    use rand::Rng;
-    let (w, h) = (dataset.width, dataset.height);
-    // (image, pixels) groups; rays of one camera are made together.
-    let groups: Vec<(usize, Vec<usize>)> = if rays_from_all_images {
-        let mut picks: Vec<(usize, usize)> = (0..batch_size)
-            .map(|_| {
-                (
-                    rng.random_range(0..dataset.images.len()),
-                    rng.random_range(0..w * h),
-                )
-            })
-            .collect();
-        picks.sort_unstable();
-        let mut groups: Vec<(usize, Vec<usize>)> = Vec::new();
-        for (image, pixel) in picks {
-            match groups.last_mut() {
-                Some((i, pixels)) if *i == image => pixels.push(pixel),
-                _ => groups.push((image, vec![pixel])),
-            }
-        }
-        groups
-    } else {
-        vec![(image_index, random_pixel_indices(w, h, batch_size, rng))]
-    };
-    let mut origins = Vec::with_capacity(groups.len());
-    let mut directions = Vec::with_capacity(groups.len());
-    let mut target: Vec<f32> = Vec::with_capacity(3 * batch_size);
-    let mut transparency: Vec<f32> = Vec::with_capacity(batch_size);
-    for (image, pixels) in &groups {
-        let rays = Rays::for_pixels(&dataset.frames[*image].camera, w, h, pixels, device)?;
-        origins.push(rays.origins);
-        directions.push(rays.directions);
-        let data = &dataset.images[*image].data;
-        target.extend(
-            pixels
-                .iter()
-                .flat_map(|&p| data[3 * p..3 * p + 3].iter().copied()),
-        );
-        let t = dataset.transparency.get(*image);
-        transparency.extend(
-            pixels
-                .iter()
-                .map(|&p| t.and_then(|t| t.get(p)).copied().unwrap_or(0.0)),
-        );
-    }
-    let n = target.len() / 3;
-    Ok((
-        Rays {
-            origins: Tensor::cat(&origins, 0)?,
-            directions: Tensor::cat(&directions, 0)?,
-        },
-        Tensor::from_vec(target, (n, 3), device)?,
-        Tensor::from_vec(transparency, (n, 1), device)?,
-    ))
-}
-
-/// One optimisation step on a [`training_batch`]; returns the MSE and the sample counts.
-#[allow(clippy::too_many_arguments)]
-pub fn train_step(
-    state: &NerfState,
-    density_noise: f64,
-    config: &Config,
-    dataset: &Dataset,
-    image_index: usize,
-    adam: &mut Adam,
-    rng: &mut rand::rngs::StdRng,
-    device: &Device,
-) -> Result<(f64, crate::render::skipping::SampleCounts)> {
-    let training = config
-        .training
-        .as_ref()
-        .context("training: section missing")?;
-    let (rays, mut target, transparency) = training_batch(
-        dataset,
-        training.batch_size,
-        training.rays_from_all_images,
-        image_index,
-        rng,
-        device,
-    )?;
-    let field = Field::Nerf {
-        model: state.model.clone(),
-        density_noise,
-        occupancy: state.occupancy.clone().map(Arc::new),
-    };
-    let mut renderer = config.renderer()?;
-    let background = if training.random_background {
-        // b ~ U(0, 1)³ per ray; the target moves from the dataset's background to b.
-        use rand::Rng;
-        let n = rays.len();
-        let b: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>()).collect();
-        let b = Tensor::from_vec(b, (n, 3), device)?;
-        let dataset_bg = if renderer.white_background { 1.0 } else { 0.0 };
-        target = target.add(&transparency.broadcast_mul(&b.affine(1.0, -dataset_bg)?)?)?;
-        renderer.white_background = false;
-        Some(b)
-    } else {
-        None
-    };
-    let out = renderer.render(&field, &config.sampler()?, &rays, Some(rng))?;
-    let color = match &background {
-        Some(b) => out
-            .color
-            .add(&out.opacity.affine(-1.0, 1.0)?.broadcast_mul(b)?)?,
-        None => out.color,
-    };
-    let loss = color.sub(&target)?.sqr()?.mean_all()?;
-    let grads = loss.backward()?;
-    adam.step(&grads)?;
-    Ok((loss.to_scalar::<f32>()? as f64, out.samples))
-}
-
-/// Named parameters for the optimiser, in a fixed order.
-pub fn named_vars(varmap: &VarMap) -> Vec<(String, candle_core::Var)> {
-    let data = varmap.data().lock().expect("varmap lock");
-    let mut v: Vec<_> = data
-        .iter()
-        .map(|(k, var)| (k.clone(), var.clone()))
-        .collect();
-    v.sort_by(|a, b| a.0.cmp(&b.0));
-    v
+/// Callbacks of the loop; their time is left out of the logged training time.
+#[derive(Default)]
+pub struct Hooks<'a> {
+    /// At every checkpoint: a test score of the current model, logged.
+    pub evaluate: Option<Box<dyn FnMut(&NerfField) -> Result<CheckpointScore> + 'a>>,
+    /// Every `render_interval` epochs: render a preview of the current model; returns what it
+    /// wrote.
+    pub preview: Option<Box<dyn FnMut(&NerfField) -> Result<PathBuf> + 'a>>,
 }
 
 /// Drops log lines of steps after `last_step` (written after the checkpoint a run resumes
@@ -307,7 +106,7 @@ pub fn rewind_log(log: &Path, last_step: u64) -> Result<()> {
     if kept.len() == text.lines().count() {
         return Ok(());
     }
-    crate::io::images::write_atomically(log, |w| {
+    write_atomically(log, |w| {
         for line in kept {
             writeln!(w, "{line}")?;
         }
@@ -315,51 +114,31 @@ pub fn rewind_log(log: &Path, last_step: u64) -> Result<()> {
     })
 }
 
-/// Runs `nerf train`. `stop_after_epochs` ends the run early (after writing a checkpoint) once
-/// that many epochs have been done in this process.
-pub fn train(
-    config: &Config,
-    data_dir: &Path,
+/// The model, optimiser and progress of a run: resumed from `paths.checkpoint` when
+/// `settings.resume` and it exists, else freshly seeded.
+fn start_or_resume(
+    settings: &TrainSettings,
     paths: &TrainPaths,
-    stop_after_epochs: Option<usize>,
     device: &Device,
-) -> Result<CheckpointInfo> {
-    let training = config
-        .training
-        .clone()
-        .context("training: section missing from the config")?;
-    let nerf = nerf_config(config)?.clone();
-    let (w, h) = config.image_size();
-    let dataset = Dataset::load(
-        data_dir,
-        Split::Train,
-        w,
-        h,
-        config.renderer.white_background,
-    )?;
-    let (mut state, mut info) = if training.resume && paths.checkpoint.is_file() {
-        let (state, info) = NerfState::from_checkpoint(&nerf, &paths.checkpoint, device)?;
-        (state, info)
+) -> Result<(NerfState, Adam, CheckpointInfo)> {
+    let (mut state, info) = if settings.resume && paths.checkpoint.is_file() {
+        NerfState::from_checkpoint(&settings.model, &paths.checkpoint, device)?
     } else {
         (
-            NerfState::seeded(&nerf, config.seed, device)?,
+            NerfState::seeded(&settings.model, settings.seed, device)?,
             CheckpointInfo::default(),
         )
     };
-    let grid_settings = crate::render::occupancy::grid_settings(config);
-    if let Some((settings, threshold)) = &grid_settings {
+    if let Some(schedule) = &settings.grid {
         // Every cell occupied until the first update probes them.
-        state.occupancy = Some(OccupancyGrid::new(settings, *threshold)?);
+        state.occupancy = Some(OccupancyGrid::new(&schedule.grid)?);
     }
-    let mut adam = Adam::new(named_vars(&state.varmap), training.lr)?;
+    let mut adam = Adam::new(named_vars(&state.varmap), settings.lr)?;
     if info.epoch > 0 {
         let (tensors, _) = checkpoint::load(&paths.checkpoint, device)?;
         adam.load_state(&tensors, info.adam_step)?;
-        if let (Some((settings, threshold)), Some(saved)) = (
-            &grid_settings,
-            tensors.get(crate::render::occupancy::CHECKPOINT_KEY),
-        ) {
-            state.occupancy = Some(OccupancyGrid::from_tensor(settings, *threshold, saved)?);
+        if let (Some(schedule), Some(saved)) = (&settings.grid, tensors.get(CHECKPOINT_KEY)) {
+            state.occupancy = Some(OccupancyGrid::from_tensor(&schedule.grid, saved)?);
         }
         eprintln!(
             "resuming from {} at epoch {}",
@@ -367,190 +146,240 @@ pub fn train(
             info.epoch
         );
     }
-    if info.epoch >= training.num_epochs {
-        eprintln!("already trained for {} epochs", info.epoch);
-        return Ok(info);
-    }
+    Ok((state, adam, info))
+}
+
+/// Makes the run's directories and opens its log for appending, after dropping what a killed
+/// run left behind (temporary files, log lines past the checkpoint).
+fn prepare_outputs(settings: &TrainSettings, paths: &TrainPaths, step: u64) -> Result<File> {
     if let Some(dir) = paths.log.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create checkpoint directory {}", dir.display()))?;
     }
-    if training.render_interval <= training.num_epochs {
-        // The progress GIFs' directory, made now so that a bad --out-dir fails before training.
+    if settings.render_interval <= settings.num_epochs {
+        // The preview's directory, made now so that a bad --out-dir fails before training.
         std::fs::create_dir_all(&paths.images).with_context(|| {
             format!("cannot create output directory {}", paths.images.display())
         })?;
     }
-    // A run killed while writing leaves its temporary file behind; the files themselves are
-    // whole (written atomically).
-    crate::io::images::remove_stale_temp_files(&paths.checkpoint);
-    crate::io::images::remove_stale_temp_files(&paths.log);
-    rewind_log(&paths.log, info.adam_step)?;
-    let mut log = std::fs::OpenOptions::new()
+    remove_stale_temp_files(&paths.checkpoint);
+    remove_stale_temp_files(&paths.log);
+    rewind_log(&paths.log, step)?;
+    std::fs::OpenOptions::new()
         .create(true)
         .append(true)
         .open(&paths.log)
-        .with_context(|| format!("cannot open training log {}", paths.log.display()))?;
-    let n_images = dataset.images.len();
-    let remaining = training.num_epochs - info.epoch;
-    let planned = stop_after_epochs.map_or(remaining, |s| s.min(remaining));
-    let bar = progress_bar((planned * n_images) as u64, "training");
-    let start = Instant::now();
-    // Seconds spent on evaluation and progress renders, left out of the logged training time.
-    let mut excluded = 0.0;
-    let test_views = if training.eval_views > 0 {
-        match Dataset::load(
-            data_dir,
-            Split::Test,
-            w,
-            h,
-            config.renderer.white_background,
-        ) {
-            Ok(d) => Some(d),
-            Err(e) => {
-                print_above(&bar, &format!("warning: no test-PSNR logging: {e:#}"));
-                None
-            }
+        .with_context(|| format!("cannot open training log {}", paths.log.display()))
+}
+
+/// Writes the model, Adam state and occupancy grid atomically.
+fn save(
+    paths: &TrainPaths,
+    state: &NerfState,
+    info: &CheckpointInfo,
+    adam: &Adam,
+    device: &Device,
+) -> Result<()> {
+    let mut tensors = checkpoint::model_tensors(&state.varmap);
+    tensors.extend(adam.state_tensors());
+    if let Some(grid) = &state.occupancy {
+        tensors.push((CHECKPOINT_KEY.to_string(), grid.to_tensor(device)?));
+    }
+    checkpoint::save(&paths.checkpoint, &tensors, *info)
+}
+
+/// One step's log line.
+fn log_step(
+    log: &mut File,
+    step: u64,
+    epoch: usize,
+    wall: f64,
+    loss: f64,
+    samples: SampleCounts,
+) -> Result<()> {
+    writeln!(
+        log,
+        "{{\"step\":{step},\"epoch\":{epoch},\"wall_s\":{wall:.3},\"loss\":{loss:.6e},\"psnr\":{:.3},\"evaluated\":{:.4}}}",
+        logged_psnr(loss),
+        samples.evaluated_fraction()
+    )?;
+    Ok(())
+}
+
+/// A running training loop: everything the epochs share.
+struct Run<'a> {
+    settings: &'a TrainSettings,
+    dataset: &'a Dataset,
+    paths: &'a TrainPaths,
+    device: &'a Device,
+    state: NerfState,
+    adam: Adam,
+    info: CheckpointInfo,
+    log: File,
+    bar: ProgressBar,
+    start: Instant,
+    /// Seconds spent in hooks, left out of the logged training time.
+    excluded: f64,
+    wall_offset: f64,
+}
+
+impl Run<'_> {
+    fn wall(&self) -> f64 {
+        self.wall_offset + self.start.elapsed().as_secs_f64() - self.excluded
+    }
+
+    /// Updates the occupancy grid when the schedule says so.
+    fn update_grid(&mut self, rng: &mut rand::rngs::StdRng) -> Result<()> {
+        let (Some(grid), Some(schedule)) = (&mut self.state.occupancy, &self.settings.grid) else {
+            return Ok(());
+        };
+        if self.adam.step % schedule.update_interval as u64 != 0 {
+            return Ok(());
         }
-    } else {
-        None
-    };
-    let wall_offset = info.wall_seconds;
-    let save = |state: &NerfState, info: &CheckpointInfo, adam: &Adam| -> Result<()> {
-        let mut tensors = checkpoint::model_tensors(&state.varmap);
-        tensors.extend(adam.state_tensors());
-        if let Some(grid) = &state.occupancy {
-            tensors.push((
-                crate::render::occupancy::CHECKPOINT_KEY.to_string(),
-                grid.to_tensor(device)?,
-            ));
-        }
-        checkpoint::save(&paths.checkpoint, &tensors, *info)
-    };
-    for epoch in info.epoch..info.epoch + planned {
-        adam.lr = learning_rate(
-            training.lr,
-            training.lr_scheduler_gamma,
-            training.lr_scheduler_step_size,
-            epoch,
-        );
+        let model = self.state.model.detached();
+        grid.update(
+            &|p| model.density(p),
+            self.adam.step < schedule.warmup_steps as u64,
+            schedule.decay as f32,
+            rng,
+            self.device,
+        )
+    }
+
+    /// One epoch over the training images in a seeded random order; returns the mean loss.
+    fn epoch(&mut self, epoch: usize) -> Result<f64> {
+        let s = self.settings;
+        self.adam.lr = learning_rate(s.lr, s.lr_scheduler_gamma, s.lr_scheduler_step_size, epoch);
         let mut rng = rand::rngs::StdRng::seed_from_u64(
-            config
-                .seed
-                .wrapping_mul(1_000_003)
-                .wrapping_add(epoch as u64),
+            s.seed.wrapping_mul(1_000_003).wrapping_add(epoch as u64),
         );
+        let n_images = self.dataset.images.len();
         let mut order: Vec<usize> = (0..n_images).collect();
         order.shuffle(&mut rng);
         let mut epoch_loss = 0.0;
         for &i in &order {
-            if let (Some(grid), Some((settings, _))) = (&mut state.occupancy, &grid_settings) {
-                if adam.step % settings.update_interval as u64 == 0 {
-                    grid.update(
-                        &state.model.detached(),
-                        adam.step < settings.warmup_steps as u64,
-                        settings.decay as f32,
-                        &mut rng,
-                        device,
-                    )?;
-                }
-            }
+            self.update_grid(&mut rng)?;
             let (loss, samples) = train_step(
-                &state,
-                nerf.density_noise_std,
-                config,
-                &dataset,
+                &self.state,
+                &s.step,
+                self.dataset,
                 i,
-                &mut adam,
+                &mut self.adam,
                 &mut rng,
-                device,
+                self.device,
             )?;
             if !loss.is_finite() {
                 bail!("training diverged at epoch {epoch}: loss is {loss}");
             }
             epoch_loss += loss;
-            let wall = wall_offset + start.elapsed().as_secs_f64() - excluded;
-            writeln!(
-                log,
-                "{{\"step\":{},\"epoch\":{},\"wall_s\":{:.3},\"loss\":{:.6e},\"psnr\":{:.3},\"evaluated\":{:.4}}}",
-                adam.step,
-                epoch,
-                wall,
-                loss,
-                logged_psnr(loss),
-                samples.evaluated as f64 / samples.total.max(1) as f64
-            )?;
-            let occupied = state
+            let wall = self.wall();
+            log_step(&mut self.log, self.adam.step, epoch, wall, loss, samples)?;
+            let occupied = self
+                .state
                 .occupancy
                 .as_ref()
                 .map(|g| format!(" occupied {:.1}%", 100.0 * g.occupied_fraction()))
                 .unwrap_or_default();
-            bar.set_message(format!(
+            self.bar.set_message(format!(
                 "epoch {epoch} loss {loss:.4} psnr {:.2}{occupied}",
                 logged_psnr(loss)
             ));
-            bar.inc(1);
+            self.bar.inc(1);
         }
-        info = CheckpointInfo {
+        Ok(epoch_loss / n_images as f64)
+    }
+
+    /// After epoch `epoch` (0-based): checkpoint, evaluation and preview as scheduled.
+    fn after_epoch(&mut self, epoch: usize, mean_loss: f64, hooks: &mut Hooks) -> Result<()> {
+        let s = self.settings;
+        self.info = CheckpointInfo {
             epoch: epoch + 1,
-            adam_step: adam.step,
-            wall_seconds: wall_offset + start.elapsed().as_secs_f64() - excluded,
+            adam_step: self.adam.step,
+            wall_seconds: self.wall(),
         };
-        if (epoch + 1) % training.checkpoint_interval == 0 {
-            if let Some(test) = &test_views {
+        if (epoch + 1) % s.checkpoint_interval == 0 {
+            if let Some(evaluate) = hooks.evaluate.as_mut() {
                 let t = Instant::now();
-                let report = crate::eval::evaluate::evaluate(
-                    config,
-                    &state.field(),
-                    test,
-                    Split::Test,
-                    None,
-                    Some(training.eval_views),
-                    device,
-                )?;
+                let score = evaluate(&self.state.field())?;
                 writeln!(
-                    log,
+                    self.log,
                     "{{\"step\":{},\"epoch\":{},\"wall_s\":{:.3},\"test_psnr\":{:.3},\"test_views\":{}}}",
-                    adam.step,
+                    self.adam.step,
                     epoch + 1,
-                    info.wall_seconds,
-                    report.mean_psnr,
-                    report.views.len()
+                    self.info.wall_seconds,
+                    score.psnr,
+                    score.views
                 )?;
                 print_above(
-                    &bar,
+                    &self.bar,
                     &format!(
                         "epoch {}: test PSNR {:.2} dB on {} views",
                         epoch + 1,
-                        report.mean_psnr,
-                        report.views.len()
+                        score.psnr,
+                        score.views
                     ),
                 );
-                excluded += t.elapsed().as_secs_f64();
+                self.excluded += t.elapsed().as_secs_f64();
             }
-            save(&state, &info, &adam)?;
+            save(self.paths, &self.state, &self.info, &self.adam, self.device)?;
         }
-        if (epoch + 1) % training.render_interval == 0 {
-            let t = Instant::now();
-            let gif = crate::app::scene::render_nerf_gif(
-                config,
-                &state.field(),
-                &paths.images.join("render_nerf_training.gif"),
-                device,
-            )?;
-            print_above(
-                &bar,
-                &format!(
-                    "epoch {}: mean train loss {:.5}, wrote {}",
-                    epoch + 1,
-                    epoch_loss / n_images as f64,
-                    gif.display()
-                ),
-            );
-            excluded += t.elapsed().as_secs_f64();
+        if (epoch + 1) % s.render_interval == 0 {
+            if let Some(preview) = hooks.preview.as_mut() {
+                let t = Instant::now();
+                let written = preview(&self.state.field())?;
+                print_above(
+                    &self.bar,
+                    &format!(
+                        "epoch {}: mean train loss {mean_loss:.5}, wrote {}",
+                        epoch + 1,
+                        written.display()
+                    ),
+                );
+                self.excluded += t.elapsed().as_secs_f64();
+            }
         }
+        Ok(())
     }
-    save(&state, &info, &adam)?;
-    bar.finish_and_clear();
-    Ok(info)
+}
+
+/// Trains a NeRF on `dataset` (the training split). `stop_after_epochs` ends the run early
+/// (after writing a checkpoint) once that many epochs have been done in this call.
+pub fn fit(
+    settings: &TrainSettings,
+    dataset: &Dataset,
+    paths: &TrainPaths,
+    stop_after_epochs: Option<usize>,
+    mut hooks: Hooks,
+    device: &Device,
+) -> Result<CheckpointInfo> {
+    let (state, adam, info) = start_or_resume(settings, paths, device)?;
+    if info.epoch >= settings.num_epochs {
+        eprintln!("already trained for {} epochs", info.epoch);
+        return Ok(info);
+    }
+    let log = prepare_outputs(settings, paths, info.adam_step)?;
+    let remaining = settings.num_epochs - info.epoch;
+    let planned = stop_after_epochs.map_or(remaining, |s| s.min(remaining));
+    let mut run = Run {
+        settings,
+        dataset,
+        paths,
+        device,
+        state,
+        adam,
+        info,
+        log,
+        bar: progress_bar((planned * dataset.images.len()) as u64, "training"),
+        start: Instant::now(),
+        excluded: 0.0,
+        wall_offset: info.wall_seconds,
+    };
+    let first = info.epoch;
+    for epoch in first..first + planned {
+        let mean_loss = run.epoch(epoch)?;
+        run.after_epoch(epoch, mean_loss, &mut hooks)?;
+    }
+    save(paths, &run.state, &run.info, &run.adam, device)?;
+    run.bar.finish_and_clear();
+    Ok(run.info)
 }

@@ -1,0 +1,210 @@
+//! A parsed [`Config`] turned into the library's plain parameters: sampler, renderer, cameras,
+//! fields, occupancy grid and training settings. The only place below `main.rs` where config
+//! sections become runtime objects.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use candle_core::Device;
+use glam::DVec3;
+
+use crate::app::config::{Config, ImplicitFunctionConfig, NerfConfig, SdfKind, TrainingConfig};
+use crate::core::camera::{surround_cameras, PerspectiveCamera};
+use crate::core::sdf::{Sdf, SdfVolume};
+use crate::field::nerf::NerfParams;
+use crate::field::sdf::{SdfField, SdfTrainable};
+use crate::io::checkpoint::CheckpointInfo;
+use crate::render::occupancy::{density_threshold, OccupancyGridParams};
+use crate::render::renderer::VolumeRenderer;
+use crate::render::sampler::StratifiedSampler;
+use crate::train::fit::{GridSchedule, TrainPaths, TrainSettings};
+use crate::train::state::NerfState;
+use crate::train::step::StepSettings;
+
+impl NerfConfig {
+    /// The model's sizes.
+    pub fn params(&self) -> NerfParams {
+        NerfParams {
+            n_harmonic_functions_xyz: self.n_harmonic_functions_xyz,
+            n_harmonic_functions_dir: self.n_harmonic_functions_dir,
+            n_hidden_neurons_xyz: self.n_hidden_neurons_xyz,
+            n_hidden_neurons_dir: self.n_hidden_neurons_dir,
+            n_layers_xyz: self.n_layers_xyz,
+            append_xyz: self.append_xyz.clone(),
+        }
+    }
+}
+
+impl Config {
+    /// Image width and height.
+    pub fn image_size(&self) -> (usize, usize) {
+        (self.data.image_size[0], self.data.image_size[1])
+    }
+
+    /// The `sampler` section as a sampler.
+    pub fn sampler(&self) -> Result<StratifiedSampler> {
+        StratifiedSampler::new(
+            self.sampler.n_pts_per_ray,
+            self.sampler.min_depth,
+            self.sampler.max_depth,
+        )
+    }
+
+    /// The `renderer` section as a renderer: chunk size, background, early termination (the
+    /// occupancy grid belongs to the field; see [`Config::occupancy_grid`]).
+    pub fn renderer(&self) -> Result<VolumeRenderer> {
+        VolumeRenderer::new(self.renderer.chunk_size, self.renderer.white_background)?
+            .with_early_termination(self.renderer.early_termination)
+    }
+
+    /// The surround cameras of the `cameras` section.
+    pub fn surround_cameras(&self) -> Vec<PerspectiveCamera> {
+        let c = &self.cameras;
+        surround_cameras(c.radius, c.n_poses, DVec3::from_array(c.up), c.focal_length)
+    }
+
+    /// The NeRF's sizes, or an error naming the key when the config describes another field.
+    pub fn nerf_params(&self) -> Result<NerfParams> {
+        match &self.implicit_function {
+            ImplicitFunctionConfig::Nerf(n) => Ok(n.params()),
+            _ => bail!("implicit_function.type: this command needs nerf"),
+        }
+    }
+
+    /// The SDF volume's initial values, when the config describes one.
+    pub fn sdf_volume(&self) -> Result<SdfVolume> {
+        let ImplicitFunctionConfig::SdfVolume(s) = &self.implicit_function else {
+            bail!("implicit_function.type: this command needs sdf_volume");
+        };
+        let center = s.sdf.center.val.map(|v| v as f32);
+        // Validation guarantees the shape's own key is present.
+        let sdf = match (s.sdf.kind, &s.sdf.side_lengths, &s.sdf.radius) {
+            (SdfKind::Box, Some(sides), _) => Sdf::Box {
+                center,
+                side_lengths: sides.val.map(|v| v as f32),
+            },
+            (SdfKind::Sphere, _, Some(radius)) => Sdf::Sphere {
+                center,
+                radius: radius.val as f32,
+            },
+            (SdfKind::Box, None, _) => {
+                bail!("implicit_function.sdf.side_lengths: required for a box")
+            }
+            (SdfKind::Sphere, _, None) => {
+                bail!("implicit_function.sdf.radius: required for a sphere")
+            }
+        };
+        Ok(SdfVolume {
+            sdf,
+            alpha: s.alpha.val,
+            beta: s.beta.val,
+            rainbow: s.feature.rainbow,
+            feature: s.feature.val.map(|v| v as f32),
+        })
+    }
+
+    /// Which SDF parameters the config marks `opt: True`.
+    pub fn sdf_trainable(&self) -> Result<SdfTrainable> {
+        let ImplicitFunctionConfig::SdfVolume(s) = &self.implicit_function else {
+            bail!("implicit_function.type: this command needs sdf_volume");
+        };
+        Ok(SdfTrainable {
+            center: s.sdf.center.opt,
+            side_lengths: s.sdf.side_lengths.as_ref().is_some_and(|p| p.opt),
+            radius: s.sdf.radius.as_ref().is_some_and(|p| p.opt),
+            alpha: s.alpha.opt,
+            beta: s.beta.opt,
+            feature: s.feature.opt,
+        })
+    }
+
+    /// The SDF volume as a field for rendering (every parameter constant).
+    pub fn sdf_field(&self, device: &Device) -> Result<SdfField> {
+        SdfField::fixed(&self.sdf_volume()?, device)
+    }
+
+    /// The occupancy grid the renderer uses, with its density threshold (one sample step of
+    /// the sampler at `alpha_threshold` opacity), or `None` when the config has no grid.
+    pub fn occupancy_grid(&self) -> Option<OccupancyGridParams> {
+        let g = self.renderer.occupancy_grid.as_ref()?;
+        let n = self.sampler.n_pts_per_ray.max(2) - 1;
+        let step = ((self.sampler.max_depth - self.sampler.min_depth) / n as f64).max(1e-6);
+        Some(OccupancyGridParams {
+            resolution: g.resolution,
+            aabb: g.aabb,
+            density_threshold: density_threshold(g.alpha_threshold, step),
+        })
+    }
+
+    /// How training keeps the occupancy grid up to date, when the config has one.
+    pub fn grid_schedule(&self) -> Option<GridSchedule> {
+        let g = self.renderer.occupancy_grid.as_ref()?;
+        Some(GridSchedule {
+            grid: self.occupancy_grid()?,
+            update_interval: g.update_interval,
+            warmup_steps: g.warmup_steps,
+            decay: g.decay,
+        })
+    }
+
+    /// The `training` section, or an error saying it is missing.
+    pub fn training(&self) -> Result<&TrainingConfig> {
+        self.training
+            .as_ref()
+            .context("training: section missing from the config")
+    }
+
+    /// Everything the NeRF training loop needs from the config.
+    pub fn train_settings(&self) -> Result<TrainSettings> {
+        let t = self.training()?;
+        let ImplicitFunctionConfig::Nerf(nerf) = &self.implicit_function else {
+            bail!("implicit_function.type: this command needs nerf");
+        };
+        Ok(TrainSettings {
+            model: nerf.params(),
+            step: StepSettings {
+                batch_size: t.batch_size,
+                rays_from_all_images: t.rays_from_all_images,
+                random_background: t.random_background,
+                density_noise: nerf.density_noise_std,
+                sampler: self.sampler()?,
+                renderer: self.renderer()?,
+            },
+            seed: self.seed,
+            num_epochs: t.num_epochs,
+            lr: t.lr,
+            lr_scheduler_step_size: t.lr_scheduler_step_size,
+            lr_scheduler_gamma: t.lr_scheduler_gamma,
+            checkpoint_interval: t.checkpoint_interval,
+            render_interval: t.render_interval,
+            resume: t.resume,
+            grid: self.grid_schedule(),
+        })
+    }
+
+    /// `<checkpoint_path>/nerf_<dataset>.safetensors` and `.log.jsonl` beside it; previews go
+    /// to `images`.
+    pub fn train_paths(&self, images: &Path) -> Result<TrainPaths> {
+        let training = self.training()?;
+        let name = format!(
+            "nerf_{}",
+            self.data.dataset_name.as_deref().unwrap_or("scene")
+        );
+        Ok(TrainPaths {
+            checkpoint: training.checkpoint_path.join(format!("{name}.safetensors")),
+            log: training.checkpoint_path.join(format!("{name}.log.jsonl")),
+            images: images.to_path_buf(),
+        })
+    }
+
+    /// A trained NeRF for rendering with this config: weights from the checkpoint at `path`,
+    /// and the occupancy grid the config asks for.
+    pub fn load_nerf(&self, path: &Path, device: &Device) -> Result<(NerfState, CheckpointInfo)> {
+        NerfState::load(
+            &self.nerf_params()?,
+            self.occupancy_grid().as_ref(),
+            path,
+            device,
+        )
+    }
+}

@@ -1,0 +1,86 @@
+//! Analytic signed distance functions and the homework's SDF volume, as plain numbers: the
+//! scalar maths that the fused kernel runs per sample and the float64 reference checks.
+
+/// An analytic signed distance function.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Sdf {
+    /// Axis-aligned box.
+    Box {
+        center: [f32; 3],
+        side_lengths: [f32; 3],
+    },
+    /// Sphere.
+    Sphere { center: [f32; 3], radius: f32 },
+}
+
+impl Sdf {
+    /// The shape's centre in world coordinates.
+    pub fn center(&self) -> [f32; 3] {
+        match self {
+            Sdf::Box { center, .. } | Sdf::Sphere { center, .. } => *center,
+        }
+    }
+
+    /// Signed distance of one point (negative inside); the same maths as
+    /// [`Sdf::signed_distance`] on a single point.
+    pub fn distance(&self, p: [f32; 3]) -> f32 {
+        match self {
+            Sdf::Box {
+                center,
+                side_lengths,
+            } => {
+                let q: [f32; 3] =
+                    std::array::from_fn(|k| (p[k] - center[k]).abs() - 0.5 * side_lengths[k]);
+                let outside = q.iter().map(|v| v.max(0.0).powi(2)).sum::<f32>().sqrt();
+                let inside = q[0].max(q[1]).max(q[2]).min(0.0);
+                outside + inside
+            }
+            Sdf::Sphere { center, radius } => {
+                (0..3)
+                    .map(|k| (p[k] - center[k]).powi(2))
+                    .sum::<f32>()
+                    .sqrt()
+                    - radius
+            }
+        }
+    }
+}
+
+/// The homework's SDF → density for one value: `α · (½·e^(−s/β) if s > 0 else 1 − ½·e^(s/β))`,
+/// written with `e^(−|s|/β)` so that neither branch overflows.
+pub fn sdf_to_density_scalar(sdf: f32, alpha: f64, beta: f64) -> f32 {
+    let e = (sdf.abs() * (-1.0 / beta) as f32).exp();
+    let d = if sdf > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
+    d * alpha as f32
+}
+
+/// The homework's density → volume density for one value: `σ = −ln(1 − density) / Δ`.
+pub fn density_to_sigma_scalar(density: f32, delta: f32) -> f32 {
+    -(1.0 - density).ln() / delta
+}
+
+/// A volume defined by an SDF, with the homework's colour options.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SdfVolume {
+    pub sdf: Sdf,
+    pub alpha: f64,
+    pub beta: f64,
+    /// Colour `clamp(|p − center|, 0.02, 0.98) · feature` instead of the constant feature.
+    pub rainbow: bool,
+    pub feature: [f32; 3],
+}
+
+impl SdfVolume {
+    /// σ and colour of one sample: `(σ, [r, g, b])`.
+    pub fn evaluate_point(&self, p: [f32; 3], delta: f32) -> (f32, [f32; 3]) {
+        let density = sdf_to_density_scalar(self.sdf.distance(p), self.alpha, self.beta);
+        let sigma = density_to_sigma_scalar(density, delta);
+        let feature = if self.rainbow {
+            let c = self.sdf.center();
+            std::array::from_fn(|k| (p[k] - c[k]).abs().clamp(0.02, 0.98) * self.feature[k])
+        } else {
+            self.feature
+        };
+        (sigma, feature)
+    }
+}

@@ -1,0 +1,163 @@
+//! One NeRF training step: the learning-rate schedule, a batch of rays with their targets,
+//! and an Adam step on the MSE.
+
+use std::sync::Arc;
+
+use anyhow::Result;
+use candle_core::{Device, Tensor};
+
+use crate::core::metrics::psnr_from_mse;
+use crate::core::rays::{random_pixel_indices, Rays};
+use crate::field::nerf::NerfField;
+use crate::io::dataset::Dataset;
+use crate::render::renderer::VolumeRenderer;
+use crate::render::sampler::StratifiedSampler;
+use crate::render::skipping::SampleCounts;
+use crate::train::adam::Adam;
+use crate::train::state::NerfState;
+
+/// Learning rate after `epoch` epochs: `lr · gamma^(epoch / step_size)`.
+pub fn learning_rate(lr: f64, gamma: f64, step_size: usize, epoch: usize) -> f64 {
+    lr * gamma.powf(epoch as f64 / step_size as f64)
+}
+
+/// PSNR in dB of a training loss (an MSE of colours in [0, 1]), capped at 120 dB so that the
+/// log never holds an infinity.
+pub fn logged_psnr(mse: f64) -> f64 {
+    psnr_from_mse(mse.max(1e-12))
+}
+
+/// A training batch: rays `(B, 3)`, their target colours `(B, 3)` on the dataset's
+/// background, and their transparencies `(B, 1)` (`1 − alpha`; zeros when the dataset has
+/// none). With
+/// `rays_from_all_images`, `batch_size` random pixels of random training images; otherwise
+/// `batch_size` random pixels of image `image_index` (the homework).
+pub fn training_batch(
+    dataset: &Dataset,
+    batch_size: usize,
+    rays_from_all_images: bool,
+    image_index: usize,
+    rng: &mut rand::rngs::StdRng,
+    device: &Device,
+) -> Result<(Rays, Tensor, Tensor)> {
+    use rand::Rng;
+    let (w, h) = (dataset.width, dataset.height);
+    // (image, pixels) groups; rays of one camera are made together.
+    let groups: Vec<(usize, Vec<usize>)> = if rays_from_all_images {
+        let mut picks: Vec<(usize, usize)> = (0..batch_size)
+            .map(|_| {
+                (
+                    rng.random_range(0..dataset.images.len()),
+                    rng.random_range(0..w * h),
+                )
+            })
+            .collect();
+        picks.sort_unstable();
+        let mut groups: Vec<(usize, Vec<usize>)> = Vec::new();
+        for (image, pixel) in picks {
+            match groups.last_mut() {
+                Some((i, pixels)) if *i == image => pixels.push(pixel),
+                _ => groups.push((image, vec![pixel])),
+            }
+        }
+        groups
+    } else {
+        vec![(image_index, random_pixel_indices(w, h, batch_size, rng))]
+    };
+    let mut origins = Vec::with_capacity(groups.len());
+    let mut directions = Vec::with_capacity(groups.len());
+    let mut target: Vec<f32> = Vec::with_capacity(3 * batch_size);
+    let mut transparency: Vec<f32> = Vec::with_capacity(batch_size);
+    for (image, pixels) in &groups {
+        let rays = Rays::for_pixels(&dataset.frames[*image].camera, w, h, pixels, device)?;
+        origins.push(rays.origins);
+        directions.push(rays.directions);
+        let data = &dataset.images[*image].data;
+        target.extend(
+            pixels
+                .iter()
+                .flat_map(|&p| data[3 * p..3 * p + 3].iter().copied()),
+        );
+        let t = dataset.transparency.get(*image);
+        transparency.extend(
+            pixels
+                .iter()
+                .map(|&p| t.and_then(|t| t.get(p)).copied().unwrap_or(0.0)),
+        );
+    }
+    let n = target.len() / 3;
+    Ok((
+        Rays {
+            origins: Tensor::cat(&origins, 0)?,
+            directions: Tensor::cat(&directions, 0)?,
+        },
+        Tensor::from_vec(target, (n, 3), device)?,
+        Tensor::from_vec(transparency, (n, 1), device)?,
+    ))
+}
+
+/// What one training step does, besides the model: the batch, how rays are drawn and
+/// rendered, and the background.
+#[derive(Debug, Clone)]
+pub struct StepSettings {
+    /// Rays per step.
+    pub batch_size: usize,
+    /// Draw the batch from all training images (else from one image per step, the homework).
+    pub rays_from_all_images: bool,
+    /// Composite each ray onto a random colour, prediction and target alike.
+    pub random_background: bool,
+    /// Standard deviation of the density noise added before the density ReLU (0 = off).
+    pub density_noise: f64,
+    pub sampler: StratifiedSampler,
+    pub renderer: VolumeRenderer,
+}
+
+/// One optimisation step on a [`training_batch`]; returns the MSE and the sample counts.
+pub fn train_step(
+    state: &NerfState,
+    settings: &StepSettings,
+    dataset: &Dataset,
+    image_index: usize,
+    adam: &mut Adam,
+    rng: &mut rand::rngs::StdRng,
+    device: &Device,
+) -> Result<(f64, SampleCounts)> {
+    let (rays, mut target, transparency) = training_batch(
+        dataset,
+        settings.batch_size,
+        settings.rays_from_all_images,
+        image_index,
+        rng,
+        device,
+    )?;
+    let field = NerfField {
+        model: state.model.clone(),
+        density_noise: settings.density_noise,
+        occupancy: state.occupancy.clone().map(Arc::new),
+    };
+    let mut renderer = settings.renderer;
+    let background = if settings.random_background {
+        // b ~ U(0, 1)³ per ray; the target moves from the dataset's background to b.
+        use rand::Rng;
+        let n = rays.len();
+        let b: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>()).collect();
+        let b = Tensor::from_vec(b, (n, 3), device)?;
+        let dataset_bg = if renderer.white_background { 1.0 } else { 0.0 };
+        target = target.add(&transparency.broadcast_mul(&b.affine(1.0, -dataset_bg)?)?)?;
+        renderer.white_background = false;
+        Some(b)
+    } else {
+        None
+    };
+    let out = renderer.render(&field, &settings.sampler, &rays, Some(rng))?;
+    let color = match &background {
+        Some(b) => out
+            .color
+            .add(&out.opacity.affine(-1.0, 1.0)?.broadcast_mul(b)?)?,
+        None => out.color,
+    };
+    let loss = color.sub(&target)?.sqr()?.mean_all()?;
+    let grads = loss.backward()?;
+    adam.step(&grads)?;
+    Ok((loss.to_scalar::<f32>()? as f64, out.samples))
+}
