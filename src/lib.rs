@@ -37,6 +37,8 @@
 //! # }
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod app;
 pub mod core;
 pub mod eval;
@@ -46,12 +48,16 @@ pub mod kernels;
 pub mod render;
 pub mod train;
 
-pub use crate::core::camera::{look_at_view_transform, surround_cameras, PerspectiveCamera};
+pub use crate::core::camera::{
+    camera_position_from_spherical_angles, look_at_view_transform, surround_cameras,
+    PerspectiveCamera,
+};
 pub use crate::core::image::RgbImage;
-pub use crate::core::rays::{pixel_grid, Rays};
+pub use crate::core::rays::{pixel_grid, random_pixel_indices, Rays};
 pub use crate::core::sdf::{Sdf, SdfVolume};
 pub use crate::field::nerf::{Nerf, NerfField, NerfParams};
 pub use crate::field::sdf::{SdfField, SdfTrainable};
+pub use crate::kernels::sdf_volume::{density_to_sigma, sdf_to_density};
 pub use crate::io::checkpoint::CheckpointInfo;
 pub use crate::io::dataset::{Dataset, Split};
 pub use crate::kernels::{set_kernel_choice, with_kernel_choice, KernelChoice};
@@ -62,7 +68,7 @@ pub use crate::render::sampler::{RaySamples, StratifiedSampler};
 pub use crate::render::view::{render_view, RenderedView};
 pub use crate::train::adam::Adam;
 pub use crate::train::fit::{fit, Hooks, TrainPaths, TrainSettings};
-pub use crate::train::state::NerfState;
+pub use crate::train::state::{named_vars, NerfState};
 
 /// For programs that use this library on the system allocator (the `nerf` binary uses mimalloc
 /// instead, and its test binaries use glibc): tunes glibc's allocator for tensor work: tensors of many megabytes are allocated and freed

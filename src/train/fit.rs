@@ -79,14 +79,19 @@ pub struct CheckpointScore {
     pub views: usize,
 }
 
+/// Scores the current model at a checkpoint.
+pub type EvaluateHook<'a> = Box<dyn FnMut(&NerfField) -> Result<CheckpointScore> + 'a>;
+
+/// Renders a preview of the current model; returns the file it wrote.
+pub type PreviewHook<'a> = Box<dyn FnMut(&NerfField) -> Result<PathBuf> + 'a>;
+
 /// Callbacks of the loop; their time is left out of the logged training time.
 #[derive(Default)]
 pub struct Hooks<'a> {
     /// At every checkpoint: a test score of the current model, logged.
-    pub evaluate: Option<Box<dyn FnMut(&NerfField) -> Result<CheckpointScore> + 'a>>,
-    /// Every `render_interval` epochs: render a preview of the current model; returns what it
-    /// wrote.
-    pub preview: Option<Box<dyn FnMut(&NerfField) -> Result<PathBuf> + 'a>>,
+    pub evaluate: Option<EvaluateHook<'a>>,
+    /// Every `render_interval` epochs: a preview of the current model.
+    pub preview: Option<PreviewHook<'a>>,
 }
 
 /// Drops log lines of steps after `last_step` (written after the checkpoint a run resumes
@@ -233,7 +238,7 @@ impl Run<'_> {
         let (Some(grid), Some(schedule)) = (&mut self.state.occupancy, &self.settings.grid) else {
             return Ok(());
         };
-        if self.adam.step % schedule.update_interval as u64 != 0 {
+        if !self.adam.step.is_multiple_of(schedule.update_interval as u64) {
             return Ok(());
         }
         let model = self.state.model.detached();
@@ -297,7 +302,7 @@ impl Run<'_> {
             adam_step: self.adam.step,
             wall_seconds: self.wall(),
         };
-        if (epoch + 1) % s.checkpoint_interval == 0 {
+        if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
             if let Some(evaluate) = hooks.evaluate.as_mut() {
                 let t = Instant::now();
                 let score = evaluate(&self.state.field())?;
@@ -323,7 +328,7 @@ impl Run<'_> {
             }
             save(self.paths, &self.state, &self.info, &self.adam, self.device)?;
         }
-        if (epoch + 1) % s.render_interval == 0 {
+        if (epoch + 1).is_multiple_of(s.render_interval) {
             if let Some(preview) = hooks.preview.as_mut() {
                 let t = Instant::now();
                 let written = preview(&self.state.field())?;

@@ -86,6 +86,16 @@ impl NerfState {
         Ok((state, info))
     }
 
+    /// The field for training: the model's weights as variables (gradients reach them) with
+    /// `density_noise`, and the occupancy grid if there is one.
+    pub fn training_field(&self, density_noise: f64) -> NerfField {
+        NerfField {
+            model: self.model.clone(),
+            density_noise,
+            occupancy: self.occupancy.clone().map(Arc::new),
+        }
+    }
+
     /// The field for rendering: detached weights (no gradient graph), no density noise, and
     /// the occupancy grid if there is one.
     pub fn field(&self) -> NerfField {

@@ -1,14 +1,11 @@
 //! One NeRF training step: the learning-rate schedule, a batch of rays with their targets,
 //! and an Adam step on the MSE.
 
-use std::sync::Arc;
-
 use anyhow::Result;
 use candle_core::{Device, Tensor};
 
 use crate::core::metrics::psnr_from_mse;
 use crate::core::rays::{random_pixel_indices, Rays};
-use crate::field::nerf::NerfField;
 use crate::io::dataset::Dataset;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
@@ -108,7 +105,9 @@ pub struct StepSettings {
     pub random_background: bool,
     /// Standard deviation of the density noise added before the density ReLU (0 = off).
     pub density_noise: f64,
+    /// Draws each ray's samples (jittered in training).
     pub sampler: StratifiedSampler,
+    /// Renders the batch; its background is the dataset's unless `random_background`.
     pub renderer: VolumeRenderer,
 }
 
@@ -130,11 +129,7 @@ pub fn train_step(
         rng,
         device,
     )?;
-    let field = NerfField {
-        model: state.model.clone(),
-        density_noise: settings.density_noise,
-        occupancy: state.occupancy.clone().map(Arc::new),
-    };
+    let field = state.training_field(settings.density_noise);
     let mut renderer = settings.renderer;
     let background = if settings.random_background {
         // b ~ U(0, 1)³ per ray; the target moves from the dataset's background to b.
