@@ -19,6 +19,7 @@ use crate::train::state::{named_vars, NerfState};
 /// One benchmark result.
 #[derive(Debug, Clone, Serialize)]
 pub struct BenchResult {
+    /// Name of the benchmark, e.g. `box render`.
     pub name: String,
     /// What was timed, in words.
     pub work: String,
@@ -57,8 +58,11 @@ pub enum ReferenceWork {
 /// Machine facts printed with every table.
 #[derive(Debug, Clone, Serialize)]
 pub struct MachineInfo {
+    /// Threads in rayon's global pool (`rayon::current_num_threads`).
     pub threads: usize,
+    /// Build profile: `release` or `debug`.
     pub profile: &'static str,
+    /// CPU model from /proc/cpuinfo (`unknown` when unreadable).
     pub cpu: String,
 }
 
@@ -133,7 +137,9 @@ pub fn bench_sdf_render(
 /// Everything `nerf bench` measures.
 #[derive(Debug, Clone, Serialize)]
 pub struct BenchReport {
+    /// The machine measured on.
     pub machine: MachineInfo,
+    /// One result per benchmark run.
     pub results: Vec<BenchResult>,
 }
 
@@ -252,7 +258,9 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
 /// available (otherwise the surround views, compared with the dense render only).
 #[derive(Debug, Clone)]
 pub struct LegoBench {
+    /// Trained NeRF checkpoint to render.
     pub checkpoint: std::path::PathBuf,
+    /// Lego dataset directory (for the test split's cameras and images).
     pub data_dir: std::path::PathBuf,
     /// Views to render (the first of the test split).
     pub views: usize,

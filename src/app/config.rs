@@ -58,7 +58,9 @@ const BUILT_IN: &[(&str, &str)] = &[
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Param<T> {
+    /// The value.
     pub val: T,
+    /// Trainable in the homework (`opt: True`); default false.
     #[serde(default)]
     pub opt: bool,
 }
@@ -69,6 +71,7 @@ pub struct Param<T> {
 pub struct DataConfig {
     /// `[width, height]` in pixels.
     pub image_size: [usize; 2],
+    /// `data.dataset_name`, e.g. `lego`: names the default data directory and the checkpoint file.
     #[serde(default)]
     pub dataset_name: Option<String>,
     /// Directory holding the dataset (extension; default `../shared/data/<dataset_name>`).
@@ -80,9 +83,12 @@ pub struct DataConfig {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RendererConfig {
+    /// `renderer.type`: only `volume` (the default).
     #[serde(rename = "type", default)]
     pub kind: RendererKind,
+    /// Rays rendered per chunk (`renderer.chunk_size`, at least 1).
     pub chunk_size: usize,
+    /// Composite onto white instead of black (`renderer.white_background`, default false).
     #[serde(default)]
     pub white_background: bool,
     /// Extension: stop marching a ray once its transmittance falls below this (0 = off, the
@@ -98,6 +104,7 @@ pub struct RendererConfig {
 #[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
 pub enum RendererKind {
+    /// `volume`: the homework's `VolumeRenderer`.
     #[default]
     Volume,
 }
@@ -106,6 +113,7 @@ pub enum RendererKind {
 #[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
 pub enum SamplerKind {
+    /// `stratified`: the homework's `StratifiedRaysampler`.
     #[default]
     Stratified,
 }
@@ -114,7 +122,9 @@ pub enum SamplerKind {
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
 pub enum SdfKind {
+    /// `box`: an axis-aligned box with `side_lengths`.
     Box,
+    /// `sphere`: a sphere with `radius`.
     Sphere,
 }
 
@@ -176,10 +186,14 @@ fn d256() -> usize {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SamplerConfig {
+    /// `sampler.type`: only `stratified` (the default).
     #[serde(rename = "type", default)]
     pub kind: SamplerKind,
+    /// Samples per ray (`sampler.n_pts_per_ray`, 1 to [`limits::PTS_PER_RAY`]).
     pub n_pts_per_ray: usize,
+    /// Depth of the first sample along each ray, in world units (`sampler.min_depth`, ≥ 0).
     pub min_depth: f64,
+    /// Depth of the last sample along each ray (`sampler.max_depth`, ≥ `min_depth`).
     pub max_depth: f64,
 }
 
@@ -187,11 +201,15 @@ pub struct SamplerConfig {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SdfShapeConfig {
+    /// `implicit_function.sdf.type`: `box` or `sphere`.
     #[serde(rename = "type")]
     pub kind: SdfKind,
+    /// `implicit_function.sdf.center`: the shape's centre `[x, y, z]` in world units.
     pub center: Param<[f64; 3]>,
+    /// `implicit_function.sdf.side_lengths`: the box's full side lengths (required for a box).
     #[serde(default)]
     pub side_lengths: Option<Param<[f64; 3]>>,
+    /// `implicit_function.sdf.radius`: the sphere's radius (required for a sphere).
     #[serde(default)]
     pub radius: Option<Param<f64>>,
 }
@@ -200,9 +218,13 @@ pub struct SdfShapeConfig {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct FeatureConfig {
+    /// `implicit_function.feature.rainbow`: colour `clamp(|p − center|, 0.02, 0.98) · val`
+    /// instead of the constant `val` (default false).
     #[serde(default)]
     pub rainbow: bool,
+    /// `implicit_function.feature.val`: the RGB colour (the rainbow colouring's scale).
     pub val: [f64; 3],
+    /// `implicit_function.feature.opt`: train the colour (default false).
     #[serde(default)]
     pub opt: bool,
 }
@@ -211,11 +233,16 @@ pub struct FeatureConfig {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SdfVolumeConfig {
+    /// `implicit_function.type`: `sdf_volume`.
     #[serde(rename = "type")]
     pub kind: String,
+    /// `implicit_function.sdf`: the shape.
     pub sdf: SdfShapeConfig,
+    /// `implicit_function.feature`: the colour.
     pub feature: FeatureConfig,
+    /// `implicit_function.alpha`: the density scale α of the SDF → density map, in [0, 1].
     pub alpha: Param<f64>,
+    /// `implicit_function.beta`: the SDF → density falloff β in world units (> 0).
     pub beta: Param<f64>,
 }
 
@@ -223,20 +250,30 @@ pub struct SdfVolumeConfig {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct NerfConfig {
+    /// `implicit_function.type`: `nerf`.
     #[serde(rename = "type")]
     pub kind: String,
+    /// Harmonic frequencies of the point embedding (`n_harmonic_functions_xyz`, default 6).
     #[serde(default = "d6")]
     pub n_harmonic_functions_xyz: usize,
+    /// Harmonic frequencies of the direction embedding (`n_harmonic_functions_dir`, default 2).
     #[serde(default = "d2")]
     pub n_harmonic_functions_dir: usize,
+    /// Width of the `mlp_xyz` trunk layers (`n_hidden_neurons_xyz`, default 128).
     #[serde(default = "d128")]
     pub n_hidden_neurons_xyz: usize,
+    /// Width of the colour head's hidden layer (`n_hidden_neurons_dir`, default 64).
     #[serde(default = "d64")]
     pub n_hidden_neurons_dir: usize,
+    /// Std of the Gaussian noise added to the raw density in training (`density_noise_std`,
+    /// default 0).
     #[serde(default)]
     pub density_noise_std: f64,
+    /// Layers of the `mlp_xyz` trunk (`n_layers_xyz`, default 6).
     #[serde(default = "d6")]
     pub n_layers_xyz: usize,
+    /// Trunk layers before which the point embedding is concatenated again (`append_xyz`,
+    /// default `[3]`).
     #[serde(default = "default_append_xyz")]
     pub append_xyz: Vec<usize>,
 }
@@ -260,7 +297,9 @@ fn default_append_xyz() -> Vec<usize> {
 /// The typed `implicit_function` section.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ImplicitFunctionConfig {
+    /// `type: sdf_volume`: an analytic SDF volume.
     SdfVolume(SdfVolumeConfig),
+    /// `type: nerf`: the homework's NeRF.
     Nerf(NerfConfig),
 }
 
@@ -268,15 +307,24 @@ pub enum ImplicitFunctionConfig {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct TrainingConfig {
+    /// Epochs to train, one step per training image each (`training.num_epochs`).
     pub num_epochs: usize,
+    /// Rays per training step (`training.batch_size`).
     pub batch_size: usize,
+    /// Initial Adam learning rate (`training.lr`).
     pub lr: f64,
+    /// Epochs between learning-rate decays (`training.lr_scheduler_step_size`).
     pub lr_scheduler_step_size: usize,
+    /// Learning-rate factor per `lr_scheduler_step_size` epochs (`training.lr_scheduler_gamma`).
     pub lr_scheduler_gamma: f64,
+    /// Directory of the checkpoint and log, `nerf_<dataset_name>.*` (`training.checkpoint_path`).
     pub checkpoint_path: PathBuf,
+    /// Epochs between checkpoints (`training.checkpoint_interval`).
     pub checkpoint_interval: usize,
+    /// Continue from the checkpoint when one exists (`training.resume`, default false).
     #[serde(default)]
     pub resume: bool,
+    /// Epochs between preview renders (`training.render_interval`).
     pub render_interval: usize,
     /// Extension: draw each batch's rays from all training images instead of one image per
     /// step (the homework's scheme, the default).
@@ -296,9 +344,13 @@ pub struct TrainingConfig {
 /// `cameras` (extension): the surround views rendered by `nerf render`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CamerasConfig {
+    /// Distance of the cameras from the origin (`cameras.radius`; default 3 for SDF, 4 for NeRF).
     pub radius: f64,
+    /// Number of views around the scene (`cameras.n_poses`, default 20).
     pub n_poses: usize,
+    /// Up vector of the cameras (`cameras.up`; default +Y for SDF, +Z for NeRF).
     pub up: [f64; 3],
+    /// NDC focal length of the cameras (`cameras.focal_length`; default 1 for SDF, 2 for NeRF).
     pub focal_length: f64,
 }
 
@@ -332,14 +384,21 @@ struct RawConfig {
 /// A fully parsed and validated configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
+    /// Random seed (top-level `seed`, default 0).
     pub seed: u64,
     /// The homework's top-level `type` (informational; the subcommand decides what runs).
     pub kind: Option<String>,
+    /// The `data` section.
     pub data: DataConfig,
+    /// The `renderer` section.
     pub renderer: RendererConfig,
+    /// The `sampler` section.
     pub sampler: SamplerConfig,
+    /// The `implicit_function` section, typed by its `type`.
     pub implicit_function: ImplicitFunctionConfig,
+    /// The `training` section, when present (needed to train).
     pub training: Option<TrainingConfig>,
+    /// The `cameras` section, any key left out taking the scene type's default.
     pub cameras: CamerasConfig,
 }
 

@@ -46,13 +46,21 @@ pub struct ReportOptions {
 /// Sizes of a full or a quick run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Sizes {
+    /// Width and height of the box renders, in pixels.
     pub box_size: usize,
+    /// Sample counts (`n_pts_per_ray`) of the box study's rows.
     pub box_pts: Vec<usize>,
+    /// Samples per ray of the box reference render.
     pub box_reference_pts: usize,
+    /// Surround views rendered for the box study (indices, taken modulo the number of poses).
     pub box_views: Vec<usize>,
+    /// Width and height of the lego renders, in pixels.
     pub lego_size: usize,
+    /// Sample counts (`n_pts_per_ray`) of the lego study's rows.
     pub lego_pts: Vec<usize>,
+    /// Samples per ray of the dense lego reference render.
     pub lego_reference_pts: usize,
+    /// Lego test views rendered (at most the split's size).
     pub lego_views: usize,
     /// Timed renders per measurement (the fastest counts).
     pub repeats: usize,
@@ -148,6 +156,7 @@ pub fn image_error(
 /// One sample count of a box study.
 #[derive(Debug, Clone, Serialize)]
 pub struct BoxRow {
+    /// Samples per ray (`n_pts_per_ray`).
     pub n_pts: usize,
     /// Mean over the views of the fastest of the repeats.
     pub seconds_per_frame: f64,
@@ -165,8 +174,11 @@ pub struct BoxRow {
 /// The box scene at increasing sample counts.
 #[derive(Debug, Clone, Serialize)]
 pub struct BoxStudy {
+    /// The volume's β.
     pub beta: f64,
+    /// Samples per ray of the reference render.
     pub reference_pts: usize,
+    /// One row per sample count, in increasing order.
     pub rows: Vec<BoxRow>,
 }
 
@@ -367,7 +379,9 @@ pub fn box_study(
 /// One sample count and acceleration of the lego study.
 #[derive(Debug, Clone, Serialize)]
 pub struct LegoRow {
+    /// Name of the acceleration (see [`accelerations`]).
     pub acceleration: String,
+    /// Samples per ray (`n_pts_per_ray`).
     pub n_pts: usize,
     /// Mean over the views of the fastest of the repeats.
     pub seconds_per_frame: f64,
@@ -382,10 +396,15 @@ pub struct LegoRow {
 /// The trained NeRF at several sample counts and accelerations.
 #[derive(Debug, Clone, Serialize)]
 pub struct LegoStudy {
+    /// The checkpoint rendered.
     pub checkpoint: PathBuf,
+    /// Width and height of the renders, in pixels.
     pub size: usize,
+    /// Test views rendered.
     pub views: usize,
+    /// Samples per ray of the dense reference render.
     pub reference_pts: usize,
+    /// One row per acceleration and sample count.
     pub rows: Vec<LegoRow>,
 }
 
@@ -480,6 +499,7 @@ pub fn lego_study(
 /// Test PSNR and per-epoch training PSNR of one training log against its wall clock.
 #[derive(Debug, Clone, Serialize)]
 pub struct TrainingCurve {
+    /// The training log read.
     pub log: PathBuf,
     /// `(wall seconds, epoch, test PSNR)` at each evaluation.
     pub test: Vec<(f64, usize, f64)>,
@@ -534,13 +554,21 @@ pub fn read_training_log(path: &Path) -> Result<TrainingCurve> {
 /// Everything a report holds (also written as report.json).
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
+    /// The machine the report was measured on.
     pub machine: MachineInfo,
+    /// Whether this is the CI-sized run.
     pub quick: bool,
+    /// The sizes measured.
     pub sizes: Sizes,
+    /// Wall-clock seconds the whole measurement took.
     pub seconds: f64,
+    /// The homework's box (β = [`HOMEWORK_BETA`]) against many samples.
     pub homework_box: BoxStudy,
+    /// The hard box (β = [`HARD_BETA`]) against many samples and the analytic surface.
     pub hard_box: BoxStudy,
+    /// The lego study, or why it was skipped.
     pub lego: std::result::Result<LegoStudy, String>,
+    /// One training curve per log, or why the log could not be read.
     pub training: Vec<std::result::Result<TrainingCurve, String>>,
 }
 

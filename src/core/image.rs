@@ -11,7 +11,9 @@ pub fn to_byte(v: f32) -> u8 {
 /// An RGB image with float channels in [0, 1], row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RgbImage {
+    /// Width in pixels.
     pub width: usize,
+    /// Height in pixels.
     pub height: usize,
     /// `width · height · 3` values.
     pub data: Vec<f32>,

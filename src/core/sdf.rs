@@ -6,11 +6,18 @@
 pub enum Sdf {
     /// Axis-aligned box.
     Box {
+        /// Centre `[x, y, z]` in world units.
         center: [f32; 3],
+        /// Full side lengths along x, y and z.
         side_lengths: [f32; 3],
     },
     /// Sphere.
-    Sphere { center: [f32; 3], radius: f32 },
+    Sphere {
+        /// Centre `[x, y, z]` in world units.
+        center: [f32; 3],
+        /// Radius in world units.
+        radius: f32,
+    },
 }
 
 impl Sdf {
@@ -22,7 +29,7 @@ impl Sdf {
     }
 
     /// Signed distance of one point (negative inside); the same maths as
-    /// [`Sdf::signed_distance`] on a single point.
+    /// [`crate::kernels::sdf_volume::signed_distance`] on a single point.
     pub fn distance(&self, p: [f32; 3]) -> f32 {
         match self {
             Sdf::Box {
@@ -62,11 +69,15 @@ pub fn density_to_sigma_scalar(density: f32, delta: f32) -> f32 {
 /// A volume defined by an SDF, with the homework's colour options.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SdfVolume {
+    /// The shape.
     pub sdf: Sdf,
+    /// Density scale α of [`sdf_to_density_scalar`], in [0, 1].
     pub alpha: f64,
+    /// Falloff β of [`sdf_to_density_scalar`] in world units (> 0; smaller is sharper).
     pub beta: f64,
     /// Colour `clamp(|p − center|, 0.02, 0.98) · feature` instead of the constant feature.
     pub rainbow: bool,
+    /// RGB colour (the scale of the rainbow colouring with `rainbow`).
     pub feature: [f32; 3],
 }
 

@@ -21,23 +21,32 @@ use crate::render::view::render_view;
 pub struct ViewScore {
     /// Frame name, e.g. `r_0`.
     pub frame: String,
+    /// PSNR in dB of the rendered colour against the ground-truth image.
     pub psnr: f64,
 }
 
 /// PSNR over a split: mean, min, max and per view.
 #[derive(Debug, Clone, Serialize)]
 pub struct EvalReport {
+    /// The split evaluated (`train`, `val` or `test`).
     pub split: String,
+    /// Render width in pixels.
     pub width: usize,
+    /// Render height in pixels.
     pub height: usize,
+    /// Samples per ray.
     pub n_pts_per_ray: usize,
     /// Mean seconds to render one view.
     pub seconds_per_view: f64,
     /// Fraction of drawn samples at which the field was evaluated (1 when dense).
     pub evaluated_fraction: f64,
+    /// Mean PSNR over the views, in dB.
     pub mean_psnr: f64,
+    /// Lowest PSNR of a view, in dB.
     pub min_psnr: f64,
+    /// Highest PSNR of a view, in dB.
     pub max_psnr: f64,
+    /// Every view's score, in dataset order.
     pub views: Vec<ViewScore>,
 }
 

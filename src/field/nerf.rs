@@ -29,10 +29,15 @@ use crate::render::sampler::RaySamples;
 /// The sizes of the homework's NeRF (its `implicit_function` keys).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct NerfParams {
+    /// Harmonic frequencies of the point embedding (`n_harmonic_functions_xyz`).
     pub n_harmonic_functions_xyz: usize,
+    /// Harmonic frequencies of the direction embedding (`n_harmonic_functions_dir`).
     pub n_harmonic_functions_dir: usize,
+    /// Width of the `mlp_xyz` trunk layers (`n_hidden_neurons_xyz`).
     pub n_hidden_neurons_xyz: usize,
+    /// Width of the colour head's hidden layer (`n_hidden_neurons_dir`).
     pub n_hidden_neurons_dir: usize,
+    /// Layers of the `mlp_xyz` trunk (`n_layers_xyz`, at least 1).
     pub n_layers_xyz: usize,
     /// Trunk layers before which the xyz embedding is concatenated again.
     pub append_xyz: Vec<usize>,
@@ -105,6 +110,7 @@ pub fn mlp_input_dim(config: &NerfParams, i: usize) -> usize {
 /// The NeRF MLP.
 #[derive(Debug, Clone)]
 pub struct Nerf {
+    /// The sizes the model was built with.
     pub config: NerfParams,
     mlp_xyz: Vec<Linear>,
     density_layer: Linear,
@@ -284,9 +290,11 @@ impl Nerf {
 /// when present, the occupancy grid that marks where it can have density.
 #[derive(Debug, Clone)]
 pub struct NerfField {
+    /// The NeRF MLP.
     pub model: Nerf,
     /// Standard deviation of the Gaussian noise added before the density ReLU (0 = off).
     pub density_noise: f64,
+    /// The occupancy grid used to skip empty space when rendering, if any.
     pub occupancy: Option<Arc<OccupancyGrid>>,
 }
 

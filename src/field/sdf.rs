@@ -14,11 +14,17 @@ use crate::render::sampler::RaySamples;
 /// applies to a box, `radius` to a sphere.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct SdfTrainable {
+    /// Train the shape's centre (`implicit_function.sdf.center.opt`).
     pub center: bool,
+    /// Train the box's side lengths (`implicit_function.sdf.side_lengths.opt`).
     pub side_lengths: bool,
+    /// Train the sphere's radius (`implicit_function.sdf.radius.opt`).
     pub radius: bool,
+    /// Train α (`implicit_function.alpha.opt`).
     pub alpha: bool,
+    /// Train β (`implicit_function.beta.opt`).
     pub beta: bool,
+    /// Train the colour (`implicit_function.feature.opt`).
     pub feature: bool,
 }
 

@@ -1,7 +1,7 @@
 //! NeRF checkpoints as one safetensors file, written atomically.
 //!
 //! Tensors: the model's parameters under their PyTorch names (`mlp_xyz.mlp.0.0.weight`, …,
-//! see [`crate::nerf_model`]), and for training checkpoints the Adam moments
+//! see [`crate::field::nerf`]), and for training checkpoints the Adam moments
 //! `adam.exp_avg.<name>` / `adam.exp_avg_sq.<name>`. Metadata: `epoch` (epochs completed),
 //! `adam_step`, `format` = `nerf-candle-1`. A loader that only wants the model ignores `adam.*`.
 

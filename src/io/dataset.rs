@@ -9,7 +9,7 @@
 //! * `{split}/r_{i}.png`: 8-bit RGBA renders, transparent where there is no object.
 //!
 //! Blender / OpenGL cameras look along their −Z axis with +Y up and +X right; pytorch3d cameras
-//! look along +Z with +Y up and +X left (see [`crate::camera`]).
+//! look along +Z with +Y up and +X left (see [`crate::core::camera`]).
 
 use std::fmt;
 use std::path::{Component, Path, PathBuf};
@@ -34,8 +34,11 @@ pub const DOWNLOAD_HINT: &str = "download the NeRF-synthetic lego scene (nerf_sy
 /// A dataset split, naming `transforms_{split}.json` and the `{split}/` image folder.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Split {
+    /// `train`: the training views.
     Train,
+    /// `val`: the validation views.
     Val,
+    /// `test`: the test views.
     Test,
 }
 
@@ -337,7 +340,9 @@ pub struct Dataset {
     /// Per image, `width × height` transparencies `1 − a` (see
     /// [`load_image_and_transparency`]); empty when unknown.
     pub transparency: Vec<Vec<f32>>,
+    /// Width of every image, in pixels.
     pub width: usize,
+    /// Height of every image, in pixels.
     pub height: usize,
 }
 

@@ -15,20 +15,28 @@ static REGISTER_FONT: Once = Once::new();
 /// One line of a plot: `(x, y)` points in drawing order, each drawn as a dot too.
 #[derive(Debug, Clone)]
 pub struct Series {
+    /// Legend entry.
     pub label: String,
+    /// `(x, y)` points in drawing order.
     pub points: Vec<(f64, f64)>,
 }
 
 /// A line plot.
 #[derive(Debug, Clone)]
 pub struct LinePlot {
+    /// Title above the plot.
     pub title: String,
+    /// Label of the x axis.
     pub x_label: String,
+    /// Label of the y axis.
     pub y_label: String,
+    /// Logarithmic x axis.
     pub log_x: bool,
+    /// Logarithmic y axis.
     pub log_y: bool,
     /// Where the legend goes (the corner the data leave empty).
     pub legend: SeriesLabelPosition,
+    /// The lines drawn, each in its own colour.
     pub series: Vec<Series>,
 }
 

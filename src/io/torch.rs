@@ -3,7 +3,7 @@
 //! our safetensors checkpoint.
 //!
 //! Names are the pytorch3d-style module's (`mlp_xyz.mlp.{i}.0.weight`, `density_layer.0`,
-//! `intermediate_linear`, `color_layer.{0,2}`, see [`crate::nerf_model`]); a common prefix
+//! `intermediate_linear`, `color_layer.{0,2}`, see [`crate::field::nerf`]); a common prefix
 //! such as `implicit_fn.` (the homework's wrapper module) is accepted. Every parameter the
 //! config needs must be present with the config's shape; the error names the tensor and both
 //! shapes. Extra tensors (optimizer state, other modules) are ignored.

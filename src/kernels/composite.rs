@@ -3,7 +3,7 @@
 //!
 //! Inputs: density σ `(N, S, 1)`, sample lengths t `(N, S, 1)`, features v `(N, S, C)`; σ and
 //! v may be strided views (no copies are made). Spacings are `Δ_i = t_{i+1} − t_i`, with
-//! [`LAST_DELTA`] for the last sample. Output `(N, C + 2)`: colour `Σ_i w_i v_ic`, depth
+//! [`crate::core::volume::LAST_DELTA`] for the last sample. Output `(N, C + 2)`: colour `Σ_i w_i v_ic`, depth
 //! `Σ_i w_i t_i`, opacity `Σ_i w_i`, where `τ_i = clamp(σ_i Δ_i, 0, MAX_OPTICAL_DEPTH)`,
 //! `T_i = Π_{j<i} e^{−τ_j}`, `w_i = T_i (1 − e^{−τ_i})` — the maths of
 //! [`crate::core::volume::weights`].

@@ -65,14 +65,14 @@ pub fn with_kernel_choice<T>(choice: KernelChoice, f: impl FnOnce() -> T) -> T {
     f()
 }
 
-/// Whether a fused CPU kernel runs on `t`'s data: fused kernels are chosen, `t` is on the CPU
-/// and holds f32.
+/// Whether a fused CPU kernel runs on `t`'s data: fused kernels are chosen, `t` (any shape) is on
+/// the CPU and holds f32.
 pub fn use_fused(t: &Tensor) -> bool {
     kernel_choice() == KernelChoice::Fused && t.device().is_cpu() && t.dtype() == DType::F32
 }
 
-/// Whether autograd tracks `t` (a variable, or computed from one): an op without a backward
-/// pass must not run on such an input, or the gradient would silently stop there.
+/// Whether autograd tracks `t` (any shape; a variable, or computed from one): an op without a
+/// backward pass must not run on such an input, or the gradient would silently stop there.
 pub fn needs_grad(t: &Tensor) -> bool {
     t.track_op()
 }

@@ -18,26 +18,38 @@ use crate::kernels::{needs_grad, use_fused};
 pub enum ShapeTensors {
     /// Axis-aligned box: `center` `(3,)`, `side_lengths` `(3,)`.
     Box {
+        /// Centre `(3,)` in world units.
         center: Tensor,
+        /// Full side lengths `(3,)` along x, y and z.
         side_lengths: Tensor,
     },
     /// Sphere: `center` `(3,)`, `radius` `(1,)`.
-    Sphere { center: Tensor, radius: Tensor },
+    Sphere {
+        /// Centre `(3,)` in world units.
+        center: Tensor,
+        /// Radius `(1,)` in world units.
+        radius: Tensor,
+    },
 }
 
 /// An SDF volume's parameters as tensors: `alpha`, `beta` `(1,)`, `feature` `(3,)`.
 #[derive(Debug, Clone)]
 pub struct SdfTensors {
+    /// The shape's parameters.
     pub shape: ShapeTensors,
+    /// Density scale α `(1,)` of the SDF → density map, in [0, 1].
     pub alpha: Tensor,
+    /// Falloff β `(1,)` of the SDF → density map, in world units (> 0).
     pub beta: Tensor,
     /// Colour `clamp(|p − center|, 0.02, 0.98) · feature` instead of the constant feature.
     pub rainbow: bool,
+    /// RGB colour `(3,)` (the scale of the rainbow colouring with `rainbow`).
     pub feature: Tensor,
 }
 
 impl SdfTensors {
-    /// Every parameter tensor, in a fixed order.
+    /// Every parameter tensor, in a fixed order: `center` `(3,)`, then `side_lengths` `(3,)` or
+    /// `radius` `(1,)`, then `alpha`, `beta` `(1,)` and `feature` `(3,)`.
     pub fn tensors(&self) -> Vec<&Tensor> {
         let mut v = match &self.shape {
             ShapeTensors::Box {

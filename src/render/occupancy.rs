@@ -21,8 +21,11 @@ const DENSITY_BATCH: usize = 1 << 16;
 /// The occupancy grid of one field.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OccupancyGrid {
+    /// Cells per side `R`.
     pub resolution: usize,
+    /// Lower corner `[x, y, z]` of the bounding box, in world units.
     pub aabb_min: [f32; 3],
+    /// Upper corner `[x, y, z]` of the bounding box, in world units.
     pub aabb_max: [f32; 3],
     /// Density above which a cell counts as occupied (before the `mean` cap).
     pub density_threshold: f32,

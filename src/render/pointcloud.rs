@@ -20,9 +20,11 @@ use crate::core::image::RgbImage;
 /// Settings of the point view.
 #[derive(Debug, Clone, Copy)]
 pub struct PointView {
+    /// The viewing camera (the homework's 60° view from distance 10).
     pub camera: PerspectiveCamera,
     /// Splat radius in NDC units.
     pub radius: f64,
+    /// RGB colour of every point, in [0, 1].
     pub color: [f32; 3],
     /// Points kept per pixel, nearest in depth first (pytorch3d's `points_per_pixel`).
     pub points_per_pixel: usize,

@@ -30,6 +30,7 @@ pub struct RenderOutput {
 /// The homework's `VolumeRenderer`: renders rays in chunks of `chunk_size`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VolumeRenderer {
+    /// Rays rendered per chunk (the homework's `renderer.chunk_size`, at least 1).
     pub chunk_size: usize,
     /// Composite onto white (`colour + 1 − opacity`) instead of black.
     pub white_background: bool,

@@ -20,8 +20,11 @@ pub struct RaySamples {
 /// max_depth, n)`, optionally jittered inside their bins for training.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StratifiedSampler {
+    /// Samples per ray `S` (`sampler.n_pts_per_ray`, at least 1).
     pub n_pts_per_ray: usize,
+    /// Depth of the first sample along each ray (`sampler.min_depth`, ≥ 0).
     pub min_depth: f64,
+    /// Depth of the last sample along each ray (`sampler.max_depth`, ≥ `min_depth`).
     pub max_depth: f64,
 }
 

@@ -1,5 +1,5 @@
-//! Evaluating a NeRF only at the samples that can contribute: empty-space skipping with an
-//! [`OccupancyGrid`] and early ray termination.
+//! Evaluating a field only at the samples that can contribute: empty-space skipping with an
+//! [`crate::render::occupancy::OccupancyGrid`] and early ray termination.
 //!
 //! The samples of a ray are visited in segments of [`SEGMENT`] (front to back). In each
 //! segment the field is evaluated at the samples of still-live rays that lie in occupied cells,
@@ -38,8 +38,11 @@ pub fn segment_length(n_pts_per_ray: usize, early_termination: f64) -> usize {
 /// field was evaluated.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SampleCounts {
+    /// Samples drawn (rays × samples per ray).
     pub total: usize,
+    /// Samples in occupied cells of the occupancy grid (all of them without a grid).
     pub in_occupied_cells: usize,
+    /// Samples at which the field was evaluated.
     pub evaluated: usize,
 }
 

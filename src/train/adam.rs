@@ -9,9 +9,13 @@ use candle_core::{Tensor, Var};
 
 /// Adam's hyper-parameters and per-parameter moments.
 pub struct Adam {
+    /// Learning rate (set per epoch by the training schedule).
     pub lr: f64,
+    /// Decay of the first-moment running average (PyTorch's `betas[0]`, default 0.9).
     pub beta1: f64,
+    /// Decay of the second-moment running average (PyTorch's `betas[1]`, default 0.999).
     pub beta2: f64,
+    /// Term added to the denominator for stability (default 1e-8).
     pub eps: f64,
     /// Number of steps taken.
     pub step: u64,

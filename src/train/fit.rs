@@ -34,6 +34,7 @@ use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings};
 /// How training keeps an occupancy grid up to date (nerfacc's schedule).
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridSchedule {
+    /// The grid's extent, resolution and density threshold.
     pub grid: OccupancyGridParams,
     /// Update the grid every this many steps.
     pub update_interval: usize,
@@ -47,12 +48,19 @@ pub struct GridSchedule {
 /// per-step settings.
 #[derive(Debug, Clone)]
 pub struct TrainSettings {
+    /// The NeRF's sizes.
     pub model: NerfParams,
+    /// What each step does (batch, rays, background, sampler, renderer).
     pub step: StepSettings,
+    /// Seeds the initial weights and each epoch's random numbers.
     pub seed: u64,
+    /// Epochs in all (a resumed run continues up to this).
     pub num_epochs: usize,
+    /// Initial learning rate.
     pub lr: f64,
+    /// Epochs per learning-rate decay step (`lr · gamma^(epoch / step_size)`).
     pub lr_scheduler_step_size: usize,
+    /// Learning-rate decay factor per `lr_scheduler_step_size` epochs.
     pub lr_scheduler_gamma: f64,
     /// Write a checkpoint (and call [`Hooks::evaluate`]) every this many epochs.
     pub checkpoint_interval: usize,
@@ -67,15 +75,20 @@ pub struct TrainSettings {
 /// Where a training run writes.
 #[derive(Debug, Clone)]
 pub struct TrainPaths {
+    /// The safetensors checkpoint (model, Adam state, occupancy grid).
     pub checkpoint: PathBuf,
+    /// The JSON-lines training log, one line per step.
     pub log: PathBuf,
+    /// Where previews are written.
     pub images: PathBuf,
 }
 
 /// A test score at a checkpoint: mean PSNR over `views` views.
 #[derive(Debug, Clone, Copy)]
 pub struct CheckpointScore {
+    /// Mean PSNR in dB.
     pub psnr: f64,
+    /// Views scored.
     pub views: usize,
 }
 
@@ -238,7 +251,11 @@ impl Run<'_> {
         let (Some(grid), Some(schedule)) = (&mut self.state.occupancy, &self.settings.grid) else {
             return Ok(());
         };
-        if !self.adam.step.is_multiple_of(schedule.update_interval as u64) {
+        if !self
+            .adam
+            .step
+            .is_multiple_of(schedule.update_interval as u64)
+        {
             return Ok(());
         }
         let model = self.state.model.detached();

@@ -14,7 +14,9 @@ use crate::render::occupancy::{grid_for_checkpoint, OccupancyGrid, OccupancyGrid
 
 /// A NeRF with its parameters.
 pub struct NerfState {
+    /// The model's variables by PyTorch name.
     pub varmap: VarMap,
+    /// The model, built on `varmap`.
     pub model: Nerf,
     /// Where the model can have density, when the config uses an occupancy grid.
     pub occupancy: Option<OccupancyGrid>,
