@@ -7,7 +7,7 @@ use anyhow::Result;
 use candle_core::Device;
 use clap::{Parser, Subcommand};
 
-use nerf::app::config::{Config, ImplicitFunctionConfig};
+use nerf::app::config::Config;
 
 /// mimalloc keeps freed segments for reuse: Candle allocates a fresh buffer of up to tens of
 /// megabytes per op, and an allocator that returns each to the OS pays page faults on the next
@@ -242,28 +242,13 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let written = match &config.implicit_function {
-                ImplicitFunctionConfig::SdfVolume(_) => {
-                    if let Some(c) = checkpoint {
-                        anyhow::bail!(
-                            "--checkpoint {}: an SDF scene has no checkpoint (NeRF configs only)",
-                            c.display()
-                        );
-                    }
-                    nerf::app::scene::render_sdf_scene(&config, &out_dir, raw, &device)?
-                }
-                ImplicitFunctionConfig::Nerf(_) => {
-                    let checkpoint = checkpoint
-                        .unwrap_or_else(|| PathBuf::from("checkpoints/nerf_lego.safetensors"));
-                    nerf::app::scene::render_nerf_scene(
-                        &config,
-                        &checkpoint,
-                        &out_dir,
-                        raw,
-                        &device,
-                    )?
-                }
-            };
+            let written = nerf::app::scene::render_scene(
+                &config,
+                checkpoint.as_deref(),
+                &out_dir,
+                raw,
+                &device,
+            )?;
             for p in written {
                 println!("wrote {}", p.display());
             }
@@ -310,19 +295,7 @@ fn run(cli: Cli) -> Result<()> {
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
-                println!(
-                    "{} split, {} views at {}x{}, {} points: PSNR mean {:.2} dB, min {:.2}, max {:.2}; {:.3} s per view, field evaluated at {:.1}% of samples",
-                    report.split,
-                    report.views.len(),
-                    report.width,
-                    report.height,
-                    report.n_pts_per_ray,
-                    report.mean_psnr,
-                    report.min_psnr,
-                    report.max_psnr,
-                    report.seconds_per_view,
-                    100.0 * report.evaluated_fraction
-                );
+                println!("{}", report.summary());
             }
         }
         Command::ImportTorch {
@@ -370,10 +343,7 @@ fn run(cli: Cli) -> Result<()> {
             logs,
         } => {
             let training_logs = if logs.is_empty() {
-                vec![
-                    checkpoint.with_extension("log.jsonl"),
-                    PathBuf::from("checkpoints/homework/nerf_lego.log.jsonl"),
-                ]
+                nerf::app::report::default_training_logs(&checkpoint)
             } else {
                 logs
             };

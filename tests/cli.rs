@@ -334,7 +334,7 @@ fn box_render_agrees_with_the_homework_reference_images() {
 
 #[test]
 fn train_render_and_eval_a_tiny_nerf() {
-    let Some(data) = common::lego_dir("train_render_and_eval_a_tiny_nerf") else {
+    let Some(_lego) = common::lego_dir("train_render_and_eval_a_tiny_nerf") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

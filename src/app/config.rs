@@ -557,6 +557,18 @@ impl Config {
             self.sampler.n_pts_per_ray,
             limits::PTS_PER_RAY,
         )?;
+        self.validate_renderer()?;
+        self.validate_sampler()?;
+        self.validate_cameras()?;
+        match &self.implicit_function {
+            ImplicitFunctionConfig::SdfVolume(s) => validate_sdf(s)?,
+            ImplicitFunctionConfig::Nerf(n) => validate_nerf(n)?,
+        }
+        self.validate_training()
+    }
+
+    /// The `renderer` section, and that its accelerations have a NeRF to work on.
+    fn validate_renderer(&self) -> Result<()> {
         if self.renderer.chunk_size == 0 {
             bail!("renderer.chunk_size: must be at least 1");
         }
@@ -572,6 +584,11 @@ impl Config {
         if accelerated && !matches!(self.implicit_function, ImplicitFunctionConfig::Nerf(_)) {
             bail!("renderer.occupancy_grid and renderer.early_termination need implicit_function.type nerf");
         }
+        Ok(())
+    }
+
+    /// The `sampler` depth range.
+    fn validate_sampler(&self) -> Result<()> {
         finite("sampler.min_depth", self.sampler.min_depth)?;
         finite("sampler.max_depth", self.sampler.max_depth)?;
         if self.sampler.min_depth < 0.0 {
@@ -587,6 +604,12 @@ impl Config {
                 self.sampler.max_depth
             );
         }
+        Ok(())
+    }
+
+    /// The `cameras` section, and the pixel count of all its frames.
+    fn validate_cameras(&self) -> Result<()> {
+        let [w, h] = self.data.image_size;
         let c = &self.cameras;
         finite("cameras.radius", c.radius)?;
         finite("cameras.focal_length", c.focal_length)?;
@@ -613,41 +636,43 @@ impl Config {
         if c.up.iter().all(|v| *v == 0.0) {
             bail!("cameras.up: must be a non-zero vector");
         }
-        match &self.implicit_function {
-            ImplicitFunctionConfig::SdfVolume(s) => validate_sdf(s)?,
-            ImplicitFunctionConfig::Nerf(n) => validate_nerf(n)?,
+        Ok(())
+    }
+
+    /// The `training` section, when present.
+    fn validate_training(&self) -> Result<()> {
+        let Some(t) = &self.training else {
+            return Ok(());
+        };
+        finite("training.lr", t.lr)?;
+        finite("training.lr_scheduler_gamma", t.lr_scheduler_gamma)?;
+        if t.lr <= 0.0 {
+            bail!("training.lr: must be positive (got {})", t.lr);
         }
-        if let Some(t) = &self.training {
-            finite("training.lr", t.lr)?;
-            finite("training.lr_scheduler_gamma", t.lr_scheduler_gamma)?;
-            if t.lr <= 0.0 {
-                bail!("training.lr: must be positive (got {})", t.lr);
-            }
-            if t.lr_scheduler_gamma <= 0.0 {
-                bail!(
-                    "training.lr_scheduler_gamma: must be positive (got {})",
-                    t.lr_scheduler_gamma
-                );
-            }
-            let samples = t.batch_size.saturating_mul(self.sampler.n_pts_per_ray);
-            if samples > limits::BATCH_SAMPLES {
-                bail!(
-                    "training.batch_size: {} rays x {} points is {samples} samples per step, more than {}",
-                    t.batch_size,
-                    self.sampler.n_pts_per_ray,
-                    limits::BATCH_SAMPLES
-                );
-            }
-            for (key, v) in [
-                ("training.num_epochs", t.num_epochs),
-                ("training.batch_size", t.batch_size),
-                ("training.lr_scheduler_step_size", t.lr_scheduler_step_size),
-                ("training.checkpoint_interval", t.checkpoint_interval),
-                ("training.render_interval", t.render_interval),
-            ] {
-                if v == 0 {
-                    bail!("{key}: must be at least 1");
-                }
+        if t.lr_scheduler_gamma <= 0.0 {
+            bail!(
+                "training.lr_scheduler_gamma: must be positive (got {})",
+                t.lr_scheduler_gamma
+            );
+        }
+        let samples = t.batch_size.saturating_mul(self.sampler.n_pts_per_ray);
+        if samples > limits::BATCH_SAMPLES {
+            bail!(
+                "training.batch_size: {} rays x {} points is {samples} samples per step, more than {}",
+                t.batch_size,
+                self.sampler.n_pts_per_ray,
+                limits::BATCH_SAMPLES
+            );
+        }
+        for (key, v) in [
+            ("training.num_epochs", t.num_epochs),
+            ("training.batch_size", t.batch_size),
+            ("training.lr_scheduler_step_size", t.lr_scheduler_step_size),
+            ("training.checkpoint_interval", t.checkpoint_interval),
+            ("training.render_interval", t.render_interval),
+        ] {
+            if v == 0 {
+                bail!("{key}: must be at least 1");
             }
         }
         Ok(())

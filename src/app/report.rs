@@ -577,6 +577,15 @@ pub const HOMEWORK_BETA: f64 = 0.05;
 /// β of the hard box, whose surface is sharp enough to compare with the analytic hit.
 pub const HARD_BETA: f64 = 1e-4;
 
+/// The training logs a report plots by default: the checkpoint's `.log.jsonl` and the
+/// homework-trained model's.
+pub fn default_training_logs(checkpoint: &Path) -> Vec<PathBuf> {
+    vec![
+        checkpoint.with_extension("log.jsonl"),
+        PathBuf::from("checkpoints/homework/nerf_lego.log.jsonl"),
+    ]
+}
+
 /// Runs every measurement.
 pub fn measure(options: &ReportOptions, device: &Device) -> Result<Report> {
     let start = Instant::now();

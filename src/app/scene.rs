@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use candle_core::{Device, Tensor};
 
-use crate::app::config::Config;
+use crate::app::config::{Config, ImplicitFunctionConfig};
 use crate::core::camera::PerspectiveCamera;
 use crate::core::rays::{pixel_grid, Rays};
 use crate::io::images::{
@@ -202,4 +202,31 @@ pub fn render_nerf_scene(
         written.extend(write_raw_frames(out_dir, &frames)?);
     }
     Ok(written)
+}
+
+/// `nerf render`: the SDF scene's outputs, or the NeRF's GIF from `checkpoint` (default the
+/// shipped `checkpoints/nerf_lego.safetensors`), by the config's field.
+pub fn render_scene(
+    config: &Config,
+    checkpoint: Option<&Path>,
+    out_dir: &Path,
+    raw: bool,
+    device: &Device,
+) -> Result<Vec<PathBuf>> {
+    match &config.implicit_function {
+        ImplicitFunctionConfig::SdfVolume(_) => {
+            if let Some(c) = checkpoint {
+                anyhow::bail!(
+                    "--checkpoint {}: an SDF scene has no checkpoint (NeRF configs only)",
+                    c.display()
+                );
+            }
+            render_sdf_scene(config, out_dir, raw, device)
+        }
+        ImplicitFunctionConfig::Nerf(_) => {
+            let checkpoint =
+                checkpoint.unwrap_or_else(|| Path::new("checkpoints/nerf_lego.safetensors"));
+            render_nerf_scene(config, checkpoint, out_dir, raw, device)
+        }
+    }
 }

@@ -50,6 +50,25 @@ pub struct EvalReport {
     pub views: Vec<ViewScore>,
 }
 
+impl EvalReport {
+    /// One line: split, views, size, PSNR mean/min/max, time per view, evaluated fraction.
+    pub fn summary(&self) -> String {
+        format!(
+            "{} split, {} views at {}x{}, {} points: PSNR mean {:.2} dB, min {:.2}, max {:.2}; {:.3} s per view, field evaluated at {:.1}% of samples",
+            self.split,
+            self.views.len(),
+            self.width,
+            self.height,
+            self.n_pts_per_ray,
+            self.mean_psnr,
+            self.min_psnr,
+            self.max_psnr,
+            self.seconds_per_view,
+            100.0 * self.evaluated_fraction
+        )
+    }
+}
+
 /// Renders every view of `dataset` with `field` (through `sampler` and `renderer`) and scores it; with `save_images`, writes each
 /// prediction as `<frame>.png` there. `limit` evaluates only the first views.
 #[allow(clippy::too_many_arguments)]
