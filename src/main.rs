@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use anyhow::Result;
 use candle_core::Device;
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 
 use nerf::app::config::Config;
 
@@ -65,130 +65,155 @@ fn device(arg: DeviceArg) -> Result<Device> {
 #[derive(Subcommand)]
 enum Command {
     /// Render a scene's surround views and visualisations into an output directory.
-    Render {
-        /// Config name (configs/NAME.yaml or built-in) or path to a YAML file.
-        #[arg(long)]
-        config: String,
-        /// Output directory.
-        #[arg(long, default_value = "images")]
-        out_dir: PathBuf,
-        /// Also write color_{i:03}.npy (H,W,3) and depth_{i:03}.npy (H,W) float32 per frame.
-        #[arg(long)]
-        raw: bool,
-        /// NeRF checkpoint to render (NeRF configs only; default
-        /// checkpoints/nerf_lego.safetensors).
-        #[arg(long)]
-        checkpoint: Option<PathBuf>,
-        /// Hydra-style overrides, e.g. sampler.n_pts_per_ray=32 data.image_size=[200,150].
-        overrides: Vec<String>,
-    },
+    Render(RenderArgs),
     /// Train a NeRF (checkpoints and resume as the config's training section says).
-    Train {
-        /// Config name or path (e.g. nerf_lego).
-        #[arg(long)]
-        config: String,
-        /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
-        #[arg(long)]
-        data_dir: Option<PathBuf>,
-        /// Stop after this many epochs in this run (a checkpoint is written; resume continues).
-        #[arg(long, value_parser = at_least_one)]
-        epochs: Option<usize>,
-        /// Where training GIFs go.
-        #[arg(long, default_value = "images")]
-        out_dir: PathBuf,
-        /// Hydra-style overrides, e.g. training.num_epochs=20.
-        overrides: Vec<String>,
-    },
+    Train(TrainArgs),
     /// PSNR of a trained NeRF over a dataset split at the config's image size.
-    Eval {
-        /// Config name or path (e.g. lego).
-        #[arg(long)]
-        config: String,
-        /// Which split to score.
-        #[arg(long, value_enum, default_value = "test")]
-        split: SplitArg,
-        /// NeRF checkpoint to evaluate.
-        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-        checkpoint: PathBuf,
-        /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
-        #[arg(long)]
-        data_dir: Option<PathBuf>,
-        /// Write each predicted view as <frame>.png into this directory.
-        #[arg(long)]
-        save_images: Option<PathBuf>,
-        /// Score only the first N views.
-        #[arg(long, value_parser = at_least_one)]
-        limit: Option<usize>,
-        /// Print JSON instead of a summary.
-        #[arg(long)]
-        json: bool,
-        /// Hydra-style overrides.
-        overrides: Vec<String>,
-    },
+    Eval(EvalArgs),
     /// Convert a PyTorch state dict of the homework's NeRF (.pth) into a checkpoint.
-    ImportTorch {
-        /// The .pth file (`torch.save(model.state_dict())`, or a dict holding it under
-        /// model / model_state_dict / state_dict).
-        pth: PathBuf,
-        /// Config whose implicit_function describes the model's sizes.
-        #[arg(long, default_value = "nerf_lego")]
-        config: String,
-        /// Where to write the safetensors checkpoint.
-        #[arg(long, default_value = "checkpoints/imported.safetensors")]
-        out: PathBuf,
-        /// Hydra-style overrides.
-        overrides: Vec<String>,
-    },
+    ImportTorch(ImportTorchArgs),
     /// Time the main jobs and print a table (or JSON).
-    Bench {
-        /// Config of the SDF scene to time.
-        #[arg(long, default_value = "box")]
-        config: String,
-        /// Repeats of the box render and the training step (the best is reported; the first
-        /// training step is a cold one, so use at least 2); the untrained frame is rendered
-        /// min(repeats, 2) times; the trained-NeRF rows render each view once and report the
-        /// mean.
-        #[arg(long, default_value_t = 3, value_parser = at_least_one)]
-        repeats: usize,
-        /// Print JSON instead of a table.
-        #[arg(long)]
-        json: bool,
-        /// Trained NeRF to time dense against accelerated rendering (skipped when missing).
-        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-        checkpoint: PathBuf,
-        /// Lego dataset directory for the ground truth (default ../shared/data/lego).
-        #[arg(long)]
-        data_dir: Option<PathBuf>,
-        /// Test views rendered for the trained-NeRF benchmark.
-        #[arg(long, default_value_t = 5, value_parser = at_least_one)]
-        views: usize,
-        /// Hydra-style overrides for the SDF config (the NeRF rows use the built-in nerf_lego
-        /// and lego configs, at the work of the PyTorch figures).
-        overrides: Vec<String>,
-    },
+    Bench(BenchArgs),
     /// Measure error against run time (box, lego, training) and write a Markdown report with
     /// PNG plots.
-    Report {
-        /// Output directory (report.md, report.json, plots).
-        #[arg(long, default_value = "reports")]
-        out_dir: PathBuf,
-        /// CI-sized run: small images, fewer sample counts and views, one repeat.
-        #[arg(long)]
-        quick: bool,
-        /// Trained NeRF for the lego section (skipped with a note when missing).
-        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-        checkpoint: PathBuf,
-        /// Lego dataset directory (default ../shared/data/lego).
-        #[arg(long)]
-        data_dir: Option<PathBuf>,
-        /// Test views for the lego section (default 5; 2 with --quick).
-        #[arg(long, value_parser = at_least_one)]
-        views: Option<usize>,
-        /// Training logs to plot (default: the checkpoint's .log.jsonl and
-        /// checkpoints/homework/nerf_lego.log.jsonl).
-        #[arg(long = "log")]
-        logs: Vec<PathBuf>,
-    },
+    Report(ReportArgs),
+}
+
+/// Render a scene's surround views and visualisations into an output directory.
+#[derive(Args)]
+struct RenderArgs {
+    /// Config name (configs/NAME.yaml or built-in) or path to a YAML file.
+    #[arg(long)]
+    config: String,
+    /// Output directory.
+    #[arg(long, default_value = "images")]
+    out_dir: PathBuf,
+    /// Also write color_{i:03}.npy (H,W,3) and depth_{i:03}.npy (H,W) float32 per frame.
+    #[arg(long)]
+    raw: bool,
+    /// NeRF checkpoint to render (NeRF configs only; default
+    /// checkpoints/nerf_lego.safetensors).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Hydra-style overrides, e.g. sampler.n_pts_per_ray=32 data.image_size=[200,150].
+    overrides: Vec<String>,
+}
+
+/// Train a NeRF (checkpoints and resume as the config's training section says).
+#[derive(Args)]
+struct TrainArgs {
+    /// Config name or path (e.g. nerf_lego).
+    #[arg(long)]
+    config: String,
+    /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Stop after this many epochs in this run (a checkpoint is written; resume continues).
+    #[arg(long, value_parser = at_least_one)]
+    epochs: Option<usize>,
+    /// Where training GIFs go.
+    #[arg(long, default_value = "images")]
+    out_dir: PathBuf,
+    /// Hydra-style overrides, e.g. training.num_epochs=20.
+    overrides: Vec<String>,
+}
+
+/// PSNR of a trained NeRF over a dataset split at the config's image size.
+#[derive(Args)]
+struct EvalArgs {
+    /// Config name or path (e.g. lego).
+    #[arg(long)]
+    config: String,
+    /// Which split to score.
+    #[arg(long, value_enum, default_value = "test")]
+    split: SplitArg,
+    /// NeRF checkpoint to evaluate.
+    #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
+    checkpoint: PathBuf,
+    /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Write each predicted view as <frame>.png into this directory.
+    #[arg(long)]
+    save_images: Option<PathBuf>,
+    /// Score only the first N views.
+    #[arg(long, value_parser = at_least_one)]
+    limit: Option<usize>,
+    /// Print JSON instead of a summary.
+    #[arg(long)]
+    json: bool,
+    /// Hydra-style overrides.
+    overrides: Vec<String>,
+}
+
+/// Convert a PyTorch state dict of the homework's NeRF (.pth) into a checkpoint.
+#[derive(Args)]
+struct ImportTorchArgs {
+    /// The .pth file (`torch.save(model.state_dict())`, or a dict holding it under
+    /// model / model_state_dict / state_dict).
+    pth: PathBuf,
+    /// Config whose implicit_function describes the model's sizes.
+    #[arg(long, default_value = "nerf_lego")]
+    config: String,
+    /// Where to write the safetensors checkpoint.
+    #[arg(long, default_value = "checkpoints/imported.safetensors")]
+    out: PathBuf,
+    /// Hydra-style overrides.
+    overrides: Vec<String>,
+}
+
+/// Time the main jobs and print a table (or JSON).
+#[derive(Args)]
+struct BenchArgs {
+    /// Config of the SDF scene to time.
+    #[arg(long, default_value = "box")]
+    config: String,
+    /// Repeats of the box render and the training step (the best is reported; the first
+    /// training step is a cold one, so use at least 2); the untrained frame is rendered
+    /// min(repeats, 2) times; the trained-NeRF rows render each view once and report the
+    /// mean.
+    #[arg(long, default_value_t = 3, value_parser = at_least_one)]
+    repeats: usize,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Trained NeRF to time dense against accelerated rendering (skipped when missing).
+    #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
+    checkpoint: PathBuf,
+    /// Lego dataset directory for the ground truth (default ../shared/data/lego).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Test views rendered for the trained-NeRF benchmark.
+    #[arg(long, default_value_t = 5, value_parser = at_least_one)]
+    views: usize,
+    /// Hydra-style overrides for the SDF config (the NeRF rows use the built-in nerf_lego
+    /// and lego configs, at the work of the PyTorch figures).
+    overrides: Vec<String>,
+}
+
+/// Measure error against run time (box, lego, training) and write a Markdown report with
+/// PNG plots.
+#[derive(Args)]
+struct ReportArgs {
+    /// Output directory (report.md, report.json, plots).
+    #[arg(long, default_value = "reports")]
+    out_dir: PathBuf,
+    /// CI-sized run: small images, fewer sample counts and views, one repeat.
+    #[arg(long)]
+    quick: bool,
+    /// Trained NeRF for the lego section (skipped with a note when missing).
+    #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
+    checkpoint: PathBuf,
+    /// Lego dataset directory (default ../shared/data/lego).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Test views for the lego section (default 5; 2 with --quick).
+    #[arg(long, value_parser = at_least_one)]
+    views: Option<usize>,
+    /// Training logs to plot (default: the checkpoint's .log.jsonl and
+    /// checkpoints/homework/nerf_lego.log.jsonl).
+    #[arg(long = "log")]
+    logs: Vec<PathBuf>,
 }
 
 /// A count of at least 1, for clap.
@@ -234,131 +259,149 @@ fn run(cli: Cli) -> Result<()> {
     });
     let device = device(cli.device)?;
     match cli.command {
-        Command::Render {
-            config,
-            out_dir,
-            raw,
-            checkpoint,
-            overrides,
-        } => {
-            let config = Config::load(&config, &overrides)?;
-            let written = nerf::app::scene::render_scene(
-                &config,
-                checkpoint.as_deref(),
-                &out_dir,
-                raw,
-                &device,
-            )?;
-            for p in written {
-                println!("wrote {}", p.display());
-            }
-        }
-        Command::Train {
-            config,
-            data_dir,
-            epochs,
-            out_dir,
-            overrides,
-        } => {
-            let config = Config::load(&config, &overrides)?;
-            let data_dir = data_dir_for(&config, data_dir);
-            let paths = config.train_paths(&out_dir)?;
-            let info = nerf::app::train::train_nerf(&config, &data_dir, &paths, epochs, &device)?;
-            println!(
-                "trained to epoch {} ({} Adam steps); checkpoint {}",
-                info.epoch,
-                info.adam_step,
-                paths.checkpoint.display()
-            );
-        }
-        Command::Eval {
-            config,
-            split,
-            checkpoint,
-            data_dir,
-            save_images,
-            limit,
-            json,
-            overrides,
-        } => {
-            let config = Config::load(&config, &overrides)?;
-            let data_dir = data_dir_for(&config, data_dir);
-            let report = nerf::app::evaluate::eval_nerf(
-                &config,
-                &checkpoint,
-                &data_dir,
-                split.into(),
-                save_images.as_deref(),
-                limit,
-                &device,
-            )?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                println!("{}", report.summary());
-            }
-        }
-        Command::ImportTorch {
-            pth,
-            config,
-            out,
-            overrides,
-        } => {
-            let config = Config::load(&config, &overrides)?;
-            let n = nerf::io::torch::import_torch(&pth, &config.nerf_params()?, &out)?;
-            eprintln!(
-                "wrote {} ({n} parameters from {})",
-                out.display(),
-                pth.display()
-            );
-        }
-        Command::Bench {
-            config,
-            repeats,
-            json,
-            checkpoint,
-            data_dir,
-            views,
-            overrides,
-        } => {
-            let config = Config::load(&config, &overrides)?;
-            let lego = nerf::app::bench::LegoBench {
-                checkpoint,
-                data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
-                views,
-            };
-            let report = nerf::app::bench::run_benchmarks(&config, repeats, Some(&lego), &device)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                print!("{}", nerf::app::bench::format_table(&report));
-            }
-        }
-        Command::Report {
-            out_dir,
-            quick,
-            checkpoint,
-            data_dir,
-            views,
-            logs,
-        } => {
-            let training_logs = if logs.is_empty() {
-                nerf::app::report::default_training_logs(&checkpoint)
-            } else {
-                logs
-            };
-            let options = nerf::app::report::ReportOptions {
-                out_dir,
-                quick,
-                checkpoint,
-                data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
-                views,
-                training_logs,
-            };
-            for p in nerf::app::report::write_report(&options, &device)? {
-                println!("wrote {}", p.display());
-            }
-        }
+        Command::Render(args) => cmd_render(args, &device),
+        Command::Train(args) => cmd_train(args, &device),
+        Command::Eval(args) => cmd_eval(args, &device),
+        Command::ImportTorch(args) => cmd_import_torch(args, &device),
+        Command::Bench(args) => cmd_bench(args, &device),
+        Command::Report(args) => cmd_report(args, &device),
+    }
+}
+
+fn cmd_render(args: RenderArgs, device: &Device) -> Result<()> {
+    let RenderArgs {
+        config,
+        out_dir,
+        raw,
+        checkpoint,
+        overrides,
+    } = args;
+    let config = Config::load(&config, &overrides)?;
+    let written =
+        nerf::app::scene::render_scene(&config, checkpoint.as_deref(), &out_dir, raw, device)?;
+    for p in written {
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+fn cmd_train(args: TrainArgs, device: &Device) -> Result<()> {
+    let TrainArgs {
+        config,
+        data_dir,
+        epochs,
+        out_dir,
+        overrides,
+    } = args;
+    let config = Config::load(&config, &overrides)?;
+    let data_dir = data_dir_for(&config, data_dir);
+    let paths = config.train_paths(&out_dir)?;
+    let info = nerf::app::train::train_nerf(&config, &data_dir, &paths, epochs, device)?;
+    println!(
+        "trained to epoch {} ({} Adam steps); checkpoint {}",
+        info.epoch,
+        info.adam_step,
+        paths.checkpoint.display()
+    );
+    Ok(())
+}
+
+fn cmd_eval(args: EvalArgs, device: &Device) -> Result<()> {
+    let EvalArgs {
+        config,
+        split,
+        checkpoint,
+        data_dir,
+        save_images,
+        limit,
+        json,
+        overrides,
+    } = args;
+    let config = Config::load(&config, &overrides)?;
+    let data_dir = data_dir_for(&config, data_dir);
+    let report = nerf::app::evaluate::eval_nerf(
+        &config,
+        &checkpoint,
+        &data_dir,
+        split.into(),
+        save_images.as_deref(),
+        limit,
+        device,
+    )?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!("{}", report.summary());
+    }
+    Ok(())
+}
+
+fn cmd_import_torch(args: ImportTorchArgs, _device: &Device) -> Result<()> {
+    let ImportTorchArgs {
+        pth,
+        config,
+        out,
+        overrides,
+    } = args;
+    let config = Config::load(&config, &overrides)?;
+    let n = nerf::io::torch::import_torch(&pth, &config.nerf_params()?, &out)?;
+    eprintln!(
+        "wrote {} ({n} parameters from {})",
+        out.display(),
+        pth.display()
+    );
+    Ok(())
+}
+
+fn cmd_bench(args: BenchArgs, device: &Device) -> Result<()> {
+    let BenchArgs {
+        config,
+        repeats,
+        json,
+        checkpoint,
+        data_dir,
+        views,
+        overrides,
+    } = args;
+    let config = Config::load(&config, &overrides)?;
+    let lego = nerf::app::bench::LegoBench {
+        checkpoint,
+        data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
+        views,
+    };
+    let report = nerf::app::bench::run_benchmarks(&config, repeats, Some(&lego), device)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", nerf::app::bench::format_table(&report));
+    }
+    Ok(())
+}
+
+fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
+    let ReportArgs {
+        out_dir,
+        quick,
+        checkpoint,
+        data_dir,
+        views,
+        logs,
+    } = args;
+    let training_logs = if logs.is_empty() {
+        nerf::app::report::default_training_logs(&checkpoint)
+    } else {
+        logs
+    };
+    let options = nerf::app::report::ReportOptions {
+        out_dir,
+        quick,
+        checkpoint,
+        data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
+        views,
+        training_logs,
+    };
+    for p in nerf::app::report::write_report(&options, device)? {
+        println!("wrote {}", p.display());
     }
     Ok(())
 }

@@ -9,6 +9,7 @@ use serde::Serialize;
 
 use crate::app::config::Config;
 use crate::app::scene::render_views;
+use crate::core::camera::PerspectiveCamera;
 use crate::core::image::RgbImage;
 use crate::core::metrics::{fastest, mean, mean_psnr, time_runs};
 use crate::field::nerf::NerfField;
@@ -282,6 +283,75 @@ struct RenderRun {
     load_seconds: f64,
 }
 
+/// The first `lego.views` test cameras and their images, or the surround cameras without
+/// ground truth when the dataset cannot be read.
+fn bench_views(
+    lego: &LegoBench,
+    config: &Config,
+) -> Result<(Vec<PerspectiveCamera>, Option<Vec<RgbImage>>)> {
+    let (w, h) = config.image_size();
+    Ok(
+        match crate::io::dataset::Dataset::load(
+            &lego.data_dir,
+            crate::io::dataset::Split::Test,
+            w,
+            h,
+            config.renderer.white_background,
+        ) {
+            Ok(d) => (
+                d.frames.iter().take(lego.views).map(|f| f.camera).collect(),
+                Some(d.images.into_iter().take(lego.views).collect()),
+            ),
+            Err(e) => {
+                eprintln!("trained-NeRF benchmark without ground truth ({e})");
+                (
+                    config
+                        .surround_cameras()
+                        .into_iter()
+                        .take(lego.views)
+                        .collect(),
+                    None,
+                )
+            }
+        },
+    )
+}
+
+/// Loads the checkpoint with `config` and renders every camera once, timing each.
+fn render_run(
+    config: &Config,
+    lego: &LegoBench,
+    cameras: &[PerspectiveCamera],
+    device: &Device,
+) -> Result<RenderRun> {
+    let (w, h) = config.image_size();
+    let n = cameras.len();
+    let t = Instant::now();
+    let (state, _) = config.load_nerf(&lego.checkpoint, device)?;
+    let load_seconds = t.elapsed().as_secs_f64();
+    let field = state.field();
+    let (sampler, renderer) = (config.sampler()?, config.renderer()?);
+    let mut frames = Vec::with_capacity(n);
+    let mut runs = Vec::with_capacity(n);
+    for cam in cameras {
+        let t = Instant::now();
+        frames.push(render_view(
+            &field,
+            cam,
+            (w, h),
+            &sampler,
+            &renderer,
+            device,
+        )?);
+        runs.push(t.elapsed().as_secs_f64());
+    }
+    Ok(RenderRun {
+        frames,
+        runs,
+        load_seconds,
+    })
+}
+
 /// The shipped checkpoint rendered densely and with the accelerations of the `lego` config
 /// (occupancy grid, early termination): time per frame, PSNR of each against the ground truth,
 /// and of the accelerated render against the dense one.
@@ -289,56 +359,9 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
     let fast_config = Config::load("lego", &[])?;
     let dense_config = Config::load("lego", &dense_overrides())?;
     let (w, h) = fast_config.image_size();
-    let (cameras, truth): (Vec<_>, Option<Vec<RgbImage>>) = match crate::io::dataset::Dataset::load(
-        &lego.data_dir,
-        crate::io::dataset::Split::Test,
-        w,
-        h,
-        fast_config.renderer.white_background,
-    ) {
-        Ok(d) => (
-            d.frames.iter().take(lego.views).map(|f| f.camera).collect(),
-            Some(d.images.into_iter().take(lego.views).collect()),
-        ),
-        Err(e) => {
-            eprintln!("trained-NeRF benchmark without ground truth ({e})");
-            (
-                fast_config
-                    .surround_cameras()
-                    .into_iter()
-                    .take(lego.views)
-                    .collect(),
-                None,
-            )
-        }
-    };
+    let (cameras, truth) = bench_views(lego, &fast_config)?;
     let n = cameras.len();
-    let render_all = |config: &Config| -> Result<RenderRun> {
-        let t = Instant::now();
-        let (state, _) = config.load_nerf(&lego.checkpoint, device)?;
-        let load_seconds = t.elapsed().as_secs_f64();
-        let field = state.field();
-        let (sampler, renderer) = (config.sampler()?, config.renderer()?);
-        let mut frames = Vec::with_capacity(n);
-        let mut runs = Vec::with_capacity(n);
-        for cam in &cameras {
-            let t = Instant::now();
-            frames.push(render_view(
-                &field,
-                cam,
-                (w, h),
-                &sampler,
-                &renderer,
-                device,
-            )?);
-            runs.push(t.elapsed().as_secs_f64());
-        }
-        Ok(RenderRun {
-            frames,
-            runs,
-            load_seconds,
-        })
-    };
+    let render_all = |config: &Config| render_run(config, lego, &cameras, device);
     let RenderRun {
         frames: dense,
         runs: dense_runs,

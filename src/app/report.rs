@@ -822,7 +822,6 @@ fn minutes_to_reach(points: &[(f64, usize, f64)], target: f64) -> Option<(f64, u
 pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
     let mut out = String::new();
     let m = machine_line(&report.machine);
-    let s = &report.sizes;
     let _ = writeln!(
         out,
         "# nerf report: error against run time\n\nMade by `nerf report{}` in {:.0} s. {m} \
@@ -831,15 +830,26 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
         if report.quick { " --quick" } else { "" },
         report.seconds
     );
-    let plot = |name: &str| {
-        plots
-            .iter()
-            .find(|(n, _)| n == name)
-            .map(|(n, f)| format!("![{n}]({f})\n\n"))
-            .unwrap_or_default()
-    };
+    let plot = |name: &str| plot_link(plots, name);
 
-    // Box.
+    box_section(&mut out, report, &plot("box"), &m);
+    lego_section(&mut out, report, &plot("lego"), &m);
+    training_section(&mut out, report, &plot("training"));
+    out
+}
+
+/// A Markdown image link to the plot named `name`, or nothing when it was not drawn.
+fn plot_link(plots: &[(String, String)], name: &str) -> String {
+    plots
+        .iter()
+        .find(|(n, _)| n == name)
+        .map(|(n, f)| format!("![{n}]({f})\n\n"))
+        .unwrap_or_default()
+}
+
+/// The box section: hard box against the analytic hit, homework box against many samples.
+fn box_section(out: &mut String, report: &Report, plot: &str, m: &str) {
+    let s = &report.sizes;
     let _ = writeln!(
         out,
         "## Box: samples per ray against error\n\n{m} Image {0}x{0}, view(s) {1:?} of the 20 \
@@ -847,7 +857,7 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
          [0, 5] (the homework's), the last sample's delta 1e10.\n",
         s.box_size, s.box_views, s.repeats
     );
-    out.push_str(&plot("box"));
+    out.push_str(plot);
     let hard_depth: Vec<(f64, f64)> = report
         .hard_box
         .rows
@@ -890,7 +900,7 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
         },
         report.hard_box.reference_pts
     );
-    box_table(&mut out, &report.hard_box, true);
+    box_table(out, &report.hard_box, true);
     let _ = writeln!(
         out,
         "\n### Homework box (β = {}), against {} samples per ray\n\nThe homework's \
@@ -903,10 +913,13 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
          far each sample count is from that one; they do not shrink to a converged answer.\n",
         report.homework_box.beta, report.homework_box.reference_pts
     );
-    box_table(&mut out, &report.homework_box, false);
+    box_table(out, &report.homework_box, false);
     out.push('\n');
+}
 
-    // Lego.
+/// The lego section: accelerations and samples per ray.
+fn lego_section(out: &mut String, report: &Report, plot: &str, m: &str) {
+    let s = &report.sizes;
     out.push_str("## Lego: accelerations and samples per ray\n\n");
     match &report.lego {
         Ok(l) => {
@@ -924,7 +937,7 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
                 s.repeats,
                 l.reference_pts
             );
-            out.push_str(&plot("lego"));
+            out.push_str(plot);
             out.push_str("| acceleration | samples per ray | seconds per frame | PSNR vs ground truth (dB) | PSNR vs dense render (dB) | field evaluated at |\n|---|---|---|---|---|---|\n");
             for r in &l.rows {
                 let _ = writeln!(
@@ -944,8 +957,10 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
             let _ = writeln!(out, "Skipped: {e}.\n");
         }
     }
+}
 
-    // Training.
+/// The training section: PSNR against wall-clock time from the logs.
+fn training_section(out: &mut String, report: &Report, plot: &str) {
     out.push_str("## Training: PSNR against wall-clock time\n\n");
     let curves: Vec<&TrainingCurve> = report
         .training
@@ -959,7 +974,7 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
              machine, release build). Test PSNR is logged only by runs with \
              `training.eval_views`.\n\n",
         );
-        out.push_str(&plot("training"));
+        out.push_str(plot);
         out.push_str("| log | epochs | minutes | last test PSNR (dB) | minutes to 20 / 22 / 24 / 25 / 26 / 27 dB test PSNR | last training-batch PSNR (dB) |\n|---|---|---|---|---|---|\n");
         for c in &curves {
             let last_epoch = c.train.last().map_or(0, |t| t.1 + 1);
@@ -996,7 +1011,6 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
     for e in report.training.iter().filter_map(|c| c.as_ref().err()) {
         let _ = writeln!(out, "Skipped a training log: {e}.\n");
     }
-    out
 }
 
 /// Measures, then writes `report.md`, `report.json` and the plots into `options.out_dir`.

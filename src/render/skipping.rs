@@ -157,21 +157,33 @@ pub fn evaluate_skipping(
         colours.push(colour);
     }
     stats.evaluated = all_index.len();
+    let out = scatter_packed(n, s, all_index, &densities, &colours, device)?;
+    Ok((out, stats))
+}
+
+/// Scatters packed densities `(M, 1)` and colours `(M, 3)` (in the order of `index`, flat
+/// sample indices `ray · S + i`) into dense `(N, S, 1)` and `(N, S, 3)` tensors, zeros
+/// elsewhere; differentiable (`index_add`).
+fn scatter_packed(
+    n: usize,
+    s: usize,
+    index: Vec<u32>,
+    densities: &[Tensor],
+    colours: &[Tensor],
+    device: &candle_core::Device,
+) -> Result<FieldOutput> {
     let mut density = Tensor::zeros((n * s, 1), DType::F32, device)?;
     let mut colour = Tensor::zeros((n * s, 3), DType::F32, device)?;
-    if !all_index.is_empty() {
-        let m = all_index.len();
-        let index = Tensor::from_vec(all_index, m, device)?;
-        density = density.index_add(&index, &Tensor::cat(&densities, 0)?, 0)?;
-        colour = colour.index_add(&index, &Tensor::cat(&colours, 0)?, 0)?;
+    if !index.is_empty() {
+        let m = index.len();
+        let index = Tensor::from_vec(index, m, device)?;
+        density = density.index_add(&index, &Tensor::cat(densities, 0)?, 0)?;
+        colour = colour.index_add(&index, &Tensor::cat(colours, 0)?, 0)?;
     }
-    Ok((
-        FieldOutput {
-            density: density.reshape((n, s, 1))?,
-            feature: colour.reshape((n, s, 3))?,
-        },
-        stats,
-    ))
+    Ok(FieldOutput {
+        density: density.reshape((n, s, 1))?,
+        feature: colour.reshape((n, s, 3))?,
+    })
 }
 
 #[cfg(test)]
