@@ -8,6 +8,7 @@ use candle_core::Device;
 use clap::{Args, Parser, Subcommand};
 
 use nerf::app::config::Config;
+use nerf::train::fit::FitOutcome;
 
 /// mimalloc keeps freed segments for reuse: Candle allocates a fresh buffer of up to tens of
 /// megabytes per op, and an allocator that returns each to the OS pays page faults on the next
@@ -114,6 +115,10 @@ struct TrainArgs {
     /// Where training GIFs go.
     #[arg(long, default_value = "images")]
     out_dir: PathBuf,
+    /// With `training.resume: False`, replace an existing checkpoint and its log (without it,
+    /// such a run is refused).
+    #[arg(long)]
+    overwrite: bool,
     /// Hydra-style overrides, e.g. training.num_epochs=20.
     overrides: Vec<String>,
 }
@@ -252,6 +257,31 @@ fn data_dir_for(config: &Config, given: Option<PathBuf>) -> PathBuf {
         })
 }
 
+/// Writing to stdout failed (a closed pipe, a full disk).
+#[derive(Debug)]
+struct StdoutError(std::io::Error);
+
+impl std::fmt::Display for StdoutError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "cannot write to stdout: {}", self.0)
+    }
+}
+
+impl std::error::Error for StdoutError {}
+
+/// Writes `line` and a newline to stdout; `println!` would panic when that fails.
+fn say(line: &str) -> Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{line}")
+        .and_then(|()| out.flush())
+        .map_err(|e| anyhow::Error::new(StdoutError(e)))
+}
+
+/// Exit code for a closed stdout pipe: 128 + SIGPIPE, as a shell reports a process that
+/// SIGPIPE ended, so `nerf ... | head` ends quietly and scripts can still tell.
+const BROKEN_PIPE_EXIT: u8 = 141;
+
 fn run(cli: Cli) -> Result<()> {
     nerf::kernels::set_kernel_choice(match cli.kernels {
         KernelsArg::Fused => nerf::kernels::KernelChoice::Fused,
@@ -280,7 +310,7 @@ fn cmd_render(args: RenderArgs, device: &Device) -> Result<()> {
     let written =
         nerf::app::scene::render_scene(&config, checkpoint.as_deref(), &out_dir, raw, device)?;
     for p in written {
-        println!("wrote {}", p.display());
+        say(&format!("wrote {}", p.display()))?;
     }
     Ok(())
 }
@@ -291,20 +321,69 @@ fn cmd_train(args: TrainArgs, device: &Device) -> Result<()> {
         data_dir,
         epochs,
         out_dir,
+        overwrite,
         overrides,
     } = args;
     let config = Config::load(&config, &overrides)?;
     let data_dir = data_dir_for(&config, data_dir);
     let paths = config.train_paths(&out_dir)?;
-    let info = nerf::app::train::train_nerf(&config, &data_dir, &paths, epochs, device)?;
-    println!(
-        "trained to epoch {} ({} Adam steps); checkpoint {}",
-        info.epoch,
-        info.adam_step,
-        paths.checkpoint.display()
-    );
-    Ok(())
+    nerf::app::train::check_fresh_start(&config, &paths, overwrite)?;
+    let stop = nerf::app::train::stop_on_signal()?;
+    let outcome =
+        nerf::app::train::train_nerf(&config, &data_dir, &paths, epochs, Some(stop), device)?;
+    match outcome {
+        FitOutcome::Finished(info) => say(&format!(
+            "trained to epoch {} ({} Adam steps); checkpoint {}",
+            info.epoch,
+            info.adam_step,
+            paths.checkpoint.display()
+        )),
+        FitOutcome::Stopped(info) => Err(anyhow::Error::new(Stopped(format!(
+            "stopped at epoch {} step {}; checkpoint {}; resume with: {}",
+            info.epoch,
+            info.adam_step,
+            paths.checkpoint.display(),
+            resume_command(config.training()?.resume)
+        )))),
+    }
 }
+
+/// The command line that resumes this training run: the same arguments without
+/// `--overwrite`, and with `training.resume=True` when the config does not resume.
+fn resume_command(config_resumes: bool) -> String {
+    let mut args: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| a != "--overwrite")
+        .collect();
+    if !config_resumes {
+        args.push("training.resume=True".into());
+    }
+    std::iter::once("nerf".to_string())
+        .chain(args.iter().map(|a| {
+            if a.contains(|c: char| c.is_whitespace() || "[]'\"$".contains(c)) {
+                format!("'{a}'")
+            } else {
+                a.clone()
+            }
+        }))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Training was stopped by a signal; the message says where and how to resume.
+#[derive(Debug)]
+struct Stopped(String);
+
+impl std::fmt::Display for Stopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Stopped {}
+
+/// Exit code of a run stopped by SIGINT or SIGTERM (128 + SIGINT, as shells report it).
+const STOPPED_EXIT: u8 = 130;
 
 fn cmd_eval(args: EvalArgs, device: &Device) -> Result<()> {
     let EvalArgs {
@@ -329,9 +408,9 @@ fn cmd_eval(args: EvalArgs, device: &Device) -> Result<()> {
         device,
     )?;
     if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        say(&serde_json::to_string_pretty(&report)?)?;
     } else {
-        println!("{}", report.summary());
+        say(&report.summary())?;
     }
     Ok(())
 }
@@ -345,11 +424,11 @@ fn cmd_import_torch(args: ImportTorchArgs, _device: &Device) -> Result<()> {
     } = args;
     let config = Config::load(&config, &overrides)?;
     let n = nerf::io::torch::import_torch(&pth, &config.nerf_params()?, &out)?;
-    eprintln!(
+    nerf::core::term::note(&format!(
         "wrote {} ({n} parameters from {})",
         out.display(),
         pth.display()
-    );
+    ));
     Ok(())
 }
 
@@ -371,9 +450,9 @@ fn cmd_bench(args: BenchArgs, device: &Device) -> Result<()> {
     };
     let report = nerf::app::bench::run_benchmarks(&config, repeats, Some(&lego), device)?;
     if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        say(&serde_json::to_string_pretty(&report)?)?;
     } else {
-        print!("{}", nerf::app::bench::format_table(&report));
+        say(nerf::app::bench::format_table(&report).trim_end())?;
     }
     Ok(())
 }
@@ -401,7 +480,7 @@ fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
         training_logs,
     };
     for p in nerf::app::report::write_report(&options, device)? {
-        println!("wrote {}", p.display());
+        say(&format!("wrote {}", p.display()))?;
     }
     Ok(())
 }
@@ -422,13 +501,22 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            if let Some(Stopped(message)) = e.downcast_ref::<Stopped>() {
+                nerf::core::term::note(message);
+                return ExitCode::from(STOPPED_EXIT);
+            }
+            if let Some(StdoutError(io)) = e.downcast_ref::<StdoutError>() {
+                if io.kind() == std::io::ErrorKind::BrokenPipe {
+                    return ExitCode::from(BROKEN_PIPE_EXIT);
+                }
+            }
             // One line: the chain of causes joined by ": ", each cut to its first line (Candle
             // appends a backtrace to its errors' text when RUST_BACKTRACE is set).
             let causes: Vec<String> = e
                 .chain()
                 .map(|c| c.to_string().lines().next().unwrap_or("").to_string())
                 .collect();
-            eprintln!("error: {}", causes.join(": "));
+            nerf::core::term::note(&format!("error: {}", causes.join(": ")));
             ExitCode::FAILURE
         }
     }

@@ -686,12 +686,35 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
         let delay = 100 + (state >> 33) % 900;
+        if round % 3 == 2 {
+            // Temporary files of an earlier killed write (the run removes them too, at start).
+            for e in std::fs::read_dir(&killed).into_iter().flatten().flatten() {
+                if e.file_name().to_string_lossy().ends_with(".tmp") {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
         // Each write pauses 150 ms before its rename, so many kills land mid-write.
         let mut child = tiny_train(&killed, &data, epochs)
             .env("NERF_FAULT_WRITE_DELAY_MS", "150")
             .spawn()
             .unwrap();
-        std::thread::sleep(std::time::Duration::from_millis(delay));
+        if round % 3 == 2 {
+            // Wait for a write in progress (its temporary file), so that some kills surely
+            // land mid-write however loaded the machine is.
+            let start = std::time::Instant::now();
+            while start.elapsed() < std::time::Duration::from_secs(20)
+                && child.try_wait().unwrap().is_none()
+                && !std::fs::read_dir(&killed).is_ok_and(|d| {
+                    d.flatten()
+                        .any(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+                })
+            {
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+        } else {
+            std::thread::sleep(std::time::Duration::from_millis(delay));
+        }
         let finished = child.try_wait().unwrap().is_some();
         if !finished {
             child.kill().unwrap(); // SIGKILL: no cleanup runs

@@ -73,7 +73,7 @@ fn a_few_steps_lower_the_loss() {
     let nerf_cfg = config.nerf_params().unwrap();
     let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
     let mut adam = Adam::new(named_vars(&state), 0.005).unwrap();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+    let mut rng = nerf::train::step::TrainRng::seed_from_u64(5);
     let mut losses = Vec::new();
     for step in 0..60 {
         losses.push(
@@ -172,7 +172,7 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
     let settings = config.occupancy_grid().unwrap();
     state.occupancy = Some(nerf::OccupancyGrid::new(&settings).unwrap());
     let mut adam = Adam::new(named_vars(&state), 0.005).unwrap();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+    let mut rng = nerf::train::step::TrainRng::seed_from_u64(5);
     let mut losses = Vec::new();
     for step in 0..60 {
         if step % 4 == 0 {
@@ -224,7 +224,7 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
 fn batches_from_all_images_pair_rays_with_their_pixels() {
     let config = tiny_config(&[]);
     let dataset = box_dataset(&config);
-    let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+    let mut rng = nerf::train::step::TrainRng::seed_from_u64(3);
     let (rays, target, transparency) =
         nerf::train::step::training_batch(&dataset, 50, true, 0, &mut rng, &Device::Cpu).unwrap();
     assert_eq!(rays.len(), 50);
@@ -281,6 +281,8 @@ fn checkpoint_round_trips_bit_exactly() {
         epoch: 7,
         adam_step: 700,
         wall_seconds: 12.5,
+        step_in_epoch: 3,
+        rng_word_pos: 1 << 70,
     };
     checkpoint::save(&path, &checkpoint::model_tensors(&state.varmap), info).unwrap();
     let (loaded, back) = NerfState::from_checkpoint(&nerf_cfg, &path, &Device::Cpu).unwrap();
@@ -341,7 +343,7 @@ fn resume_continues_exactly() {
         o.push(format!("training.checkpoint_path={}", dir.display()));
         let config = Config::load("nerf_lego", &o).unwrap();
         let paths = config.train_paths(&dir.join("images")).unwrap();
-        train_nerf(&config, &data, &paths, stop, &Device::Cpu).unwrap();
+        train_nerf(&config, &data, &paths, stop, None, &Device::Cpu).unwrap();
         paths.checkpoint
     };
     let straight = tempfile::tempdir().unwrap();

@@ -178,10 +178,10 @@ pub fn run_benchmarks(
         if lego.checkpoint.is_file() {
             results.extend(bench_trained_nerf(lego, device)?);
         } else {
-            eprintln!(
+            crate::core::term::note(&format!(
                 "skipping the trained-NeRF benchmark: checkpoint {} not found",
                 lego.checkpoint.display()
-            );
+            ));
         }
     }
     results.extend(bench_nerf(
@@ -303,7 +303,9 @@ fn bench_views(
                 Some(d.images.into_iter().take(lego.views).collect()),
             ),
             Err(e) => {
-                eprintln!("trained-NeRF benchmark without ground truth ({e})");
+                crate::core::term::note(&format!(
+                    "trained-NeRF benchmark without ground truth ({e})"
+                ));
                 (
                     config
                         .surround_cameras()

@@ -3,25 +3,69 @@
 
 use std::path::Path;
 
-use anyhow::Result;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::{bail, Context, Result};
 use candle_core::Device;
 
 use crate::app::config::Config;
 use crate::app::scene::render_nerf_gif;
 use crate::eval::evaluate::evaluate;
-use crate::io::checkpoint::CheckpointInfo;
 use crate::io::dataset::{Dataset, Split};
-use crate::train::fit::{fit, CheckpointScore, Hooks, TrainPaths};
+use crate::train::fit::{fit, CheckpointScore, FitOutcome, Hooks, TrainPaths};
+
+/// Refuses to start a fresh run over an existing checkpoint (`training.resume: False`) unless
+/// `overwrite`; with it, removes the old checkpoint and log together, so that the new run's
+/// log and checkpoint never mix with the old ones.
+pub fn check_fresh_start(config: &Config, paths: &TrainPaths, overwrite: bool) -> Result<()> {
+    if config.training()?.resume || !paths.checkpoint.exists() {
+        return Ok(());
+    }
+    if !overwrite {
+        bail!(
+            "{} already holds a checkpoint and training.resume is False: pass --overwrite to \
+             start again and replace it and its log, or resume with training.resume=True",
+            paths.checkpoint.display()
+        );
+    }
+    for p in [&paths.checkpoint, &paths.log] {
+        match std::fs::remove_file(p) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("cannot remove {}", p.display()))
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// Installs the SIGINT/SIGTERM handler of a training run: the first signal sets the returned
+/// flag (the loop finishes its step and writes a checkpoint); a second one exits at once with
+/// status 130 (every file is written atomically, so nothing is left half-written).
+pub fn stop_on_signal() -> Result<&'static AtomicBool> {
+    static STOP: AtomicBool = AtomicBool::new(false);
+    ctrlc::set_handler(|| {
+        if STOP.swap(true, Ordering::SeqCst) {
+            crate::core::term::note("second interrupt: exiting now");
+            std::process::exit(130);
+        }
+        crate::core::term::note("interrupt: stopping after this step (again to exit at once)");
+    })
+    .context("cannot install the interrupt handler")?;
+    Ok(&STOP)
+}
 
 /// Runs `nerf train` for `config` on the dataset in `data_dir`. `stop_after_epochs` ends the
-/// run early (after writing a checkpoint) once that many epochs have been done in this process.
+/// run early (after writing a checkpoint) once that many epochs have been done in this process;
+/// `stop` ends it after the current step.
 pub fn train_nerf(
     config: &Config,
     data_dir: &Path,
     paths: &TrainPaths,
     stop_after_epochs: Option<usize>,
+    stop: Option<&AtomicBool>,
     device: &Device,
-) -> Result<CheckpointInfo> {
+) -> Result<FitOutcome> {
     let settings = config.train_settings()?;
     let (w, h) = config.image_size();
     let white = config.renderer.white_background;
@@ -31,7 +75,7 @@ pub fn train_nerf(
         match Dataset::load(data_dir, Split::Test, w, h, white) {
             Ok(d) => Some(d),
             Err(e) => {
-                eprintln!("warning: no test-PSNR logging: {e:#}");
+                crate::core::term::note(&format!("warning: no test-PSNR logging: {e:#}"));
                 None
             }
         }
@@ -62,5 +106,13 @@ pub fn train_nerf(
     hooks.preview = Some(Box::new(move |field| {
         render_nerf_gif(config, field, &gif, device)
     }));
-    fit(&settings, &dataset, paths, stop_after_epochs, hooks, device)
+    fit(
+        &settings,
+        &dataset,
+        paths,
+        stop_after_epochs,
+        stop,
+        hooks,
+        device,
+    )
 }

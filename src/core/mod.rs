@@ -6,4 +6,5 @@ pub mod image;
 pub mod metrics;
 pub mod rays;
 pub mod sdf;
+pub mod term;
 pub mod volume;

@@ -25,6 +25,12 @@ pub struct CheckpointInfo {
     pub adam_step: u64,
     /// Training wall-clock seconds so far, over all resumed runs.
     pub wall_seconds: f64,
+    /// Steps of epoch `epoch` already taken, when the run stopped mid-epoch (0 at an epoch
+    /// boundary).
+    pub step_in_epoch: usize,
+    /// With `step_in_epoch > 0`: the position of that epoch's random stream, so a resumed run
+    /// draws what the uninterrupted run would have.
+    pub rng_word_pos: u128,
 }
 
 /// Writes `tensors` (any shapes and float dtype; stored as f32) and `info` to `path` (temp
@@ -64,6 +70,8 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
             "wall_seconds".to_string(),
             format!("{:.3}", info.wall_seconds),
         ),
+        ("step_in_epoch".to_string(), info.step_in_epoch.to_string()),
+        ("rng_word_pos".to_string(), info.rng_word_pos.to_string()),
         ("format".to_string(), "nerf-candle-1".to_string()),
     ]
     .into();
@@ -122,10 +130,18 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
         .get("wall_seconds")
         .and_then(|v| v.parse::<f64>().ok())
         .unwrap_or(0.0);
+    let rng_word_pos = meta
+        .get("rng_word_pos")
+        .map(|v| v.parse::<u128>())
+        .transpose()
+        .with_context(|| format!("checkpoint {}: bad metadata rng_word_pos", path.display()))?
+        .unwrap_or(0);
     let info = CheckpointInfo {
         epoch: num("epoch")? as usize,
         adam_step: num("adam_step")?,
         wall_seconds,
+        step_in_epoch: num("step_in_epoch")? as usize,
+        rng_word_pos,
     };
     let mut tensors = HashMap::new();
     for (name, view) in st.tensors() {

@@ -19,7 +19,7 @@ pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
 /// drops the lines of a hidden bar.
 pub fn print_above(bar: &ProgressBar, message: &str) {
     if bar.is_hidden() {
-        eprintln!("{message}");
+        crate::core::term::note(message);
     } else {
         bar.println(message);
     }

@@ -74,11 +74,11 @@ pub fn grid_for_checkpoint(
     }
     let start = std::time::Instant::now();
     let grid = OccupancyGrid::build(params, density, device)?;
-    eprintln!(
+    crate::core::term::note(&format!(
         "built a {r}^3 occupancy grid from the model in {:.1} s: {:.1}% of cells occupied",
         start.elapsed().as_secs_f64(),
         100.0 * grid.occupied_fraction()
-    );
+    ));
     Ok(grid)
 }
 

@@ -12,6 +12,7 @@
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -19,6 +20,8 @@ use candle_core::Device;
 use indicatif::ProgressBar;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
+
+use crate::core::term::note;
 
 use crate::field::nerf::{NerfField, NerfParams};
 use crate::io::checkpoint::{self, CheckpointInfo};
@@ -29,7 +32,7 @@ use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KE
 use crate::render::skipping::SampleCounts;
 use crate::train::adam::Adam;
 use crate::train::state::{named_vars, NerfState};
-use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings};
+use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings, TrainRng};
 
 /// How training keeps an occupancy grid up to date (nerfacc's schedule).
 #[derive(Debug, Clone, PartialEq)]
@@ -152,17 +155,22 @@ fn start_or_resume(
         state.occupancy = Some(OccupancyGrid::new(&schedule.grid)?);
     }
     let mut adam = Adam::new(named_vars(&state.varmap), settings.lr)?;
-    if info.epoch > 0 {
+    if info.adam_step > 0 {
         let (tensors, _) = checkpoint::load(&paths.checkpoint, device)?;
         adam.load_state(&tensors, info.adam_step)?;
         if let (Some(schedule), Some(saved)) = (&settings.grid, tensors.get(CHECKPOINT_KEY)) {
             state.occupancy = Some(OccupancyGrid::from_tensor(&schedule.grid, saved)?);
         }
-        eprintln!(
-            "resuming from {} at epoch {}",
+        note(&format!(
+            "resuming from {} at epoch {}{}",
             paths.checkpoint.display(),
-            info.epoch
-        );
+            info.epoch,
+            if info.step_in_epoch > 0 {
+                format!(", step {} of it", info.step_in_epoch)
+            } else {
+                String::new()
+            }
+        ));
     }
     Ok((state, adam, info))
 }
@@ -239,6 +247,27 @@ struct Run<'a> {
     /// Seconds spent in hooks, left out of the logged training time.
     excluded: f64,
     wall_offset: f64,
+    /// When the last plain progress line was printed (seconds since `start`).
+    last_plain_line: f64,
+}
+
+/// Seconds between progress lines when stderr is not a terminal (`NERF_PROGRESS_SECONDS`
+/// overrides it; 0 prints a line per step).
+fn plain_progress_seconds() -> f64 {
+    std::env::var("NERF_PROGRESS_SECONDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(10.0)
+}
+
+/// `1 h 02 min`, `3 min 05 s`, `12 s`.
+fn format_duration(seconds: f64) -> String {
+    let s = seconds.max(0.0).round() as u64;
+    match (s / 3600, (s % 3600) / 60, s % 60) {
+        (0, 0, sec) => format!("{sec} s"),
+        (0, m, sec) => format!("{m} min {sec:02} s"),
+        (h, m, _) => format!("{h} h {m:02} min"),
+    }
 }
 
 impl Run<'_> {
@@ -247,7 +276,7 @@ impl Run<'_> {
     }
 
     /// Updates the occupancy grid when the schedule says so.
-    fn update_grid(&mut self, rng: &mut rand::rngs::StdRng) -> Result<()> {
+    fn update_grid(&mut self, rng: &mut TrainRng) -> Result<()> {
         let (Some(grid), Some(schedule)) = (&mut self.state.occupancy, &self.settings.grid) else {
             return Ok(());
         };
@@ -268,47 +297,88 @@ impl Run<'_> {
         )
     }
 
-    /// One epoch over the training images in a seeded random order; returns the mean loss.
-    fn epoch(&mut self, epoch: usize) -> Result<f64> {
+    /// One epoch over the training images in a seeded random order, from step `first_step`
+    /// with the random stream at `rng_word_pos` when resuming mid-epoch. Returns the mean loss
+    /// over the steps taken, and `Some(steps taken in the epoch, stream position)` when a stop
+    /// was requested before the epoch's end.
+    fn epoch(
+        &mut self,
+        epoch: usize,
+        first_step: usize,
+        rng_word_pos: u128,
+        stop: Option<&AtomicBool>,
+    ) -> Result<(f64, Option<(usize, u128)>)> {
         let s = self.settings;
         self.adam.lr = learning_rate(s.lr, s.lr_scheduler_gamma, s.lr_scheduler_step_size, epoch);
-        let mut rng = rand::rngs::StdRng::seed_from_u64(
-            s.seed.wrapping_mul(1_000_003).wrapping_add(epoch as u64),
-        );
+        let mut rng =
+            TrainRng::seed_from_u64(s.seed.wrapping_mul(1_000_003).wrapping_add(epoch as u64));
         let n_images = self.dataset.images.len();
         let mut order: Vec<usize> = (0..n_images).collect();
         order.shuffle(&mut rng);
-        let mut epoch_loss = 0.0;
-        for &i in &order {
-            self.update_grid(&mut rng)?;
-            let (loss, samples) = train_step(
-                &self.state,
-                &s.step,
-                self.dataset,
-                i,
-                &mut self.adam,
-                &mut rng,
-                self.device,
-            )?;
-            if !loss.is_finite() {
-                bail!("training diverged at epoch {epoch}: loss is {loss}");
-            }
-            epoch_loss += loss;
-            let wall = self.wall();
-            log_step(&mut self.log, self.adam.step, epoch, wall, loss, samples)?;
-            let occupied = self
-                .state
-                .occupancy
-                .as_ref()
-                .map(|g| format!(" occupied {:.1}%", 100.0 * g.occupied_fraction()))
-                .unwrap_or_default();
-            self.bar.set_message(format!(
-                "epoch {epoch} loss {loss:.4} psnr {:.2}{occupied}",
-                logged_psnr(loss)
-            ));
-            self.bar.inc(1);
+        if first_step > 0 {
+            rng.set_word_pos(rng_word_pos);
         }
-        Ok(epoch_loss / n_images as f64)
+        let mut epoch_loss = 0.0;
+        for (k, &i) in order.iter().enumerate().skip(first_step) {
+            let loss = self.step(epoch, i, &mut rng)?;
+            epoch_loss += loss;
+            if stop.is_some_and(|f| f.load(Ordering::SeqCst)) && k + 1 < n_images {
+                let taken = k + 1 - first_step;
+                return Ok((epoch_loss / taken as f64, Some((k + 1, rng.get_word_pos()))));
+            }
+        }
+        Ok((epoch_loss / (n_images - first_step).max(1) as f64, None))
+    }
+
+    /// One training step on image `image`: grid update, Adam step, log line, progress.
+    fn step(&mut self, epoch: usize, image: usize, rng: &mut TrainRng) -> Result<f64> {
+        self.update_grid(rng)?;
+        let (loss, samples) = train_step(
+            &self.state,
+            &self.settings.step,
+            self.dataset,
+            image,
+            &mut self.adam,
+            rng,
+            self.device,
+        )?;
+        if !loss.is_finite() {
+            bail!("training diverged at epoch {epoch}: loss is {loss}");
+        }
+        let wall = self.wall();
+        log_step(&mut self.log, self.adam.step, epoch, wall, loss, samples)?;
+        self.progress(epoch, loss);
+        Ok(loss)
+    }
+
+    /// The bar's message on a terminal; elsewhere a line every [`plain_progress_seconds`].
+    fn progress(&mut self, epoch: usize, loss: f64) {
+        let occupied = self
+            .state
+            .occupancy
+            .as_ref()
+            .map(|g| format!(" occupied {:.1}%", 100.0 * g.occupied_fraction()))
+            .unwrap_or_default();
+        let message = format!(
+            "epoch {epoch} loss {loss:.4} psnr {:.2}{occupied}",
+            logged_psnr(loss)
+        );
+        self.bar.inc(1);
+        if !self.bar.is_hidden() {
+            self.bar.set_message(message);
+            return;
+        }
+        let now = self.start.elapsed().as_secs_f64();
+        if now - self.last_plain_line >= plain_progress_seconds() {
+            self.last_plain_line = now;
+            let (done, total) = (self.bar.position(), self.bar.length().unwrap_or(0));
+            let eta = now / done.max(1) as f64 * total.saturating_sub(done) as f64;
+            note(&format!(
+                "step {} ({done}/{total} this run): {message}; eta {}",
+                self.adam.step,
+                format_duration(eta)
+            ));
+        }
     }
 
     /// After epoch `epoch` (0-based): checkpoint, evaluation and preview as scheduled.
@@ -318,6 +388,7 @@ impl Run<'_> {
             epoch: epoch + 1,
             adam_step: self.adam.step,
             wall_seconds: self.wall(),
+            ..CheckpointInfo::default()
         };
         if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
             if let Some(evaluate) = hooks.evaluate.as_mut() {
@@ -364,24 +435,46 @@ impl Run<'_> {
     }
 }
 
+/// How a call to [`fit`] ended.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FitOutcome {
+    /// Every planned epoch ran; the checkpoint holds the last one.
+    Finished(CheckpointInfo),
+    /// A stop was requested; the checkpoint holds the run up to the last whole step.
+    Stopped(CheckpointInfo),
+}
+
+impl FitOutcome {
+    /// What the checkpoint now holds.
+    pub fn info(&self) -> CheckpointInfo {
+        match self {
+            FitOutcome::Finished(i) | FitOutcome::Stopped(i) => *i,
+        }
+    }
+}
+
 /// Trains a NeRF on `dataset` (the training split). `stop_after_epochs` ends the run early
-/// (after writing a checkpoint) once that many epochs have been done in this call.
+/// (after writing a checkpoint) once that many epochs have been done in this call; `stop`,
+/// when it becomes true, ends it after the current step (after writing a checkpoint that a
+/// later call resumes from exactly, mid-epoch if need be).
 pub fn fit(
     settings: &TrainSettings,
     dataset: &Dataset,
     paths: &TrainPaths,
     stop_after_epochs: Option<usize>,
+    stop: Option<&AtomicBool>,
     mut hooks: Hooks,
     device: &Device,
-) -> Result<CheckpointInfo> {
+) -> Result<FitOutcome> {
     let (state, adam, info) = start_or_resume(settings, paths, device)?;
     if info.epoch >= settings.num_epochs {
-        eprintln!("already trained for {} epochs", info.epoch);
-        return Ok(info);
+        note(&format!("already trained for {} epochs", info.epoch));
+        return Ok(FitOutcome::Finished(info));
     }
     let log = prepare_outputs(settings, paths, info.adam_step)?;
     let remaining = settings.num_epochs - info.epoch;
     let planned = stop_after_epochs.map_or(remaining, |s| s.min(remaining));
+    let n_images = dataset.images.len();
     let mut run = Run {
         settings,
         dataset,
@@ -391,17 +484,37 @@ pub fn fit(
         adam,
         info,
         log,
-        bar: progress_bar((planned * dataset.images.len()) as u64, "training"),
+        bar: progress_bar((planned * n_images - info.step_in_epoch) as u64, "training"),
         start: Instant::now(),
         excluded: 0.0,
         wall_offset: info.wall_seconds,
+        last_plain_line: 0.0,
     };
     let first = info.epoch;
+    let (mut first_step, mut word_pos) = (info.step_in_epoch, info.rng_word_pos);
     for epoch in first..first + planned {
-        let mean_loss = run.epoch(epoch)?;
+        let (mean_loss, stopped) = run.epoch(epoch, first_step, word_pos, stop)?;
+        (first_step, word_pos) = (0, 0);
+        if let Some((step_in_epoch, rng_word_pos)) = stopped {
+            run.info = CheckpointInfo {
+                epoch,
+                adam_step: run.adam.step,
+                wall_seconds: run.wall(),
+                step_in_epoch,
+                rng_word_pos,
+            };
+            save(paths, &run.state, &run.info, &run.adam, device)?;
+            run.bar.finish_and_clear();
+            return Ok(FitOutcome::Stopped(run.info));
+        }
         run.after_epoch(epoch, mean_loss, &mut hooks)?;
+        if stop.is_some_and(|f| f.load(Ordering::SeqCst)) && epoch + 1 < first + planned {
+            save(paths, &run.state, &run.info, &run.adam, device)?;
+            run.bar.finish_and_clear();
+            return Ok(FitOutcome::Stopped(run.info));
+        }
     }
     save(paths, &run.state, &run.info, &run.adam, device)?;
     run.bar.finish_and_clear();
-    Ok(run.info)
+    Ok(FitOutcome::Finished(run.info))
 }

@@ -13,6 +13,11 @@ use crate::render::skipping::SampleCounts;
 use crate::train::adam::Adam;
 use crate::train::state::NerfState;
 
+/// The training loop's random generator: ChaCha12, the generator behind
+/// `rand::rngs::StdRng` (the same stream for the same seed), whose position can be saved and
+/// restored (`get_word_pos` / `set_word_pos`).
+pub type TrainRng = rand_chacha::ChaCha12Rng;
+
 /// Learning rate after `epoch` epochs: `lr · gamma^(epoch / step_size)`.
 pub fn learning_rate(lr: f64, gamma: f64, step_size: usize, epoch: usize) -> f64 {
     lr * gamma.powf(epoch as f64 / step_size as f64)
@@ -34,7 +39,7 @@ pub fn training_batch(
     batch_size: usize,
     rays_from_all_images: bool,
     image_index: usize,
-    rng: &mut rand::rngs::StdRng,
+    rng: &mut TrainRng,
     device: &Device,
 ) -> Result<(Rays, Tensor, Tensor)> {
     use rand::Rng;
@@ -118,7 +123,7 @@ pub fn train_step(
     dataset: &Dataset,
     image_index: usize,
     adam: &mut Adam,
-    rng: &mut rand::rngs::StdRng,
+    rng: &mut TrainRng,
     device: &Device,
 ) -> Result<(f64, SampleCounts)> {
     let (rays, mut target, transparency) = training_batch(
