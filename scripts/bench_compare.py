@@ -36,7 +36,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--markdown", type=Path, help="also write the table here")
     args = ap.parse_args()
-    ours = run_json([args.nerf, "bench", "--json", "--repeats", str(args.repeats)])
+    ours = run_json([args.nerf, "bench", "--config", "box", "--json", "--repeats", str(args.repeats)])
     theirs = run_json(
         [sys.executable, str(Path(__file__).with_name("bench_pytorch.py")), "--json",
          "--repeats", str(args.repeats)]

@@ -92,7 +92,8 @@ struct RenderArgs {
     /// Also write color_{i:03}.npy (H,W,3) and depth_{i:03}.npy (H,W) float32 per frame.
     #[arg(long)]
     raw: bool,
-    /// NeRF checkpoint to render (NeRF configs only; default
+    /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
+    /// directory holding nerf_<dataset>.safetensors — else the shipped
     /// checkpoints/nerf_lego.safetensors).
     #[arg(long)]
     checkpoint: Option<PathBuf>,
@@ -103,7 +104,7 @@ struct RenderArgs {
 /// Train a NeRF (checkpoints and resume as the config's training section says).
 #[derive(Args)]
 struct TrainArgs {
-    /// Config name or path (e.g. nerf_lego).
+    /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. nerf_lego).
     #[arg(long)]
     config: String,
     /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
@@ -126,15 +127,17 @@ struct TrainArgs {
 /// PSNR of a trained NeRF over a dataset split at the config's image size.
 #[derive(Args)]
 struct EvalArgs {
-    /// Config name or path (e.g. lego).
+    /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego).
     #[arg(long)]
     config: String,
     /// Which split to score.
     #[arg(long, value_enum, default_value = "test")]
     split: SplitArg,
-    /// NeRF checkpoint to evaluate.
-    #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-    checkpoint: PathBuf,
+    /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
+    /// directory holding nerf_<dataset>.safetensors — else the shipped
+    /// checkpoints/nerf_lego.safetensors).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
     /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
     #[arg(long)]
     data_dir: Option<PathBuf>,
@@ -157,8 +160,9 @@ struct ImportTorchArgs {
     /// The .pth file (`torch.save(model.state_dict())`, or a dict holding it under
     /// model / model_state_dict / state_dict).
     pth: PathBuf,
-    /// Config whose implicit_function describes the model's sizes.
-    #[arg(long, default_value = "nerf_lego")]
+    /// Config name (configs/NAME.yaml or built-in) or path to a YAML file: its
+    /// implicit_function gives the model's sizes (e.g. nerf_lego).
+    #[arg(long)]
     config: String,
     /// Where to write the safetensors checkpoint.
     #[arg(long, default_value = "checkpoints/imported.safetensors")]
@@ -170,8 +174,9 @@ struct ImportTorchArgs {
 /// Time the main jobs and print a table (or JSON).
 #[derive(Args)]
 struct BenchArgs {
-    /// Config of the SDF scene to time.
-    #[arg(long, default_value = "box")]
+    /// Config name (configs/NAME.yaml or built-in) or path to a YAML file: the SDF scene to
+    /// time (e.g. box; the NeRF rows use the built-in nerf_lego and lego configs).
+    #[arg(long)]
     config: String,
     /// Repeats of the box render and the training step (the best is reported; the first
     /// training step is a cold one, so use at least 2); the untrained frame is rendered
@@ -182,10 +187,11 @@ struct BenchArgs {
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
-    /// Trained NeRF to time dense against accelerated rendering (skipped when missing).
-    #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-    checkpoint: PathBuf,
-    /// Lego dataset directory for the ground truth (default ../shared/data/lego).
+    /// Checkpoint of the trained-NeRF rows, rendered with the built-in lego config (default: the
+    /// shipped checkpoints/nerf_lego.safetensors; the rows are skipped when it is missing).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Dataset directory (default: data.data_dir of the lego config, else ../shared/data/lego).
     #[arg(long)]
     data_dir: Option<PathBuf>,
     /// Test views rendered for the trained-NeRF benchmark.
@@ -206,10 +212,12 @@ struct ReportArgs {
     /// CI-sized run: small images, fewer sample counts and views, one repeat.
     #[arg(long)]
     quick: bool,
-    /// Trained NeRF for the lego section (skipped with a note when missing).
-    #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-    checkpoint: PathBuf,
-    /// Lego dataset directory (default ../shared/data/lego).
+    /// Checkpoint of the lego section, rendered with the built-in lego config (default: the
+    /// shipped checkpoints/nerf_lego.safetensors; the section is skipped with a note when it is
+    /// missing).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Dataset directory (default: data.data_dir of the lego config, else ../shared/data/lego).
     #[arg(long)]
     data_dir: Option<PathBuf>,
     /// Test views for the lego section (default 5; 2 with --quick).
@@ -324,7 +332,14 @@ fn cmd_train(args: TrainArgs, device: &Device) -> Result<()> {
         overwrite,
         overrides,
     } = args;
-    let config = Config::load(&config, &overrides)?;
+    let name = config;
+    let config = Config::load(&name, &overrides)?;
+    if config.training.is_none() {
+        anyhow::bail!(
+            "{name} is a render config (it has no training section): train with nerf_lego or \
+             nerf_lego_fast, or give a config with a training section"
+        );
+    }
     let data_dir = data_dir_for(&config, data_dir);
     let paths = config.train_paths(&out_dir)?;
     nerf::app::train::check_fresh_start(&config, &paths, overwrite)?;
@@ -400,7 +415,7 @@ fn cmd_eval(args: EvalArgs, device: &Device) -> Result<()> {
     let data_dir = data_dir_for(&config, data_dir);
     let report = nerf::app::evaluate::eval_nerf(
         &config,
-        &checkpoint,
+        checkpoint.as_deref(),
         &data_dir,
         split.into(),
         save_images.as_deref(),
@@ -443,9 +458,10 @@ fn cmd_bench(args: BenchArgs, device: &Device) -> Result<()> {
         overrides,
     } = args;
     let config = Config::load(&config, &overrides)?;
+    let lego_config = Config::load("lego", &[])?;
     let lego = nerf::app::bench::LegoBench {
-        checkpoint,
-        data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
+        checkpoint: lego_config.checkpoint(checkpoint.as_deref()),
+        data_dir: data_dir_for(&lego_config, data_dir),
         views,
     };
     let report = nerf::app::bench::run_benchmarks(&config, repeats, Some(&lego), device)?;
@@ -466,6 +482,8 @@ fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
         views,
         logs,
     } = args;
+    let lego_config = Config::load("lego", &[])?;
+    let checkpoint = lego_config.checkpoint(checkpoint.as_deref());
     let training_logs = if logs.is_empty() {
         nerf::app::report::default_training_logs(&checkpoint)
     } else {
@@ -475,7 +493,7 @@ fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
         out_dir,
         quick,
         checkpoint,
-        data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
+        data_dir: data_dir_for(&lego_config, data_dir),
         views,
         training_logs,
     };

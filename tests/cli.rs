@@ -430,27 +430,12 @@ fn train_render_and_eval_a_tiny_nerf() {
     );
 }
 
-/// Writes the freshly initialised model of the lego config (with overrides) to `path`.
-fn save_seeded_checkpoint(path: &Path, overrides: &[&str]) {
-    let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
-    let config = nerf::app::config::Config::load("lego", &overrides).unwrap();
-    let state =
-        nerf::NerfState::seeded(&config.nerf_params().unwrap(), 0, &candle_core::Device::Cpu)
-            .unwrap();
-    nerf::io::checkpoint::save(
-        path,
-        &nerf::io::checkpoint::model_tensors(&state.varmap),
-        Default::default(),
-    )
-    .unwrap();
-}
-
 #[test]
 fn bad_checkpoints_and_missing_data_give_one_clear_line() {
     let dir = tempfile::tempdir().unwrap();
     // A real checkpoint of the lego config, then a truncated copy and random bytes.
     let good = dir.path().join("good.safetensors");
-    save_seeded_checkpoint(&good, &[]);
+    common::save_seeded_checkpoint(&good, &[]);
     let bytes = std::fs::read(&good).unwrap();
     let truncated = dir.path().join("truncated.safetensors");
     std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
@@ -584,7 +569,7 @@ fn wrong_shape_checkpoint_and_corrupt_png_name_what_is_wrong() {
     let dir = tempfile::tempdir().unwrap();
     // A 256-wide model where the lego config needs 128.
     let path = dir.path().join("wide.safetensors");
-    save_seeded_checkpoint(&path, &["implicit_function.n_hidden_neurons_xyz=256"]);
+    common::save_seeded_checkpoint(&path, &["implicit_function.n_hidden_neurons_xyz=256"]);
     let p = path.to_str().unwrap();
     assert_clean_failure(
         &["--config", "lego", "--checkpoint", p],

@@ -299,3 +299,336 @@ fn eval_json_into_a_closed_pipe_exits_quietly() {
     assert!(!err.contains("panicked"), "{err}");
     assert_eq!(out.status.code(), Some(141), "{err}");
 }
+
+/// `nerf render --config nerf_lego ... --raw` at 16×16, 2 poses; stderr and frame 0's colour.
+fn render_nerf(out: &Path, extra: &[&str]) -> (String, Vec<f32>) {
+    let mut args = vec![
+        "render",
+        "--config",
+        "nerf_lego",
+        "--raw",
+        "--out-dir",
+        out.to_str().unwrap(),
+        "data.image_size=[16,16]",
+        "cameras.n_poses=2",
+    ];
+    args.extend(extra);
+    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args(&args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert!(o.status.success(), "{args:?}: {err}");
+    (err, common::read_npy(&out.join("color_000.npy")).1)
+}
+
+#[test]
+fn one_rule_picks_the_checkpoint_and_says_which() {
+    let dir = tempfile::tempdir().unwrap();
+    let info = |epoch| nerf::CheckpointInfo {
+        epoch,
+        adam_step: 7,
+        ..Default::default()
+    };
+    // A directory holding nerf_lego.safetensors, and a file elsewhere, with other weights.
+    let ckpt_dir = dir.path().join("mine");
+    common::save_seeded_checkpoint_with(&ckpt_dir.join("nerf_lego.safetensors"), &[], 1, info(3));
+    let file = dir.path().join("other.safetensors");
+    common::save_seeded_checkpoint_with(&file, &[], 2, info(5));
+    let dir_arg = format!("training.checkpoint_path={}", ckpt_dir.display());
+    let file_arg = format!("training.checkpoint_path={}", file.display());
+    // No --checkpoint: the config's checkpoint_path (nerf_lego's is checkpoints/homework).
+    let (err, homework) = render_nerf(&dir.path().join("a"), &[]);
+    assert!(
+        err.contains("loaded ./checkpoints/homework/nerf_lego.safetensors"),
+        "{err}"
+    );
+    // checkpoint_path as a directory, then as a file.
+    let (err, from_dir) = render_nerf(&dir.path().join("b"), &[&dir_arg]);
+    let expected = format!(
+        "loaded {}/nerf_lego.safetensors (epoch 3, 7 Adam steps)",
+        ckpt_dir.display()
+    );
+    assert!(err.contains(&expected), "{err}");
+    let (err, from_file) = render_nerf(&dir.path().join("c"), &[&file_arg]);
+    assert!(
+        err.contains(&format!("loaded {} (epoch 5", file.display())),
+        "{err}"
+    );
+    // --checkpoint wins over checkpoint_path.
+    let file_str = file.to_str().unwrap();
+    let (err, given) = render_nerf(&dir.path().join("d"), &[&dir_arg, "--checkpoint", file_str]);
+    assert!(
+        err.contains(&format!("loaded {} (epoch 5", file.display())),
+        "{err}"
+    );
+    assert_eq!(given, from_file);
+    assert!(
+        common::max_abs_diff(&from_dir, &from_file) > 1e-3,
+        "other weights, other render"
+    );
+    assert!(common::max_abs_diff(&from_dir, &homework) > 1e-3);
+    // A config without a training section (lego): the shipped model.
+    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args([
+            "render",
+            "--config",
+            "lego",
+            "data.image_size=[8,8]",
+            "cameras.n_poses=1",
+        ])
+        .arg("--out-dir")
+        .arg(dir.path().join("e"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("loaded checkpoints/nerf_lego.safetensors (epoch 160"),
+        "{err}"
+    );
+}
+
+#[test]
+fn eval_follows_the_same_rule_and_reads_only_the_frames_it_scores() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(dir.path(), &[(8, 8, true), (8, 8, true), (8, 8, true)]);
+    // The third frame's image is missing: --limit 2 never opens it.
+    std::fs::remove_file(data.join("test/r_2.png")).unwrap();
+    let ckpt_dir = dir.path().join("mine");
+    common::save_seeded_checkpoint(&ckpt_dir.join("nerf_lego.safetensors"), &[]);
+    let dir_arg = format!("training.checkpoint_path={}", ckpt_dir.display());
+    let eval = |extra: &[&str]| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_nerf"));
+        c.args(["eval", "--config", "nerf_lego", "--data-dir"])
+            .arg(&data)
+            .args(["data.image_size=[8,8]", "sampler.n_pts_per_ray=8"])
+            .args(extra);
+        c.output().unwrap()
+    };
+    let o = eval(&["--limit", "2", &dir_arg]);
+    let (err, out) = (stderr(&o), String::from_utf8_lossy(&o.stdout).to_string());
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains(&format!(
+            "loaded {}/nerf_lego.safetensors",
+            ckpt_dir.display()
+        )),
+        "{err}"
+    );
+    assert!(out.contains("test split, 2 views at 8x8"), "{out}");
+    let o = eval(&["--limit", "1", &dir_arg]);
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("1 view at"),
+        "plural"
+    );
+    let o = eval(&[&dir_arg]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("r_2.png"), "{}", stderr(&o));
+}
+
+/// A NeRF-synthetic style test split of `sizes` (width, height, with alpha) in `root/data`:
+/// cameras on a circle of radius 4 looking at the origin, PNGs of a flat colour.
+fn tiny_dataset(root: &Path, sizes: &[(u32, u32, bool)]) -> std::path::PathBuf {
+    let data = root.join("data");
+    std::fs::create_dir_all(data.join("test")).unwrap();
+    let mut frames = Vec::new();
+    for (i, &(w, h, alpha)) in sizes.iter().enumerate() {
+        let a = i as f64 * 0.7;
+        let (c, s) = (a.cos(), a.sin());
+        // Blender camera-to-world: the camera's +Z points away from the origin.
+        let m = [
+            [c, 0.0, s, 4.0 * s],
+            [0.0, 1.0, 0.0, 0.0],
+            [-s, 0.0, c, 4.0 * c],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        frames.push(format!(
+            "{{\"file_path\": \"./test/r_{i}\", \"transform_matrix\": {m:?}}}"
+        ));
+        let path = data.join(format!("test/r_{i}.png"));
+        if alpha {
+            image::RgbaImage::from_pixel(w, h, image::Rgba([200, 100, 50, 255]))
+                .save(&path)
+                .unwrap();
+        } else {
+            image::RgbImage::from_pixel(w, h, image::Rgb([200, 100, 50]))
+                .save(&path)
+                .unwrap();
+        }
+    }
+    std::fs::write(
+        data.join("transforms_test.json"),
+        format!(
+            "{{\"camera_angle_x\": 0.69, \"frames\": [{}]}}",
+            frames.join(",")
+        ),
+    )
+    .unwrap();
+    data
+}
+
+#[test]
+fn frames_of_another_size_are_refused_and_missing_alpha_is_said() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(dir.path(), &[(8, 8, true), (6, 4, true)]);
+    let ckpt = dir.path().join("m.safetensors");
+    common::save_seeded_checkpoint(&ckpt, &[]);
+    let eval = |data: &Path| {
+        Command::new(env!("CARGO_BIN_EXE_nerf"))
+            .args(["eval", "--config", "nerf_lego", "--checkpoint"])
+            .arg(&ckpt)
+            .arg("--data-dir")
+            .arg(data)
+            .args(["data.image_size=[8,8]", "sampler.n_pts_per_ray=8"])
+            .output()
+            .unwrap()
+    };
+    let o = eval(&data);
+    let err = stderr(&o);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("r_1.png is 6x4, but the split's images are 8x8"),
+        "{err}"
+    );
+    let other = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(other.path(), &[(8, 8, true), (8, 8, false)]);
+    let o = eval(&data);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("1 of the 2 images"), "{err}");
+    assert!(
+        err.contains("no alpha channel and are taken as opaque"),
+        "{err}"
+    );
+}
+
+fn fails_with(args: &[&str], needle: &str) {
+    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert!(!o.status.success(), "{args:?} succeeded");
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+    assert!(
+        err.contains(needle),
+        "{args:?}: expected `{needle}` in {err}"
+    );
+}
+
+#[test]
+fn messages_speak_the_users_language() {
+    // The override is blamed, not the file; type names are in words.
+    fails_with(
+        &["render", "--config", "box", "sampler.n_pts_per_ray=abc"],
+        "error: override `sampler.n_pts_per_ray=abc`: sampler.n_pts_per_ray: invalid type: string \"abc\", expected a whole number",
+    );
+    fails_with(
+        &["render", "--config", "box", "sampler=3"],
+        "expected a section of `key: value` lines",
+    );
+    fails_with(
+        &["render", "--config", "/abs/dir/nope.yaml"],
+        "error: config file /abs/dir/nope.yaml not found",
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.yaml");
+    std::fs::write(
+        &bad,
+        "data:\n  image_size: [8, 8]\nrenderer:\n  chunk_size: 0\nsampler:\n  n_pts_per_ray: 4\n  min_depth: 0\n  max_depth: 1\nimplicit_function:\n  type: nerf\n",
+    )
+    .unwrap();
+    fails_with(
+        &["render", "--config", bad.to_str().unwrap()],
+        &format!(
+            "config {}, line 4: renderer.chunk_size: must be at least 1",
+            bad.display()
+        ),
+    );
+    fails_with(
+        &["train", "--config", "lego"],
+        "lego is a render config (it has no training section): train with nerf_lego or nerf_lego_fast",
+    );
+    fails_with(
+        &["eval", "--config", "box"],
+        "this command needs a NeRF config (e.g. lego)",
+    );
+    // Hydra's +key=value adds a key.
+    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args([
+            "render",
+            "--config",
+            "box",
+            "+cameras.n_poses=2",
+            "data.image_size=[8,8]",
+        ])
+        .arg("--out-dir")
+        .arg(dir.path().join("o"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn every_subcommand_takes_config_the_same_way() {
+    for cmd in ["render", "train", "eval", "import-torch", "bench"] {
+        let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+            .args([cmd, "--help"])
+            .output()
+            .unwrap();
+        let help = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            help.contains("--config <CONFIG>")
+                && help.contains("Config name (configs/NAME.yaml or built-in)"),
+            "{cmd}: {help}"
+        );
+    }
+    // None defaults to some config: leaving it out is a usage error.
+    for cmd in [&["bench"][..], &["import-torch", "x.pth"][..]] {
+        let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+            .args(cmd)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "{cmd:?}");
+        assert!(stderr(&o).contains("--config <CONFIG>"));
+    }
+}
+
+#[test]
+fn raw_frames_are_one_clean_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o");
+    let render = |poses: &str| {
+        let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+            .args([
+                "render",
+                "--config",
+                "box",
+                "--raw",
+                "data.image_size=[8,8]",
+            ])
+            .arg(format!("cameras.n_poses={poses}"))
+            .arg("--out-dir")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+    };
+    render("4");
+    std::fs::write(out.join("color_notes.npy"), b"mine").unwrap();
+    render("2");
+    for i in 0..4 {
+        let exists = out.join(format!("color_{i:03}.npy")).exists();
+        assert_eq!(exists, i < 2, "color_{i:03}.npy");
+        assert_eq!(out.join(format!("depth_{i:03}.npy")).exists(), i < 2);
+    }
+    assert!(
+        out.join("color_notes.npy").exists(),
+        "only our own frame files are removed"
+    );
+}

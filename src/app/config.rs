@@ -42,6 +42,43 @@ fn count_in_range(key: &str, v: usize, max: usize) -> Result<()> {
     Ok(())
 }
 
+/// Says where a bad value came from: the first override whose addition makes the config fail
+/// (`override `key=value`: …`), or else the file, with the line of the offending key when it
+/// can be found (`config FILE, line N: …`).
+fn blame(text: &str, origin: &str, overrides: &[String], error: anyhow::Error) -> anyhow::Error {
+    if Config::from_yaml(text, &[]).is_ok() {
+        for n in 1..=overrides.len() {
+            if Config::from_yaml(text, &overrides[..n]).is_err() {
+                return error.context(format!("override `{}`", overrides[n - 1]));
+            }
+        }
+    }
+    let message = format!("{error:#}");
+    let key = message.split(':').next().unwrap_or("");
+    match key_line(text, key) {
+        Some(line) => error.context(format!("config {origin}, line {line}")),
+        None => error.context(format!("config {origin}")),
+    }
+}
+
+/// The 1-based line of `key` (dotted, e.g. `sampler.n_pts_per_ray`) in YAML `text`: each part
+/// found in order, deeper than the one before. `None` when some part is not found.
+fn key_line(text: &str, key: &str) -> Option<usize> {
+    let lines: Vec<&str> = text.lines().collect();
+    let (mut from, mut indent, mut found) = (0usize, -1i64, None);
+    for part in key.split('.').map(|p| p.split('[').next().unwrap_or(p)) {
+        let hit = (from..lines.len()).find(|&i| {
+            let l = lines[i];
+            let depth = (l.len() - l.trim_start().len()) as i64;
+            depth > indent && l.trim_start().starts_with(&format!("{part}:"))
+        })?;
+        indent = (lines[hit].len() - lines[hit].trim_start().len()) as i64;
+        from = hit + 1;
+        found = Some(hit + 1);
+    }
+    found
+}
+
 /// Configs shipped with the binary, found by name when `configs/NAME.yaml` is not on disk.
 const BUILT_IN: &[(&str, &str)] = &[
     ("box", include_str!("../../configs/box.yaml")),
@@ -412,8 +449,38 @@ fn from_value<T: DeserializeOwned>(value: Value, prefix: &str) -> Result<T> {
             (false, true) => prefix.to_string(),
             (false, false) => format!("{prefix}.{path}"),
         };
-        anyhow!("{key}: {}", e.into_inner())
+        anyhow!("{key}: {}", in_user_words(&e.into_inner().to_string()))
     })
+}
+
+/// A deserialiser message with Rust type names replaced by what a config writer knows:
+/// "expected usize" → "expected a whole number", "expected struct SamplerConfig" → "expected a
+/// section of `key: value` lines", and so on.
+pub fn in_user_words(message: &str) -> String {
+    let mut m = message.to_string();
+    for (rust, words) in [
+        ("usize", "a whole number"),
+        ("u64", "a whole number"),
+        ("u32", "a whole number"),
+        ("f64", "a number"),
+        ("f32", "a number"),
+        ("a sequence", "a list"),
+    ] {
+        m = m.replace(&format!("expected {rust}"), &format!("expected {words}"));
+    }
+    if let Some(i) = m.find("expected struct ") {
+        let end = m[i + 16..]
+            .find(|c: char| !c.is_alphanumeric() && c != '_')
+            .map_or(m.len(), |j| i + 16 + j);
+        m.replace_range(i..end, "expected a section of `key: value` lines");
+    }
+    if let Some(i) = m.find("expected an array of length ") {
+        let rest = &m[i + 28..];
+        let n: String = rest.chars().take_while(char::is_ascii_digit).collect();
+        let end = i + 28 + n.len();
+        m.replace_range(i..end, &format!("expected a list of {n} values"));
+    }
+    m
 }
 
 /// Applies one `key.sub=value` override; the value is parsed as YAML.
@@ -421,7 +488,9 @@ pub fn apply_override(root: &mut Value, assignment: &str) -> Result<()> {
     let (key, raw) = assignment
         .split_once('=')
         .ok_or_else(|| anyhow!("override `{assignment}` is not of the form key.sub=value"))?;
-    let key = key.trim();
+    // Hydra's `+key=value` (add a key) and `++key=value` (add or override): keys are added
+    // as needed here anyway, so the prefix is accepted and dropped.
+    let key = key.trim().trim_start_matches('+');
     if key.is_empty() || key.split('.').any(str::is_empty) {
         bail!("override `{assignment}` has an empty key");
     }
@@ -480,6 +549,9 @@ pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
             return Ok(((*text).to_string(), format!("built-in {name_or_path}")));
         }
     }
+    if looks_like_path {
+        bail!("config file {name_or_path} not found");
+    }
     let known: Vec<&str> = BUILT_IN.iter().map(|(n, _)| *n).collect();
     bail!("config `{name_or_path}` not found (not a file, not configs/{name_or_path}.yaml; built-in configs: {})", known.join(", "))
 }
@@ -488,7 +560,7 @@ impl Config {
     /// Loads `--config NAME_OR_PATH` and applies the overrides in order.
     pub fn load(name_or_path: &str, overrides: &[String]) -> Result<Self> {
         let (text, origin) = config_text(name_or_path)?;
-        Self::from_yaml(&text, overrides).with_context(|| format!("config {origin}"))
+        Self::from_yaml(&text, overrides).map_err(|e| blame(&text, &origin, overrides, e))
     }
 
     /// Parses YAML text, applies overrides, and validates.

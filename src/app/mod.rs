@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod config;
 pub mod evaluate;
+#[cfg(feature = "cli")]
 pub mod report;
 pub mod runtime;
 pub mod scene;

@@ -309,7 +309,7 @@ pub fn box_study(
     hard: bool,
     sizes: &Sizes,
     device: &Device,
-    progress: &indicatif::ProgressBar,
+    progress: &crate::io::progress::Progress,
 ) -> Result<BoxStudy> {
     let size = sizes.box_size;
     let reference_config = box_config(beta, size, sizes.box_reference_pts)?;
@@ -430,7 +430,7 @@ pub fn lego_study(
     options: &ReportOptions,
     sizes: &Sizes,
     device: &Device,
-    progress: &indicatif::ProgressBar,
+    progress: &crate::io::progress::Progress,
 ) -> Result<LegoStudy> {
     crate::io::checkpoint::ensure_checkpoint_file(&options.checkpoint)?;
     let size = sizes.lego_size;
@@ -1139,7 +1139,7 @@ mod tests {
             box_views: vec![3],
             ..Sizes::new(true, None)
         };
-        let bar = indicatif::ProgressBar::hidden();
+        let bar = crate::io::progress::Progress::hidden();
         let study = box_study(HARD_BETA, true, &sizes, &Device::Cpu, &bar).unwrap();
         let errs: Vec<ImageError> = study.rows.iter().map(|r| r.vs_analytic.unwrap()).collect();
         assert!(

@@ -2,7 +2,7 @@
 //! fields, occupancy grid and training settings. The only place below `main.rs` where config
 //! sections become runtime objects.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use candle_core::Device;
@@ -20,6 +20,19 @@ use crate::render::sampler::StratifiedSampler;
 use crate::train::fit::{GridSchedule, TrainPaths, TrainSettings};
 use crate::train::state::NerfState;
 use crate::train::step::StepSettings;
+
+/// The NeRF shipped with the project, the default of every command that loads a model when
+/// neither `--checkpoint` nor the config's `training.checkpoint_path` names one.
+pub const SHIPPED_CHECKPOINT: &str = "checkpoints/nerf_lego.safetensors";
+
+/// `one` or `many` by `n`.
+pub fn plural<'a>(n: usize, one: &'a str, many: &'a str) -> &'a str {
+    if n == 1 {
+        one
+    } else {
+        many
+    }
+}
 
 impl NerfConfig {
     /// The model's sizes.
@@ -67,7 +80,9 @@ impl Config {
     pub fn nerf_params(&self) -> Result<NerfParams> {
         match &self.implicit_function {
             ImplicitFunctionConfig::Nerf(n) => Ok(n.params()),
-            _ => bail!("implicit_function.type: this command needs nerf"),
+            _ => bail!(
+                "implicit_function.type is sdf_volume: this command needs a NeRF config (e.g. lego)"
+            ),
         }
     }
 
@@ -182,29 +197,67 @@ impl Config {
         })
     }
 
-    /// `<checkpoint_path>/nerf_<dataset>.safetensors` and `.log.jsonl` beside it; previews go
-    /// to `images`.
+    /// The checkpoint of [`Config::checkpoint`] (`<checkpoint_path>/nerf_<dataset>.safetensors`,
+    /// or `checkpoint_path` itself when it names a file) and its `.log.jsonl` beside it;
+    /// previews go to `images`.
     pub fn train_paths(&self, images: &Path) -> Result<TrainPaths> {
-        let training = self.training()?;
-        let name = format!(
-            "nerf_{}",
-            self.data.dataset_name.as_deref().unwrap_or("scene")
-        );
+        self.training()?;
+        let checkpoint = self.checkpoint(None);
         Ok(TrainPaths {
-            checkpoint: training.checkpoint_path.join(format!("{name}.safetensors")),
-            log: training.checkpoint_path.join(format!("{name}.log.jsonl")),
+            log: checkpoint.with_extension("log.jsonl"),
+            checkpoint,
             images: images.to_path_buf(),
         })
     }
 
+    /// The checkpoint a command uses — the one rule for render, eval, train, bench, report and
+    /// view: `given` (the `--checkpoint` option), else the config's `training.checkpoint_path`
+    /// (a file, or a directory holding `nerf_<dataset>.safetensors`), else the shipped
+    /// [`SHIPPED_CHECKPOINT`].
+    pub fn checkpoint(&self, given: Option<&Path>) -> PathBuf {
+        if let Some(p) = given {
+            return p.to_path_buf();
+        }
+        match &self.training {
+            Some(t) if t.checkpoint_path.is_dir() || t.checkpoint_path.extension().is_none() => {
+                t.checkpoint_path.join(format!(
+                    "nerf_{}.safetensors",
+                    self.data.dataset_name.as_deref().unwrap_or("scene")
+                ))
+            }
+            Some(t) => t.checkpoint_path.clone(),
+            None => PathBuf::from(SHIPPED_CHECKPOINT),
+        }
+    }
+
     /// A trained NeRF for rendering with this config: weights from the checkpoint at `path`,
-    /// and the occupancy grid the config asks for.
+    /// and the occupancy grid the config asks for. Says on stderr which file it loaded and at
+    /// which epoch.
     pub fn load_nerf(&self, path: &Path, device: &Device) -> Result<(NerfState, CheckpointInfo)> {
-        NerfState::load(
+        crate::io::checkpoint::ensure_checkpoint_file(path)?;
+        let (state, info) = NerfState::load(
             &self.nerf_params()?,
             self.occupancy_grid().as_ref(),
             path,
             device,
-        )
+        )?;
+        crate::core::term::note(&format!(
+            "loaded {} (epoch {}, {} Adam {})",
+            path.display(),
+            info.epoch,
+            info.adam_step,
+            plural(info.adam_step as usize, "step", "steps")
+        ));
+        if state
+            .occupancy
+            .as_ref()
+            .is_some_and(|g| g.occupied_fraction() == 0.0)
+        {
+            crate::core::term::note(
+                "warning: the occupancy grid has no occupied cell: the model has no density above \
+                 the grid's threshold anywhere, so every render is empty",
+            );
+        }
+        Ok((state, info))
     }
 }

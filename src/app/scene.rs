@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use candle_core::{Device, Tensor};
 
 use crate::app::config::{Config, ImplicitFunctionConfig};
@@ -80,8 +80,34 @@ pub fn point_image(
     render_points(&points, size, &PointView::default())
 }
 
+/// Removes `color_{i:03}.npy` and `depth_{i:03}.npy` files with `i ≥ n_frames` that an
+/// earlier run with more poses left in `out_dir`, so that the directory holds one clean set.
+/// Only files of exactly that naming are touched.
+fn remove_stale_raw_frames(out_dir: &Path, n_frames: usize) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(out_dir) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().to_string();
+        let index = name
+            .strip_suffix(".npy")
+            .and_then(|s| {
+                s.strip_prefix("color_")
+                    .or_else(|| s.strip_prefix("depth_"))
+            })
+            .filter(|digits| digits.len() >= 3 && digits.bytes().all(|b| b.is_ascii_digit()))
+            .and_then(|digits| digits.parse::<usize>().ok());
+        if index.is_some_and(|i| i >= n_frames) {
+            std::fs::remove_file(entry.path())
+                .with_context(|| format!("cannot remove stale frame {}", entry.path().display()))?;
+        }
+    }
+    Ok(())
+}
+
 /// Writes `color_{i:03}.npy` `(H, W, 3)` and `depth_{i:03}.npy` `(H, W)` for every frame.
 pub fn write_raw_frames(out_dir: &Path, frames: &[RenderedView]) -> Result<Vec<PathBuf>> {
+    remove_stale_raw_frames(out_dir, frames.len())?;
     let mut written = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         let (w, h) = (f.color.width as u64, f.color.height as u64);
@@ -179,7 +205,6 @@ pub fn render_nerf_scene(
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
     config.nerf_params()?;
-    crate::io::checkpoint::ensure_checkpoint_file(checkpoint)?;
     let (state, _) = config.load_nerf(checkpoint, device)?;
     prepare_out_dir(out_dir)?;
     let field = state.field();
@@ -204,8 +229,8 @@ pub fn render_nerf_scene(
     Ok(written)
 }
 
-/// `nerf render`: the SDF scene's outputs, or the NeRF's GIF from `checkpoint` (default the
-/// shipped `checkpoints/nerf_lego.safetensors`), by the config's field.
+/// `nerf render`: the SDF scene's outputs, or the NeRF's GIF from the checkpoint that
+/// [`Config::checkpoint`] picks for `checkpoint`, by the config's field.
 pub fn render_scene(
     config: &Config,
     checkpoint: Option<&Path>,
@@ -224,9 +249,7 @@ pub fn render_scene(
             render_sdf_scene(config, out_dir, raw, device)
         }
         ImplicitFunctionConfig::Nerf(_) => {
-            let checkpoint =
-                checkpoint.unwrap_or_else(|| Path::new("checkpoints/nerf_lego.safetensors"));
-            render_nerf_scene(config, checkpoint, out_dir, raw, device)
+            render_nerf_scene(config, &config.checkpoint(checkpoint), out_dir, raw, device)
         }
     }
 }

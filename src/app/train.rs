@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 
 use anyhow::{bail, Context, Result};
 use candle_core::Device;
@@ -39,10 +39,12 @@ pub fn check_fresh_start(config: &Config, paths: &TrainPaths, overwrite: bool) -
     Ok(())
 }
 
+#[cfg(feature = "cli")]
 /// Installs the SIGINT/SIGTERM handler of a training run: the first signal sets the returned
 /// flag (the loop finishes its step and writes a checkpoint); a second one exits at once with
 /// status 130 (every file is written atomically, so nothing is left half-written).
 pub fn stop_on_signal() -> Result<&'static AtomicBool> {
+    use std::sync::atomic::Ordering;
     static STOP: AtomicBool = AtomicBool::new(false);
     ctrlc::set_handler(|| {
         if STOP.swap(true, Ordering::SeqCst) {

@@ -54,9 +54,10 @@ impl EvalReport {
     /// One line: split, views, size, PSNR mean/min/max, time per view, evaluated fraction.
     pub fn summary(&self) -> String {
         format!(
-            "{} split, {} views at {}x{}, {} points: PSNR mean {:.2} dB, min {:.2}, max {:.2}; {:.3} s per view, field evaluated at {:.1}% of samples",
+            "{} split, {} {} at {}x{}, {} points: PSNR mean {:.2} dB, min {:.2}, max {:.2}; {:.3} s per view, field evaluated at {:.1}% of samples",
             self.split,
             self.views.len(),
+            if self.views.len() == 1 { "view" } else { "views" },
             self.width,
             self.height,
             self.n_pts_per_ray,

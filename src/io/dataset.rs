@@ -284,6 +284,30 @@ pub fn load_image_and_transparency(
     height: usize,
     white_background: bool,
 ) -> Result<(RgbImage, Vec<f32>)> {
+    let loaded = load_frame_image(path, width, height, white_background)?;
+    Ok((loaded.image, loaded.transparency))
+}
+
+/// One frame's image as [`load_image_and_transparency`] gives it, with what the file itself was.
+#[derive(Debug, Clone)]
+pub struct LoadedImage {
+    /// `width × height` composited RGB.
+    pub image: RgbImage,
+    /// `width × height` transparencies `1 − a`.
+    pub transparency: Vec<f32>,
+    /// The file's own `(width, height)`, before resizing.
+    pub source_size: (u32, u32),
+    /// Whether the file has an alpha channel (without one, every pixel is opaque).
+    pub has_alpha: bool,
+}
+
+/// [`load_image_and_transparency`] with the file's size and whether it has alpha.
+pub fn load_frame_image(
+    path: &Path,
+    width: usize,
+    height: usize,
+    white_background: bool,
+) -> Result<LoadedImage> {
     let (w, h) = match (u32::try_from(width), u32::try_from(height)) {
         (Ok(w), Ok(h)) if w > 0 && h > 0 => (w, h),
         _ => bail!(
@@ -295,6 +319,7 @@ pub fn load_image_and_transparency(
         std::fs::read(path).map_err(|e| anyhow!("cannot read image {}: {e}", path.display()))?;
     let decoded = image::load_from_memory_with_format(&bytes, ImageFormat::Png)
         .map_err(|e| anyhow!("cannot decode PNG {}: {e}", path.display()))?;
+    let has_alpha = decoded.color().has_alpha();
     // (H0, W0, 4) RGBA in [0, 1].
     let rgba = decoded.to_rgba32f();
     let (w0, h0) = rgba.dimensions();
@@ -327,7 +352,12 @@ pub fn load_image_and_transparency(
         .flat_map(|p| [p[0], p[1], p[2]].map(|v| v.clamp(0.0, 1.0)))
         .collect();
     let transparency = raw.chunks_exact(4).map(|p| p[3].clamp(0.0, 1.0)).collect();
-    Ok((RgbImage::new(width, height, data)?, transparency))
+    Ok(LoadedImage {
+        image: RgbImage::new(width, height, data)?,
+        transparency,
+        source_size: (w0, h0),
+        has_alpha,
+    })
 }
 
 /// A loaded split: frames and their images, all resized to `width × height`.
@@ -356,14 +386,39 @@ impl Dataset {
         height: usize,
         white_background: bool,
     ) -> Result<Self> {
-        let frames = read_split(data_dir, split)?;
-        let (images, transparency) = frames
+        Self::load_first(data_dir, split, width, height, white_background, None)
+    }
+
+    /// [`Dataset::load`] of the first `limit` frames only (all with `None`): the other images
+    /// are not opened. Every image must have the size of the split's first; an image without
+    /// an alpha channel is taken as opaque (a note on stderr says how many).
+    pub fn load_first(
+        data_dir: &Path,
+        split: Split,
+        width: usize,
+        height: usize,
+        white_background: bool,
+        limit: Option<usize>,
+    ) -> Result<Self> {
+        let mut frames = read_split(data_dir, split)?;
+        frames.truncate(limit.unwrap_or(frames.len()));
+        let loaded = frames
             .par_iter()
-            .map(|frame| {
-                load_image_and_transparency(&frame.file_path, width, height, white_background)
-            })
-            .collect::<Result<Vec<_>>>()?
+            .map(|frame| load_frame_image(&frame.file_path, width, height, white_background))
+            .collect::<Result<Vec<_>>>()?;
+        check_sizes_agree(&frames, &loaded)?;
+        let opaque = loaded.iter().filter(|l| !l.has_alpha).count();
+        if opaque > 0 {
+            crate::core::term::note(&format!(
+                "note: {opaque} of the {} images of {} have no alpha channel and are taken as \
+                 opaque (no background compositing applies to them)",
+                loaded.len(),
+                split.transforms_path(data_dir).display()
+            ));
+        }
+        let (images, transparency) = loaded
             .into_iter()
+            .map(|l| (l.image, l.transparency))
             .unzip();
         Ok(Self {
             frames,
@@ -373,6 +428,29 @@ impl Dataset {
             height,
         })
     }
+}
+
+/// An error naming the first image whose file size differs from the first frame's: a split's
+/// images share one camera model, so a frame of another size cannot be scored against it.
+fn check_sizes_agree(frames: &[Frame], loaded: &[LoadedImage]) -> Result<()> {
+    let Some(first) = loaded.first() else {
+        return Ok(());
+    };
+    for (frame, image) in frames.iter().zip(loaded) {
+        if image.source_size != first.source_size {
+            bail!(
+                "{} is {}x{}, but the split's images are {}x{} ({}): every image of a split must \
+                 have the same size",
+                frame.file_path.display(),
+                image.source_size.0,
+                image.source_size.1,
+                first.source_size.0,
+                first.source_size.1,
+                frames[0].file_path.display()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// The default scene directory `../shared/data/<dataset_name>`, relative to the working

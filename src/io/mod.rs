@@ -3,6 +3,7 @@
 pub mod checkpoint;
 pub mod dataset;
 pub mod images;
+#[cfg(feature = "cli")]
 pub mod plot;
 pub mod progress;
 pub mod torch;

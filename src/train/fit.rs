@@ -17,7 +17,6 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use candle_core::Device;
-use indicatif::ProgressBar;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 
@@ -27,7 +26,7 @@ use crate::field::nerf::{NerfField, NerfParams};
 use crate::io::checkpoint::{self, CheckpointInfo};
 use crate::io::dataset::Dataset;
 use crate::io::images::{remove_stale_temp_files, write_atomically};
-use crate::io::progress::{print_above, progress_bar};
+use crate::io::progress::{progress_bar, Progress};
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
 use crate::train::adam::Adam;
@@ -242,7 +241,7 @@ struct Run<'a> {
     adam: Adam,
     info: CheckpointInfo,
     log: File,
-    bar: ProgressBar,
+    bar: Progress,
     start: Instant,
     /// Seconds spent in hooks, left out of the logged training time.
     excluded: f64,
@@ -371,7 +370,7 @@ impl Run<'_> {
         let now = self.start.elapsed().as_secs_f64();
         if now - self.last_plain_line >= plain_progress_seconds() {
             self.last_plain_line = now;
-            let (done, total) = (self.bar.position(), self.bar.length().unwrap_or(0));
+            let (done, total) = (self.bar.position(), self.bar.length());
             let eta = now / done.max(1) as f64 * total.saturating_sub(done) as f64;
             note(&format!(
                 "step {} ({done}/{total} this run): {message}; eta {}",
@@ -403,15 +402,12 @@ impl Run<'_> {
                     score.psnr,
                     score.views
                 )?;
-                print_above(
-                    &self.bar,
-                    &format!(
-                        "epoch {}: test PSNR {:.2} dB on {} views",
-                        epoch + 1,
-                        score.psnr,
-                        score.views
-                    ),
-                );
+                self.bar.println(&format!(
+                    "epoch {}: test PSNR {:.2} dB on {} views",
+                    epoch + 1,
+                    score.psnr,
+                    score.views
+                ));
                 self.excluded += t.elapsed().as_secs_f64();
             }
             save(self.paths, &self.state, &self.info, &self.adam, self.device)?;
@@ -420,14 +416,11 @@ impl Run<'_> {
             if let Some(preview) = hooks.preview.as_mut() {
                 let t = Instant::now();
                 let written = preview(&self.state.field())?;
-                print_above(
-                    &self.bar,
-                    &format!(
-                        "epoch {}: mean train loss {mean_loss:.5}, wrote {}",
-                        epoch + 1,
-                        written.display()
-                    ),
-                );
+                self.bar.println(&format!(
+                    "epoch {}: mean train loss {mean_loss:.5}, wrote {}",
+                    epoch + 1,
+                    written.display()
+                ));
                 self.excluded += t.elapsed().as_secs_f64();
             }
         }

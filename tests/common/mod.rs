@@ -69,3 +69,32 @@ pub fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f32::max)
 }
+
+/// Writes a freshly initialised model of the lego config (with `overrides`), seeded with
+/// `seed`, to `path`, with `info` as its metadata.
+pub fn save_seeded_checkpoint(path: &Path, overrides: &[&str]) {
+    save_seeded_checkpoint_with(path, overrides, 0, nerf::CheckpointInfo::default());
+}
+
+/// [`save_seeded_checkpoint`] with a seed and metadata.
+pub fn save_seeded_checkpoint_with(
+    path: &Path,
+    overrides: &[&str],
+    seed: u64,
+    info: nerf::CheckpointInfo,
+) {
+    let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+    let config = nerf::app::config::Config::load("lego", &overrides).unwrap();
+    let state = nerf::NerfState::seeded(
+        &config.nerf_params().unwrap(),
+        seed,
+        &candle_core::Device::Cpu,
+    )
+    .unwrap();
+    nerf::io::checkpoint::save(
+        path,
+        &nerf::io::checkpoint::model_tensors(&state.varmap),
+        info,
+    )
+    .unwrap();
+}
