@@ -618,33 +618,6 @@ fn wrong_shape_checkpoint_and_corrupt_png_name_what_is_wrong() {
     assert!(!images.exists(), "eval wrote images before failing");
 }
 
-/// Runs `nerf train` on the lego data with a tiny model into `ckpt_dir`.
-fn tiny_train(ckpt_dir: &Path, data: &Path, epochs: usize) -> std::process::Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_nerf"));
-    c.args([
-        "train",
-        "--config",
-        "nerf_lego",
-        "--data-dir",
-        data.to_str().unwrap(),
-        &format!("training.checkpoint_path={}", ckpt_dir.display()),
-        &format!("training.num_epochs={epochs}"),
-        "training.checkpoint_interval=1",
-        "training.render_interval=1000",
-        "training.batch_size=32",
-        "training.lr=0.002",
-        "implicit_function.n_hidden_neurons_xyz=16",
-        "implicit_function.n_hidden_neurons_dir=8",
-        "implicit_function.n_layers_xyz=3",
-        "implicit_function.append_xyz=[2]",
-        "sampler.n_pts_per_ray=8",
-        "data.image_size=[8,8]",
-    ]);
-    c.stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null());
-    c
-}
-
 #[test]
 fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
     let Some(data) =
@@ -656,7 +629,7 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
     // About 0.1 s per epoch, a checkpoint after each: kills land anywhere, writes included.
     let epochs = 30;
     let straight = dir.path().join("straight");
-    assert!(tiny_train(&straight, &data, epochs)
+    assert!(common::tiny_train(&straight, &data, epochs, 1)
         .status()
         .unwrap()
         .success());
@@ -680,7 +653,7 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
             }
         }
         // Each write pauses 150 ms before its rename, so many kills land mid-write.
-        let mut child = tiny_train(&killed, &data, epochs)
+        let mut child = common::tiny_train(&killed, &data, epochs, 1)
             .env("NERF_FAULT_WRITE_DELAY_MS", "150")
             .spawn()
             .unwrap();
@@ -734,7 +707,7 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
     assert!(kills >= 3, "only {kills} runs were killed");
     assert!(mid_write >= 1, "no kill landed during a write");
     // Finish, then compare with the uninterrupted run.
-    assert!(tiny_train(&killed, &data, epochs)
+    assert!(common::tiny_train(&killed, &data, epochs, 1)
         .status()
         .unwrap()
         .success());
@@ -779,7 +752,7 @@ fn training_logs_test_psnr_at_checkpoints() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let status = tiny_train(dir.path(), &data, 2)
+    let status = common::tiny_train(dir.path(), &data, 2, 1)
         .arg("training.eval_views=3")
         .status()
         .unwrap();

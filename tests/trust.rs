@@ -78,32 +78,9 @@ fn full_disk_on_stdout_is_one_line_and_full_stderr_is_no_panic() {
     assert!(dir.path().join("b/render_cube.gif").is_file());
 }
 
-/// A tiny NeRF training run on the lego data (8×8 images; about 0.1 s per epoch).
+/// [`common::tiny_train`] with a checkpoint every 5 epochs.
 fn tiny_train(ckpt_dir: &Path, data: &Path, epochs: usize) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_nerf"));
-    c.args([
-        "train",
-        "--config",
-        "nerf_lego",
-        "--data-dir",
-        data.to_str().unwrap(),
-        &format!("training.checkpoint_path={}", ckpt_dir.display()),
-        &format!("training.num_epochs={epochs}"),
-        "training.checkpoint_interval=5",
-        "training.render_interval=1000",
-        "training.batch_size=32",
-        "training.lr=0.002",
-        "implicit_function.n_hidden_neurons_xyz=16",
-        "implicit_function.n_hidden_neurons_dir=8",
-        "implicit_function.n_layers_xyz=3",
-        "implicit_function.append_xyz=[2]",
-        "sampler.n_pts_per_ray=8",
-        "data.image_size=[8,8]",
-        "--out-dir",
-        ckpt_dir.join("images").to_str().unwrap(),
-    ]);
-    c.stdout(Stdio::null());
-    c
+    common::tiny_train(ckpt_dir, data, epochs, 5)
 }
 
 fn log_lines(ckpt_dir: &Path) -> usize {
@@ -170,7 +147,10 @@ fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
         // The log and the checkpoint agree about which steps exist.
         assert_eq!(log_lines(&stopped) as u64, info.adam_step);
         // Resume (the config resumes) and finish: the same model as the uninterrupted run.
-        let out = tiny_train(&stopped, &data, epochs).output().unwrap();
+        let out = tiny_train(&stopped, &data, epochs)
+            .stderr(Stdio::piped())
+            .output()
+            .unwrap();
         assert!(out.status.success(), "{}", stderr(&out));
         let ((a, ia), (b, ib)) = (load(&straight), load(&stopped));
         assert_eq!((ia.epoch, ia.adam_step), (ib.epoch, ib.adam_step));
@@ -224,6 +204,7 @@ fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() 
     let before = std::fs::read(ckpt.join("nerf_lego.safetensors")).unwrap();
     let out = tiny_train(&ckpt, &data, 1)
         .arg("training.resume=False")
+        .stderr(Stdio::piped())
         .output()
         .unwrap();
     let err = stderr(&out);
@@ -240,6 +221,7 @@ fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() 
     assert_eq!(log_lines(&ckpt), 200, "the refused run left the log alone");
     let out = tiny_train(&ckpt, &data, 1)
         .args(["training.resume=False", "--overwrite"])
+        .stderr(Stdio::piped())
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", stderr(&out));
@@ -260,6 +242,7 @@ fn training_without_a_terminal_prints_progress_lines() {
     let dir = tempfile::tempdir().unwrap();
     let out = tiny_train(&dir.path().join("c"), &data, 2)
         .env("NERF_PROGRESS_SECONDS", "0")
+        .stderr(Stdio::piped())
         .output()
         .unwrap();
     let err = stderr(&out);
