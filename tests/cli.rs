@@ -1,7 +1,6 @@
 //! Integration tests that run the `nerf` binary as a user would.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 mod common;
 use common::{nerf, read_npy, stderr};
