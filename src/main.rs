@@ -166,6 +166,11 @@ enum Command {
         /// and lego configs, at the work of the PyTorch figures).
         overrides: Vec<String>,
     },
+    /// Take a scene out as files: a coloured mesh, a point cloud, or depth maps.
+    Export {
+        #[command(subcommand)]
+        what: ExportCommand,
+    },
     /// Measure error against run time (box, lego, training) and write a Markdown report with
     /// PNG plots.
     Report {
@@ -189,6 +194,144 @@ enum Command {
         #[arg(long = "log")]
         logs: Vec<PathBuf>,
     },
+}
+
+#[derive(Subcommand)]
+enum ExportCommand {
+    /// Marching cubes on the density, vertex colours from the field: a binary PLY mesh.
+    Mesh {
+        /// Config name or path (e.g. lego, box, sphere).
+        #[arg(long)]
+        config: String,
+        /// NeRF checkpoint (NeRF configs; default checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Marching-cubes cells per side of the box (the NeRF's occupancy-grid box, or a box
+        /// around the SDF's shape), 1 to 512.
+        #[arg(long, default_value_t = 256)]
+        resolution: usize,
+        /// Density at the surface: NeRF sigma (default 10), or the homework's SDF density
+        /// between 0 and alpha (default alpha/2, the SDF's zero level).
+        #[arg(long)]
+        threshold: Option<f64>,
+        /// The PLY file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
+    /// The expected-depth points of the dataset's views (opacity above 0.5) with their
+    /// colours: a binary PLY point cloud.
+    Points {
+        /// Config name or path.
+        #[arg(long)]
+        config: String,
+        /// NeRF checkpoint (NeRF configs; default checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Dataset split whose views are rendered (NeRF; SDF scenes use the surround cameras).
+        #[arg(long, value_enum, default_value = "train")]
+        split: SplitArg,
+        /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Only the first N views.
+        #[arg(long, value_parser = at_least_one)]
+        limit: Option<usize>,
+        /// The PLY file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Hydra-style overrides (data.image_size sets the rendering size).
+        overrides: Vec<String>,
+    },
+    /// A depth .npy (H, W) and a viridis PNG for each view of a split.
+    Depth {
+        /// Config name or path.
+        #[arg(long)]
+        config: String,
+        /// NeRF checkpoint (NeRF configs; default checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Dataset split (NeRF; SDF scenes use the surround cameras).
+        #[arg(long, value_enum, default_value = "test")]
+        split: SplitArg,
+        /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Only the first N views.
+        #[arg(long, value_parser = at_least_one)]
+        limit: Option<usize>,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
+}
+
+/// `nerf export …`.
+fn run_export(what: ExportCommand, device: &Device) -> Result<()> {
+    use nerf::app::export::{export_depth, export_mesh, export_points, MeshOptions, ViewSelection};
+    let views = |config: &Config, split: SplitArg, data_dir, limit| ViewSelection {
+        split: split.into(),
+        data_dir: data_dir_for(config, data_dir),
+        limit,
+    };
+    match what {
+        ExportCommand::Mesh {
+            config,
+            checkpoint,
+            resolution,
+            threshold,
+            out,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let options = MeshOptions {
+                resolution,
+                threshold,
+                out,
+            };
+            let m = export_mesh(&config, checkpoint.as_deref(), &options, device)?;
+            println!(
+                "wrote {} ({} vertices, {} triangles, threshold {}, {:.1} s)",
+                options.out.display(),
+                m.vertices,
+                m.faces,
+                m.threshold,
+                m.seconds
+            );
+        }
+        ExportCommand::Points {
+            config,
+            checkpoint,
+            split,
+            data_dir,
+            limit,
+            out,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let views = views(&config, split, data_dir, limit);
+            let n = export_points(&config, checkpoint.as_deref(), &views, &out, device)?;
+            println!("wrote {} ({n} points)", out.display());
+        }
+        ExportCommand::Depth {
+            config,
+            checkpoint,
+            split,
+            data_dir,
+            limit,
+            out,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let views = views(&config, split, data_dir, limit);
+            let written = export_depth(&config, checkpoint.as_deref(), &views, &out, device)?;
+            println!("wrote {} files into {}", written.len(), out.display());
+        }
+    }
+    Ok(())
 }
 
 /// A count of at least 1, for clap.
@@ -334,6 +477,7 @@ fn run(cli: Cli) -> Result<()> {
                 print!("{}", nerf::app::bench::format_table(&report));
             }
         }
+        Command::Export { what } => run_export(what, &device)?,
         Command::Report {
             out_dir,
             quick,

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod config;
 pub mod evaluate;
+pub mod export;
 pub mod report;
 pub mod runtime;
 pub mod scene;

@@ -4,5 +4,6 @@ pub mod checkpoint;
 pub mod dataset;
 pub mod images;
 pub mod plot;
+pub mod ply;
 pub mod progress;
 pub mod torch;
