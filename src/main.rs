@@ -79,6 +79,10 @@ enum Command {
         /// checkpoints/nerf_lego.safetensors).
         #[arg(long)]
         checkpoint: Option<PathBuf>,
+        /// Render this nerfstudio camera_path.json instead of the surround views:
+        /// frame_NNNN.png, camera_path.gif and, when ffmpeg is on PATH, camera_path.mp4.
+        #[arg(long, conflicts_with = "raw")]
+        camera_path: Option<PathBuf>,
         /// Hydra-style overrides, e.g. sampler.n_pts_per_ray=32 data.image_size=[200,150].
         overrides: Vec<String>,
     },
@@ -382,16 +386,26 @@ fn run(cli: Cli) -> Result<()> {
             out_dir,
             raw,
             checkpoint,
+            camera_path,
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let written = nerf::app::scene::render_scene(
-                &config,
-                checkpoint.as_deref(),
-                &out_dir,
-                raw,
-                &device,
-            )?;
+            let written = match camera_path {
+                Some(path) => nerf::app::camera_path::render_camera_path(
+                    &config,
+                    checkpoint.as_deref(),
+                    &path,
+                    &out_dir,
+                    &device,
+                )?,
+                None => nerf::app::scene::render_scene(
+                    &config,
+                    checkpoint.as_deref(),
+                    &out_dir,
+                    raw,
+                    &device,
+                )?,
+            };
             for p in written {
                 println!("wrote {}", p.display());
             }

@@ -1,6 +1,7 @@
 //! The application layer: config files, jobs, bench and report.
 
 pub mod bench;
+pub mod camera_path;
 pub mod config;
 pub mod evaluate;
 pub mod export;

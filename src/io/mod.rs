@@ -1,5 +1,6 @@
 //! Files: images, plots, datasets, checkpoints and PyTorch import.
 
+pub mod camera_path;
 pub mod checkpoint;
 pub mod dataset;
 pub mod images;
