@@ -170,6 +170,25 @@ enum Command {
         /// and lego configs, at the work of the PyTorch figures).
         overrides: Vec<String>,
     },
+    /// Serve a web page that shows the scene live (drag to orbit, wheel to zoom, shift-drag to
+    /// pan) and the HTTP API it uses: GET /render.png?eye=x,y,z&at=x,y,z&up=x,y,z&focal=F&width=W&height=H.
+    View {
+        /// Config name or path (e.g. lego, box, sphere).
+        #[arg(long)]
+        config: String,
+        /// NeRF checkpoint (NeRF configs; default checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Port to listen on (0 picks a free one; the address is printed).
+        #[arg(long, default_value_t = 7007)]
+        port: u16,
+        /// Address to bind; the default serves this machine only.
+        #[arg(long, default_value = "127.0.0.1")]
+        host: String,
+        /// Hydra-style overrides (sampler, renderer, cameras and data.image_size set the
+        /// defaults of /render.png).
+        overrides: Vec<String>,
+    },
     /// Take a scene out as files: a coloured mesh, a point cloud, or depth maps.
     Export {
         #[command(subcommand)]
@@ -492,6 +511,19 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
         Command::Export { what } => run_export(what, &device)?,
+        Command::View {
+            config: name,
+            checkpoint,
+            port,
+            host,
+            overrides,
+        } => {
+            let config = Config::load(&name, &overrides)?;
+            let scene =
+                nerf::app::scene::load_scene_field(&config, checkpoint.as_deref(), &device)?;
+            let options = nerf::app::view::ViewOptions { host, port };
+            nerf::app::view::serve(&config, &name, scene, &options, &device)?;
+        }
         Command::Report {
             out_dir,
             quick,

@@ -9,3 +9,5 @@ pub mod report;
 pub mod runtime;
 pub mod scene;
 pub mod train;
+pub mod view;
+pub mod view_request;
