@@ -64,28 +64,9 @@ fn device(arg: DeviceArg) -> Result<Device> {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render a scene's surround views and visualisations into an output directory.
-    Render {
-        /// Config name (configs/NAME.yaml or built-in) or path to a YAML file.
-        #[arg(long)]
-        config: String,
-        /// Output directory.
-        #[arg(long, default_value = "images")]
-        out_dir: PathBuf,
-        /// Also write color_{i:03}.npy (H,W,3) and depth_{i:03}.npy (H,W) float32 per frame.
-        #[arg(long)]
-        raw: bool,
-        /// NeRF checkpoint to render (NeRF configs only; default
-        /// checkpoints/nerf_lego.safetensors).
-        #[arg(long)]
-        checkpoint: Option<PathBuf>,
-        /// Render this nerfstudio camera_path.json instead of the surround views:
-        /// frame_NNNN.png, camera_path.gif and, when ffmpeg is on PATH, camera_path.mp4.
-        #[arg(long, conflicts_with = "raw")]
-        camera_path: Option<PathBuf>,
-        /// Hydra-style overrides, e.g. sampler.n_pts_per_ray=32 data.image_size=[200,150].
-        overrides: Vec<String>,
-    },
+    /// Render a scene's surround views and visualisations (or a camera path) into an output
+    /// directory.
+    Render(RenderArgs),
     /// Train a NeRF (checkpoints and resume as the config's training section says).
     Train {
         /// Config name or path (e.g. nerf_lego).
@@ -172,23 +153,7 @@ enum Command {
     },
     /// Serve a web page that shows the scene live (drag to orbit, wheel to zoom, shift-drag to
     /// pan) and the HTTP API it uses: GET /render.png?eye=x,y,z&at=x,y,z&up=x,y,z&focal=F&width=W&height=H.
-    View {
-        /// Config name or path (e.g. lego, box, sphere).
-        #[arg(long)]
-        config: String,
-        /// NeRF checkpoint (NeRF configs; default checkpoints/nerf_lego.safetensors).
-        #[arg(long)]
-        checkpoint: Option<PathBuf>,
-        /// Port to listen on (0 picks a free one; the address is printed).
-        #[arg(long, default_value_t = 7007)]
-        port: u16,
-        /// Address to bind; the default serves this machine only.
-        #[arg(long, default_value = "127.0.0.1")]
-        host: String,
-        /// Hydra-style overrides (sampler, renderer, cameras and data.image_size set the
-        /// defaults of /render.png).
-        overrides: Vec<String>,
-    },
+    View(ViewArgs),
     /// Take a scene out as files: a coloured mesh, a point cloud, or depth maps.
     Export {
         #[command(subcommand)]
@@ -217,6 +182,75 @@ enum Command {
         #[arg(long = "log")]
         logs: Vec<PathBuf>,
     },
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// Config name (configs/NAME.yaml or built-in) or path to a YAML file.
+    #[arg(long)]
+    config: String,
+    /// Output directory.
+    #[arg(long, default_value = "images")]
+    out_dir: PathBuf,
+    /// Also write color_{i:03}.npy (H,W,3) and depth_{i:03}.npy (H,W) float32 per frame.
+    #[arg(long)]
+    raw: bool,
+    /// NeRF checkpoint to render (NeRF configs only; default
+    /// checkpoints/nerf_lego.safetensors).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Render this nerfstudio camera_path.json instead of the surround views:
+    /// frame_NNNN.png, camera_path.gif and, when ffmpeg is on PATH, camera_path.mp4.
+    #[arg(long, conflicts_with = "raw")]
+    camera_path: Option<PathBuf>,
+    /// Hydra-style overrides, e.g. sampler.n_pts_per_ray=32 data.image_size=[200,150].
+    overrides: Vec<String>,
+}
+
+#[derive(clap::Args)]
+struct ViewArgs {
+    /// Config name or path (e.g. lego, box, sphere).
+    #[arg(long)]
+    config: String,
+    /// NeRF checkpoint (NeRF configs; default checkpoints/nerf_lego.safetensors).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Port to listen on (0 picks a free one; the address is printed).
+    #[arg(long, default_value_t = 7007)]
+    port: u16,
+    /// Address to bind; the default serves this machine only.
+    #[arg(long, default_value = "127.0.0.1")]
+    host: String,
+    /// Hydra-style overrides (sampler, renderer, cameras and data.image_size set the
+    /// defaults of /render.png).
+    overrides: Vec<String>,
+}
+
+/// `nerf render`: the surround views, or a camera path.
+fn run_render(a: RenderArgs, device: &Device) -> Result<()> {
+    let config = Config::load(&a.config, &a.overrides)?;
+    let checkpoint = a.checkpoint.as_deref();
+    let written = match &a.camera_path {
+        Some(path) => nerf::app::camera_path::render_camera_path(
+            &config, checkpoint, path, &a.out_dir, device,
+        )?,
+        None => nerf::app::scene::render_scene(&config, checkpoint, &a.out_dir, a.raw, device)?,
+    };
+    for p in written {
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+/// `nerf view`: serves until killed.
+fn run_view(a: ViewArgs, device: &Device) -> Result<()> {
+    let config = Config::load(&a.config, &a.overrides)?;
+    let scene = nerf::app::scene::load_scene_field(&config, a.checkpoint.as_deref(), device)?;
+    let options = nerf::app::view::ViewOptions {
+        host: a.host,
+        port: a.port,
+    };
+    nerf::app::view::serve(&config, &a.config, scene, &options, device)
 }
 
 #[derive(Subcommand)]
@@ -400,35 +434,7 @@ fn run(cli: Cli) -> Result<()> {
     });
     let device = device(cli.device)?;
     match cli.command {
-        Command::Render {
-            config,
-            out_dir,
-            raw,
-            checkpoint,
-            camera_path,
-            overrides,
-        } => {
-            let config = Config::load(&config, &overrides)?;
-            let written = match camera_path {
-                Some(path) => nerf::app::camera_path::render_camera_path(
-                    &config,
-                    checkpoint.as_deref(),
-                    &path,
-                    &out_dir,
-                    &device,
-                )?,
-                None => nerf::app::scene::render_scene(
-                    &config,
-                    checkpoint.as_deref(),
-                    &out_dir,
-                    raw,
-                    &device,
-                )?,
-            };
-            for p in written {
-                println!("wrote {}", p.display());
-            }
-        }
+        Command::Render(args) => run_render(args, &device)?,
         Command::Train {
             config,
             data_dir,
@@ -511,19 +517,7 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
         Command::Export { what } => run_export(what, &device)?,
-        Command::View {
-            config: name,
-            checkpoint,
-            port,
-            host,
-            overrides,
-        } => {
-            let config = Config::load(&name, &overrides)?;
-            let scene =
-                nerf::app::scene::load_scene_field(&config, checkpoint.as_deref(), &device)?;
-            let options = nerf::app::view::ViewOptions { host, port };
-            nerf::app::view::serve(&config, &name, scene, &options, &device)?;
-        }
+        Command::View(args) => run_view(args, &device)?,
         Command::Report {
             out_dir,
             quick,

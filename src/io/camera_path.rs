@@ -152,12 +152,22 @@ mod tests {
         assert_eq!((path.width, path.height, path.fps), (64, 32, 12.0));
         let cam = path.cameras[0];
         let (r, t) = look_at_view_transform(DVec3::new(0.0, 0.0, 4.0), DVec3::ZERO, DVec3::Y);
-        for i in 0..3 {
-            for j in 0..3 {
-                assert!((cam.r[i][j] - r[i][j]).abs() < 1e-12, "R[{i}][{j}]");
-            }
-            assert!((cam.t[i] - t[i]).abs() < 1e-12, "T[{i}]");
-        }
+        let flat = |m: [[f64; 3]; 3]| m.concat();
+        let worst_r = flat(cam.r)
+            .iter()
+            .zip(flat(r))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let worst_t = cam
+            .t
+            .iter()
+            .zip(t)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            worst_r < 1e-12 && worst_t < 1e-12,
+            "R off by {worst_r}, T by {worst_t}"
+        );
         // fov 90°: f_y = 1/tan(45°) = 1, and f_x = f_y·H/W = 0.5 for square pixels.
         assert!((cam.focal[1] - 1.0).abs() < 1e-12 && (cam.focal[0] - 0.5).abs() < 1e-12);
         // A point at the top edge of the 90° frustum (y = z·tan 45°) lands on y_ndc = 1; one
