@@ -157,9 +157,11 @@ fn lego_mesh_covers_the_test_masks() {
         let seen = rasterize(&ply, &frame.camera, w, h);
         let mask: Vec<bool> = seen.iter().map(Option::is_some).collect();
         scores.push(iou(&mask, &truth));
-        // For a person to look at: NERF_TEST_MESH_VIEWS=DIR writes each rasterised view.
+        // For a person to look at: NERF_TEST_MESH_VIEWS=DIR writes each view of the mesh,
+        // rasterised at 256×256.
         if let Ok(views) = std::env::var("NERF_TEST_MESH_VIEWS") {
-            let bytes: Vec<u8> = seen
+            let big = rasterize(&ply, &frame.camera, 256, 256);
+            let bytes: Vec<u8> = big
                 .iter()
                 .flat_map(|p| p.unwrap_or([0.0; 3]).map(|v| (v * 255.0) as u8))
                 .collect();
@@ -169,7 +171,7 @@ fn lego_mesh_covers_the_test_masks() {
                 .unwrap()
                 .to_string_lossy()
                 .to_string();
-            image::RgbImage::from_raw(w as u32, h as u32, bytes)
+            image::RgbImage::from_raw(256, 256, bytes)
                 .unwrap()
                 .save(Path::new(&views).join(format!("mesh_{name}.png")))
                 .unwrap();

@@ -227,7 +227,7 @@ fn wait_for(server: &Server, counter: &str, at_least: u64, limit: Duration) -> u
 
 #[test]
 fn a_client_that_hangs_up_stops_its_frame() {
-    // 2048² at 64 samples: seconds of work, in 1024 bands of 4096 rays.
+    // 2048² at 64 samples: seconds of work, in 512 bands of 8192 rays.
     let server = Server::start(&["--config", "box", "sampler.n_pts_per_ray=64"]);
     let mut stream = TcpStream::connect(&server.addr).unwrap();
     write!(

@@ -44,7 +44,7 @@ use crate::render::view::render_view_interruptible;
 const PAGE: &str = include_str!("viewer.html");
 
 /// Rays rendered between two checks whether a frame is still wanted.
-const BAND: usize = 4096;
+const BAND: usize = 8192;
 
 /// Counters shown in `/info.json`.
 #[derive(Debug, Default)]
