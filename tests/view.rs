@@ -283,3 +283,19 @@ fn a_newer_request_from_the_same_page_supersedes_the_stale_one() {
         (Some(1), Some(1))
     );
 }
+
+#[test]
+fn a_port_in_use_is_a_one_line_error() {
+    let server = Server::start(&["--config", "box"]);
+    let port = server.addr.rsplit(':').next().unwrap();
+    let o = nerf(&["view", "--config", "box", "--port", port]);
+    let err = stderr(&o);
+    assert!(!o.status.success());
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains(&format!("cannot listen on 127.0.0.1:{port}")),
+        "{err}"
+    );
+    // The running server is unaffected.
+    assert_eq!(server.get("/render.png?width=4&height=4").0, 200);
+}

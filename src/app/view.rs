@@ -43,7 +43,11 @@ use crate::render::view::render_view_interruptible;
 /// The page, built into the binary.
 const PAGE: &str = include_str!("viewer.html");
 
-/// Rays rendered between two checks whether a frame is still wanted.
+/// Most pages whose newest generation is remembered.
+const MAX_CLIENTS: usize = 1024;
+
+/// Rays rendered between two checks whether a frame is still wanted (the NeRF renderer's own
+/// chunk: 2^15 samples at 4 per ray).
 const BAND: usize = 8192;
 
 /// Counters shown in `/info.json`.
@@ -68,6 +72,11 @@ impl Clients {
     fn register(&self, request: &ViewRequest) {
         if let Some(c) = &request.client {
             let mut latest = self.latest.lock().unwrap_or_else(|e| e.into_inner());
+            // Bounded: a script inventing client ids cannot grow the map without end (the
+            // pages forgotten here merely lose the dropping of their stale frames).
+            if latest.len() >= MAX_CLIENTS && !latest.contains_key(c) {
+                latest.clear();
+            }
             let g = latest.entry(c.clone()).or_insert(request.generation);
             *g = (*g).max(request.generation);
         }

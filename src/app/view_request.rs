@@ -40,15 +40,24 @@ pub struct ViewRequest {
     pub generation: u64,
 }
 
+/// Largest coordinate or focal length accepted: rays are rendered in f32, where much larger
+/// positions lose all precision (and past 3.4e38 become infinite).
+const MAX_MAGNITUDE: f64 = 1e6;
+
+/// Whether `v` is finite and at most [`MAX_MAGNITUDE`] in size.
+fn usable(v: f64) -> bool {
+    v.is_finite() && v.abs() <= MAX_MAGNITUDE
+}
+
 /// Parses `x,y,z` into a vector of three finite numbers.
 fn vec3(key: &str, text: &str) -> Result<DVec3, String> {
     let parts: Vec<Result<f64, _>> = text.split(',').map(|p| p.trim().parse::<f64>()).collect();
     match parts.as_slice() {
-        [Ok(x), Ok(y), Ok(z)] if x.is_finite() && y.is_finite() && z.is_finite() => {
+        [Ok(x), Ok(y), Ok(z)] if usable(*x) && usable(*y) && usable(*z) => {
             Ok(DVec3::new(*x, *y, *z))
         }
         _ => Err(format!(
-            "{key}: expected three finite numbers x,y,z (got {text:?})"
+            "{key}: expected three finite numbers x,y,z of magnitude at most {MAX_MAGNITUDE:e} (got {text:?})"
         )),
     }
 }
@@ -87,8 +96,10 @@ pub fn parse_view_query(
                     .trim()
                     .parse::<f64>()
                     .ok()
-                    .filter(|f| f.is_finite() && *f > 0.0)
-                    .ok_or_else(|| format!("focal: must be a finite number > 0 (got {value:?})"))?
+                    .filter(|f| usable(*f) && *f > 0.0)
+                    .ok_or_else(|| {
+                        format!("focal: must be a number > 0 and at most {MAX_MAGNITUDE:e} (got {value:?})")
+                    })?
             }
             "width" => d.width = side(key, value)?,
             "height" => d.height = side(key, value)?,
@@ -169,6 +180,8 @@ mod tests {
             (vec![("eye", "1,2")], "eye"),
             (vec![("eye", "nan,0,0")], "eye"),
             (vec![("at", "0,inf,0")], "at"),
+            (vec![("eye", "1e300,0,0")], "magnitude"),
+            (vec![("focal", "1e9")], "focal"),
             (vec![("focal", "0")], "focal"),
             (vec![("focal", "-1")], "focal"),
             (vec![("width", "0")], "width"),
