@@ -4,17 +4,19 @@
 //! The pipeline, one layer a folder, each importing only the layers before it:
 //!
 //! * [`core`]: pytorch3d cameras, the homework's pixel grid and rays, the volume-rendering
-//!   maths, SDF maths, images and metrics;
+//!   maths, SDF maths, marching cubes, images and metrics;
 //! * [`kernels`]: fused CPU ops, each with its backward pass and tensor-op twin, and the one
 //!   switch between them ([`KernelChoice`]);
 //! * [`render`]: the stratified sampler, the [`Field`] trait, the volume renderer, occupancy
 //!   grid and empty-space skipping;
 //! * [`field`]: the fields — SDF volumes ([`SdfField`]) and the NeRF MLP ([`NerfField`]);
-//! * [`io`]: images, plots, datasets, checkpoints, PyTorch import, progress;
+//! * [`io`]: images, PLY meshes and point clouds, plots, datasets, nerfstudio camera paths,
+//!   checkpoints, PyTorch import, progress;
 //! * [`train`]: Adam, the NeRF state, one training step and the loop;
 //! * [`eval`]: PSNR over a dataset split, and the float64 reference renderer;
 //! * [`app`]: config files (the homework's YAML), turned into the plain parameters above, and
-//!   the jobs of the `nerf` command.
+//!   the jobs of the `nerf` command (render, camera paths, train, eval, bench, report, export,
+//!   and the `nerf view` web viewer).
 //!
 //! ```no_run
 //! use nerf::{render_view, PerspectiveCamera, SdfField, SdfVolume, Sdf, StratifiedSampler, VolumeRenderer};

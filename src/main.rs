@@ -65,7 +65,8 @@ fn device(arg: DeviceArg) -> Result<Device> {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render a scene's surround views and visualisations into an output directory.
+    /// Render a scene's surround views and visualisations (or a camera path) into an output
+    /// directory.
     Render(RenderArgs),
     /// Train a NeRF (checkpoints and resume as the config's training section says).
     Train(TrainArgs),
@@ -78,6 +79,15 @@ enum Command {
     /// Measure error against run time (box, lego, training) and write a Markdown report with
     /// PNG plots.
     Report(ReportArgs),
+    /// Serve a web page that shows the scene live (drag to orbit, wheel to zoom, shift-drag to
+    /// pan) and the HTTP API it uses: GET
+    /// /render.png?eye=x,y,z&at=x,y,z&up=x,y,z&focal=F&width=W&height=H.
+    View(ViewArgs),
+    /// Take a scene out as files: a coloured mesh, a point cloud, or depth maps.
+    Export {
+        #[command(subcommand)]
+        what: ExportCommand,
+    },
 }
 
 /// Render a scene's surround views and visualisations into an output directory.
@@ -97,6 +107,10 @@ struct RenderArgs {
     /// checkpoints/nerf_lego.safetensors).
     #[arg(long)]
     checkpoint: Option<PathBuf>,
+    /// Render this nerfstudio camera_path.json instead of the surround views:
+    /// frame_NNNN.png, camera_path.gif and, when ffmpeg is on PATH, camera_path.mp4.
+    #[arg(long, conflicts_with = "raw")]
+    camera_path: Option<PathBuf>,
     /// Hydra-style overrides, e.g. sampler.n_pts_per_ray=32 data.image_size=[200,150].
     overrides: Vec<String>,
 }
@@ -229,6 +243,187 @@ struct ReportArgs {
     logs: Vec<PathBuf>,
 }
 
+/// Serve the live viewer.
+#[derive(Args)]
+struct ViewArgs {
+    /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego, box).
+    #[arg(long)]
+    config: String,
+    /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
+    /// directory holding nerf_<dataset>.safetensors — else the shipped
+    /// checkpoints/nerf_lego.safetensors).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Port to listen on (0 picks a free one; the address is printed).
+    #[arg(long, default_value_t = 7007)]
+    port: u16,
+    /// Address to bind; the default serves this machine only.
+    #[arg(long, default_value = "127.0.0.1")]
+    host: String,
+    /// Hydra-style overrides (sampler, renderer, cameras and data.image_size set the
+    /// defaults of /render.png).
+    overrides: Vec<String>,
+}
+
+#[derive(Subcommand)]
+enum ExportCommand {
+    /// Marching cubes on the density, vertex colours from the field: a binary PLY mesh.
+    Mesh {
+        /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego, box).
+        #[arg(long)]
+        config: String,
+        /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
+        /// directory holding nerf_<dataset>.safetensors — else the shipped
+        /// checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Marching-cubes cells per side of the box (the NeRF's occupancy-grid box, or a box
+        /// around the SDF's shape), 1 to 512.
+        #[arg(long, default_value_t = 256)]
+        resolution: usize,
+        /// Density at the surface: NeRF sigma (default 10), or the homework's SDF density
+        /// between 0 and alpha (default alpha/2, the SDF's zero level).
+        #[arg(long)]
+        threshold: Option<f64>,
+        /// The PLY file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
+    /// The expected-depth points of the dataset's views (opacity above 0.5) with their
+    /// colours: a binary PLY point cloud.
+    Points {
+        /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego).
+        #[arg(long)]
+        config: String,
+        /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
+        /// directory holding nerf_<dataset>.safetensors — else the shipped
+        /// checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Dataset split whose views are rendered (NeRF; SDF scenes use the surround cameras).
+        #[arg(long, value_enum, default_value = "train")]
+        split: SplitArg,
+        /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Only the first N views.
+        #[arg(long, value_parser = at_least_one)]
+        limit: Option<usize>,
+        /// The PLY file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Hydra-style overrides (data.image_size sets the rendering size).
+        overrides: Vec<String>,
+    },
+    /// A depth .npy (H, W) and a viridis PNG for each view of a split.
+    Depth {
+        /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego).
+        #[arg(long)]
+        config: String,
+        /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
+        /// directory holding nerf_<dataset>.safetensors — else the shipped
+        /// checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Dataset split (NeRF; SDF scenes use the surround cameras).
+        #[arg(long, value_enum, default_value = "test")]
+        split: SplitArg,
+        /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Only the first N views.
+        #[arg(long, value_parser = at_least_one)]
+        limit: Option<usize>,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
+}
+
+/// `nerf view`: serves until killed.
+fn cmd_view(a: ViewArgs, device: &Device) -> Result<()> {
+    let config = Config::load(&a.config, &a.overrides)?;
+    let scene = nerf::app::scene::load_scene_field(&config, a.checkpoint.as_deref(), device)?;
+    let options = nerf::app::view::ViewOptions {
+        host: a.host,
+        port: a.port,
+    };
+    nerf::app::view::serve(&config, &a.config, scene, &options, device)
+}
+
+/// `nerf export …`.
+fn cmd_export(what: ExportCommand, device: &Device) -> Result<()> {
+    use nerf::app::export::{export_depth, export_mesh, export_points, MeshOptions, ViewSelection};
+    let views = |config: &Config, split: SplitArg, data_dir, limit| ViewSelection {
+        split: split.into(),
+        data_dir: data_dir_for(config, data_dir),
+        limit,
+    };
+    match what {
+        ExportCommand::Mesh {
+            config,
+            checkpoint,
+            resolution,
+            threshold,
+            out,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let options = MeshOptions {
+                resolution,
+                threshold,
+                out,
+            };
+            let m = export_mesh(&config, checkpoint.as_deref(), &options, device)?;
+            say(&format!(
+                "wrote {} ({} vertices, {} triangles, threshold {}, {:.1} s)",
+                options.out.display(),
+                m.vertices,
+                m.faces,
+                m.threshold,
+                m.seconds
+            ))?;
+        }
+        ExportCommand::Points {
+            config,
+            checkpoint,
+            split,
+            data_dir,
+            limit,
+            out,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let views = views(&config, split, data_dir, limit);
+            let n = export_points(&config, checkpoint.as_deref(), &views, &out, device)?;
+            say(&format!("wrote {} ({n} points)", out.display()))?;
+        }
+        ExportCommand::Depth {
+            config,
+            checkpoint,
+            split,
+            data_dir,
+            limit,
+            out,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let views = views(&config, split, data_dir, limit);
+            let written = export_depth(&config, checkpoint.as_deref(), &views, &out, device)?;
+            say(&format!(
+                "wrote {} files into {}",
+                written.len(),
+                out.display()
+            ))?;
+        }
+    }
+    Ok(())
+}
+
 /// A count of at least 1, for clap.
 fn at_least_one(s: &str) -> Result<usize, String> {
     match s.parse::<usize>() {
@@ -303,6 +498,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::ImportTorch(args) => cmd_import_torch(args, &device),
         Command::Bench(args) => cmd_bench(args, &device),
         Command::Report(args) => cmd_report(args, &device),
+        Command::View(args) => cmd_view(args, &device),
+        Command::Export { what } => cmd_export(what, &device),
     }
 }
 
@@ -312,11 +509,22 @@ fn cmd_render(args: RenderArgs, device: &Device) -> Result<()> {
         out_dir,
         raw,
         checkpoint,
+        camera_path,
         overrides,
     } = args;
     let config = Config::load(&config, &overrides)?;
-    let written =
-        nerf::app::scene::render_scene(&config, checkpoint.as_deref(), &out_dir, raw, device)?;
+    let written = match &camera_path {
+        Some(path) => nerf::app::camera_path::render_camera_path(
+            &config,
+            checkpoint.as_deref(),
+            path,
+            &out_dir,
+            device,
+        )?,
+        None => {
+            nerf::app::scene::render_scene(&config, checkpoint.as_deref(), &out_dir, raw, device)?
+        }
+    };
     for p in written {
         say(&format!("wrote {}", p.display()))?;
     }

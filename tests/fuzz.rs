@@ -1,10 +1,12 @@
-//! Property tests (proptest) for the parsers that read user files: configs (YAML and
-//! overrides) and the dataset's transforms JSON. Whatever the input, they return a value or an
-//! error; they never panic.
+//! Property tests (proptest) for the parsers that read user input: configs (YAML and
+//! overrides), the dataset's transforms JSON, nerfstudio camera paths and the viewer's
+//! `/render.png` query. Whatever the input, they return a value or an error; they never panic.
 
 use std::path::Path;
 
 use nerf::app::config::{apply_override, Config};
+use nerf::app::view_request::{parse_view_query, ViewDefaults};
+use nerf::io::camera_path::parse_camera_path;
 use nerf::io::dataset::parse_split;
 use proptest::prelude::*;
 
@@ -119,6 +121,61 @@ proptest! {
         let cut = truncate.min(json.len());
         if json.is_char_boundary(cut) {
             let _ = parse_split(&json.as_bytes()[..cut], Path::new("data"), origin);
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    #[test]
+    fn camera_paths_never_panic(
+        fov in prop_oneof![Just("50".to_string()), nasty_value()],
+        size in prop_oneof![Just("64".to_string()), nasty_value()],
+        fps in prop_oneof![Just("24".to_string()), nasty_value()],
+        matrix in prop::collection::vec(prop_oneof![
+            any::<f64>().prop_map(|v| format!("{v:e}")),
+            Just("0".to_string()),
+            Just("1".to_string()),
+            Just("null".to_string()),
+        ], 0..20),
+        truncate in 0usize..400,
+    ) {
+        let json = format!(
+            r#"{{"camera_type": "perspective", "render_width": {size}, "render_height": 32, "fps": {fps},
+               "camera_path": [{{"camera_to_world": [{}], "fov": {fov}}}]}}"#,
+            matrix.join(", ")
+        );
+        let _ = parse_camera_path(json.as_bytes());
+        let cut = truncate.min(json.len());
+        if json.is_char_boundary(cut) {
+            let _ = parse_camera_path(&json.as_bytes()[..cut]);
+        }
+    }
+
+    #[test]
+    fn view_queries_never_panic(
+        pairs in prop::collection::vec((
+            prop_oneof![
+                Just("eye".to_string()), Just("at".to_string()), Just("up".to_string()),
+                Just("focal".to_string()), Just("width".to_string()), Just("height".to_string()),
+                Just("client".to_string()), Just("gen".to_string()), "[ -~]{0,6}",
+            ],
+            prop_oneof![nasty_value(), Just("0,0,1".to_string()), "[-0-9.,e]{0,20}"],
+        ), 0..6),
+    ) {
+        let defaults = ViewDefaults {
+            eye: glam::DVec3::new(0.0, 0.0, -3.0),
+            at: glam::DVec3::ZERO,
+            up: glam::DVec3::Y,
+            focal: 1.0,
+            width: 8,
+            height: 8,
+        };
+        if let Ok(request) = parse_view_query(&pairs, &defaults) {
+            // Whatever passes is a usable camera and size.
+            prop_assert!(request.camera.validate().is_ok());
+            prop_assert!(request.width >= 1 && request.height >= 1);
         }
     }
 }

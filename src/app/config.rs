@@ -32,6 +32,9 @@ pub mod limits {
     pub const HIDDEN: usize = 4096;
     /// Deepest trunk.
     pub const LAYERS: usize = 64;
+    /// Most marching-cubes cells per side of `nerf export mesh` (513³ density samples, about
+    /// 0.5 GB each for the grid and the mesher's copy).
+    pub const MESH_RESOLUTION: usize = 512;
 }
 
 /// An error naming `key` when `v` is not in `1..=max`.

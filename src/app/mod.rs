@@ -1,10 +1,15 @@
 //! The application layer: config files, jobs, bench and report.
 
 pub mod bench;
+pub mod camera_path;
 pub mod config;
 pub mod evaluate;
+pub mod export;
 #[cfg(feature = "cli")]
 pub mod report;
 pub mod runtime;
 pub mod scene;
 pub mod train;
+#[cfg(feature = "cli")]
+pub mod view;
+pub mod view_request;

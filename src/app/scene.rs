@@ -8,6 +8,9 @@ use candle_core::{Device, Tensor};
 use crate::app::config::{Config, ImplicitFunctionConfig};
 use crate::core::camera::PerspectiveCamera;
 use crate::core::rays::{pixel_grid, Rays};
+use crate::core::sdf::SdfVolume;
+use crate::field::nerf::NerfField;
+use crate::field::sdf::SdfField;
 use crate::io::images::{
     prepare_out_dir, viridis_image, write_gif, write_npy, write_png, RgbImage,
 };
@@ -250,6 +253,57 @@ pub fn render_scene(
         }
         ImplicitFunctionConfig::Nerf(_) => {
             render_nerf_scene(config, &config.checkpoint(checkpoint), out_dir, raw, device)
+        }
+    }
+}
+
+/// The field a config describes, loaded and ready to render.
+pub enum SceneField {
+    /// An SDF volume, with the values it was made from.
+    Sdf {
+        /// The field.
+        field: SdfField,
+        /// Its shape, density and colour parameters.
+        volume: SdfVolume,
+    },
+    /// A trained NeRF (with its occupancy grid when the config asks for one).
+    Nerf(NerfField),
+}
+
+impl SceneField {
+    /// The field as the renderer sees it.
+    pub fn as_field(&self) -> &dyn Field {
+        match self {
+            SceneField::Sdf { field, .. } => field,
+            SceneField::Nerf(field) => field,
+        }
+    }
+}
+
+/// Loads the config's field: the SDF volume, or the NeRF from the checkpoint that
+/// [`Config::checkpoint`] picks for `checkpoint`. A checkpoint given for an SDF scene is an
+/// error.
+pub fn load_scene_field(
+    config: &Config,
+    checkpoint: Option<&Path>,
+    device: &Device,
+) -> Result<SceneField> {
+    match &config.implicit_function {
+        ImplicitFunctionConfig::SdfVolume(_) => {
+            if let Some(c) = checkpoint {
+                anyhow::bail!(
+                    "--checkpoint {}: an SDF scene has no checkpoint (NeRF configs only)",
+                    c.display()
+                );
+            }
+            Ok(SceneField::Sdf {
+                field: config.sdf_field(device)?,
+                volume: config.sdf_volume()?,
+            })
+        }
+        ImplicitFunctionConfig::Nerf(_) => {
+            let (state, _) = config.load_nerf(&config.checkpoint(checkpoint), device)?;
+            Ok(SceneField::Nerf(state.field()))
         }
     }
 }

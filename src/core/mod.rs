@@ -3,6 +3,7 @@
 pub mod camera;
 pub mod compare;
 pub mod image;
+pub mod marching_cubes;
 pub mod metrics;
 pub mod rays;
 pub mod sdf;

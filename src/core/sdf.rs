@@ -61,6 +61,21 @@ pub fn sdf_to_density_scalar(sdf: f32, alpha: f64, beta: f64) -> f32 {
     d * alpha as f32
 }
 
+/// The signed distance at which [`sdf_to_density_scalar`] equals `density`: its inverse,
+/// `−β·ln(2d/α)` for `d ≤ α/2` and `β·ln(2(1 − d/α))` above (0 at `α/2`). `None` unless
+/// `0 < density < α` (the density only reaches 0 and α at infinite distance).
+pub fn sdf_at_density(density: f64, alpha: f64, beta: f64) -> Option<f64> {
+    let x = density / alpha;
+    if !(x > 0.0 && x < 1.0 && beta > 0.0) {
+        return None;
+    }
+    Some(if x <= 0.5 {
+        -beta * (2.0 * x).ln()
+    } else {
+        beta * (2.0 * (1.0 - x)).ln()
+    })
+}
+
 /// The homework's density → volume density for one value: `σ = −ln(1 − density) / Δ`.
 pub fn density_to_sigma_scalar(density: f32, delta: f32) -> f32 {
     -(1.0 - density).ln() / delta
@@ -93,5 +108,23 @@ impl SdfVolume {
             self.feature
         };
         (sigma, feature)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sdf_at_density_inverts_the_density() {
+        for s in [-0.2f32, -0.01, 0.0, 0.03, 0.15] {
+            let d = sdf_to_density_scalar(s, 0.8, 0.05) as f64;
+            let back = sdf_at_density(d, 0.8, 0.05).unwrap();
+            assert!((back - s as f64).abs() < 1e-5, "{s} -> {d} -> {back}");
+        }
+        assert_eq!(sdf_at_density(0.4, 0.8, 0.05), Some(0.0));
+        for bad in [0.0, 0.8, 1.0, -0.1, f64::NAN] {
+            assert_eq!(sdf_at_density(bad, 0.8, 0.05), None);
+        }
     }
 }

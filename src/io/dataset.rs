@@ -151,7 +151,7 @@ struct TransformsFrame {
 
 /// Checks that the upper 3×3 block of a camera-to-world matrix is a rotation (orthonormal,
 /// determinant +1, to 1e-3) and the bottom row is `(0, 0, 0, 1)`.
-fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
+pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
     if c2w.iter().flatten().any(|v| !v.is_finite()) {
         bail!("transform_matrix has a non-finite entry");
     }

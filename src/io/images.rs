@@ -93,15 +93,23 @@ pub fn write_atomically(
     result
 }
 
-/// Writes an 8-bit RGB PNG.
-pub fn write_png(path: &Path, image: &RgbImage) -> Result<()> {
+/// An 8-bit RGB PNG file's bytes.
+pub fn png_bytes(image: &RgbImage) -> Result<Vec<u8>> {
     let buffer: ImageBuffer<Rgb<u8>, Vec<u8>> =
         ImageBuffer::from_raw(image.width as u32, image.height as u32, image.to_bytes())
             .context("image buffer size")?;
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    buffer
+        .write_to(&mut bytes, image::ImageFormat::Png)
+        .context("cannot encode PNG")?;
+    Ok(bytes.into_inner())
+}
+
+/// Writes an 8-bit RGB PNG.
+pub fn write_png(path: &Path, image: &RgbImage) -> Result<()> {
+    let bytes = png_bytes(image).with_context(|| format!("{}", path.display()))?;
     write_atomically(path, |w| {
-        buffer
-            .write_to(w, image::ImageFormat::Png)
-            .with_context(|| format!("cannot encode {}", path.display()))?;
+        w.write_all(&bytes)?;
         Ok(())
     })
 }

@@ -1,9 +1,11 @@
 //! Sampling, the volume-rendering maths, the renderer, occupancy grid and skipping.
 
+pub mod depth_points;
 pub mod field;
 pub mod occupancy;
 pub mod pointcloud;
 pub mod renderer;
 pub mod sampler;
 pub mod skipping;
+pub mod surface;
 pub mod view;

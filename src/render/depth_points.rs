@@ -1,0 +1,63 @@
+//! Point clouds from rendered views, as nerfstudio's `ns-export pointcloud` makes them: each
+//! ray that the field makes opaque enough gives one point at its expected depth, with its
+//! colour.
+
+use anyhow::Result;
+use candle_core::Device;
+
+use crate::core::camera::PerspectiveCamera;
+use crate::core::rays::Rays;
+use crate::render::field::Field;
+use crate::render::renderer::VolumeRenderer;
+use crate::render::sampler::StratifiedSampler;
+
+/// Coloured points in world space.
+#[derive(Debug, Clone, Default)]
+pub struct ColoredPoints {
+    /// Positions.
+    pub points: Vec<[f32; 3]>,
+    /// RGB colours in `[0, 1]`, one per point.
+    pub colors: Vec<[f32; 3]>,
+}
+
+/// The points one view sees: for each pixel's ray whose opacity `Σ wᵢ` exceeds
+/// `min_opacity`, the point `origin + direction · Σ wᵢtᵢ / Σ wᵢ` (nerfstudio's expected depth,
+/// normalised by the accumulated weight) with the colour `Σ wᵢcᵢ / Σ wᵢ`.
+pub fn depth_points(
+    field: &dyn Field,
+    camera: &PerspectiveCamera,
+    (width, height): (usize, usize),
+    sampler: &StratifiedSampler,
+    renderer: &VolumeRenderer,
+    min_opacity: f32,
+    device: &Device,
+) -> Result<ColoredPoints> {
+    camera.validate()?;
+    let rays = Rays::for_image(camera, width, height, device)?;
+    // On black, so that dividing by the opacity recovers the colour.
+    let black = VolumeRenderer {
+        white_background: false,
+        ..*renderer
+    };
+    let out = black.render(field, sampler, &rays, None)?;
+    let origins = rays.origins.flatten_all()?.to_vec1::<f32>()?;
+    let directions = rays.directions.flatten_all()?.to_vec1::<f32>()?;
+    let color = out.color.flatten_all()?.to_vec1::<f32>()?;
+    let depth = out.depth.flatten_all()?.to_vec1::<f32>()?;
+    let opacity = out.opacity.flatten_all()?.to_vec1::<f32>()?;
+    let mut cloud = ColoredPoints::default();
+    for (i, &a) in opacity.iter().enumerate() {
+        // Also skips a NaN opacity (the renderer refuses NaN colour and depth already).
+        if a.is_nan() || a <= min_opacity.max(0.0) {
+            continue;
+        }
+        let t = depth[i] / a;
+        cloud
+            .points
+            .push([0, 1, 2].map(|k| origins[3 * i + k] + t * directions[3 * i + k]));
+        cloud
+            .colors
+            .push([0, 1, 2].map(|k| (color[3 * i + k] / a).clamp(0.0, 1.0)));
+    }
+    Ok(cloud)
+}
