@@ -410,6 +410,9 @@ fn train_render_and_eval_a_tiny_nerf() {
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(report["views"].as_array().unwrap().len(), 3);
     assert!(report["mean_psnr"].as_f64().unwrap().is_finite());
+    let ssim = report["mean_ssim"].as_f64().unwrap();
+    assert!(ssim > 0.0 && ssim <= 1.0, "{ssim}");
+    assert!(report["views"][0]["ssim"].as_f64().unwrap() <= 1.0);
     assert!(saved.join("r_0.png").is_file());
 
     // A checkpoint of another width is refused, naming the tensor.
