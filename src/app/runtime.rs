@@ -80,7 +80,10 @@ impl Config {
     pub fn nerf_params(&self) -> Result<NerfParams> {
         match &self.implicit_function {
             ImplicitFunctionConfig::Nerf(n) => Ok(n.params()),
-            _ => bail!(
+            ImplicitFunctionConfig::Ngp(_) => bail!(
+                "implicit_function.type is ngp: training, rendering and evaluating ngp configs is not wired in yet (issue 13); this command needs a nerf config (e.g. lego)"
+            ),
+            ImplicitFunctionConfig::SdfVolume(_) => bail!(
                 "implicit_function.type is sdf_volume: this command needs a NeRF config (e.g. lego)"
             ),
         }

@@ -248,7 +248,7 @@ pub fn render_scene(
             }
             render_sdf_scene(config, out_dir, raw, device)
         }
-        ImplicitFunctionConfig::Nerf(_) => {
+        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_) => {
             render_nerf_scene(config, &config.checkpoint(checkpoint), out_dir, raw, device)
         }
     }
