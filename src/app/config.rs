@@ -1029,6 +1029,45 @@ mod tests {
     }
 
     #[test]
+    fn an_ngp_checkpoint_saves_and_loads_for_rendering() {
+        use crate::field::ngp::Ngp;
+        let lego =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/lego.yaml"))
+                .unwrap();
+        let start = lego.find("implicit_function:").unwrap();
+        let end = lego.find("cameras:").unwrap();
+        let body = "implicit_function:\n  type: ngp\n  n_levels: 4\n  log2_hashmap_size: 10\n  max_resolution: 64\n";
+        let c =
+            Config::from_yaml(&format!("{}{body}{}", &lego[..start], &lego[end..]), &[]).unwrap();
+        let ImplicitFunctionConfig::Ngp(n) = &c.implicit_function else {
+            panic!("not ngp")
+        };
+        let dev = candle_core::Device::Cpu;
+        let varmap = candle_nn::VarMap::new();
+        let vb = candle_nn::VarBuilder::from_varmap(&varmap, candle_core::DType::F32, &dev);
+        let model = Ngp::new(&n.params().unwrap(), vb).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ngp.safetensors");
+        let tensors = crate::io::checkpoint::model_tensors(&varmap);
+        crate::io::checkpoint::save(&path, &tensors, Default::default()).unwrap();
+        let field = c.load_field(&path, &dev).unwrap();
+        assert!(field.supports_packed() && field.occupancy().is_some());
+        let points = candle_core::Tensor::rand(-1.4f32, 1.4, (50, 3), &dev).unwrap();
+        let dirs = candle_core::Tensor::new(&[[0f32, 0.6, 0.8]], &dev).unwrap();
+        let rays = candle_core::Tensor::zeros(50, candle_core::DType::U32, &dev).unwrap();
+        let (s0, c0) = model.forward_packed(&points, &rays, &dirs).unwrap();
+        let (s1, c1) = field.evaluate_packed(&points, &rays, &dirs).unwrap();
+        let diff = crate::core::compare::max_abs_difference;
+        assert_eq!(diff(&s0, &s1).unwrap() + diff(&c0, &c1).unwrap(), 0.0);
+        // A checkpoint of other sizes is refused in one line.
+        let o = vec!["implicit_function.log2_hashmap_size=11".to_string()];
+        let other =
+            Config::from_yaml(&format!("{}{body}{}", &lego[..start], &lego[end..]), &o).unwrap();
+        let e = format!("{:#}", other.load_field(&path, &dev).err().unwrap());
+        assert!(e.contains("encoding.table") || e.contains("shape"), "{e}");
+    }
+
+    #[test]
     fn built_in_box_matches_the_homework() {
         let c = box_with(&[]).unwrap();
         assert_eq!(c.image_size(), (256, 256));

@@ -204,12 +204,10 @@ pub fn render_nerf_scene(
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    config.nerf_params()?;
-    let (state, _) = config.load_nerf(checkpoint, device)?;
+    let field = config.load_field(checkpoint, device)?;
     prepare_out_dir(out_dir)?;
-    let field = state.field();
     let frames = render_views(
-        &field,
+        &*field,
         &config.surround_cameras(),
         config.image_size(),
         &config.sampler()?,
