@@ -6,7 +6,7 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::core::metrics::{mean, psnr, ssim};
+use crate::core::metrics::{mean, psnr, ssim, SSIM_WINDOW};
 use crate::io::dataset::{Dataset, Split};
 use crate::io::images::{prepare_out_dir, write_png};
 use crate::io::progress::progress_bar;
@@ -24,8 +24,9 @@ pub struct ViewScore {
     /// PSNR in dB of the rendered colour against the ground-truth image.
     pub psnr: f64,
     /// SSIM of the rendered colour against the ground-truth image
-    /// ([`crate::core::metrics::ssim`]: 11×11 Gaussian window, data range 1).
-    pub ssim: f64,
+    /// ([`crate::core::metrics::ssim`]: 11×11 Gaussian window, data range 1); `None` (JSON
+    /// `null`) for images under 11 pixels on a side, where SSIM's window does not fit.
+    pub ssim: Option<f64>,
 }
 
 /// PSNR over a split (mean, min, max and per view) and mean SSIM.
@@ -51,8 +52,8 @@ pub struct EvalReport {
     pub min_psnr: f64,
     /// Highest PSNR of a view, in dB.
     pub max_psnr: f64,
-    /// Mean SSIM over the views.
-    pub mean_ssim: f64,
+    /// Mean SSIM over the views (`None` for images under 11 pixels on a side).
+    pub mean_ssim: Option<f64>,
     /// Every view's score, in dataset order.
     pub views: Vec<ViewScore>,
 }
@@ -62,7 +63,7 @@ impl EvalReport {
     /// evaluated fraction.
     pub fn summary(&self) -> String {
         format!(
-            "{} split, {} {} at {}x{}, {} points, on {}: PSNR mean {:.2} dB, min {:.2}, max {:.2}; SSIM mean {:.4}; {:.3} s per view, field evaluated at {:.1}% of samples",
+            "{} split, {} {} at {}x{}, {} points, on {}: PSNR mean {:.2} dB, min {:.2}, max {:.2}; SSIM mean {}; {:.3} s per view, field evaluated at {:.1}% of samples",
             self.split,
             self.views.len(),
             if self.views.len() == 1 { "view" } else { "views" },
@@ -73,11 +74,17 @@ impl EvalReport {
             self.mean_psnr,
             self.min_psnr,
             self.max_psnr,
-            self.mean_ssim,
+            self.mean_ssim
+                .map_or_else(|| "n/a (images under 11 pixels)".to_string(), |v| format!("{v:.4}")),
             self.seconds_per_view,
             100.0 * self.evaluated_fraction
         )
     }
+}
+
+/// Whether SSIM's 11×11 window fits an image of `(width, height)`.
+fn ssim_fits(size: (usize, usize)) -> bool {
+    size.0 >= SSIM_WINDOW && size.1 >= SSIM_WINDOW
 }
 
 /// Renders every view of `dataset` with `field` (through `sampler` and `renderer`) and scores it; with `save_images`, writes each
@@ -117,7 +124,9 @@ pub fn evaluate(
         views.push(ViewScore {
             frame: name,
             psnr: psnr(&predicted.color, truth),
-            ssim: ssim(&predicted.color, truth)?,
+            ssim: ssim_fits(size)
+                .then(|| ssim(&predicted.color, truth))
+                .transpose()?,
         });
         bar.inc(1);
     }
@@ -134,7 +143,8 @@ pub fn evaluate(
         mean_psnr: mean(&values),
         min_psnr: values.iter().cloned().fold(f64::INFINITY, f64::min),
         max_psnr: values.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
-        mean_ssim: mean(&views.iter().map(|v| v.ssim).collect::<Vec<_>>()),
+        mean_ssim: ssim_fits(size)
+            .then(|| mean(&views.iter().filter_map(|v| v.ssim).collect::<Vec<_>>())),
         views,
     })
 }
