@@ -70,7 +70,7 @@ enum Command {
     Render(RenderArgs),
     /// Train a NeRF (checkpoints and resume as the config's training section says).
     Train(TrainArgs),
-    /// PSNR of a trained NeRF over a dataset split at the config's image size.
+    /// PSNR and SSIM of a trained NeRF over a dataset split at the config's image size.
     Eval(EvalArgs),
     /// Convert a PyTorch state dict of the homework's NeRF (.pth) into a checkpoint.
     ImportTorch(ImportTorchArgs),
@@ -138,7 +138,7 @@ struct TrainArgs {
     overrides: Vec<String>,
 }
 
-/// PSNR of a trained NeRF over a dataset split at the config's image size.
+/// PSNR and SSIM of a trained NeRF over a dataset split at the config's image size.
 #[derive(Args)]
 struct EvalArgs {
     /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego).
@@ -164,6 +164,10 @@ struct EvalArgs {
     /// Print JSON instead of a summary.
     #[arg(long)]
     json: bool,
+    /// Composite ground truth and prediction on white (the NeRF papers' protocol) instead of
+    /// black (the homework's); the same as `renderer.white_background=True`.
+    #[arg(long)]
+    white: bool,
     /// Hydra-style overrides.
     overrides: Vec<String>,
 }
@@ -617,9 +621,13 @@ fn cmd_eval(args: EvalArgs, device: &Device) -> Result<()> {
         save_images,
         limit,
         json,
+        white,
         overrides,
     } = args;
-    let config = Config::load(&config, &overrides)?;
+    let mut config = Config::load(&config, &overrides)?;
+    if white {
+        config.renderer.white_background = true;
+    }
     let data_dir = data_dir_for(&config, data_dir);
     let report = nerf::app::evaluate::eval_nerf(
         &config,

@@ -318,6 +318,80 @@ pub struct NerfConfig {
     pub append_xyz: Vec<usize>,
 }
 
+/// `implicit_function` with `type: ngp`: the hash-grid field ([`crate::field::ngp`]).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NgpConfig {
+    /// `implicit_function.type`: `ngp`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    /// Levels of the hash grid `L` (`n_levels`, default 16).
+    #[serde(default = "d16")]
+    pub n_levels: usize,
+    /// Features per level `F` (`n_features_per_level`, default 2).
+    #[serde(default = "d2")]
+    pub n_features_per_level: usize,
+    /// `log2` of the rows of each level's table `T` (`log2_hashmap_size`, default 19).
+    #[serde(default = "d19")]
+    pub log2_hashmap_size: u32,
+    /// Coarsest grid resolution `N_min` (`base_resolution`, default 16).
+    #[serde(default = "d16f")]
+    pub base_resolution: f64,
+    /// Finest grid resolution `N_max` (`max_resolution`; default 2048 × the box's half-size,
+    /// the largest over the axes: 3072 for the default box).
+    #[serde(default)]
+    pub max_resolution: Option<f64>,
+    /// The box the grid covers, `[[min x, y, z], [max x, y, z]]` in world units (`aabb`,
+    /// default ±1.5 on every axis: the lego scene and its occupancy grid).
+    #[serde(default = "default_ngp_aabb")]
+    pub aabb: [[f64; 3]; 2],
+    /// `trunc_exp` (default, instant-ngp) or `softplus` (`density_activation`).
+    #[serde(default = "default_density_activation")]
+    pub density_activation: String,
+}
+
+impl NgpConfig {
+    /// The field's sizes (an error for an unknown density activation or a bad grid or box).
+    pub fn params(&self) -> Result<crate::field::ngp::NgpParams> {
+        use crate::field::ngp::{DensityActivation, NgpParams};
+        let density_activation = match self.density_activation.as_str() {
+            "trunc_exp" => DensityActivation::TruncExp,
+            "softplus" => DensityActivation::Softplus,
+            other => bail!(
+                "implicit_function.density_activation: unknown `{other}` (expected trunc_exp or softplus)"
+            ),
+        };
+        let half = (0..3)
+            .map(|a| (self.aabb[1][a] - self.aabb[0][a]) / 2.0)
+            .fold(0.0, f64::max);
+        let params = NgpParams {
+            grid: crate::kernels::hash_grid::HashGridParams {
+                n_levels: self.n_levels,
+                n_features: self.n_features_per_level,
+                log2_table_size: self.log2_hashmap_size,
+                base_resolution: self.base_resolution,
+                max_resolution: self.max_resolution.unwrap_or(2048.0 * half),
+            },
+            aabb: self.aabb,
+            density_activation,
+        };
+        params.validate()?;
+        Ok(params)
+    }
+}
+
+fn d16f() -> f64 {
+    16.0
+}
+fn d19() -> u32 {
+    19
+}
+fn default_ngp_aabb() -> [[f64; 3]; 2] {
+    [[-1.5; 3], [1.5; 3]]
+}
+fn default_density_activation() -> String {
+    "trunc_exp".into()
+}
 fn d2() -> usize {
     2
 }
@@ -341,6 +415,8 @@ pub enum ImplicitFunctionConfig {
     SdfVolume(SdfVolumeConfig),
     /// `type: nerf`: the homework's NeRF.
     Nerf(NerfConfig),
+    /// `type: ngp`: the hash-grid field.
+    Ngp(NgpConfig),
 }
 
 /// `training` (the homework's nerf_lego.yaml keys).
@@ -581,7 +657,7 @@ impl Config {
             .implicit_function
             .get("type")
             .and_then(Value::as_str)
-            .ok_or_else(|| anyhow!("implicit_function.type: missing (sdf_volume or nerf)"))?
+            .ok_or_else(|| anyhow!("implicit_function.type: missing (sdf_volume, nerf or ngp)"))?
             .to_string();
         let implicit_function = match kind.as_str() {
             "sdf_volume" => ImplicitFunctionConfig::SdfVolume(from_value(
@@ -592,8 +668,11 @@ impl Config {
                 raw.implicit_function,
                 "implicit_function",
             )?),
+            "ngp" => {
+                ImplicitFunctionConfig::Ngp(from_value(raw.implicit_function, "implicit_function")?)
+            }
             other => bail!(
-                "implicit_function.type: unknown type `{other}` (expected sdf_volume or nerf)"
+                "implicit_function.type: unknown type `{other}` (expected sdf_volume, nerf or ngp)"
             ),
         };
         let defaults = default_cameras(&implicit_function);
@@ -638,6 +717,9 @@ impl Config {
         match &self.implicit_function {
             ImplicitFunctionConfig::SdfVolume(s) => validate_sdf(s)?,
             ImplicitFunctionConfig::Nerf(n) => validate_nerf(n)?,
+            ImplicitFunctionConfig::Ngp(n) => {
+                n.params()?;
+            }
         }
         self.validate_training()
     }
@@ -656,8 +738,8 @@ impl Config {
             validate_occupancy_grid(g)?;
         }
         let accelerated = early > 0.0 || self.renderer.occupancy_grid.is_some();
-        if accelerated && !matches!(self.implicit_function, ImplicitFunctionConfig::Nerf(_)) {
-            bail!("renderer.occupancy_grid and renderer.early_termination need implicit_function.type nerf");
+        if accelerated && matches!(self.implicit_function, ImplicitFunctionConfig::SdfVolume(_)) {
+            bail!("renderer.occupancy_grid and renderer.early_termination need implicit_function.type nerf or ngp");
         }
         Ok(())
     }
@@ -764,7 +846,7 @@ fn default_cameras(f: &ImplicitFunctionConfig) -> CamerasConfig {
             up: [0.0, 1.0, 0.0],
             focal_length: 1.0,
         },
-        ImplicitFunctionConfig::Nerf(_) => CamerasConfig {
+        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_) => CamerasConfig {
             radius: 4.0,
             n_poses: 20,
             up: [0.0, 0.0, 1.0],
@@ -900,6 +982,92 @@ mod tests {
     fn box_with(overrides: &[&str]) -> Result<Config> {
         let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
         Config::load("box", &o)
+    }
+
+    #[test]
+    fn ngp_keys_and_defaults() {
+        let lego =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/lego.yaml"))
+                .unwrap();
+        let start = lego.find("implicit_function:").unwrap();
+        let end = lego.find("cameras:").unwrap();
+        let yaml = |body: &str| {
+            format!(
+                "{}implicit_function:\n{body}\n{}",
+                &lego[..start],
+                &lego[end..]
+            )
+        };
+        let c = Config::from_yaml(&yaml("  type: ngp"), &[]).unwrap();
+        let ImplicitFunctionConfig::Ngp(n) = &c.implicit_function else {
+            panic!("not ngp")
+        };
+        let p = n.params().unwrap();
+        assert_eq!(
+            (p.grid.n_levels, p.grid.n_features, p.grid.log2_table_size),
+            (16, 2, 19)
+        );
+        assert_eq!(
+            (p.grid.base_resolution, p.grid.max_resolution),
+            (16.0, 3072.0)
+        );
+        assert_eq!(p.aabb, [[-1.5; 3], [1.5; 3]]);
+        let o = vec!["implicit_function.log2_hashmap_size=12".to_string()];
+        let c = Config::from_yaml(&yaml("  type: ngp\n  max_resolution: 512"), &o).unwrap();
+        let ImplicitFunctionConfig::Ngp(n) = &c.implicit_function else {
+            panic!("not ngp")
+        };
+        assert_eq!(n.params().unwrap().grid.max_resolution, 512.0);
+        assert_eq!(n.params().unwrap().grid.log2_table_size, 12);
+        assert!(c.nerf_params().unwrap_err().to_string().contains("ngp"));
+        for bad in [
+            "  type: ngp\n  density_activation: relu",
+            "  type: ngp\n  log2_hashmap_size: 30",
+            "  type: ngp\n  aabb: [[1, 1, 1], [0, 2, 2]]",
+            "  type: ngp\n  n_hidden: 3",
+        ] {
+            let e = Config::from_yaml(&yaml(bad), &[]).unwrap_err().to_string();
+            assert!(!e.contains('\n'), "{e}");
+        }
+    }
+
+    #[test]
+    fn an_ngp_checkpoint_saves_and_loads_for_rendering() {
+        use crate::field::ngp::Ngp;
+        let lego =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/lego.yaml"))
+                .unwrap();
+        let start = lego.find("implicit_function:").unwrap();
+        let end = lego.find("cameras:").unwrap();
+        let body = "implicit_function:\n  type: ngp\n  n_levels: 4\n  log2_hashmap_size: 10\n  max_resolution: 64\n";
+        let c =
+            Config::from_yaml(&format!("{}{body}{}", &lego[..start], &lego[end..]), &[]).unwrap();
+        let ImplicitFunctionConfig::Ngp(n) = &c.implicit_function else {
+            panic!("not ngp")
+        };
+        let dev = candle_core::Device::Cpu;
+        let varmap = candle_nn::VarMap::new();
+        let vb = candle_nn::VarBuilder::from_varmap(&varmap, candle_core::DType::F32, &dev);
+        let model = Ngp::new(&n.params().unwrap(), vb).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ngp.safetensors");
+        let tensors = crate::io::checkpoint::model_tensors(&varmap);
+        crate::io::checkpoint::save(&path, &tensors, Default::default()).unwrap();
+        let field = c.load_field(&path, &dev).unwrap();
+        assert!(field.supports_packed() && field.occupancy().is_some());
+        let points = candle_core::Tensor::rand(-1.4f32, 1.4, (50, 3), &dev).unwrap();
+        let dirs = candle_core::Tensor::new(&[[0f32, 0.6, 0.8]], &dev).unwrap();
+        let rays = candle_core::Tensor::zeros(50, candle_core::DType::U32, &dev).unwrap();
+        let (s0, c0) = model.forward_packed(&points, &rays, &dirs).unwrap();
+        let (s1, c1) = field.evaluate_packed(&points, &rays, &dirs).unwrap();
+        let diff = crate::core::compare::max_abs_difference;
+        assert_eq!(diff(&s0, &s1).unwrap() + diff(&c0, &c1).unwrap(), 0.0);
+        // A checkpoint of other sizes is refused in one line.
+        let o = vec!["implicit_function.log2_hashmap_size=11".to_string()];
+        let other =
+            Config::from_yaml(&format!("{}{body}{}", &lego[..start], &lego[end..]), &o).unwrap();
+        let e = format!("{:#}", other.load_field(&path, &dev).err().unwrap());
+        assert!(e.contains("encoding.table") || e.contains("shape"), "{e}");
     }
 
     #[test]

@@ -29,9 +29,9 @@ pub fn eval_nerf(
         config.renderer.white_background,
         limit,
     )?;
-    let (state, _) = config.load_nerf(&config.checkpoint(checkpoint), device)?;
+    let field = config.load_field(&config.checkpoint(checkpoint), device)?;
     evaluate(
-        &state.field(),
+        &*field,
         &config.sampler()?,
         &config.renderer()?,
         &dataset,

@@ -80,7 +80,10 @@ impl Config {
     pub fn nerf_params(&self) -> Result<NerfParams> {
         match &self.implicit_function {
             ImplicitFunctionConfig::Nerf(n) => Ok(n.params()),
-            _ => bail!(
+            ImplicitFunctionConfig::Ngp(_) => bail!(
+                "implicit_function.type is ngp: this command takes nerf configs only so far (training ngp is not wired in yet, issue 13); render and eval take ngp"
+            ),
+            ImplicitFunctionConfig::SdfVolume(_) => bail!(
                 "implicit_function.type is sdf_volume: this command needs a NeRF config (e.g. lego)"
             ),
         }
@@ -228,6 +231,57 @@ impl Config {
             Some(t) => t.checkpoint_path.clone(),
             None => PathBuf::from(SHIPPED_CHECKPOINT),
         }
+    }
+
+    /// A trained field for rendering or evaluating with this config, whatever its kind (`nerf`
+    /// or `ngp`): weights from the checkpoint at `path` and the occupancy grid the config asks
+    /// for.
+    pub fn load_field(
+        &self,
+        path: &Path,
+        device: &Device,
+    ) -> Result<Box<dyn crate::render::field::Field>> {
+        match &self.implicit_function {
+            ImplicitFunctionConfig::Ngp(n) => {
+                Ok(Box::new(self.load_ngp(&n.params()?, path, device)?))
+            }
+            _ => Ok(Box::new(self.load_nerf(path, device)?.0.field())),
+        }
+    }
+
+    /// A trained NGP field: parameters from the checkpoint at `path` (names and shapes checked,
+    /// any float dtype, e.g. an f16 table), with the config's occupancy grid (the checkpoint's,
+    /// or one built from the model).
+    pub fn load_ngp(
+        &self,
+        params: &crate::field::ngp::NgpParams,
+        path: &Path,
+        device: &Device,
+    ) -> Result<crate::field::ngp::NgpField> {
+        use crate::field::ngp::{Ngp, NgpField};
+        crate::io::checkpoint::ensure_checkpoint_file(path)?;
+        let (tensors, info) = crate::io::checkpoint::load(path, device)?;
+        let vb =
+            candle_nn::VarBuilder::from_tensors(tensors.clone(), candle_core::DType::F32, device);
+        let model = Ngp::new(params, vb)
+            .with_context(|| {
+                format!(
+                    "{}: not an ngp checkpoint of this config's sizes",
+                    path.display()
+                )
+            })?
+            .detached();
+        let occupancy = match self.occupancy_grid() {
+            Some(g) => {
+                let density = |p: &candle_core::Tensor| model.density(p);
+                Some(std::sync::Arc::new(
+                    crate::render::occupancy::grid_for_checkpoint(&g, &tensors, &density, device)?,
+                ))
+            }
+            None => None,
+        };
+        crate::core::term::note(&format!("loaded {} (epoch {})", path.display(), info.epoch));
+        Ok(NgpField { model, occupancy })
     }
 
     /// A trained NeRF for rendering with this config: weights from the checkpoint at `path`,

@@ -207,12 +207,10 @@ pub fn render_nerf_scene(
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    config.nerf_params()?;
-    let (state, _) = config.load_nerf(checkpoint, device)?;
+    let field = config.load_field(checkpoint, device)?;
     prepare_out_dir(out_dir)?;
-    let field = state.field();
     let frames = render_views(
-        &field,
+        &*field,
         &config.surround_cameras(),
         config.image_size(),
         &config.sampler()?,
@@ -251,7 +249,7 @@ pub fn render_scene(
             }
             render_sdf_scene(config, out_dir, raw, device)
         }
-        ImplicitFunctionConfig::Nerf(_) => {
+        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_) => {
             render_nerf_scene(config, &config.checkpoint(checkpoint), out_dir, raw, device)
         }
     }
@@ -305,5 +303,9 @@ pub fn load_scene_field(
             let (state, _) = config.load_nerf(&config.checkpoint(checkpoint), device)?;
             Ok(SceneField::Nerf(state.field()))
         }
+        ImplicitFunctionConfig::Ngp(_) => anyhow::bail!(
+            "implicit_function.type ngp: the viewer and export take SDF and NeRF configs for now \
+             (render and eval load ngp checkpoints)"
+        ),
     }
 }

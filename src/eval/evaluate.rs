@@ -1,4 +1,4 @@
-//! `nerf eval`: PSNR of a trained NeRF against a split of the dataset.
+//! `nerf eval`: PSNR and SSIM of a trained NeRF against a split of the dataset.
 
 use std::path::Path;
 
@@ -6,7 +6,7 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::core::metrics::{mean, psnr};
+use crate::core::metrics::{mean, psnr, ssim, SSIM_WINDOW};
 use crate::io::dataset::{Dataset, Split};
 use crate::io::images::{prepare_out_dir, write_png};
 use crate::io::progress::progress_bar;
@@ -16,16 +16,20 @@ use crate::render::sampler::StratifiedSampler;
 use crate::render::skipping::SampleCounts;
 use crate::render::view::render_view;
 
-/// PSNR of one view.
+/// PSNR and SSIM of one view.
 #[derive(Debug, Clone, Serialize)]
 pub struct ViewScore {
     /// Frame name, e.g. `r_0`.
     pub frame: String,
     /// PSNR in dB of the rendered colour against the ground-truth image.
     pub psnr: f64,
+    /// SSIM of the rendered colour against the ground-truth image
+    /// ([`crate::core::metrics::ssim`]: 11×11 Gaussian window, data range 1); `None` (JSON
+    /// `null`) for images under 11 pixels on a side, where SSIM's window does not fit.
+    pub ssim: Option<f64>,
 }
 
-/// PSNR over a split: mean, min, max and per view.
+/// PSNR over a split (mean, min, max and per view) and mean SSIM.
 #[derive(Debug, Clone, Serialize)]
 pub struct EvalReport {
     /// The split evaluated (`train`, `val` or `test`).
@@ -36,6 +40,8 @@ pub struct EvalReport {
     pub height: usize,
     /// Samples per ray.
     pub n_pts_per_ray: usize,
+    /// Whether prediction and ground truth were composited on white (else black).
+    pub white_background: bool,
     /// Mean seconds to render one view.
     pub seconds_per_view: f64,
     /// Fraction of drawn samples at which the field was evaluated (1 when dense).
@@ -46,28 +52,39 @@ pub struct EvalReport {
     pub min_psnr: f64,
     /// Highest PSNR of a view, in dB.
     pub max_psnr: f64,
+    /// Mean SSIM over the views (`None` for images under 11 pixels on a side).
+    pub mean_ssim: Option<f64>,
     /// Every view's score, in dataset order.
     pub views: Vec<ViewScore>,
 }
 
 impl EvalReport {
-    /// One line: split, views, size, PSNR mean/min/max, time per view, evaluated fraction.
+    /// One line: split, views, size, background, PSNR mean/min/max, mean SSIM, time per view,
+    /// evaluated fraction.
     pub fn summary(&self) -> String {
         format!(
-            "{} split, {} {} at {}x{}, {} points: PSNR mean {:.2} dB, min {:.2}, max {:.2}; {:.3} s per view, field evaluated at {:.1}% of samples",
+            "{} split, {} {} at {}x{}, {} points, on {}: PSNR mean {:.2} dB, min {:.2}, max {:.2}; SSIM mean {}; {:.3} s per view, field evaluated at {:.1}% of samples",
             self.split,
             self.views.len(),
             if self.views.len() == 1 { "view" } else { "views" },
             self.width,
             self.height,
             self.n_pts_per_ray,
+            if self.white_background { "white" } else { "black" },
             self.mean_psnr,
             self.min_psnr,
             self.max_psnr,
+            self.mean_ssim
+                .map_or_else(|| "n/a (images under 11 pixels)".to_string(), |v| format!("{v:.4}")),
             self.seconds_per_view,
             100.0 * self.evaluated_fraction
         )
     }
+}
+
+/// Whether SSIM's 11×11 window fits an image of `(width, height)`.
+fn ssim_fits(size: (usize, usize)) -> bool {
+    size.0 >= SSIM_WINDOW && size.1 >= SSIM_WINDOW
 }
 
 /// Renders every view of `dataset` with `field` (through `sampler` and `renderer`) and scores it; with `save_images`, writes each
@@ -107,6 +124,9 @@ pub fn evaluate(
         views.push(ViewScore {
             frame: name,
             psnr: psnr(&predicted.color, truth),
+            ssim: ssim_fits(size)
+                .then(|| ssim(&predicted.color, truth))
+                .transpose()?,
         });
         bar.inc(1);
     }
@@ -117,11 +137,14 @@ pub fn evaluate(
         width: size.0,
         height: size.1,
         n_pts_per_ray: sampler.n_pts_per_ray,
+        white_background: renderer.white_background,
         seconds_per_view: render_seconds / n.max(1) as f64,
         evaluated_fraction: counts.evaluated_fraction(),
         mean_psnr: mean(&values),
         min_psnr: values.iter().cloned().fold(f64::INFINITY, f64::min),
         max_psnr: values.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+        mean_ssim: ssim_fits(size)
+            .then(|| mean(&views.iter().filter_map(|v| v.ssim).collect::<Vec<_>>())),
         views,
     })
 }

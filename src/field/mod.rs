@@ -1,4 +1,5 @@
-//! The fields: SDF volumes and the NeRF MLP.
+//! The fields: SDF volumes, the NeRF MLP and the hash-grid (Instant-NGP-class) field.
 
 pub mod nerf;
+pub mod ngp;
 pub mod sdf;

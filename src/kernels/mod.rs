@@ -17,6 +17,7 @@ use candle_core::{DType, Tensor};
 
 pub mod bias;
 pub mod composite;
+pub mod hash_grid;
 pub mod sample_points;
 pub mod sdf_volume;
 pub mod storage;

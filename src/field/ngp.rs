@@ -1,0 +1,423 @@
+//! An Instant-NGP-class field: a multiresolution hash encoding of the point
+//! ([`crate::kernels::hash_grid`]) and two small MLPs.
+//!
+//! * The point is mapped from the field's axis-aligned box to [0, 1]³ and encoded (`L·F`
+//!   features); outside the box the density is 0.
+//! * `density_mlp`: Linear(L·F, 64) + ReLU → Linear(64, 16); output 0 is the raw density
+//!   (through [`trunc_exp`], or softplus), outputs 1..16 are 15 geometry features.
+//! * `color_mlp`: Linear(15 + 16, 64) + ReLU → Linear(64, 64) + ReLU → Linear(64, 3) + sigmoid,
+//!   on the geometry features and the degree-4 real spherical harmonics of the direction
+//!   ([`sh_basis`]). The direction half of the first layer depends only on the ray, so it is
+//!   applied once per ray (as in [`crate::field::nerf`]).
+//!
+//! Parameters: `encoding.table` `(L·T, F)` (initialised U(−1e‑4, 1e‑4), as instant-ngp) and
+//! `density_mlp.{0,2}` / `color_mlp.{0,2,4}` `.weight` `(out, in)` and `.bias` (PyTorch's
+//! default initialisation).
+
+use std::sync::Arc;
+
+use anyhow::{ensure, Result};
+use candle_core::{DType, Tensor};
+use candle_nn::{Init, Linear, VarBuilder};
+
+use crate::field::nerf::linear;
+use crate::kernels::hash_grid::{hash_encode, HashGridParams};
+use crate::render::field::{Field, FieldOutput};
+use crate::render::occupancy::OccupancyGrid;
+use crate::render::sampler::RaySamples;
+
+/// Width of the hidden layers of both MLPs.
+pub const HIDDEN: usize = 64;
+/// Geometry features passed from the density MLP to the colour MLP.
+pub const GEO_FEATURES: usize = 15;
+/// Values of the degree-4 spherical-harmonics basis (`4²`).
+pub const SH_DIM: usize = 16;
+/// Where [`trunc_exp`]'s gradient stops growing (instant-ngp's 15).
+pub const TRUNC_EXP_MAX: f64 = 15.0;
+
+/// How the raw density becomes σ ≥ 0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DensityActivation {
+    /// `exp(x)` with the gradient of `exp(min(x, 15))` ([`trunc_exp`]), as instant-ngp.
+    #[default]
+    TruncExp,
+    /// `ln(1 + eˣ)`.
+    Softplus,
+}
+
+/// The sizes of an NGP field (its `implicit_function` keys with `type: ngp`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NgpParams {
+    /// The hash encoding's shape.
+    pub grid: HashGridParams,
+    /// The box the encoding covers: `[min, max]` corners in world units.
+    pub aabb: [[f64; 3]; 2],
+    /// The density activation.
+    pub density_activation: DensityActivation,
+}
+
+impl NgpParams {
+    /// Checks the grid and that the box has positive extent on every axis.
+    pub fn validate(&self) -> Result<()> {
+        self.grid.validate()?;
+        ensure!(
+            (0..3).all(|a| self.aabb[1][a] > self.aabb[0][a]),
+            "implicit_function.aabb: max must exceed min on every axis, got {:?}",
+            self.aabb
+        );
+        Ok(())
+    }
+}
+
+/// The real spherical harmonics of degrees 0–3 (16 values, instant-ngp's order and constants)
+/// of a unit direction `d`.
+pub fn sh_basis(d: [f32; 3]) -> [f32; SH_DIM] {
+    let [x, y, z] = d;
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    let (xy, yz, xz) = (x * y, y * z, x * z);
+    [
+        0.282_094_8,
+        -0.488_602_52 * y,
+        0.488_602_52 * z,
+        -0.488_602_52 * x,
+        1.092_548_5 * xy,
+        -1.092_548_5 * yz,
+        0.946_174_7 * zz - 0.315_391_57,
+        -1.092_548_5 * xz,
+        0.546_274_24 * (xx - yy),
+        0.590_043_6 * y * (-3.0 * xx + yy),
+        2.890_611_4 * xy * z,
+        0.457_045_8 * y * (1.0 - 5.0 * zz),
+        0.373_176_34 * z * (5.0 * zz - 3.0),
+        0.457_045_8 * x * (1.0 - 5.0 * zz),
+        1.445_305_7 * z * (xx - yy),
+        0.590_043_6 * x * (-xx + 3.0 * yy),
+    ]
+}
+
+/// [`sh_basis`] of every row of `directions` `(N, 3)`: `(N, 16)`, in `directions`' dtype.
+pub fn sh_encode(directions: &Tensor) -> Result<Tensor> {
+    let n = directions.dim(0)?;
+    let d = directions
+        .to_dtype(DType::F32)?
+        .flatten_all()?
+        .to_vec1::<f32>()?;
+    let sh: Vec<f32> = d
+        .chunks_exact(3)
+        .flat_map(|v| sh_basis([v[0], v[1], v[2]]))
+        .collect();
+    Ok(Tensor::from_vec(sh, (n, SH_DIM), directions.device())?.to_dtype(directions.dtype())?)
+}
+
+/// `exp(x)` whose gradient is `exp(min(x, 15))·g` (instant-ngp's `trunc_exp`: the value is
+/// exact, the gradient cannot overflow). Tensor ops only: `(exp(x) − e·x)` detached plus
+/// `e·x` with `e = exp(min(x, 15))` detached. Any shape.
+pub fn trunc_exp(x: &Tensor) -> Result<Tensor> {
+    let e = x.detach().clamp(f64::NEG_INFINITY, TRUNC_EXP_MAX)?.exp()?;
+    let constant = (x.detach().exp()? - (&e * x.detach())?)?;
+    Ok(((&e * x)? + constant)?)
+}
+
+/// `nn.Linear(in_dim, out_dim)` with PyTorch's default initialisation, under `vb`.
+fn new_linear(in_dim: usize, out_dim: usize, vb: VarBuilder) -> Result<Linear> {
+    let bound = 1.0 / (in_dim as f64).sqrt();
+    let init = Init::Uniform {
+        lo: -bound,
+        up: bound,
+    };
+    let w = vb.get_with_hints((out_dim, in_dim), "weight", init)?;
+    let b = vb.get_with_hints(out_dim, "bias", init)?;
+    Ok(Linear::new(w, Some(b)))
+}
+
+/// The NGP model: the hash table and the two MLPs.
+#[derive(Debug, Clone)]
+pub struct Ngp {
+    /// The sizes the model was built with.
+    pub params: NgpParams,
+    table: Tensor,
+    density: [Linear; 2],
+    color: [Linear; 3],
+}
+
+impl Ngp {
+    /// Builds the model; parameters are created in (or loaded from) `vb`.
+    pub fn new(params: &NgpParams, vb: VarBuilder) -> Result<Self> {
+        params.validate()?;
+        let g = &params.grid;
+        let init = Init::Uniform {
+            lo: -1e-4,
+            up: 1e-4,
+        };
+        let table = vb.get_with_hints((g.n_rows(), g.n_features), "encoding.table", init)?;
+        let d = vb.pp("density_mlp");
+        let c = vb.pp("color_mlp");
+        Ok(Self {
+            params: params.clone(),
+            table,
+            density: [
+                new_linear(g.output_dim(), HIDDEN, d.pp("0"))?,
+                new_linear(HIDDEN, 1 + GEO_FEATURES, d.pp("2"))?,
+            ],
+            color: [
+                new_linear(GEO_FEATURES + SH_DIM, HIDDEN, c.pp("0"))?,
+                new_linear(HIDDEN, HIDDEN, c.pp("2"))?,
+                new_linear(HIDDEN, 3, c.pp("4"))?,
+            ],
+        })
+    }
+
+    /// The hash table `(L·T, F)` (the parameter the sparse optimiser treats row by row).
+    pub fn table(&self) -> &Tensor {
+        &self.table
+    }
+
+    /// `points` `(M, 3)` in world units mapped to [0, 1]³ by the box: `(M, 3)`, and `(M, 1)`
+    /// with 1 inside the box (faces included), 0 outside.
+    fn normalise(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
+        let [lo, hi] = self.params.aabb;
+        let dev = points.device();
+        let lo_t = Tensor::new(&[lo.map(|v| v as f32)], dev)?.to_dtype(points.dtype())?;
+        let size = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+        let scale = Tensor::new(&[size.map(|v| 1.0 / v as f32)], dev)?.to_dtype(points.dtype())?;
+        let unit = points.broadcast_sub(&lo_t)?.broadcast_mul(&scale)?;
+        let inside = (unit.ge(0.0)?.to_dtype(DType::F32)? * unit.le(1.0)?.to_dtype(DType::F32)?)?
+            .min_keepdim(1)?
+            .to_dtype(points.dtype())?;
+        Ok((unit, inside))
+    }
+
+    /// σ `(M, 1)` (0 outside the box) and the geometry features `(M, 15)` at `points` `(M, 3)`.
+    pub fn geometry(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
+        let (unit, inside) = self.normalise(points)?;
+        let enc = hash_encode(&unit, &self.table, &self.params.grid)?;
+        let h = linear(&self.density[0], &enc)?.relu()?;
+        let out = linear(&self.density[1], &h)?;
+        let raw = out.narrow(1, 0, 1)?;
+        let sigma = match self.params.density_activation {
+            DensityActivation::TruncExp => trunc_exp(&raw)?,
+            DensityActivation::Softplus => (raw.exp()? + 1.0)?.log()?,
+        };
+        Ok(((sigma * inside)?, out.narrow(1, 1, GEO_FEATURES)?))
+    }
+
+    /// The colour MLP's first layer split into its per-sample part `(M, 64)` (from `geo`
+    /// `(M, 15)`) and its per-ray part `(N, 64)` (from the SH of `directions` `(N, 3)`, bias
+    /// included), to be added by the caller.
+    fn color_parts(&self, geo: &Tensor, directions: &Tensor) -> Result<(Tensor, Tensor)> {
+        let w = self.color[0].weight();
+        let (w_geo, w_sh) = (
+            w.narrow(1, 0, GEO_FEATURES)?,
+            w.narrow(1, GEO_FEATURES, SH_DIM)?,
+        );
+        let mut per_ray = sh_encode(directions)?.matmul(&w_sh.t()?)?;
+        if let Some(b) = self.color[0].bias() {
+            per_ray = per_ray.broadcast_add(b)?;
+        }
+        Ok((geo.matmul(&w_geo.t()?)?, per_ray))
+    }
+
+    /// The rest of the colour MLP: `sigmoid(L4(relu(L2(relu(h)))))`, `(M, 64)` → `(M, 3)`.
+    fn color_head(&self, h: &Tensor) -> Result<Tensor> {
+        let h = linear(&self.color[1], &h.relu()?)?.relu()?;
+        Ok(candle_nn::ops::sigmoid(&linear(&self.color[2], &h)?)?)
+    }
+
+    /// Density `(N, S, 1)` and colour `(N, S, 3)` at `points` `(N, S, 3)` of rays with unit
+    /// `directions` `(N, 3)`.
+    pub fn forward(&self, points: &Tensor, directions: &Tensor) -> Result<FieldOutput> {
+        let (n, s, _) = points.dims3()?;
+        let (sigma, geo) = self.geometry(&points.reshape((n * s, 3))?)?;
+        let (per_sample, per_ray) = self.color_parts(&geo, directions)?;
+        let h = crate::kernels::bias::add_per_group(&per_sample, &per_ray, s)?;
+        Ok(FieldOutput {
+            density: sigma.reshape((n, s, 1))?,
+            feature: self.color_head(&h)?.reshape((n, s, 3))?,
+        })
+    }
+
+    /// Density `(M, 1)` and colour `(M, 3)` at `points` `(M, 3)` drawn from N rays:
+    /// `ray_index` `(M,)` u32 names each sample's ray in `directions` `(N, 3)`.
+    pub fn forward_packed(
+        &self,
+        points: &Tensor,
+        ray_index: &Tensor,
+        directions: &Tensor,
+    ) -> Result<(Tensor, Tensor)> {
+        let (sigma, geo) = self.geometry(points)?;
+        let (per_sample, per_ray) = self.color_parts(&geo, directions)?;
+        let h = per_sample.add(&per_ray.index_select(ray_index, 0)?)?;
+        Ok((sigma, self.color_head(&h)?))
+    }
+
+    /// Density alone at `points` `(M, 3)`: `(M, 1)` (what the occupancy grid probes).
+    pub fn density(&self, points: &Tensor) -> Result<Tensor> {
+        Ok(self.geometry(points)?.0)
+    }
+
+    /// The same model with parameters detached from the autograd graph, for rendering.
+    pub fn detached(&self) -> Self {
+        let detach = |l: &Linear| Linear::new(l.weight().detach(), l.bias().map(|b| b.detach()));
+        Self {
+            params: self.params.clone(),
+            table: self.table.detach(),
+            density: self.density.clone().map(|l| detach(&l)),
+            color: self.color.clone().map(|l| detach(&l)),
+        }
+    }
+}
+
+/// An NGP model as a field, with the occupancy grid that marks where it can have density.
+#[derive(Debug, Clone)]
+pub struct NgpField {
+    /// The model.
+    pub model: Ngp,
+    /// The occupancy grid used to skip empty space, if any.
+    pub occupancy: Option<Arc<OccupancyGrid>>,
+}
+
+impl Field for NgpField {
+    fn max_samples_per_chunk(&self) -> usize {
+        1 << 16
+    }
+
+    fn evaluate(
+        &self,
+        samples: &RaySamples,
+        _deltas: &Tensor,
+        directions: &Tensor,
+    ) -> Result<FieldOutput> {
+        self.model.forward(&samples.points, directions)
+    }
+
+    fn supports_packed(&self) -> bool {
+        true
+    }
+
+    fn evaluate_packed(
+        &self,
+        points: &Tensor,
+        ray_index: &Tensor,
+        directions: &Tensor,
+    ) -> Result<(Tensor, Tensor)> {
+        self.model.forward_packed(points, ray_index, directions)
+    }
+
+    fn occupancy(&self) -> Option<&OccupancyGrid> {
+        self.occupancy.as_deref()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{Device, Var};
+    use candle_nn::VarMap;
+
+    fn small() -> NgpParams {
+        NgpParams {
+            grid: HashGridParams {
+                n_levels: 4,
+                n_features: 2,
+                log2_table_size: 8,
+                base_resolution: 4.0,
+                max_resolution: 32.0,
+            },
+            aabb: [[-1.5; 3], [1.5; 3]],
+            density_activation: DensityActivation::TruncExp,
+        }
+    }
+
+    #[test]
+    fn sh_basis_matches_hand_values() {
+        // +z: only the zonal terms (m = 0) are non-zero: Y00, Y10 = √(3/4π), Y20, Y30.
+        let z = sh_basis([0.0, 0.0, 1.0]);
+        let pi = std::f32::consts::PI;
+        assert!((z[0] - 0.5 / pi.sqrt()).abs() < 1e-6);
+        assert!((z[2] - (3.0 / (4.0 * pi)).sqrt()).abs() < 1e-6);
+        assert!((z[6] - 0.25 * (5.0 / pi).sqrt() * 2.0).abs() < 1e-6); // (3z²−1)·¼√(5/π)
+        assert!((z[12] - 0.25 * (7.0 / pi).sqrt() * 2.0).abs() < 1e-6); // (5z³−3z)·¼√(7/π)
+        for k in [1, 3, 4, 5, 7, 8, 9, 10, 11, 13, 14, 15] {
+            assert_eq!(z[k], 0.0, "term {k}");
+        }
+        // +x: Y1,1 = −√(3/4π)·x in this sign convention; Y2,2 = ¼√(15/π)·(x²−y²); Y2,0 = −¼√(5/π).
+        let x = sh_basis([1.0, 0.0, 0.0]);
+        assert!((x[3] + (3.0 / (4.0 * pi)).sqrt()).abs() < 1e-6);
+        assert!((x[8] - 0.25 * (15.0 / pi).sqrt()).abs() < 1e-6);
+        assert!((x[6] + 0.25 * (5.0 / pi).sqrt()).abs() < 1e-6);
+        // The squares of each degree's values sum to (2l+1)/4π for any unit direction.
+        let v = sh_basis([0.48, -0.6, 0.64]);
+        for (l, range) in [(0usize, 0..1), (1, 1..4), (2, 4..9), (3, 9..16)] {
+            let s: f32 = v[range].iter().map(|a| a * a).sum();
+            assert!(
+                (s - (2 * l + 1) as f32 / (4.0 * pi)).abs() < 1e-5,
+                "degree {l}"
+            );
+        }
+    }
+
+    #[test]
+    fn trunc_exp_value_is_exact_and_gradient_is_clamped() {
+        let x = Var::new(&[0.5f32, 20.0, -3.0], &Device::Cpu).unwrap();
+        let y = trunc_exp(&x).unwrap();
+        let v = y.to_vec1::<f32>().unwrap();
+        let g = y.sum_all().unwrap().backward().unwrap();
+        let g = g.get(&x).unwrap().to_vec1::<f32>().unwrap();
+        for (i, x) in [0.5f32, 20.0, -3.0].into_iter().enumerate() {
+            assert!((v[i] / x.exp() - 1.0).abs() < 1e-5, "value at {x}");
+            let want = x.min(TRUNC_EXP_MAX as f32).exp();
+            assert!(
+                (g[i] / want - 1.0).abs() < 1e-5,
+                "gradient at {x}: {}",
+                g[i]
+            );
+        }
+    }
+
+    #[test]
+    fn field_shapes_ranges_packing_and_box() {
+        let varmap = VarMap::new();
+        let dev = Device::Cpu;
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
+        let model = Ngp::new(&small(), vb).unwrap();
+        let points = Tensor::rand(-2f32, 2.0, (5, 7, 3), &dev).unwrap();
+        let dirs = Tensor::randn(0f32, 1.0, (5, 3), &dev).unwrap();
+        let dirs = dirs.broadcast_div(&dirs.sqr().unwrap().sum_keepdim(1).unwrap().sqrt().unwrap());
+        let dirs = dirs.unwrap();
+        let out = model.forward(&points, &dirs).unwrap();
+        assert_eq!(out.density.dims(), &[5, 7, 1]);
+        assert_eq!(out.feature.dims(), &[5, 7, 3]);
+        let flat = points.reshape((35, 3)).unwrap();
+        let ray_index = Tensor::from_vec((0..35u32).map(|i| i / 7).collect(), 35, &dev).unwrap();
+        let (sigma, colour) = model.forward_packed(&flat, &ray_index, &dirs).unwrap();
+        let diff = |a: &Tensor, b: &Tensor| {
+            crate::core::compare::max_abs_difference(
+                &a.flatten_all().unwrap(),
+                &b.flatten_all().unwrap(),
+            )
+            .unwrap()
+        };
+        assert!(diff(&sigma, &out.density) < 1e-6);
+        assert!(diff(&colour, &out.feature) < 1e-6);
+        let p = flat.to_vec2::<f32>().unwrap();
+        let s = sigma.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        for (p, s) in p.iter().zip(&s) {
+            let inside = p.iter().all(|v| v.abs() <= 1.5);
+            assert!(if inside { *s > 0.0 } else { *s == 0.0 }, "{p:?}: {s}");
+        }
+        // The gradient reaches the hash table through both MLPs.
+        let loss = (out.density.sum_all().unwrap() + out.feature.sum_all().unwrap()).unwrap();
+        let grads = loss.backward().unwrap();
+        let g = grads
+            .get(model.table())
+            .unwrap()
+            .abs()
+            .unwrap()
+            .sum_all()
+            .unwrap();
+        assert!(g.to_scalar::<f32>().unwrap() > 0.0);
+        let names: Vec<String> = varmap.data().lock().unwrap().keys().cloned().collect();
+        assert_eq!(names.len(), 1 + 2 * 5, "{names:?}");
+        assert!(names.contains(&"encoding.table".to_string()));
+    }
+}

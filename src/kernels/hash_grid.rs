@@ -1,0 +1,573 @@
+//! Multiresolution hash encoding (Instant-NGP, Müller et al. 2022): `L` grids of resolutions
+//! `N_l = ⌊N_min · b^l⌋`, `b = exp((ln N_max − ln N_min)/(L − 1))`, each a table of `T = 2^log2_T`
+//! rows of `F` features. A point in [0, 1]³ is scaled by `N_l`; the 8 corners of its cell are
+//! looked up — densely (`x + y·(N_l+1) + z·(N_l+1)²`) on coarse levels whose `(N_l+1)³ ≤ T`,
+//! else hashed (`x·1 ⊕ y·2654435761 ⊕ z·805459861 mod T`, u32 arithmetic) — and their features
+//! interpolated trilinearly. The output is the `L·F` interpolated features.
+//!
+//! The fused CPU op runs the points in parallel forward; backward it scatters the output
+//! gradient into the table gradient one level per task: levels own disjoint slices of the table,
+//! so there is no race and no per-thread buffer. The table gradient it returns is dense
+//! (`L·T × F`, zero-initialised: autograd gives every variable a dense gradient; the
+//! allocation is a fresh zero-page mapping, so only the pages a step writes are touched), and
+//! [`touched_rows`] names the rows a step touched, for an optimiser that updates only those.
+//! Its twin gathers the
+//! corner rows with `index_select` and weights them with tensor ops (Candle's `index_select`
+//! backward is the `index_add` scatter); corner indices and weights come from the points
+//! (never trained) on the host.
+
+use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
+use rayon::prelude::*;
+
+use crate::kernels::storage::contiguous_f32;
+use crate::kernels::use_fused;
+
+const POINTS_PER_TASK: usize = 256;
+
+/// The multiplier of each axis in the spatial hash (instant-ngp's primes; x's is 1).
+pub const HASH_PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+
+/// The shape of a hash encoding: levels, features per level, table size and resolutions.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HashGridParams {
+    /// Number of levels `L`.
+    pub n_levels: usize,
+    /// Features per level `F`.
+    pub n_features: usize,
+    /// `log2` of the rows per level's table `T`.
+    pub log2_table_size: u32,
+    /// Coarsest resolution `N_min`.
+    pub base_resolution: f64,
+    /// Finest resolution `N_max`.
+    pub max_resolution: f64,
+}
+
+impl HashGridParams {
+    /// Checks the shape: at least one level and feature, `log2_T` in 4..=24 and
+    /// `1 ≤ N_min ≤ N_max` (one-line errors).
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(self.n_levels >= 1, "hash grid: n_levels must be at least 1");
+        anyhow::ensure!(
+            self.n_features >= 1,
+            "hash grid: n_features_per_level must be at least 1"
+        );
+        anyhow::ensure!(
+            (4..=24).contains(&self.log2_table_size),
+            "hash grid: log2_hashmap_size must be in 4..=24, got {}",
+            self.log2_table_size
+        );
+        anyhow::ensure!(
+            self.base_resolution >= 1.0 && self.max_resolution >= self.base_resolution,
+            "hash grid: need 1 <= base_resolution <= max_resolution, got {} and {}",
+            self.base_resolution,
+            self.max_resolution
+        );
+        Ok(())
+    }
+
+    /// Rows per level's table, `T`.
+    pub fn table_size(&self) -> usize {
+        1 << self.log2_table_size
+    }
+
+    /// Rows of the whole parameter tensor, `L·T`.
+    pub fn n_rows(&self) -> usize {
+        self.n_levels * self.table_size()
+    }
+
+    /// Output width, `L·F`.
+    pub fn output_dim(&self) -> usize {
+        self.n_levels * self.n_features
+    }
+
+    /// The growth factor `b` between levels (1 with one level).
+    pub fn growth(&self) -> f64 {
+        if self.n_levels < 2 {
+            1.0
+        } else {
+            ((self.max_resolution.ln() - self.base_resolution.ln()) / (self.n_levels - 1) as f64)
+                .exp()
+        }
+    }
+
+    /// Each level's resolution `N_l = ⌊N_min · b^l⌋` and whether its table is dense.
+    pub fn levels(&self) -> Vec<Level> {
+        let b = self.growth();
+        (0..self.n_levels)
+            .map(|l| {
+                // A hair above the product, so that b^l·N_min landing a rounding error under
+                // an integer (N_max itself on the last level) still floors to it.
+                let res = ((self.base_resolution * b.powi(l as i32)) * (1.0 + 1e-12)).floor();
+                let res = res.max(1.0) as u32;
+                let corners = (res as u64 + 1).pow(3);
+                Level {
+                    resolution: res,
+                    dense: corners <= self.table_size() as u64,
+                    table_mask: self.table_size() as u32 - 1,
+                }
+            })
+            .collect()
+    }
+}
+
+/// One level of the grid: its resolution and how its table is indexed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Level {
+    /// Cells per axis `N_l` (corners `0..=N_l`).
+    pub resolution: u32,
+    /// Whether every corner has its own row (`(N_l+1)³ ≤ T`) rather than a hashed one.
+    pub dense: bool,
+    /// `T − 1`.
+    pub table_mask: u32,
+}
+
+impl Level {
+    /// The row (within this level's table) of the integer corner `c`.
+    pub fn index(&self, c: [u32; 3]) -> u32 {
+        if self.dense {
+            let n = self.resolution + 1;
+            c[0] + n * (c[1] + n * c[2])
+        } else {
+            (c[0].wrapping_mul(HASH_PRIMES[0])
+                ^ c[1].wrapping_mul(HASH_PRIMES[1])
+                ^ c[2].wrapping_mul(HASH_PRIMES[2]))
+                & self.table_mask
+        }
+    }
+
+    /// The 8 corners of the cell holding `p` (in [0, 1]³; clamped there): each corner's row in
+    /// this level's table and its trilinear weight (corner `k` takes bit `a` of `k` on axis `a`).
+    pub fn corners(&self, p: [f32; 3]) -> [(u32, f32); 8] {
+        let n = self.resolution;
+        let mut cell = [0u32; 3];
+        let mut frac = [0f32; 3];
+        for a in 0..3 {
+            let x = p[a].clamp(0.0, 1.0) * n as f32;
+            let c = (x.floor() as u32).min(n - 1);
+            cell[a] = c;
+            frac[a] = x - c as f32;
+        }
+        let mut out = [(0u32, 0f32); 8];
+        for (k, o) in out.iter_mut().enumerate() {
+            let mut c = cell;
+            let mut w = 1.0;
+            for a in 0..3 {
+                if k >> a & 1 == 1 {
+                    c[a] += 1;
+                    w *= frac[a];
+                } else {
+                    w *= 1.0 - frac[a];
+                }
+            }
+            *o = (self.index(c), w);
+        }
+        out
+    }
+}
+
+/// Encodes `points` `(M, 3)` (in [0, 1]³) with `table` `(L·T, F)`: `(M, L·F)`, level-major
+/// (level `l`'s `F` features at columns `l·F..(l+1)·F`). The gradient flows to `table` only.
+/// Fused on the CPU for f32 ([`use_fused`]); [`hash_encode_generic`] elsewhere.
+pub fn hash_encode(
+    points: &Tensor,
+    table: &Tensor,
+    params: &HashGridParams,
+) -> candle_core::Result<Tensor> {
+    check_shapes(points, table, params)?;
+    if use_fused(table) && points.device().is_cpu() {
+        points
+            .to_dtype(DType::F32)?
+            .contiguous()?
+            .apply_op2(&table.contiguous()?, HashEncode { params: *params })
+    } else {
+        hash_encode_generic(points, table, params)
+    }
+}
+
+fn check_shapes(points: &Tensor, table: &Tensor, p: &HashGridParams) -> candle_core::Result<()> {
+    let (_, three) = points.dims2()?;
+    let (rows, f) = table.dims2()?;
+    if three != 3 || rows != p.n_rows() || f != p.n_features {
+        candle_core::bail!(
+            "hash encoding: points {:?} and table {:?}, expected (M, 3) and ({}, {})",
+            points.dims(),
+            table.dims(),
+            p.n_rows(),
+            p.n_features
+        );
+    }
+    Ok(())
+}
+
+/// Rows into the whole table (level offset added) and weights of every point's corners:
+/// `M·L·8` of each, point-major, then level, then corner.
+fn corner_rows(points: &[f32], params: &HashGridParams) -> (Vec<u32>, Vec<f32>) {
+    let levels = params.levels();
+    let t = params.table_size() as u32;
+    let per_point = levels.len() * 8;
+    let m = points.len() / 3;
+    let mut rows = vec![0u32; m * per_point];
+    let mut weights = vec![0f32; m * per_point];
+    rows.par_chunks_mut(per_point)
+        .zip(weights.par_chunks_mut(per_point))
+        .zip(points.par_chunks(3))
+        .for_each(|((r, w), p)| {
+            for (l, level) in levels.iter().enumerate() {
+                for (k, (i, wk)) in level.corners([p[0], p[1], p[2]]).into_iter().enumerate() {
+                    r[l * 8 + k] = l as u32 * t + i;
+                    w[l * 8 + k] = wk;
+                }
+            }
+        });
+    (rows, weights)
+}
+
+/// The tensor-op twin of [`hash_encode`]: `index_select` of the `M·L·8` corner rows of `table`
+/// `(L·T, F)`, weighted and summed per level: `(M, L·F)`; its table gradient is Candle's
+/// `index_add` scatter. Corner rows and weights are computed from `points` `(M, 3)` on the host.
+pub fn hash_encode_generic(
+    points: &Tensor,
+    table: &Tensor,
+    params: &HashGridParams,
+) -> candle_core::Result<Tensor> {
+    check_shapes(points, table, params)?;
+    let m = points.dim(0)?;
+    let p = points
+        .to_dtype(DType::F32)?
+        .flatten_all()?
+        .to_vec1::<f32>()?;
+    let (rows, weights) = corner_rows(&p, params);
+    let n = rows.len();
+    let rows = Tensor::from_vec(rows, n, table.device())?;
+    let weights = Tensor::from_vec(weights, (n, 1), table.device())?.to_dtype(table.dtype())?;
+    let (l, f) = (params.n_levels, params.n_features);
+    table
+        .index_select(&rows, 0)?
+        .broadcast_mul(&weights)?
+        .reshape((m, l, 8, f))?
+        .sum(2)?
+        .reshape((m, l * f))
+}
+
+struct HashEncode {
+    params: HashGridParams,
+}
+
+impl CustomOp2 for HashEncode {
+    fn name(&self) -> &'static str {
+        "hash-encode"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let points = contiguous_f32(s1, l1, "hash-encode")?;
+        let table = contiguous_f32(s2, l2, "hash-encode")?;
+        let p = &self.params;
+        let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
+        let width = p.output_dim();
+        let m = points.len() / 3;
+        let mut out = vec![0f32; m * width];
+        out.par_chunks_mut(POINTS_PER_TASK * width)
+            .zip(points.par_chunks(POINTS_PER_TASK * 3))
+            .for_each(|(out, pts)| {
+                for (o, q) in out.chunks_exact_mut(width).zip(pts.chunks_exact(3)) {
+                    for (l, level) in levels.iter().enumerate() {
+                        let o = &mut o[l * f..(l + 1) * f];
+                        for (i, w) in level.corners([q[0], q[1], q[2]]) {
+                            let row = (l * t + i as usize) * f;
+                            for (o, v) in o.iter_mut().zip(&table[row..row + f]) {
+                                *o += w * v;
+                            }
+                        }
+                    }
+                }
+            });
+        Ok((CpuStorage::F32(out), Shape::from((m, width))))
+    }
+
+    fn bwd(
+        &self,
+        points: &Tensor,
+        table: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        let p = &self.params;
+        let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
+        let width = p.output_dim();
+        let pts = points.flatten_all()?.to_vec1::<f32>()?;
+        let g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let mut dtable = vec![0f32; p.n_rows() * f];
+        // One task per level: each writes only its own slice of the table gradient.
+        dtable
+            .par_chunks_mut(t * f)
+            .zip(levels.par_iter())
+            .enumerate()
+            .for_each(|(l, (d, level))| {
+                for (q, g) in pts.chunks_exact(3).zip(g.chunks_exact(width)) {
+                    let g = &g[l * f..(l + 1) * f];
+                    for (i, w) in level.corners([q[0], q[1], q[2]]) {
+                        let row = i as usize * f;
+                        for (d, g) in d[row..row + f].iter_mut().zip(g) {
+                            *d += w * g;
+                        }
+                    }
+                }
+            });
+        let dtable = Tensor::from_vec(dtable, table.shape(), table.device())?;
+        Ok((None, Some(dtable)))
+    }
+}
+
+/// The rows of `table` (`L·T` of them) that `points` `(M, 3)` touch (any corner weight, even
+/// 0): sorted, without repeats. What the sparse Adam updates after a step over these points.
+pub fn touched_rows(points: &Tensor, params: &HashGridParams) -> candle_core::Result<Vec<u32>> {
+    let p = points
+        .to_dtype(DType::F32)?
+        .flatten_all()?
+        .to_vec1::<f32>()?;
+    let mut seen = vec![false; params.n_rows()];
+    for r in corner_rows(&p, params).0 {
+        seen[r as usize] = true;
+    }
+    Ok((0..params.n_rows() as u32)
+        .filter(|&r| seen[r as usize])
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::{with_kernel_choice, KernelChoice};
+    use candle_core::{Device, Var};
+
+    fn params(log2_t: u32) -> HashGridParams {
+        HashGridParams {
+            n_levels: 4,
+            n_features: 2,
+            log2_table_size: log2_t,
+            base_resolution: 2.0,
+            max_resolution: 40.0,
+        }
+    }
+
+    /// Deterministic pseudo-random values in [lo, hi).
+    fn values(n: usize, seed: u64, lo: f32, hi: f32) -> Vec<f32> {
+        let mut s = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (0..n)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                lo + (hi - lo) * ((s >> 40) as f32 / (1u64 << 24) as f32)
+            })
+            .collect()
+    }
+
+    fn inputs(p: &HashGridParams, m: usize) -> (Tensor, Var) {
+        let dev = Device::Cpu;
+        let mut pts = values(m * 3, 1, 0.0, 1.0);
+        pts[0..3].copy_from_slice(&[0.0, 1.0, 0.5]); // the box's faces
+        let points = Tensor::from_vec(pts, (m, 3), &dev).unwrap();
+        let table = values(p.n_rows() * p.n_features, 2, -1.0, 1.0);
+        let table =
+            Var::from_tensor(&Tensor::from_vec(table, (p.n_rows(), p.n_features), &dev).unwrap())
+                .unwrap();
+        (points, table)
+    }
+
+    /// The encoding in f64, written out independently of the kernel: resolutions, hash and
+    /// trilinear weights from the definitions.
+    fn reference(points: &[f32], table: &[f32], p: &HashGridParams) -> Vec<f64> {
+        let t = 1u64 << p.log2_table_size;
+        let b =
+            ((p.max_resolution.ln() - p.base_resolution.ln()) / (p.n_levels as f64 - 1.0)).exp();
+        let mut out = Vec::new();
+        for q in points.chunks(3) {
+            for l in 0..p.n_levels {
+                let n = (p.base_resolution * b.powi(l as i32) + 1e-9).floor() as u64;
+                let mut acc = vec![0f64; p.n_features];
+                for k in 0..8u64 {
+                    let mut w = 1.0;
+                    let mut c = [0u64; 3];
+                    for a in 0..3 {
+                        let x = q[a] as f64 * n as f64;
+                        let base = (x.floor() as u64).min(n - 1);
+                        let fr = x - base as f64;
+                        let up = (k >> a) & 1;
+                        c[a] = base + up;
+                        w *= if up == 1 { fr } else { 1.0 - fr };
+                    }
+                    let idx = if (n + 1).pow(3) <= t {
+                        c[0] + (n + 1) * c[1] + (n + 1) * (n + 1) * c[2]
+                    } else {
+                        ((c[0] ^ (c[1] * 2654435761) ^ (c[2] * 805459861)) & 0xffff_ffff) % t
+                    };
+                    let row = (l as u64 * t + idx) as usize * p.n_features;
+                    for (a, v) in acc.iter_mut().zip(&table[row..row + p.n_features]) {
+                        *a += w * *v as f64;
+                    }
+                }
+                out.extend(acc);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn levels_follow_the_definition() {
+        let p = params(10);
+        let levels = p.levels();
+        let res: Vec<u32> = levels.iter().map(|l| l.resolution).collect();
+        // b = (40/2)^(1/3) = 2.714: 2, 5.43, 14.74, 40.
+        assert_eq!(res, vec![2, 5, 14, 40]);
+        // (N+1)³ against T = 1024: 27, 216 dense; 3375, 68921 hashed.
+        let dense: Vec<bool> = levels.iter().map(|l| l.dense).collect();
+        assert_eq!(dense, vec![true, true, false, false]);
+        assert!(HashGridParams {
+            log2_table_size: 2,
+            ..p
+        }
+        .validate()
+        .is_err());
+        assert!(HashGridParams {
+            max_resolution: 1.0,
+            ..p
+        }
+        .validate()
+        .is_err());
+    }
+
+    #[test]
+    fn encoding_matches_a_float64_recomputation() {
+        for log2_t in [6, 10, 14] {
+            let p = params(log2_t);
+            let (points, table) = inputs(&p, 300);
+            let want = reference(
+                &points.flatten_all().unwrap().to_vec1().unwrap(),
+                &table.flatten_all().unwrap().to_vec1().unwrap(),
+                &p,
+            );
+            for choice in [KernelChoice::Fused, KernelChoice::Generic] {
+                let got = with_kernel_choice(choice, || hash_encode(&points, &table, &p))
+                    .unwrap()
+                    .flatten_all()
+                    .unwrap()
+                    .to_vec1::<f32>()
+                    .unwrap();
+                let err = got
+                    .iter()
+                    .zip(&want)
+                    .map(|(g, w)| (*g as f64 - w).abs())
+                    .fold(0.0, f64::max);
+                assert!(err < 1e-5, "{choice:?} log2_T {log2_t}: max error {err}");
+            }
+        }
+    }
+
+    #[test]
+    fn table_gradient_matches_finite_differences() {
+        let p = params(6); // small: many hash collisions
+        let (points, table) = inputs(&p, 40);
+        let dev = Device::Cpu;
+        let proj = Tensor::from_vec(values(40 * 8, 3, -1.0, 1.0), (40, 8), &dev).unwrap();
+        let loss = |t: &Tensor| -> f64 {
+            let t64 = t.to_dtype(DType::F64).unwrap();
+            let enc = hash_encode_generic(&points, &t64, &p).unwrap();
+            (enc * proj.to_dtype(DType::F64).unwrap())
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .to_scalar::<f64>()
+                .unwrap()
+        };
+        let enc = hash_encode(&points, &table, &p).unwrap();
+        let grads = (enc * &proj)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap();
+        let g = grads
+            .get(&table)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        let base: Vec<f32> = table.flatten_all().unwrap().to_vec1().unwrap();
+        let eps = 1e-3f32;
+        for i in (0..base.len()).step_by(7) {
+            let shifted = |d: f32| {
+                let mut v = base.clone();
+                v[i] += d;
+                Tensor::from_vec(v, table.shape(), &dev).unwrap()
+            };
+            let fd = (loss(&shifted(eps)) - loss(&shifted(-eps))) / (2.0 * eps as f64);
+            assert!(
+                (fd - g[i] as f64).abs() < 1e-3,
+                "row value {i}: fd {fd}, grad {}",
+                g[i]
+            );
+        }
+    }
+
+    #[test]
+    fn fused_and_generic_agree_forward_and_backward() {
+        let p = params(8);
+        let (points, table) = inputs(&p, 500);
+        let dev = Device::Cpu;
+        let proj = Tensor::from_vec(values(500 * 8, 4, -1.0, 1.0), (500, 8), &dev).unwrap();
+        let run = |choice| {
+            with_kernel_choice(choice, || {
+                let enc = hash_encode(&points, &table, &p).unwrap();
+                let grads = (&enc * &proj)
+                    .unwrap()
+                    .sum_all()
+                    .unwrap()
+                    .backward()
+                    .unwrap();
+                let g = grads.get(&table).unwrap().flatten_all().unwrap();
+                (
+                    enc.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+                    g.to_vec1::<f32>().unwrap(),
+                )
+            })
+        };
+        let (f_out, f_grad) = run(KernelChoice::Fused);
+        let (g_out, g_grad) = run(KernelChoice::Generic);
+        let max_diff = |a: &[f32], b: &[f32]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max)
+        };
+        assert!(max_diff(&f_out, &g_out) < 1e-6);
+        assert!(max_diff(&f_grad, &g_grad) < 1e-5);
+        // Rows no point touches get no gradient, and touched_rows names exactly the others.
+        let touched = touched_rows(&points, &p).unwrap();
+        let mut is_touched = vec![false; p.n_rows()];
+        touched.iter().for_each(|&r| is_touched[r as usize] = true);
+        for (r, g) in f_grad.chunks(2).enumerate() {
+            if !is_touched[r] {
+                assert_eq!(g, [0.0, 0.0], "row {r}");
+            }
+        }
+        assert!(touched.len() < p.n_rows());
+    }
+
+    #[test]
+    fn bad_shapes_are_errors() {
+        let p = params(6);
+        let (points, table) = inputs(&p, 4);
+        assert!(hash_encode(&points.narrow(1, 0, 2).unwrap(), &table, &p).is_err());
+        assert!(hash_encode(&points, &table.narrow(0, 0, 10).unwrap(), &p).is_err());
+    }
+}
