@@ -292,7 +292,10 @@ fn refused(args: &[&str], out: &Path, expect: &str) {
     // One error line (after the `loaded FILE …` line of a command that loaded a model).
     let errors: Vec<&str> = err.lines().filter(|l| !l.starts_with("loaded ")).collect();
     assert_eq!(errors.len(), 1, "{args:?}: {err}");
-    assert!(errors[0].starts_with("error: ") && err.contains(expect), "{args:?}: {err}");
+    assert!(
+        errors[0].starts_with("error: ") && err.contains(expect),
+        "{args:?}: {err}"
+    );
     assert!(!out.exists(), "{args:?} left {}", out.display());
 }
 
