@@ -615,3 +615,46 @@ fn raw_frames_are_one_clean_set() {
         "only our own frame files are removed"
     );
 }
+
+#[test]
+fn pytorch_files_where_safetensors_go_and_damaged_archives_are_named() {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/tiny_nerf.pth");
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/tiny_nerf.yaml");
+    let dir = tempfile::tempdir().unwrap();
+    // A .pth given as --checkpoint: say what it is and how to convert it.
+    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args(["render", "--config", "lego", "--checkpoint"])
+        .arg(&fixture)
+        .arg("--out-dir")
+        .arg(dir.path().join("o"))
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("is a PyTorch file (torch.save), not safetensors"),
+        "{err}"
+    );
+    assert!(err.contains("nerf import-torch"), "{err}");
+    // One flipped byte inside a tensor's data: the zip CRC no longer matches, which PyTorch
+    // would load silently; import-torch refuses it and writes nothing.
+    let mut bytes = std::fs::read(&fixture).unwrap();
+    let at = bytes.windows(6).position(|w| w == b"data/0").unwrap() + 200;
+    bytes[at] ^= 0xFF;
+    let damaged = dir.path().join("damaged.pth");
+    std::fs::write(&damaged, &bytes).unwrap();
+    let out = dir.path().join("x.safetensors");
+    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .arg("import-torch")
+        .arg(&damaged)
+        .arg("--config")
+        .arg(&config)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("is corrupt (Invalid checksum)"), "{err}");
+    assert!(!out.exists());
+}

@@ -106,6 +106,14 @@ pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
 pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
     let bytes = std::fs::read(path)
         .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
+    if bytes.starts_with(b"PK\x03\x04") || bytes.first() == Some(&0x80) {
+        bail!(
+            "checkpoint {} is a PyTorch file (torch.save), not safetensors: convert it with \
+             `nerf import-torch {} --config CONFIG --out FILE.safetensors`",
+            path.display(),
+            path.display()
+        );
+    }
     let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| {
         anyhow::anyhow!(
             "checkpoint {} is corrupt or not safetensors: {e}",

@@ -28,6 +28,7 @@ pub fn read_torch_state_dict(path: &Path, config: &NerfParams) -> Result<Vec<(St
     if !path.is_file() {
         bail!("PyTorch file {} not found", path.display());
     }
+    verify_archive(path)?;
     let expected = parameter_shapes(config);
     let read = |key: Option<&str>| -> Result<HashMap<String, Tensor>> {
         let tensors = candle_core::pickle::read_all_with_key(path, key).map_err(|e| {
@@ -48,6 +49,13 @@ pub fn read_torch_state_dict(path: &Path, config: &NerfParams) -> Result<Vec<(St
                 }
             }
         }
+    }
+    if found.is_empty() {
+        bail!(
+            "{} holds no tensors by name: if it was saved with torch.save(model), a whole \
+             module, save model.state_dict() instead",
+            path.display()
+        );
     }
     let mut out = Vec::with_capacity(expected.len());
     for (name, shape) in expected {
@@ -73,6 +81,35 @@ pub fn read_torch_state_dict(path: &Path, config: &NerfParams) -> Result<Vec<(St
         out.push((name, t));
     }
     Ok(out)
+}
+
+/// Reads every member of the `.pth` zip archive through to its end, so that one whose stored
+/// CRC-32 does not match its bytes is an error naming it (PyTorch loads such files without a
+/// word).
+pub fn verify_archive(path: &Path) -> Result<()> {
+    let file =
+        std::fs::File::open(path).map_err(|e| anyhow!("cannot read {}: {e}", path.display()))?;
+    let mut archive = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| {
+        anyhow!(
+            "{} is not a PyTorch file (zip archive): {e}",
+            path.display()
+        )
+    })?;
+    for i in 0..archive.len() {
+        let mut member = archive
+            .by_index(i)
+            .map_err(|e| anyhow!("{}: member {i}: {e}", path.display()))?;
+        let name = member
+            .name()
+            .map_or_else(|_| format!("#{i}"), |n| n.to_string());
+        std::io::copy(&mut member, &mut std::io::sink()).map_err(|e| {
+            anyhow!(
+                "{}: member {name} is corrupt ({e}); the file is damaged",
+                path.display()
+            )
+        })?;
+    }
+    Ok(())
 }
 
 /// The tensor named `name`, or the only one named `<prefix>.name`.
