@@ -53,6 +53,74 @@ impl Sdf {
     }
 }
 
+/// Box signed distance of `p` and its derivatives: `(s, ∂s/∂center, ∂s/∂side_lengths)`.
+/// `∂s/∂p = −∂s/∂center`. At the measure-zero kinks (`p_k = c_k`, ties of the largest
+/// `q_k`) the choice is the one Candle's tensor ops make: `sign(0) = +1`, every tied maximum.
+fn box_distance_with_gradient(
+    center: &[f32; 3],
+    side_lengths: &[f32; 3],
+    p: [f32; 3],
+) -> (f32, [f32; 3], [f32; 3]) {
+    let offset: [f32; 3] = std::array::from_fn(|k| p[k] - center[k]);
+    let q: [f32; 3] = std::array::from_fn(|k| offset[k].abs() - 0.5 * side_lengths[k]);
+    let outside = q.iter().map(|v| v.max(0.0).powi(2)).sum::<f32>().sqrt();
+    let max_q = q[0].max(q[1]).max(q[2]);
+    let inside = max_q.min(0.0);
+    // ∂s/∂q_k: the norm's part where q_k > 0, plus the inside part at the largest q_k.
+    let ds_dq: [f32; 3] = std::array::from_fn(|k| {
+        let norm_part = if q[k] > 0.0 && outside > 0.0 {
+            q[k] / outside
+        } else {
+            0.0
+        };
+        let inside_part = if q[k] == max_q && max_q < 0.0 {
+            1.0
+        } else {
+            0.0
+        };
+        norm_part + inside_part
+    });
+    let d_center = std::array::from_fn(|k| {
+        let sign = if offset[k] >= 0.0 { 1.0 } else { -1.0 };
+        -ds_dq[k] * sign
+    });
+    let d_sides = std::array::from_fn(|k| -0.5 * ds_dq[k]);
+    (outside + inside, d_center, d_sides)
+}
+
+impl Sdf {
+    /// Signed distance of one point and its derivatives with respect to the shape's
+    /// parameters: `(s, ∂s/∂center, ∂s/∂shape)`, where the shape's parameters are the box's
+    /// three side lengths or the sphere's radius (the first entry; the others are 0).
+    /// The derivative with respect to the point is `−∂s/∂center`.
+    pub fn distance_with_gradient(&self, p: [f32; 3]) -> (f32, [f32; 3], [f32; 3]) {
+        match self {
+            Sdf::Box {
+                center,
+                side_lengths,
+            } => box_distance_with_gradient(center, side_lengths, p),
+            Sdf::Sphere { center, radius } => {
+                let offset: [f32; 3] = std::array::from_fn(|k| p[k] - center[k]);
+                let norm = offset.iter().map(|v| v * v).sum::<f32>().sqrt();
+                let d_center = if norm > 0.0 {
+                    offset.map(|v| -v / norm)
+                } else {
+                    [0.0; 3]
+                };
+                (norm - radius, d_center, [-1.0, 0.0, 0.0])
+            }
+        }
+    }
+
+    /// Number of shape parameters: 3 side lengths for a box, 1 radius for a sphere.
+    pub fn shape_len(&self) -> usize {
+        match self {
+            Sdf::Box { .. } => 3,
+            Sdf::Sphere { .. } => 1,
+        }
+    }
+}
+
 /// The homework's SDF → density for one value: `α · (½·e^(−s/β) if s > 0 else 1 − ½·e^(s/β))`,
 /// written with `e^(−|s|/β)` so that neither branch overflows.
 pub fn sdf_to_density_scalar(sdf: f32, alpha: f64, beta: f64) -> f32 {
@@ -81,17 +149,125 @@ pub struct SdfVolume {
     pub feature: [f32; 3],
 }
 
+/// Where each parameter of an [`SdfVolume`] sits in its packed form, the `(P,)` vector
+/// `[center (3), side_lengths (3) or radius (1), alpha, beta, feature (3)]` (P = 11 for a box,
+/// 9 for a sphere) that the differentiable fused kernels read and return gradients for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PackedLayout {
+    /// Number of shape parameters (3 for a box, 1 for a sphere).
+    pub shape_len: usize,
+}
+
+impl PackedLayout {
+    /// Index of the first shape parameter.
+    pub const SHAPE: usize = 3;
+
+    /// Index of α.
+    pub fn alpha(&self) -> usize {
+        Self::SHAPE + self.shape_len
+    }
+
+    /// Index of β.
+    pub fn beta(&self) -> usize {
+        self.alpha() + 1
+    }
+
+    /// Index of the first feature channel.
+    pub fn feature(&self) -> usize {
+        self.beta() + 1
+    }
+
+    /// Length P of the packed vector.
+    pub fn len(&self) -> usize {
+        self.feature() + 3
+    }
+
+    /// Never empty (a centre is always there); for clippy's `len` convention.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+}
+
 impl SdfVolume {
+    /// The layout of this volume's packed parameters.
+    pub fn packed_layout(&self) -> PackedLayout {
+        PackedLayout {
+            shape_len: self.sdf.shape_len(),
+        }
+    }
+
+    /// Adds `g · ∂σ/∂θ` for one sample to `params` (the packed layout of
+    /// [`SdfVolume::packed_layout`]; the feature entries are untouched) and returns
+    /// `g · ∂σ/∂p`, where `σ = −ln(1 − α·density(sdf(p)))/Δ` is [`SdfVolume::evaluate_point`]'s.
+    ///
+    /// Where `1 − density` is 0 (σ = ∞, an opaque sample whose optical depth the renderer
+    /// clamps, so `g` is 0 there) or Δ is 0, nothing is added.
+    pub fn sigma_vjp(&self, p: [f32; 3], delta: f32, g: f32, params: &mut [f64]) -> [f32; 3] {
+        let (s, ds_dc, ds_dshape) = self.sdf.distance_with_gradient(p);
+        let (alpha, beta) = (self.alpha as f32, self.beta as f32);
+        let e = (s.abs() * (-1.0 / beta)).exp();
+        let unit = if s > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
+        let clear = 1.0 - alpha * unit;
+        if g == 0.0 || delta == 0.0 || clear <= 0.0 {
+            return [0.0; 3];
+        }
+        // ∂σ/∂density = 1/((1 − density)Δ).
+        let g_density = (g / (clear * delta)) as f64;
+        let layout = self.packed_layout();
+        let (alpha, beta, e, s) = (alpha as f64, beta as f64, e as f64, s as f64);
+        params[layout.alpha()] += g_density * unit as f64;
+        params[layout.beta()] += g_density * alpha * e * s / (2.0 * beta * beta);
+        let g_s = -g_density * alpha * e / (2.0 * beta);
+        for k in 0..3 {
+            params[k] += g_s * ds_dc[k] as f64;
+        }
+        for k in 0..layout.shape_len {
+            params[PackedLayout::SHAPE + k] += g_s * ds_dshape[k] as f64;
+        }
+        ds_dc.map(|v| -(g_s * v as f64) as f32)
+    }
+
+    /// Adds `g · ∂colour/∂θ` for one sample to `params` (packed layout; only the centre and
+    /// feature entries) and returns `g · ∂colour/∂p`, for the colour of
+    /// [`SdfVolume::evaluate_point`]. `g`: the gradient of the sample's `[r, g, b]`.
+    pub fn colour_vjp(&self, p: [f32; 3], g: [f32; 3], params: &mut [f64]) -> [f32; 3] {
+        let f0 = self.packed_layout().feature();
+        if !self.rainbow {
+            for k in 0..3 {
+                params[f0 + k] += g[k] as f64;
+            }
+            return [0.0; 3];
+        }
+        let c = self.sdf.center();
+        let mut d_point = [0f32; 3];
+        for k in 0..3 {
+            let offset = p[k] - c[k];
+            let a = offset.abs();
+            params[f0 + k] += (g[k] * a.clamp(0.02, 0.98)) as f64;
+            if a > 0.02 && a < 0.98 {
+                let sign = if offset >= 0.0 { 1.0 } else { -1.0 };
+                d_point[k] = g[k] * self.feature[k] * sign;
+                params[k] -= d_point[k] as f64;
+            }
+        }
+        d_point
+    }
+
     /// σ and colour of one sample: `(σ, [r, g, b])`.
     pub fn evaluate_point(&self, p: [f32; 3], delta: f32) -> (f32, [f32; 3]) {
         let density = sdf_to_density_scalar(self.sdf.distance(p), self.alpha, self.beta);
         let sigma = density_to_sigma_scalar(density, delta);
-        let feature = if self.rainbow {
+        (sigma, self.colour_at(p))
+    }
+
+    /// Colour of one sample: the feature, or with `rainbow` `clamp(|p − center|, 0.02, 0.98) ·
+    /// feature`.
+    pub fn colour_at(&self, p: [f32; 3]) -> [f32; 3] {
+        if self.rainbow {
             let c = self.sdf.center();
             std::array::from_fn(|k| (p[k] - c[k]).abs().clamp(0.02, 0.98) * self.feature[k])
         } else {
             self.feature
-        };
-        (sigma, feature)
+        }
     }
 }

@@ -19,6 +19,7 @@ pub mod bias;
 pub mod composite;
 pub mod sample_points;
 pub mod sdf_volume;
+pub mod sdf_volume_grad;
 pub mod storage;
 pub mod trunk;
 
