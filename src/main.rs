@@ -8,6 +8,22 @@ use candle_core::Device;
 use clap::{Parser, Subcommand};
 
 use nerf::app::config::Config;
+use nerf::app::jobs;
+use nerf::app::scene::render_scene;
+
+/// Prints `wrote <path>` for each file written.
+fn print_written(paths: &[PathBuf]) {
+    for p in paths {
+        println!("wrote {}", p.display());
+    }
+}
+
+/// Prints each line.
+fn print_lines(lines: &[String]) {
+    for l in lines {
+        println!("{l}");
+    }
+}
 
 /// mimalloc keeps freed segments for reuse: Candle allocates a fresh buffer of up to tens of
 /// megabytes per op, and an allocator that returns each to the OS pays page faults on the next
@@ -64,10 +80,30 @@ fn device(arg: DeviceArg) -> Result<Device> {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run a config's job by its `type`, as the homework's main.py: render, render_nerf,
+    /// train (fit an SDF volume to images) or train_nerf.
+    Run {
+        /// Config name (configs/NAME.yaml or built-in, e.g. train_box) or path to a YAML file.
+        #[arg(long, alias = "config-name")]
+        config: String,
+        /// Output directory for images.
+        #[arg(long, default_value = "images")]
+        out_dir: PathBuf,
+        /// NeRF checkpoint to render (default: training.checkpoint_path, else
+        /// checkpoints/nerf_lego.safetensors); a file of ours or PyTorch's, or a directory.
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Dataset directory for train_nerf (default: data.data_dir, else
+        /// ../shared/data/<dataset_name>).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Hydra-style overrides, e.g. training.num_epochs=100.
+        overrides: Vec<String>,
+    },
     /// Render a scene's surround views and visualisations into an output directory.
     Render {
         /// Config name (configs/NAME.yaml or built-in) or path to a YAML file.
-        #[arg(long)]
+        #[arg(long, alias = "config-name")]
         config: String,
         /// Output directory.
         #[arg(long, default_value = "images")]
@@ -75,17 +111,20 @@ enum Command {
         /// Also write color_{i:03}.npy (H,W,3) and depth_{i:03}.npy (H,W) float32 per frame.
         #[arg(long)]
         raw: bool,
-        /// NeRF checkpoint to render (NeRF configs only; default
-        /// checkpoints/nerf_lego.safetensors).
+        /// NeRF checkpoint to render (NeRF configs only; default: training.checkpoint_path,
+        /// else checkpoints/nerf_lego.safetensors): a safetensors or PyTorch file, told apart
+        /// by content, or a directory holding one.
         #[arg(long)]
         checkpoint: Option<PathBuf>,
         /// Hydra-style overrides, e.g. sampler.n_pts_per_ray=32 data.image_size=[200,150].
         overrides: Vec<String>,
     },
-    /// Train a NeRF (checkpoints and resume as the config's training section says).
+    /// Train: a NeRF (type train_nerf; checkpoints and resume as the config's training
+    /// section says), or fit an SDF volume's opt: True parameters to the images of
+    /// data.cameras (type train, e.g. train_box).
     Train {
-        /// Config name or path (e.g. nerf_lego).
-        #[arg(long)]
+        /// Config name or path (e.g. nerf_lego, train_box).
+        #[arg(long, alias = "config-name")]
         config: String,
         /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
         #[arg(long)]
@@ -93,23 +132,34 @@ enum Command {
         /// Stop after this many epochs in this run (a checkpoint is written; resume continues).
         #[arg(long, value_parser = at_least_one)]
         epochs: Option<usize>,
-        /// Where training GIFs go.
+        /// Where training images and GIFs go.
         #[arg(long, default_value = "images")]
         out_dir: PathBuf,
         /// Hydra-style overrides, e.g. training.num_epochs=20.
         overrides: Vec<String>,
     },
+    /// Write the training targets of a type: train config: each data.cameras camera's view
+    /// of the config's SDF volume, as a float32 (H, W, 3) .npy at its `image` path (set the
+    /// volume to recover with overrides, e.g. implicit_function.sdf.center.val=[0.25,0.25,0]).
+    Targets {
+        /// Config name or path (e.g. train_box).
+        #[arg(long, alias = "config-name")]
+        config: String,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
     /// PSNR of a trained NeRF over a dataset split at the config's image size.
     Eval {
         /// Config name or path (e.g. lego).
-        #[arg(long)]
+        #[arg(long, alias = "config-name")]
         config: String,
         /// Which split to score.
         #[arg(long, value_enum, default_value = "test")]
         split: SplitArg,
-        /// NeRF checkpoint to evaluate.
-        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-        checkpoint: PathBuf,
+        /// NeRF checkpoint to evaluate (default: training.checkpoint_path, else
+        /// checkpoints/nerf_lego.safetensors): a safetensors or PyTorch file, or a directory.
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
         /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
         #[arg(long)]
         data_dir: Option<PathBuf>,
@@ -217,16 +267,6 @@ impl From<SplitArg> for nerf::io::dataset::Split {
     }
 }
 
-fn data_dir_for(config: &Config, given: Option<PathBuf>) -> PathBuf {
-    given
-        .or_else(|| config.data.data_dir.clone())
-        .unwrap_or_else(|| {
-            nerf::io::dataset::default_data_dir(
-                config.data.dataset_name.as_deref().unwrap_or("lego"),
-            )
-        })
-}
-
 fn run(cli: Cli) -> Result<()> {
     nerf::kernels::set_kernel_choice(match cli.kernels {
         KernelsArg::Fused => nerf::kernels::KernelChoice::Fused,
@@ -234,6 +274,31 @@ fn run(cli: Cli) -> Result<()> {
     });
     let device = device(cli.device)?;
     match cli.command {
+        Command::Run {
+            config,
+            out_dir,
+            checkpoint,
+            data_dir,
+            overrides,
+        } => {
+            let loaded = Config::load(&config, &overrides)?;
+            match jobs::run_job(&loaded, &config)? {
+                jobs::RunJob::Render => print_written(&render_scene(
+                    &loaded,
+                    checkpoint.as_deref(),
+                    &out_dir,
+                    false,
+                    &device,
+                )?),
+                jobs::RunJob::Train(job) => {
+                    let nerf = jobs::NerfTrainOptions {
+                        data_dir,
+                        epochs: None,
+                    };
+                    print_lines(&jobs::train(&loaded, job, &nerf, &out_dir, &device)?)
+                }
+            }
+        }
         Command::Render {
             config,
             out_dir,
@@ -242,16 +307,13 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let written = nerf::app::scene::render_scene(
+            print_written(&render_scene(
                 &config,
                 checkpoint.as_deref(),
                 &out_dir,
                 raw,
                 &device,
-            )?;
-            for p in written {
-                println!("wrote {}", p.display());
-            }
+            )?);
         }
         Command::Train {
             config,
@@ -260,16 +322,14 @@ fn run(cli: Cli) -> Result<()> {
             out_dir,
             overrides,
         } => {
+            let loaded = Config::load(&config, &overrides)?;
+            let job = jobs::train_job(&loaded, &config)?;
+            let nerf = jobs::NerfTrainOptions { data_dir, epochs };
+            print_lines(&jobs::train(&loaded, job, &nerf, &out_dir, &device)?);
+        }
+        Command::Targets { config, overrides } => {
             let config = Config::load(&config, &overrides)?;
-            let data_dir = data_dir_for(&config, data_dir);
-            let paths = config.train_paths(&out_dir)?;
-            let info = nerf::app::train::train_nerf(&config, &data_dir, &paths, epochs, &device)?;
-            println!(
-                "trained to epoch {} ({} Adam steps); checkpoint {}",
-                info.epoch,
-                info.adam_step,
-                paths.checkpoint.display()
-            );
+            print_written(&nerf::app::train_box::write_targets(&config, &device)?);
         }
         Command::Eval {
             config,
@@ -282,10 +342,10 @@ fn run(cli: Cli) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let data_dir = data_dir_for(&config, data_dir);
+            let data_dir = jobs::data_dir_for(&config, data_dir);
             let report = nerf::app::evaluate::eval_nerf(
                 &config,
-                &checkpoint,
+                checkpoint.as_deref(),
                 &data_dir,
                 split.into(),
                 save_images.as_deref(),

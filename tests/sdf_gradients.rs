@@ -103,7 +103,9 @@ fn setup() -> Setup {
     let weights: Vec<f64> = {
         use rand::{Rng, SeedableRng};
         let mut rng = rand::rngs::StdRng::seed_from_u64(7);
-        (0..w * h * 3).map(|_| rng.random_range(-1.0..1.0)).collect()
+        (0..w * h * 3)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect()
     };
     let weights = Tensor::from_vec(weights, (w * h, 3), &Device::Cpu).unwrap();
     Setup {

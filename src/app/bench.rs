@@ -7,7 +7,7 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::app::config::Config;
+use crate::app::config::{Config, TrainingConfig};
 use crate::app::scene::render_views;
 use crate::core::image::RgbImage;
 use crate::core::metrics::{fastest, mean, mean_psnr, time_runs};
@@ -201,15 +201,18 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
     use rand::SeedableRng;
     let nerf = config.nerf_params()?;
     let training = config.training()?;
+    let job = "time a NeRF training step";
+    let batch_size = TrainingConfig::required(training.batch_size, "batch_size", job)?;
+    let lr = TrainingConfig::required(training.lr, "lr", job)?;
     let state = NerfState::seeded(&nerf, 0, device)?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
     let (w, h) = config.image_size();
     let camera = crate::core::camera::surround_cameras(4.0, 20, glam::DVec3::Z, 2.0)[0];
     let mut rng = rand::rngs::StdRng::seed_from_u64(0);
-    let mut adam = Adam::new(named_vars(&state.varmap), training.lr)?;
+    let mut adam = Adam::new(named_vars(&state.varmap), lr)?;
     let (step_runs, ()) = time_runs(repeats, || {
-        let pixels = crate::core::rays::random_pixel_indices(w, h, training.batch_size, &mut rng);
+        let pixels = crate::core::rays::random_pixel_indices(w, h, batch_size, &mut rng);
         let rays = crate::core::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
         let target = candle_core::Tensor::full(0.5f32, (pixels.len(), 3), device)?;
         let field = NerfField {
@@ -230,12 +233,12 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             name: "NeRF training step".into(),
             work: format!(
                 "{} rays x {} points, fwd+bwd+Adam",
-                training.batch_size, sampler.n_pts_per_ray
+                batch_size, sampler.n_pts_per_ray
             ),
             seconds: fastest(&step_runs),
             runs: step_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Step(
-                training.batch_size,
+                batch_size,
                 sampler.n_pts_per_ray,
             )),
             error: None,
@@ -440,7 +443,7 @@ mod tests {
             pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             Some(6.7)
         );
-        let rays = lego.training.as_ref().unwrap().batch_size;
+        let rays = lego.training.as_ref().unwrap().batch_size.unwrap();
         assert_eq!(
             pytorch_seconds(ReferenceWork::Step(rays, points)),
             Some(1.0)

@@ -7,24 +7,25 @@ use candle_core::Device;
 
 use crate::app::config::Config;
 use crate::eval::evaluate::{evaluate, EvalReport};
-use crate::io::checkpoint::ensure_checkpoint_file;
 use crate::io::dataset::{Dataset, Split};
 
-/// Loads the checkpoint and the split at the config's image size and scores every view (the
-/// first `limit` with a limit); with `save_images`, writes each prediction there.
+/// Loads the checkpoint ([`Config::nerf_checkpoint`] of `checkpoint`, the `--checkpoint`
+/// option) and the split at the config's image size and scores every view (the first `limit`
+/// with a limit); with `save_images`, writes each prediction there.
 pub fn eval_nerf(
     config: &Config,
-    checkpoint: &Path,
+    checkpoint: Option<&Path>,
     data_dir: &Path,
     split: Split,
     save_images: Option<&Path>,
     limit: Option<usize>,
     device: &Device,
 ) -> Result<EvalReport> {
-    ensure_checkpoint_file(checkpoint)?;
+    config.nerf_params()?;
+    let checkpoint = config.nerf_checkpoint(checkpoint)?;
     let (w, h) = config.image_size();
     let dataset = Dataset::load(data_dir, split, w, h, config.renderer.white_background)?;
-    let (state, _) = config.load_nerf(checkpoint, device)?;
+    let (state, _) = config.load_nerf(&checkpoint, device)?;
     evaluate(
         &state.field(),
         &config.sampler()?,

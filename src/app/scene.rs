@@ -179,7 +179,6 @@ pub fn render_nerf_scene(
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
     config.nerf_params()?;
-    crate::io::checkpoint::ensure_checkpoint_file(checkpoint)?;
     let (state, _) = config.load_nerf(checkpoint, device)?;
     prepare_out_dir(out_dir)?;
     let field = state.field();
@@ -204,8 +203,8 @@ pub fn render_nerf_scene(
     Ok(written)
 }
 
-/// `nerf render`: the SDF scene's outputs, or the NeRF's GIF from `checkpoint` (default the
-/// shipped `checkpoints/nerf_lego.safetensors`), by the config's field.
+/// `nerf render`: the SDF scene's outputs, or the NeRF's GIF from the checkpoint
+/// [`Config::nerf_checkpoint`] picks (`checkpoint` is `--checkpoint`), by the config's field.
 pub fn render_scene(
     config: &Config,
     checkpoint: Option<&Path>,
@@ -224,9 +223,8 @@ pub fn render_scene(
             render_sdf_scene(config, out_dir, raw, device)
         }
         ImplicitFunctionConfig::Nerf(_) => {
-            let checkpoint =
-                checkpoint.unwrap_or_else(|| Path::new("checkpoints/nerf_lego.safetensors"));
-            render_nerf_scene(config, checkpoint, out_dir, raw, device)
+            let checkpoint = config.nerf_checkpoint(checkpoint)?;
+            render_nerf_scene(config, &checkpoint, out_dir, raw, device)
         }
     }
 }

@@ -101,7 +101,7 @@ impl Sdf {
             } => box_distance_with_gradient(center, side_lengths, p),
             Sdf::Sphere { center, radius } => {
                 let offset: [f32; 3] = std::array::from_fn(|k| p[k] - center[k]);
-                let norm = offset.iter().map(|v| v * v).sum::<f32>().sqrt();
+                let norm = offset.iter().map(|v| v.powi(2)).sum::<f32>().sqrt();
                 let d_center = if norm > 0.0 {
                     offset.map(|v| -v / norm)
                 } else {
@@ -147,6 +147,37 @@ pub struct SdfVolume {
     pub rainbow: bool,
     /// RGB colour (the scale of the rainbow colouring with `rainbow`).
     pub feature: [f32; 3],
+}
+
+/// σ of one sample and its partial derivatives `∂σ/∂θ` with respect to the volume's
+/// parameters (the colour does not enter σ).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SigmaPartials {
+    /// σ itself.
+    pub sigma: f32,
+    /// `∂σ/∂center` (and `∂σ/∂p = −∂σ/∂center`).
+    pub center: [f32; 3],
+    /// `∂σ/∂side_lengths` of a box, or `∂σ/∂radius` of a sphere in the first entry.
+    pub shape: [f32; 3],
+    /// `∂σ/∂α`.
+    pub alpha: f32,
+    /// `∂σ/∂β`.
+    pub beta: f32,
+}
+
+impl SigmaPartials {
+    /// Adds `g · ∂σ/∂θ` to `params`, laid out as `layout`.
+    pub fn add_to(&self, g: f32, layout: PackedLayout, params: &mut [f64]) {
+        let g = g as f64;
+        for k in 0..3 {
+            params[k] += g * self.center[k] as f64;
+        }
+        for k in 0..layout.shape_len {
+            params[PackedLayout::SHAPE + k] += g * self.shape[k] as f64;
+        }
+        params[layout.alpha()] += g * self.alpha as f64;
+        params[layout.beta()] += g * self.beta as f64;
+    }
 }
 
 /// Where each parameter of an [`SdfVolume`] sits in its packed form, the `(P,)` vector
@@ -196,35 +227,45 @@ impl SdfVolume {
         }
     }
 
+    /// σ of one sample ([`SdfVolume::evaluate_point`]'s, bit for bit) and its partial
+    /// derivatives with respect to the parameters. They are 0 where `1 − density` is 0 (σ =
+    /// ∞, an opaque sample whose optical depth the renderer clamps) or Δ is 0.
+    pub fn sigma_with_partials(&self, p: [f32; 3], delta: f32) -> SigmaPartials {
+        let (s, ds_dc, ds_dshape) = self.sdf.distance_with_gradient(p);
+        let density = sdf_to_density_scalar(s, self.alpha, self.beta);
+        let sigma = density_to_sigma_scalar(density, delta);
+        let (alpha, beta) = (self.alpha as f32, self.beta as f32);
+        let clear = 1.0 - density;
+        if delta == 0.0 || clear <= 0.0 {
+            return SigmaPartials {
+                sigma,
+                ..SigmaPartials::default()
+            };
+        }
+        let e = (s.abs() * (-1.0 / self.beta) as f32).exp();
+        let unit = if s > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
+        // ∂σ/∂density = 1/((1 − density)Δ); ∂density/∂s = −α e/(2β).
+        let g_density = 1.0 / (clear * delta);
+        let g_s = -g_density * alpha * e / (2.0 * beta);
+        SigmaPartials {
+            sigma,
+            center: ds_dc.map(|v| g_s * v),
+            shape: ds_dshape.map(|v| g_s * v),
+            alpha: g_density * unit,
+            beta: g_density * alpha * e * s / (2.0 * beta * beta),
+        }
+    }
+
     /// Adds `g · ∂σ/∂θ` for one sample to `params` (the packed layout of
     /// [`SdfVolume::packed_layout`]; the feature entries are untouched) and returns
-    /// `g · ∂σ/∂p`, where `σ = −ln(1 − α·density(sdf(p)))/Δ` is [`SdfVolume::evaluate_point`]'s.
-    ///
-    /// Where `1 − density` is 0 (σ = ∞, an opaque sample whose optical depth the renderer
-    /// clamps, so `g` is 0 there) or Δ is 0, nothing is added.
+    /// `g · ∂σ/∂p` (`= −g · ∂σ/∂center`), for [`SdfVolume::evaluate_point`]'s σ.
     pub fn sigma_vjp(&self, p: [f32; 3], delta: f32, g: f32, params: &mut [f64]) -> [f32; 3] {
-        let (s, ds_dc, ds_dshape) = self.sdf.distance_with_gradient(p);
-        let (alpha, beta) = (self.alpha as f32, self.beta as f32);
-        let e = (s.abs() * (-1.0 / beta)).exp();
-        let unit = if s > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
-        let clear = 1.0 - alpha * unit;
-        if g == 0.0 || delta == 0.0 || clear <= 0.0 {
+        if g == 0.0 {
             return [0.0; 3];
         }
-        // ∂σ/∂density = 1/((1 − density)Δ).
-        let g_density = (g / (clear * delta)) as f64;
-        let layout = self.packed_layout();
-        let (alpha, beta, e, s) = (alpha as f64, beta as f64, e as f64, s as f64);
-        params[layout.alpha()] += g_density * unit as f64;
-        params[layout.beta()] += g_density * alpha * e * s / (2.0 * beta * beta);
-        let g_s = -g_density * alpha * e / (2.0 * beta);
-        for k in 0..3 {
-            params[k] += g_s * ds_dc[k] as f64;
-        }
-        for k in 0..layout.shape_len {
-            params[PackedLayout::SHAPE + k] += g_s * ds_dshape[k] as f64;
-        }
-        ds_dc.map(|v| -(g_s * v as f64) as f32)
+        let d = self.sigma_with_partials(p, delta);
+        d.add_to(g, self.packed_layout(), params);
+        d.center.map(|v| -g * v)
     }
 
     /// Adds `g · ∂colour/∂θ` for one sample to `params` (packed layout; only the centre and

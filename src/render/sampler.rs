@@ -101,6 +101,14 @@ impl StratifiedSampler {
         rays: &Rays,
         jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RaySamples> {
+        let lengths = self.lengths(rays, jitter)?;
+        let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
+        Ok(RaySamples { points, lengths })
+    }
+
+    /// The sample depths of [`StratifiedSampler::sample`] alone, `(N, S, 1)` in the rays'
+    /// dtype (for fields that place the points themselves, [`crate::render::field::Field::render_fused`]).
+    pub fn lengths(&self, rays: &Rays, jitter: Option<&mut dyn rand::RngCore>) -> Result<Tensor> {
         let n = rays.len();
         let s = self.n_pts_per_ray;
         let device = rays.origins.device();
@@ -120,8 +128,7 @@ impl StratifiedSampler {
                     .to_dtype(dtype)?
             }
         };
-        let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
-        Ok(RaySamples { points, lengths })
+        Ok(lengths)
     }
 }
 
