@@ -243,3 +243,52 @@ fn sphere_gradients_match_float64_finite_differences() {
 fn rainbow_sphere_gradients_match_float64_finite_differences() {
     check(sphere_params(), true);
 }
+
+/// The training step's fused render-and-loss kernel (`sdf_render_mse`, used by the box fit)
+/// against its twin, the renderer and tensor ops: the same loss and gradients, on black and
+/// on white.
+#[test]
+fn fused_training_loss_matches_renderer_and_tensor_ops() {
+    use nerf::train::fit_sdf::{batch_loss, SdfFitSettings};
+    let setup = setup();
+    let target = Tensor::rand(0f32, 1.0, (setup.rays.len(), 3), &Device::Cpu).unwrap();
+    for (params, rainbow) in [(box_params(), true), (sphere_params(), false)] {
+        for white in [false, true] {
+            let settings = SdfFitSettings {
+                num_epochs: 1,
+                batch_size: setup.rays.len(),
+                lr: 1e-3,
+                seed: 0,
+                sampler: setup.sampler,
+                renderer: VolumeRenderer::new(4096, white).unwrap(),
+            };
+            let run = |choice| {
+                with_kernel_choice(choice, || {
+                    let (f, vars) = field(&params, rainbow, DType::F32);
+                    let loss = batch_loss(&f, &settings, &setup.rays, &target).unwrap();
+                    let grads = loss.backward().unwrap();
+                    let g: Vec<Vec<f32>> = vars
+                        .iter()
+                        .map(|v| grads.get(v.as_tensor()).unwrap().to_vec1::<f32>().unwrap())
+                        .collect();
+                    (loss.to_scalar::<f32>().unwrap(), g)
+                })
+            };
+            let (fused_loss, fused) = run(KernelChoice::Fused);
+            let (generic_loss, generic) = run(KernelChoice::Generic);
+            assert!(
+                (fused_loss - generic_loss).abs() <= 1e-5 * generic_loss,
+                "loss {fused_loss} vs {generic_loss}"
+            );
+            for ((a, b), (name, _)) in fused.iter().zip(&generic).zip(&params) {
+                let scale = b.iter().fold(1e-3f32, |m, v| m.max(v.abs()));
+                for (x, y) in a.iter().zip(b) {
+                    assert!(
+                        (x - y).abs() <= 1e-3 * scale,
+                        "{name} (white {white}): {x} vs {y}"
+                    );
+                }
+            }
+        }
+    }
+}

@@ -1,6 +1,8 @@
 //! Analytic signed distance functions and the homework's SDF volume, as plain numbers: the
 //! scalar maths that the fused kernel runs per sample and the float64 reference checks.
 
+use crate::core::fastexp::exp_fast;
+
 /// An analytic signed distance function.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Sdf {
@@ -56,7 +58,8 @@ impl Sdf {
 /// Box signed distance of `p` and its derivatives: `(s, ∂s/∂center, ∂s/∂side_lengths)`.
 /// `∂s/∂p = −∂s/∂center`. At the measure-zero kinks (`p_k = c_k`, ties of the largest
 /// `q_k`) the choice is the one Candle's tensor ops make: `sign(0) = +1`, every tied maximum.
-fn box_distance_with_gradient(
+#[inline(always)]
+pub fn box_distance_with_gradient(
     center: &[f32; 3],
     side_lengths: &[f32; 3],
     p: [f32; 3],
@@ -88,27 +91,33 @@ fn box_distance_with_gradient(
     (outside + inside, d_center, d_sides)
 }
 
+/// Sphere signed distance of `p` and its derivatives: `(s, ∂s/∂center, [∂s/∂radius, 0, 0])`;
+/// at the centre itself `∂s/∂center` is taken as 0.
+#[inline(always)]
+pub fn sphere_distance_with_gradient(
+    center: &[f32; 3],
+    radius: f32,
+    p: [f32; 3],
+) -> (f32, [f32; 3], [f32; 3]) {
+    let offset: [f32; 3] = std::array::from_fn(|k| p[k] - center[k]);
+    let norm = offset.iter().map(|v| v.powi(2)).sum::<f32>().sqrt();
+    let inv = if norm > 0.0 { 1.0 / norm } else { 0.0 };
+    (norm - radius, offset.map(|v| -v * inv), [-1.0, 0.0, 0.0])
+}
+
 impl Sdf {
     /// Signed distance of one point and its derivatives with respect to the shape's
     /// parameters: `(s, ∂s/∂center, ∂s/∂shape)`, where the shape's parameters are the box's
     /// three side lengths or the sphere's radius (the first entry; the others are 0).
     /// The derivative with respect to the point is `−∂s/∂center`.
+    #[inline(always)]
     pub fn distance_with_gradient(&self, p: [f32; 3]) -> (f32, [f32; 3], [f32; 3]) {
         match self {
             Sdf::Box {
                 center,
                 side_lengths,
             } => box_distance_with_gradient(center, side_lengths, p),
-            Sdf::Sphere { center, radius } => {
-                let offset: [f32; 3] = std::array::from_fn(|k| p[k] - center[k]);
-                let norm = offset.iter().map(|v| v.powi(2)).sum::<f32>().sqrt();
-                let d_center = if norm > 0.0 {
-                    offset.map(|v| -v / norm)
-                } else {
-                    [0.0; 3]
-                };
-                (norm - radius, d_center, [-1.0, 0.0, 0.0])
-            }
+            Sdf::Sphere { center, radius } => sphere_distance_with_gradient(center, *radius, p),
         }
     }
 
@@ -149,34 +158,50 @@ pub struct SdfVolume {
     pub feature: [f32; 3],
 }
 
-/// σ of one sample and its partial derivatives `∂σ/∂θ` with respect to the volume's
-/// parameters (the colour does not enter σ).
+/// An entry of a gradient sum: `f32` for a ray's few samples, `f64` for long sums.
+pub trait Accumulate {
+    /// Adds `v`.
+    fn accumulate(&mut self, v: f32);
+}
+
+impl Accumulate for f32 {
+    fn accumulate(&mut self, v: f32) {
+        *self += v;
+    }
+}
+
+impl Accumulate for f64 {
+    fn accumulate(&mut self, v: f32) {
+        *self += v as f64;
+    }
+}
+
+/// Partial derivatives `∂x/∂θ` of one sample's σ (or optical depth) with respect to the
+/// volume's shape and density parameters (the colour does not enter them).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct SigmaPartials {
-    /// σ itself.
-    pub sigma: f32,
-    /// `∂σ/∂center` (and `∂σ/∂p = −∂σ/∂center`).
+pub struct Partials {
+    /// `∂x/∂center` (and `∂x/∂p = −∂x/∂center`).
     pub center: [f32; 3],
-    /// `∂σ/∂side_lengths` of a box, or `∂σ/∂radius` of a sphere in the first entry.
+    /// `∂x/∂side_lengths` of a box, or `∂x/∂radius` of a sphere in the first entry.
     pub shape: [f32; 3],
-    /// `∂σ/∂α`.
+    /// `∂x/∂α`.
     pub alpha: f32,
-    /// `∂σ/∂β`.
+    /// `∂x/∂β`.
     pub beta: f32,
 }
 
-impl SigmaPartials {
-    /// Adds `g · ∂σ/∂θ` to `params`, laid out as `layout`.
-    pub fn add_to(&self, g: f32, layout: PackedLayout, params: &mut [f64]) {
-        let g = g as f64;
+impl Partials {
+    /// Adds `g · ∂x/∂θ` to `params`, laid out as `layout`.
+    #[inline(always)]
+    pub fn add_to<A: Accumulate>(&self, g: f32, layout: PackedLayout, params: &mut [A]) {
         for k in 0..3 {
-            params[k] += g * self.center[k] as f64;
+            params[k].accumulate(g * self.center[k]);
         }
         for k in 0..layout.shape_len {
-            params[PackedLayout::SHAPE + k] += g * self.shape[k] as f64;
+            params[PackedLayout::SHAPE + k].accumulate(g * self.shape[k]);
         }
-        params[layout.alpha()] += g * self.alpha as f64;
-        params[layout.beta()] += g * self.beta as f64;
+        params[layout.alpha()].accumulate(g * self.alpha);
+        params[layout.beta()].accumulate(g * self.beta);
     }
 }
 
@@ -228,42 +253,45 @@ impl SdfVolume {
     }
 
     /// σ of one sample ([`SdfVolume::evaluate_point`]'s, bit for bit) and its partial
-    /// derivatives with respect to the parameters. They are 0 where `1 − density` is 0 (σ =
-    /// ∞, an opaque sample whose optical depth the renderer clamps) or Δ is 0.
-    pub fn sigma_with_partials(&self, p: [f32; 3], delta: f32) -> SigmaPartials {
+    /// derivatives `∂σ/∂θ`. They are 0 where `1 − density` is 0 (σ = ∞, an opaque sample
+    /// whose optical depth the renderer clamps) or Δ is 0.
+    pub fn sigma_with_partials(&self, p: [f32; 3], delta: f32) -> (f32, Partials) {
         let (s, ds_dc, ds_dshape) = self.sdf.distance_with_gradient(p);
         let density = sdf_to_density_scalar(s, self.alpha, self.beta);
         let sigma = density_to_sigma_scalar(density, delta);
         let (alpha, beta) = (self.alpha as f32, self.beta as f32);
         let clear = 1.0 - density;
         if delta == 0.0 || clear <= 0.0 {
-            return SigmaPartials {
-                sigma,
-                ..SigmaPartials::default()
-            };
+            return (sigma, Partials::default());
         }
         let e = (s.abs() * (-1.0 / self.beta) as f32).exp();
         let unit = if s > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
         // ∂σ/∂density = 1/((1 − density)Δ); ∂density/∂s = −α e/(2β).
         let g_density = 1.0 / (clear * delta);
         let g_s = -g_density * alpha * e / (2.0 * beta);
-        SigmaPartials {
-            sigma,
+        let partials = Partials {
             center: ds_dc.map(|v| g_s * v),
             shape: ds_dshape.map(|v| g_s * v),
             alpha: g_density * unit,
             beta: g_density * alpha * e * s / (2.0 * beta * beta),
-        }
+        };
+        (sigma, partials)
     }
 
     /// Adds `g · ∂σ/∂θ` for one sample to `params` (the packed layout of
     /// [`SdfVolume::packed_layout`]; the feature entries are untouched) and returns
     /// `g · ∂σ/∂p` (`= −g · ∂σ/∂center`), for [`SdfVolume::evaluate_point`]'s σ.
-    pub fn sigma_vjp(&self, p: [f32; 3], delta: f32, g: f32, params: &mut [f64]) -> [f32; 3] {
+    pub fn sigma_vjp<A: Accumulate>(
+        &self,
+        p: [f32; 3],
+        delta: f32,
+        g: f32,
+        params: &mut [A],
+    ) -> [f32; 3] {
         if g == 0.0 {
             return [0.0; 3];
         }
-        let d = self.sigma_with_partials(p, delta);
+        let (_, d) = self.sigma_with_partials(p, delta);
         d.add_to(g, self.packed_layout(), params);
         d.center.map(|v| -g * v)
     }
@@ -271,27 +299,77 @@ impl SdfVolume {
     /// Adds `g · ∂colour/∂θ` for one sample to `params` (packed layout; only the centre and
     /// feature entries) and returns `g · ∂colour/∂p`, for the colour of
     /// [`SdfVolume::evaluate_point`]. `g`: the gradient of the sample's `[r, g, b]`.
-    pub fn colour_vjp(&self, p: [f32; 3], g: [f32; 3], params: &mut [f64]) -> [f32; 3] {
+    #[inline(always)]
+    pub fn colour_vjp<A: Accumulate>(&self, p: [f32; 3], g: [f32; 3], params: &mut [A]) -> [f32; 3] {
         let f0 = self.packed_layout().feature();
+        let (scale, d_scale) = self.colour_factors(p);
+        let mut d_point = [0f32; 3];
+        for k in 0..3 {
+            params[f0 + k].accumulate(g[k] * scale[k]);
+            // ∂colour_k/∂c_k = d_scale_k · feature_k, and ∂colour_k/∂p_k is its opposite.
+            let d_center = g[k] * d_scale[k] * self.feature[k];
+            params[k].accumulate(d_center);
+            d_point[k] = -d_center;
+        }
+        d_point
+    }
+
+    /// The colour of one sample as `scale_k · feature_k` per channel, and `∂scale_k/∂c_k`:
+    /// with `rainbow`, `scale_k = clamp(|p_k − c_k|, 0.02, 0.98)` and its derivative
+    /// `−sign(p_k − c_k)` inside the clamp's range (`sign(0) = +1`), 0 outside; without,
+    /// `scale = 1` and no derivative.
+    #[inline(always)]
+    pub fn colour_factors(&self, p: [f32; 3]) -> ([f32; 3], [f32; 3]) {
         if !self.rainbow {
-            for k in 0..3 {
-                params[f0 + k] += g[k] as f64;
-            }
-            return [0.0; 3];
+            return ([1.0; 3], [0.0; 3]);
         }
         let c = self.sdf.center();
-        let mut d_point = [0f32; 3];
+        let mut scale = [0f32; 3];
+        let mut d_scale = [0f32; 3];
         for k in 0..3 {
             let offset = p[k] - c[k];
             let a = offset.abs();
-            params[f0 + k] += (g[k] * a.clamp(0.02, 0.98)) as f64;
-            if a > 0.02 && a < 0.98 {
-                let sign = if offset >= 0.0 { 1.0 } else { -1.0 };
-                d_point[k] = g[k] * self.feature[k] * sign;
-                params[k] -= d_point[k] as f64;
-            }
+            scale[k] = a.clamp(0.02, 0.98);
+            let inside = a > 0.02 && a < 0.98;
+            let sign = if offset >= 0.0 { 1.0 } else { -1.0 };
+            d_scale[k] = if inside { -sign } else { 0.0 };
         }
-        d_point
+        (scale, d_scale)
+    }
+
+    /// One sample's transparency `1 − density` (= `e^{−σΔ}` for the homework's
+    /// `σ = −ln(1 − density)/Δ`, whatever Δ > 0 is) and the partial derivatives of its
+    /// optical depth `τ = σΔ = −ln(1 − density)` with respect to the parameters, `∂τ/∂θ =
+    /// (∂density/∂θ)/(1 − density)`: what the backward pass of a fused render needs, with no
+    /// logarithm (and `e^x` by [`exp_fast`], within 2 ulps). The partials are 0 where
+    /// `1 − density` is 0 (the renderer clamps τ there).
+    #[inline(always)]
+    pub fn transparency_with_partials(&self, p: [f32; 3]) -> (f32, Partials) {
+        self.transparency_from_distance(self.sdf.distance_with_gradient(p))
+    }
+
+    /// [`SdfVolume::transparency_with_partials`] from a signed distance and its derivatives
+    /// `(s, ∂s/∂center, ∂s/∂shape)` ([`box_distance_with_gradient`],
+    /// [`sphere_distance_with_gradient`]), so that a loop over samples can pick the shape once.
+    #[inline(always)]
+    pub fn transparency_from_distance(
+        &self,
+        (s, ds_dc, ds_dshape): (f32, [f32; 3], [f32; 3]),
+    ) -> (f32, Partials) {
+        let (alpha, beta) = (self.alpha as f32, self.beta as f32);
+        let e = exp_fast(s.abs() * (-1.0 / self.beta) as f32);
+        let unit = if s > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
+        let clear = (1.0 - unit * alpha).max(0.0);
+        // Where the sample is opaque (clear = 0) τ is clamped: no gradient.
+        let inv = if clear > 0.0 { 1.0 / clear } else { 0.0 };
+        let g_s = -inv * alpha * e / (2.0 * beta);
+        let partials = Partials {
+            center: ds_dc.map(|v| g_s * v),
+            shape: ds_dshape.map(|v| g_s * v),
+            alpha: inv * unit,
+            beta: inv * alpha * e * s / (2.0 * beta * beta),
+        };
+        (clear, partials)
     }
 
     /// σ and colour of one sample: `(σ, [r, g, b])`.
@@ -303,6 +381,7 @@ impl SdfVolume {
 
     /// Colour of one sample: the feature, or with `rainbow` `clamp(|p − center|, 0.02, 0.98) ·
     /// feature`.
+    #[inline(always)]
     pub fn colour_at(&self, p: [f32; 3]) -> [f32; 3] {
         if self.rainbow {
             let c = self.sdf.center();

@@ -18,6 +18,7 @@ use candle_core::{DType, Tensor};
 pub mod bias;
 pub mod composite;
 pub mod sample_points;
+pub mod sdf_ray;
 pub mod sdf_render;
 pub mod sdf_volume;
 pub mod sdf_volume_grad;

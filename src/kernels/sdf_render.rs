@@ -19,14 +19,16 @@ use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::core::rays::Rays;
-use crate::core::sdf::{SdfVolume, SigmaPartials};
-use crate::core::volume::{clamped_optical_depth, spacing, MAX_OPTICAL_DEPTH};
+use crate::core::sdf::SdfVolume;
+use crate::kernels::sdf_ray::{replay, reverse, RayScratch};
+use crate::core::volume::{clamped_optical_depth, spacing};
 use crate::kernels::sdf_volume::SdfTensors;
 use crate::kernels::storage::contiguous_f32;
 use crate::kernels::{needs_grad, use_fused};
 
 /// Rays per parallel work item.
 const RAYS_PER_TASK: usize = 64;
+
 
 /// Colour `(N, 3)`, depth `(N, 1)` and opacity `(N, 1)` of `rays` (N) sampled at `lengths`
 /// `(N, S, 1)` through `volume`, in one fused pass, with a backward pass to the volume's
@@ -65,21 +67,6 @@ struct SdfRender {
     volume: SdfVolume,
 }
 
-/// One sample of a ray as the backward pass needs it.
-#[derive(Clone, Copy, Default)]
-struct Sample {
-    point: [f32; 3],
-    delta: f32,
-    weight: f32,
-    /// Transmittance after the sample, `T_{i+1}`.
-    after: f32,
-    /// `g_i = Σ_c G_c c_ic + G_depth t_i + G_opacity`.
-    g: f32,
-    /// The optical depth is not clamped, so σ has a gradient.
-    active: bool,
-    partials: SigmaPartials,
-}
-
 impl SdfRender {
     /// Composites one ray into `out` (`[r, g, b, depth, opacity]`).
     fn forward_ray(&self, ray: &[f32], lengths: &[f32], out: &mut [f32]) {
@@ -103,64 +90,17 @@ impl SdfRender {
         }
     }
 
-    /// Recomputes one ray, keeping what the backward pass needs, up to the sample where its
-    /// transmittance reaches 0; returns how many samples that is.
-    fn replay_ray(
-        &self,
-        ray: &[f32],
-        lengths: &[f32],
-        grad: &[f32],
-        samples: &mut [Sample],
-    ) -> usize {
-        let mut transmittance = 1f32;
-        for (i, &t) in lengths.iter().enumerate() {
-            let delta = spacing(lengths, i);
-            let point = std::array::from_fn(|k| ray[k] + t * ray[3 + k]);
-            let partials = self.volume.sigma_with_partials(point, delta);
-            let colour = self.volume.colour_at(point);
-            let a = (-clamped_optical_depth(partials.sigma, delta)).exp();
-            let weight = transmittance * (1.0 - a);
-            transmittance *= a;
-            let raw = partials.sigma * delta;
-            samples[i] = Sample {
-                point,
-                delta,
-                weight,
-                after: transmittance,
-                g: (0..3).map(|c| grad[c] * colour[c]).sum::<f32>() + grad[3] * t + grad[4],
-                active: delta != 0.0 && (0.0..MAX_OPTICAL_DEPTH as f32).contains(&raw),
-                partials,
-            };
-            if transmittance == 0.0 {
-                return i + 1;
-            }
-        }
-        lengths.len()
-    }
+}
 
-    /// Adds one ray's parameter gradients to `acc` (packed layout) for the output gradient
-    /// `grad` (`[G_r, G_g, G_b, G_depth, G_opacity]`).
-    fn backward_ray(
-        &self,
-        ray: &[f32],
-        lengths: &[f32],
-        grad: &[f32],
-        samples: &mut [Sample],
-        acc: &mut [f64],
-    ) {
-        let n = self.replay_ray(ray, lengths, grad, samples);
-        let layout = self.volume.packed_layout();
-        let mut suffix = 0f32;
-        for s in samples[..n].iter().rev() {
-            let d_tau = s.after * s.g - suffix;
-            suffix += s.weight * s.g;
-            if s.active {
-                s.partials.add_to(s.delta * d_tau, layout, acc);
-            }
-            let g_colour = [grad[0], grad[1], grad[2]].map(|v| v * s.weight);
-            self.volume.colour_vjp(s.point, g_colour, acc);
+/// Sums per-task float64 gradient vectors into one float32 `(P,)` vector.
+fn sum_parts(parts: Vec<Vec<f64>>, p: usize) -> Vec<f32> {
+    let mut total = vec![0f64; p];
+    for part in parts {
+        for (t, v) in total.iter_mut().zip(part) {
+            *t += v;
         }
     }
+    total.into_iter().map(|v| v as f32).collect()
 }
 
 impl CustomOp3 for SdfRender {
@@ -253,24 +193,150 @@ impl CustomOp3 for SdfRenderBackward {
             .zip(grad.par_chunks(5 * RAYS_PER_TASK))
             .map(|((r, l), g)| {
                 let mut acc = vec![0f64; p];
-                let mut samples = vec![Sample::default(); s];
+                let mut sc = RayScratch::new(s);
+                let volume = &self.render.volume;
                 for ((r, l), g) in r
                     .chunks_exact(6)
                     .zip(l.chunks_exact(s))
                     .zip(g.chunks_exact(5))
                 {
-                    self.render.backward_ray(r, l, g, &mut samples, &mut acc);
+                    let (n, _) = replay(volume, r, l, &mut sc);
+                    reverse(volume, &mut sc, n, g, &mut acc);
                 }
                 acc
             })
             .collect();
-        let mut total = vec![0f64; p];
-        for part in parts {
-            for (t, v) in total.iter_mut().zip(part) {
-                *t += v;
-            }
-        }
-        let out: Vec<f32> = total.into_iter().map(|v| v as f32).collect();
+        let out = sum_parts(parts, p);
         Ok((CpuStorage::F32(out), Shape::from(p)))
+    }
+}
+
+/// The mean squared error of the rendered colours of `rays` (N) sampled at `lengths`
+/// `(N, S, 1)` against `target` `(N, 3)`, `mean((colour − target)²)` over all N·3 values
+/// (composited onto white with `white_background`), as a scalar tensor whose backward pass
+/// reaches the volume's parameters: a training step's loss in one fused pass per ray. The
+/// gradient is computed with the loss, each ray replayed once in its own small scratch (no
+/// second pass, no `(N, S, ·)` tensors), and handed back by the backward pass. `None` where
+/// the fused kernel does not apply (see [`sdf_render`]); then the caller renders and forms
+/// the loss with tensor ops, the twin.
+pub fn sdf_render_mse(
+    rays: &Rays,
+    lengths: &Tensor,
+    target: &Tensor,
+    volume: &SdfTensors,
+    white_background: bool,
+) -> Result<Option<Tensor>> {
+    let inputs = [&rays.origins, &rays.directions, lengths, target];
+    if !use_fused(lengths) || !use_fused(&rays.origins) || inputs.into_iter().any(needs_grad) {
+        return Ok(None);
+    }
+    let packed_rays = Tensor::cat(&[&rays.origins, &rays.directions, target], 1)?;
+    let op = SdfRenderMse {
+        render: SdfRender {
+            volume: volume.values()?,
+        },
+        white_background,
+        gradient: std::sync::Mutex::new(Vec::new()),
+    };
+    Ok(Some(packed_rays.apply_op3(
+        &lengths.contiguous()?,
+        &volume.packed()?,
+        op,
+    )?))
+}
+
+/// `(rays (N, 9) = [origin, direction, target], lengths (N, S, 1), packed (P,))` → the
+/// scalar loss; the forward pass also computes `∂loss/∂packed`, which the backward pass
+/// returns scaled by the upstream gradient.
+struct SdfRenderMse {
+    render: SdfRender,
+    white_background: bool,
+    gradient: std::sync::Mutex<Vec<f32>>,
+}
+
+impl SdfRenderMse {
+    /// One ray's squared error, its gradient added to `acc`; `scale` is `1/(3N)`.
+    fn ray(
+        &self,
+        ray: &[f32],
+        lengths: &[f32],
+        scale: f32,
+        sc: &mut RayScratch,
+        acc: &mut [f64],
+    ) -> f64 {
+        let volume = &self.render.volume;
+        let (n, out) = replay(volume, &ray[..6], lengths, sc);
+        let background = if self.white_background {
+            1.0 - out[4]
+        } else {
+            0.0
+        };
+        let diff: [f32; 3] = std::array::from_fn(|c| out[c] + background - ray[6 + c]);
+        let g: [f32; 3] = diff.map(|d| 2.0 * d * scale);
+        let g_opacity = if self.white_background {
+            -(g[0] + g[1] + g[2])
+        } else {
+            0.0
+        };
+        reverse(volume, sc, n, &[g[0], g[1], g[2], 0.0, g_opacity], acc);
+        diff.iter().map(|d| (d * d) as f64).sum()
+    }
+}
+
+impl CustomOp3 for SdfRenderMse {
+    fn name(&self) -> &'static str {
+        "fused-sdf-render-mse"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        _s3: &CpuStorage,
+        l3: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let name = "fused-sdf-render-mse";
+        let rays = contiguous_f32(s1, l1, name)?;
+        let lengths = contiguous_f32(s2, l2, name)?;
+        let (n, s, _) = l2.shape().dims3()?;
+        if rays.len() != 9 * n || n == 0 {
+            candle_core::bail!("{name}: rays, targets and lengths disagree in size");
+        }
+        let p = l3.shape().elem_count();
+        let scale = 1.0 / (3 * n) as f32;
+        let parts: Vec<(f64, Vec<f64>)> = rays
+            .par_chunks(9 * RAYS_PER_TASK)
+            .zip(lengths.par_chunks(s * RAYS_PER_TASK))
+            .map(|(r, l)| {
+                let mut acc = vec![0f64; p];
+                let mut sc = RayScratch::new(s);
+                let err: f64 = r
+                    .chunks_exact(9)
+                    .zip(l.chunks_exact(s))
+                    .map(|(r, l)| self.ray(r, l, scale, &mut sc, &mut acc))
+                    .sum();
+                (err, acc)
+            })
+            .collect();
+        let loss = parts.iter().map(|(e, _)| e).sum::<f64>() / (3 * n) as f64;
+        let gradient = sum_parts(parts.into_iter().map(|(_, g)| g).collect(), p);
+        *self.gradient.lock().expect("gradient lock") = gradient;
+        Ok((CpuStorage::F32(vec![loss as f32]), Shape::from(())))
+    }
+
+    fn bwd(
+        &self,
+        _rays: &Tensor,
+        _lengths: &Tensor,
+        packed: &Tensor,
+        _res: &Tensor,
+        grad_res: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let gradient = self.gradient.lock().expect("gradient lock").clone();
+        let g =
+            Tensor::from_vec(gradient, packed.shape(), packed.device())?.broadcast_mul(grad_res)?;
+        Ok((None, None, Some(g)))
     }
 }

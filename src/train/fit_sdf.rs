@@ -21,6 +21,7 @@ use crate::core::image::RgbImage;
 use crate::core::rays::{random_pixel_indices, Rays};
 use crate::field::sdf::SdfField;
 use crate::io::progress::progress_bar;
+use crate::kernels::sdf_render::sdf_render_mse;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 use crate::train::adam::Adam;
@@ -76,6 +77,26 @@ fn batch(view: &SdfView, pixels: &[usize], device: &Device) -> Result<(Rays, Ten
     Ok((rays, Tensor::from_vec(target, (pixels.len(), 3), device)?))
 }
 
+/// The mean squared error of the rendered `rays` against `target` `(B, 3)`, differentiable
+/// in the field's variables: the fused render-and-loss kernel on the CPU
+/// ([`sdf_render_mse`]), else the renderer and tensor ops.
+pub fn batch_loss(
+    field: &SdfField,
+    settings: &SdfFitSettings,
+    rays: &Rays,
+    target: &Tensor,
+) -> Result<Tensor> {
+    let lengths = settings.sampler.lengths(rays, None)?;
+    let white = settings.renderer.white_background;
+    if let Some(loss) = sdf_render_mse(rays, &lengths, target, &field.params, white)? {
+        return Ok(loss);
+    }
+    let out = settings
+        .renderer
+        .render(field, &settings.sampler, rays, None)?;
+    Ok(out.color.sub(target)?.sqr()?.mean_all()?)
+}
+
 /// Fits `field`'s variables to `views` in place; `on_step(epoch, step, loss)` is called after
 /// every step (after the progress bar, which shows the loss, is updated).
 pub fn fit_sdf(
@@ -108,10 +129,7 @@ pub fn fit_sdf(
                 &mut rng,
             );
             let (rays, target) = batch(view, &pixels, device)?;
-            let out = settings
-                .renderer
-                .render(field, &settings.sampler, &rays, None)?;
-            let loss = out.color.sub(&target)?.sqr()?.mean_all()?;
+            let loss = batch_loss(field, settings, &rays, &target)?;
             adam.step(&loss.backward()?)?;
             field.clamp_to_valid()?;
             let loss = loss.to_scalar::<f32>()? as f64;
