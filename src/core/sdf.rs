@@ -300,7 +300,12 @@ impl SdfVolume {
     /// feature entries) and returns `g · ∂colour/∂p`, for the colour of
     /// [`SdfVolume::evaluate_point`]. `g`: the gradient of the sample's `[r, g, b]`.
     #[inline(always)]
-    pub fn colour_vjp<A: Accumulate>(&self, p: [f32; 3], g: [f32; 3], params: &mut [A]) -> [f32; 3] {
+    pub fn colour_vjp<A: Accumulate>(
+        &self,
+        p: [f32; 3],
+        g: [f32; 3],
+        params: &mut [A],
+    ) -> [f32; 3] {
         let f0 = self.packed_layout().feature();
         let (scale, d_scale) = self.colour_factors(p);
         let mut d_point = [0f32; 3];
@@ -348,6 +353,16 @@ impl SdfVolume {
         self.transparency_from_distance(self.sdf.distance_with_gradient(p))
     }
 
+    /// One sample's transparency `1 − density` (≥ 0) from its signed distance `s`, with
+    /// `e = e^{−|s|/β}` and the unit density `½e` (outside) or `1 − ½e` (inside):
+    /// `(1 − α·unit, e, unit)`, `e^x` by [`exp_fast`].
+    #[inline(always)]
+    pub fn transparency_parts(&self, s: f32) -> (f32, f32, f32) {
+        let e = exp_fast(s.abs() * (-1.0 / self.beta) as f32);
+        let unit = if s > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
+        ((1.0 - unit * self.alpha as f32).max(0.0), e, unit)
+    }
+
     /// [`SdfVolume::transparency_with_partials`] from a signed distance and its derivatives
     /// `(s, ∂s/∂center, ∂s/∂shape)` ([`box_distance_with_gradient`],
     /// [`sphere_distance_with_gradient`]), so that a loop over samples can pick the shape once.
@@ -357,9 +372,7 @@ impl SdfVolume {
         (s, ds_dc, ds_dshape): (f32, [f32; 3], [f32; 3]),
     ) -> (f32, Partials) {
         let (alpha, beta) = (self.alpha as f32, self.beta as f32);
-        let e = exp_fast(s.abs() * (-1.0 / self.beta) as f32);
-        let unit = if s > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
-        let clear = (1.0 - unit * alpha).max(0.0);
+        let (clear, e, unit) = self.transparency_parts(s);
         // Where the sample is opaque (clear = 0) τ is clamped: no gradient.
         let inv = if clear > 0.0 { 1.0 / clear } else { 0.0 };
         let g_s = -inv * alpha * e / (2.0 * beta);

@@ -17,7 +17,7 @@ use candle_core::Tensor;
 use crate::field::nerf::parameter_shapes;
 use crate::field::nerf::NerfParams;
 use crate::io::checkpoint::{self, CheckpointInfo};
-use crate::io::torch_archive::{as_int, dict_get, TorchArchive};
+use crate::io::torch_archive::{as_int, dict_get, storage_key, TorchArchive};
 
 /// Keys under which training scripts commonly nest the state dict (`model` is the
 /// homework's).
@@ -87,15 +87,18 @@ pub fn read_torch_checkpoint(path: &Path, config: &NerfParams) -> Result<TorchCh
             expected[0].0
         )
     })?;
-    // The tensors in order: Adam's state refers to parameters by their position.
-    let mut names = Vec::new();
-    let mut tensors = Vec::new();
+    // The tensors in the state dict's order (Adam's state refers to parameters by their
+    // position), which their storage keys give.
+    let mut found = Vec::new();
     for (k, v) in entries {
         if let (Some(name), Some(t)) = (unicode(k), archive.tensor(v)?) {
-            names.push(name.to_string());
-            tensors.push(t);
+            let key = storage_key(v).and_then(|k| k.parse::<usize>().ok());
+            found.push((key, name.to_string(), t));
         }
     }
+    found.sort_by_key(|(key, _, _)| *key);
+    let (names, tensors): (Vec<String>, Vec<Tensor>) =
+        found.into_iter().map(|(_, n, t)| (n, t)).unzip();
     let name_refs: Vec<&str> = names.iter().map(String::as_str).collect();
     let mut model = Vec::with_capacity(expected.len());
     let mut positions = Vec::with_capacity(expected.len());

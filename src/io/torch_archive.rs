@@ -104,6 +104,29 @@ impl TorchArchive {
     }
 }
 
+/// The key of the storage record a tensor object reads (`"0"`, `"1"`, …). `torch.save`
+/// numbers storages in the order it pickles them, so for a state dict this is the
+/// parameters' order (Candle's reader does not keep a dict's order: it reverses each batch
+/// of `SETITEMS`).
+pub fn storage_key(obj: &Object) -> Option<&str> {
+    let Object::Reduce { args, .. } = obj else {
+        return None;
+    };
+    let Object::Tuple(args) = args.as_ref() else {
+        return None;
+    };
+    let Some(Object::PersistentLoad(id)) = args.first() else {
+        return None;
+    };
+    match id.as_ref() {
+        Object::Tuple(parts) => match parts.get(2) {
+            Some(Object::Unicode(key)) => Some(key),
+            _ => None,
+        },
+        _ => None,
+    }
+}
+
 /// The value under string key `key` of a dict object.
 pub fn dict_get<'a>(obj: &'a Object, key: &str) -> Option<&'a Object> {
     match obj {

@@ -89,11 +89,19 @@ fn fill<D>(
     t[..m].copy_from_slice(&lengths[start..end]);
     for j in 0..m {
         // Zero spacing: zero optical depth whatever the density (see core::volume).
-        live[j] = if spacing(lengths, start + j) == 0.0 { 0.0 } else { 1.0 };
+        live[j] = if spacing(lengths, start + j) == 0.0 {
+            0.0
+        } else {
+            1.0
+        };
     }
     let mut b = Block::default();
     for j in 0..BLOCK {
-        let point = [ray[0] + t[j] * ray[3], ray[1] + t[j] * ray[4], ray[2] + t[j] * ray[5]];
+        let point = [
+            ray[0] + t[j] * ray[3],
+            ray[1] + t[j] * ray[4],
+            ray[2] + t[j] * ray[5],
+        ];
         let (clear, d) = volume.transparency_from_distance(distance(point));
         let (scale, d_scale) = volume.colour_factors(point);
         b.clear[j] = 1.0 - live[j] * (1.0 - clear);
@@ -117,6 +125,91 @@ fn fill<D>(
     }
     sc.d_alpha[r.clone()].copy_from_slice(&b.d_alpha[..m]);
     sc.d_beta[r].copy_from_slice(&b.d_beta[..m]);
+}
+
+/// One ray's `[r, g, b, depth, opacity]` ([`crate::kernels::sdf_render`]'s forward pass):
+/// blocks of [`BLOCK`] samples' transparency `e^{−τ} = 1 − density` and colour, composited,
+/// stopping after the block in which the transmittance reaches 0.
+pub fn forward(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5] {
+    match volume.sdf {
+        Sdf::Box {
+            center,
+            side_lengths,
+        } => forward_with(
+            volume,
+            |p| box_distance(&center, &side_lengths, p),
+            ray,
+            lengths,
+        ),
+        Sdf::Sphere { .. } => forward_with(volume, |p| volume.sdf.distance(p), ray, lengths),
+    }
+}
+
+/// The box's signed distance ([`Sdf::distance`] of a box), for a loop that picked the shape.
+#[inline(always)]
+fn box_distance(center: &[f32; 3], side_lengths: &[f32; 3], p: [f32; 3]) -> f32 {
+    Sdf::Box {
+        center: *center,
+        side_lengths: *side_lengths,
+    }
+    .distance(p)
+}
+
+/// [`forward`] with the shape's signed distance `distance`.
+#[inline(always)]
+fn forward_with<D: Fn([f32; 3]) -> f32>(
+    volume: &SdfVolume,
+    distance: D,
+    ray: &[f32],
+    lengths: &[f32],
+) -> [f32; 5] {
+    let s = lengths.len();
+    let mut out = [0f32; 5];
+    let mut transmittance = 1f32;
+    let mut start = 0;
+    while start < s {
+        let end = (start + BLOCK).min(s);
+        let m = end - start;
+        let mut t = [0f32; BLOCK];
+        let mut live = [0f32; BLOCK];
+        t[..m].copy_from_slice(&lengths[start..end]);
+        for j in 0..m {
+            live[j] = if spacing(lengths, start + j) == 0.0 {
+                0.0
+            } else {
+                1.0
+            };
+        }
+        let mut clear = [0f32; BLOCK];
+        let mut colour = [[0f32; BLOCK]; 3];
+        for j in 0..BLOCK {
+            let p = [
+                ray[0] + t[j] * ray[3],
+                ray[1] + t[j] * ray[4],
+                ray[2] + t[j] * ray[5],
+            ];
+            let (c, _, _) = volume.transparency_parts(distance(p));
+            clear[j] = 1.0 - live[j] * (1.0 - c);
+            let rgb = volume.colour_at(p);
+            for k in 0..3 {
+                colour[k][j] = rgb[k];
+            }
+        }
+        for j in 0..m {
+            let w = transmittance * (1.0 - clear[j]);
+            transmittance *= clear[j];
+            for k in 0..3 {
+                out[k] += w * colour[k][j];
+            }
+            out[3] += w * t[j];
+            out[4] += w;
+        }
+        if transmittance == 0.0 {
+            break;
+        }
+        start = end;
+    }
+    out
 }
 
 /// Replays one ray `[origin, direction]` at `lengths` into `sc`, up to the block in which its
@@ -190,7 +283,12 @@ pub fn reverse(volume: &SdfVolume, sc: &mut RayScratch, n: usize, grad: &[f32], 
     }
     // ∂L/∂τ_i, walking back with the suffix sum Σ_{j>i} w_j g_j.
     let mut suffix = 0f32;
-    for ((g, after), w) in sc.g[..n].iter_mut().zip(&sc.after[..n]).zip(&sc.weight[..n]).rev() {
+    for ((g, after), w) in sc.g[..n]
+        .iter_mut()
+        .zip(&sc.after[..n])
+        .zip(&sc.weight[..n])
+        .rev()
+    {
         let gi = *g;
         *g = after * gi - suffix;
         suffix += w * gi;
@@ -214,7 +312,12 @@ pub fn reverse(volume: &SdfVolume, sc: &mut RayScratch, n: usize, grad: &[f32], 
 fn dot(a: &[f32], b: &[f32]) -> f64 {
     let mut lanes = [0f32; 8];
     let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = ca.remainder().iter().zip(cb.remainder()).map(|(x, y)| x * y).sum();
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
     for (x, y) in ca.zip(cb) {
         for l in 0..8 {
             lanes[l] += x[l] * y[l];

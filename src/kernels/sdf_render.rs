@@ -1,18 +1,25 @@
 //! Rendering rays through an SDF volume in one fused CPU pass per ray, forward and backward:
-//! sample points, σ and colour ([`SdfVolume::evaluate_point`]), and compositing
-//! ([`crate::core::volume`]'s weights) without materialising the `(N, S, ·)` sample tensors.
+//! sample points, transparency and colour, and compositing, without materialising the
+//! `(N, S, ·)` sample tensors; per ray, blocks of samples are computed together so that the
+//! work vectorises ([`crate::kernels::sdf_ray`]).
 //!
-//! The forward pass runs the same scalar maths in the same order as its twin — the sampler's
-//! [`crate::kernels::sample_points`], [`crate::kernels::sdf_volume`] and
-//! [`crate::kernels::composite`] — so its colour, depth and opacity are bit for bit theirs.
-//! A ray stops at the first sample where its transmittance is exactly 0: every later weight
-//! is exactly 0, so nothing changes.
+//! The maths is the twin's — the sampler's points, [`SdfVolume::evaluate_point`] and
+//! [`crate::core::volume`]'s weights, as [`crate::kernels::sample_points`],
+//! [`crate::kernels::sdf_volume`] and [`crate::kernels::composite`] compute them — with two
+//! float32-level differences: a sample's `e^{−τ}` is taken as `1 − density` (the twin's
+//! `e^{−(−ln(1 − density)/Δ)·Δ}`, which is the same number up to rounding, and an opaque
+//! sample's clamped τ the same 0), and `e^x` is [`crate::core::fastexp::exp_fast`] (2 ulps).
+//! Measured against the twin and the float64 reference in the tests. A ray stops after the
+//! block in which its transmittance is exactly 0: every later weight is exactly 0.
 //!
 //! The backward pass recomputes each ray, then, walking back, forms the compositing
-//! gradients (`∂L/∂σ_i = Δ_i (T_{i+1} g_i − Σ_{j>i} w_j g_j)`, `∂L/∂c_i = w_i G`, see
-//! [`crate::kernels::composite`]) and turns them into gradients of the packed parameters with
-//! [`SdfVolume::sigma_with_partials`] and [`SdfVolume::colour_vjp`], summed in float64. Rays
-//! and depths get no gradient (they are never trained; tracked ones take the twin).
+//! gradients (`∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, `∂L/∂c_i = w_i G`, see
+//! [`crate::kernels::composite`]) and turns them into gradients of the packed parameters
+//! ([`SdfVolume::transparency_with_partials`], [`SdfVolume::colour_factors`]). Rays and
+//! depths get no gradient (they are never trained; tracked ones take the twin).
+//!
+//! [`sdf_render_mse`] does a training step's loss in the same pass: the gradient is formed
+//! with the loss, each ray replayed once.
 
 use anyhow::Result;
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
@@ -20,15 +27,13 @@ use rayon::prelude::*;
 
 use crate::core::rays::Rays;
 use crate::core::sdf::SdfVolume;
-use crate::kernels::sdf_ray::{replay, reverse, RayScratch};
-use crate::core::volume::{clamped_optical_depth, spacing};
+use crate::kernels::sdf_ray::{forward, replay, reverse, RayScratch};
 use crate::kernels::sdf_volume::SdfTensors;
 use crate::kernels::storage::contiguous_f32;
 use crate::kernels::{needs_grad, use_fused};
 
 /// Rays per parallel work item.
 const RAYS_PER_TASK: usize = 64;
-
 
 /// Colour `(N, 3)`, depth `(N, 1)` and opacity `(N, 1)` of `rays` (N) sampled at `lengths`
 /// `(N, S, 1)` through `volume`, in one fused pass, with a backward pass to the volume's
@@ -65,31 +70,6 @@ pub fn sdf_render(
 /// `[r, g, b, depth, opacity]`.
 struct SdfRender {
     volume: SdfVolume,
-}
-
-impl SdfRender {
-    /// Composites one ray into `out` (`[r, g, b, depth, opacity]`).
-    fn forward_ray(&self, ray: &[f32], lengths: &[f32], out: &mut [f32]) {
-        out.fill(0.0);
-        let mut transmittance = 1f32;
-        for (i, &t) in lengths.iter().enumerate() {
-            let delta = spacing(lengths, i);
-            let p = std::array::from_fn(|k| ray[k] + t * ray[3 + k]);
-            let (sigma, colour) = self.volume.evaluate_point(p, delta);
-            let a = (-clamped_optical_depth(sigma, delta)).exp();
-            let w = transmittance * (1.0 - a);
-            transmittance *= a;
-            for c in 0..3 {
-                out[c] += w * colour[c];
-            }
-            out[3] += w * t;
-            out[4] += w;
-            if transmittance == 0.0 {
-                break;
-            }
-        }
-    }
-
 }
 
 /// Sums per-task float64 gradient vectors into one float32 `(P,)` vector.
@@ -133,7 +113,7 @@ impl CustomOp3 for SdfRender {
                     .zip(r.chunks_exact(6))
                     .zip(l.chunks_exact(s))
                 {
-                    self.forward_ray(r, l, o);
+                    o.copy_from_slice(&forward(&self.volume, r, l));
                 }
             });
         Ok((CpuStorage::F32(out), Shape::from((n, 5))))
