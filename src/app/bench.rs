@@ -40,6 +40,7 @@ pub fn pytorch_seconds(work: ReferenceWork) -> Option<f64> {
         ReferenceWork::Box(20, 256, 256, 64) => Some(3.65),
         ReferenceWork::Frame(128, 128, 128) => Some(6.7),
         ReferenceWork::Step(1024, 128) => Some(1.0),
+        ReferenceWork::BoxStep(4096, 64) => Some(0.055),
         _ => None,
     }
 }
@@ -53,6 +54,8 @@ pub enum ReferenceWork {
     Frame(usize, usize, usize),
     /// One training step: rays, points per ray.
     Step(usize, usize),
+    /// One step of the box fit (train_box): rays, points per ray.
+    BoxStep(usize, usize),
 }
 
 /// Machine facts printed with every table.
@@ -134,6 +137,90 @@ pub fn bench_sdf_render(
     ))
 }
 
+/// Times the whole `nerf render` job of the SDF `config` (grid, rays, point cloud, every
+/// surround frame, depth and GIF, written into a temporary directory), best of `repeats`,
+/// against PyTorch's render of the frames alone.
+pub fn bench_box_command(config: &Config, repeats: usize, device: &Device) -> Result<BenchResult> {
+    let dir = std::env::temp_dir().join(format!("nerf-bench-{}", std::process::id()));
+    let timed = time_runs(repeats, || {
+        crate::app::scene::render_sdf_scene(config, &dir, false, device)
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+    let (runs, written) = timed?;
+    let (w, h) = config.image_size();
+    let (n, s) = (config.cameras.n_poses, config.sampler.n_pts_per_ray);
+    Ok(BenchResult {
+        name: "box command (all outputs)".into(),
+        work: format!(
+            "`nerf render`: {} files, {n} frames {w}x{h} x {s} points, point cloud, GIF",
+            written.len()
+        ),
+        seconds: fastest(&runs),
+        runs,
+        pytorch_seconds: pytorch_seconds(ReferenceWork::Box(n, w, h, s)),
+        error: None,
+    })
+}
+
+/// Steps of the box fit timed per repeat by [`bench_train_box`].
+pub const BOX_FIT_STEPS: usize = 40;
+
+/// The box fit of the built-in `train_box` config (256x256 targets of another box, rendered
+/// in memory; 4096 rays x 64 points per step, forward, backward, Adam): the mean step over
+/// [`BOX_FIT_STEPS`] steps, best of `repeats` (the fit's accuracy is tested, not timed
+/// here: `tests/homework.rs` and `tests/sdf_gradients.rs`).
+pub fn bench_train_box(repeats: usize, device: &Device) -> Result<BenchResult> {
+    use crate::train::fit_sdf::{fit_sdf, SdfView};
+    let truth = Config::load(
+        "train_box",
+        &[
+            "implicit_function.sdf.center.val=[0.1,-0.1,0.05]".into(),
+            "implicit_function.sdf.side_lengths.val=[1.7,1.3,1.6]".into(),
+        ],
+    )?;
+    let (w, h) = truth.image_size();
+    let field = truth.sdf_field(device)?;
+    let cameras = truth.data_cameras()?;
+    let (sampler, renderer) = (truth.sampler()?, truth.renderer()?);
+    let views = cameras
+        .iter()
+        .map(|(_, camera, _)| {
+            let image = render_view(&field, camera, (w, h), &sampler, &renderer, device)?.color;
+            Ok(SdfView {
+                camera: *camera,
+                image,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let config = Config::load("train_box", &[])?;
+    let mut settings = config.sdf_fit_settings()?;
+    settings.num_epochs = BOX_FIT_STEPS / views.len();
+    let mut runs = Vec::with_capacity(repeats);
+    for _ in 0..repeats {
+        let fit = crate::field::sdf::SdfField::new(
+            &config.sdf_volume()?,
+            config.sdf_trainable()?,
+            device,
+        )?;
+        let report = fit_sdf(&fit, &views, &settings, device, |_, _, _| {})?;
+        runs.push(report.seconds / report.steps as f64);
+    }
+    Ok(BenchResult {
+        name: "train_box step".into(),
+        work: format!(
+            "{} rays x {} points of {w}x{h}, fwd+bwd+Adam (mean of {BOX_FIT_STEPS} steps)",
+            settings.batch_size, sampler.n_pts_per_ray
+        ),
+        seconds: fastest(&runs),
+        runs,
+        pytorch_seconds: pytorch_seconds(ReferenceWork::BoxStep(
+            settings.batch_size,
+            sampler.n_pts_per_ray,
+        )),
+        error: None,
+    })
+}
+
 /// Everything `nerf bench` measures.
 #[derive(Debug, Clone, Serialize)]
 pub struct BenchReport {
@@ -172,7 +259,9 @@ pub fn run_benchmarks(
         max_abs(&frames[0].color.data, &colors),
         max_abs(&frames[0].depth, &depths)
     ));
-    let mut results = vec![result];
+    let whole = bench_box_command(config, repeats, device)?;
+    let mut results = vec![result, whole];
+    results.push(bench_train_box(repeats, device)?);
     if let Some(lego) = lego {
         if lego.checkpoint.is_file() {
             results.extend(bench_trained_nerf(lego, device)?);
