@@ -3,7 +3,9 @@
 //! transmittance) and the reverse pass (the compositing gradients turned into gradients of
 //! the packed parameters). The maths is [`SdfVolume`]'s; this module only lays it out so
 //! that the per-sample work runs in blocks of [`BLOCK`] samples the compiler vectorises,
-//! with the shape chosen once per ray rather than per sample.
+//! with the shape chosen once per ray rather than per sample. Each public function runs a
+//! copy compiled for AVX2 where the CPU has it (checked at run time), else the baseline
+//! (SSE2) one.
 
 use crate::core::sdf::{
     box_distance_with_gradient, sphere_distance_with_gradient, PackedLayout, Sdf, SdfVolume,
@@ -131,6 +133,24 @@ fn fill<D>(
 /// blocks of [`BLOCK`] samples' transparency `e^{−τ} = 1 − density` and colour, composited,
 /// stopping after the block in which the transmittance reaches 0.
 pub fn forward(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5] {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { forward_avx2(volume, ray, lengths) };
+    }
+    forward_portable(volume, ray, lengths)
+}
+
+/// [`forward`] compiled for AVX2 (8 samples per vector instead of SSE2's 4).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn forward_avx2(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5] {
+    forward_portable(volume, ray, lengths)
+}
+
+/// [`forward`] for any CPU.
+#[inline(always)]
+fn forward_portable(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5] {
     match volume.sdf {
         Sdf::Box {
             center,
@@ -222,6 +242,34 @@ pub fn replay(
     lengths: &[f32],
     sc: &mut RayScratch,
 ) -> (usize, [f32; 5]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { replay_avx2(volume, ray, lengths, sc) };
+    }
+    replay_portable(volume, ray, lengths, sc)
+}
+
+/// [`replay`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn replay_avx2(
+    volume: &SdfVolume,
+    ray: &[f32],
+    lengths: &[f32],
+    sc: &mut RayScratch,
+) -> (usize, [f32; 5]) {
+    replay_portable(volume, ray, lengths, sc)
+}
+
+/// [`replay`] for any CPU.
+#[inline(always)]
+fn replay_portable(
+    volume: &SdfVolume,
+    ray: &[f32],
+    lengths: &[f32],
+    sc: &mut RayScratch,
+) -> (usize, [f32; 5]) {
     let s = lengths.len();
     let mut out = [0f32; 5];
     let mut transmittance = 1f32;
@@ -275,6 +323,36 @@ pub fn replay(
 /// `Σ_i ∂L/∂τ_i ∂τ_i/∂θ` with `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, `g_i = Σ_c G_c c_ic
 /// + G_depth t_i + G_opacity`, and the colour's `Σ_i w_i G_c ∂c_ic/∂θ`.
 pub fn reverse(volume: &SdfVolume, sc: &mut RayScratch, n: usize, grad: &[f32], acc: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { reverse_avx2(volume, sc, n, grad, acc) };
+    }
+    reverse_portable(volume, sc, n, grad, acc)
+}
+
+/// [`reverse`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn reverse_avx2(
+    volume: &SdfVolume,
+    sc: &mut RayScratch,
+    n: usize,
+    grad: &[f32],
+    acc: &mut [f64],
+) {
+    reverse_portable(volume, sc, n, grad, acc)
+}
+
+/// [`reverse`] for any CPU.
+#[inline(always)]
+fn reverse_portable(
+    volume: &SdfVolume,
+    sc: &mut RayScratch,
+    n: usize,
+    grad: &[f32],
+    acc: &mut [f64],
+) {
     let f = volume.feature;
     let gf = [grad[0] * f[0], grad[1] * f[1], grad[2] * f[2]];
     let (s0, s1, s2) = (&sc.scale[0][..n], &sc.scale[1][..n], &sc.scale[2][..n]);
@@ -307,6 +385,7 @@ pub fn reverse(volume: &SdfVolume, sc: &mut RayScratch, n: usize, grad: &[f32], 
     acc[layout.beta()] += dot(g, &sc.d_beta[..n]);
 }
 
+#[inline(always)]
 /// `Σ a_i b_i` of two equally long slices, summed in 8 float32 lanes (so that it
 /// vectorises; a ray's few samples lose nothing that matters), returned as float64.
 fn dot(a: &[f32], b: &[f32]) -> f64 {
