@@ -543,7 +543,10 @@ fn every_homework_config_runs_as_it_is() {
         args.push(data.to_str().unwrap());
         args.extend(small);
         let out = ok(&nerf_in(d, &args), config);
-        assert!(out.contains(&format!("trained to epoch {epochs} ")), "{out}");
+        assert!(
+            out.contains(&format!("trained to epoch {epochs} ")),
+            "{out}"
+        );
         assert!(d.join("checkpoints/nerf_lego.safetensors").is_file());
         let mut args = vec![
             "render",

@@ -194,8 +194,8 @@ impl Partials {
     /// Adds `g · ∂x/∂θ` to `params`, laid out as `layout`.
     #[inline(always)]
     pub fn add_to<A: Accumulate>(&self, g: f32, layout: PackedLayout, params: &mut [A]) {
-        for k in 0..3 {
-            params[k].accumulate(g * self.center[k]);
+        for (p, c) in params.iter_mut().zip(self.center) {
+            p.accumulate(g * c);
         }
         for k in 0..layout.shape_len {
             params[PackedLayout::SHAPE + k].accumulate(g * self.shape[k]);

@@ -7,6 +7,10 @@
 //! copy compiled for AVX2 where the CPU has it (checked at run time), else the baseline
 //! (SSE2) one.
 
+// Index loops walk several per-sample arrays in step; iterator chains would hide that (and
+// the fixed-size ones are what the compiler vectorises).
+#![allow(clippy::needless_range_loop)]
+
 use crate::core::sdf::{
     box_distance_with_gradient, sphere_distance_with_gradient, PackedLayout, Sdf, SdfVolume,
 };

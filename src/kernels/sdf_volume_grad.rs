@@ -22,6 +22,9 @@ use rayon::prelude::*;
 use crate::core::sdf::SdfVolume;
 use crate::kernels::storage::contiguous_f32;
 
+/// One block of σ's backward pass: points, spacings, `∂L/∂σ`, and where `∂L/∂points` goes.
+type SigmaBlock<'a> = (((&'a [f32], &'a [f32]), &'a [f32]), &'a mut [f32]);
+
 /// Samples per parallel work item.
 const BLOCK: usize = 4096;
 
@@ -170,7 +173,7 @@ impl CustomOp3 for SigmaBackward {
         let grad = contiguous_f32(s3, l3, name)?;
         let p = self.volume.packed_layout().len();
         let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
-        let work = |(((p3, d), g), gp): (((&[f32], &[f32]), &[f32]), &mut [f32])| {
+        let work = |(((p3, d), g), gp): SigmaBlock| {
             let mut acc = vec![0f64; p];
             for (i, ((x, &delta), &g)) in p3.chunks_exact(3).zip(d).zip(g).enumerate() {
                 let dp = self
