@@ -82,24 +82,7 @@ fn device(arg: DeviceArg) -> Result<Device> {
 enum Command {
     /// Run a config's job by its `type`, as the homework's main.py: render, render_nerf,
     /// train (fit an SDF volume to images) or train_nerf.
-    Run {
-        /// Config name (configs/NAME.yaml or built-in, e.g. train_box) or path to a YAML file.
-        #[arg(long, alias = "config-name")]
-        config: String,
-        /// Output directory for images.
-        #[arg(long, default_value = "images")]
-        out_dir: PathBuf,
-        /// NeRF checkpoint to render (default: training.checkpoint_path, else
-        /// checkpoints/nerf_lego.safetensors); a file of ours or PyTorch's, or a directory.
-        #[arg(long)]
-        checkpoint: Option<PathBuf>,
-        /// Dataset directory for train_nerf (default: data.data_dir, else
-        /// ../shared/data/<dataset_name>).
-        #[arg(long)]
-        data_dir: Option<PathBuf>,
-        /// Hydra-style overrides, e.g. training.num_epochs=100.
-        overrides: Vec<String>,
-    },
+    Run(RunArgs),
     /// Render a scene's surround views and visualisations into an output directory.
     Render {
         /// Config name (configs/NAME.yaml or built-in) or path to a YAML file.
@@ -149,39 +132,14 @@ enum Command {
         overrides: Vec<String>,
     },
     /// PSNR of a trained NeRF over a dataset split at the config's image size.
-    Eval {
-        /// Config name or path (e.g. lego).
-        #[arg(long, alias = "config-name")]
-        config: String,
-        /// Which split to score.
-        #[arg(long, value_enum, default_value = "test")]
-        split: SplitArg,
-        /// NeRF checkpoint to evaluate (default: training.checkpoint_path, else
-        /// checkpoints/nerf_lego.safetensors): a safetensors or PyTorch file, or a directory.
-        #[arg(long)]
-        checkpoint: Option<PathBuf>,
-        /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
-        #[arg(long)]
-        data_dir: Option<PathBuf>,
-        /// Write each predicted view as <frame>.png into this directory.
-        #[arg(long)]
-        save_images: Option<PathBuf>,
-        /// Score only the first N views.
-        #[arg(long, value_parser = at_least_one)]
-        limit: Option<usize>,
-        /// Print JSON instead of a summary.
-        #[arg(long)]
-        json: bool,
-        /// Hydra-style overrides.
-        overrides: Vec<String>,
-    },
+    Eval(EvalArgs),
     /// Convert a PyTorch state dict of the homework's NeRF (.pth) into a checkpoint.
     ImportTorch {
         /// The .pth file (`torch.save(model.state_dict())`, or a dict holding it under
         /// model / model_state_dict / state_dict).
         pth: PathBuf,
         /// Config whose implicit_function describes the model's sizes.
-        #[arg(long, default_value = "nerf_lego")]
+        #[arg(long, alias = "config-name", default_value = "nerf_lego")]
         config: String,
         /// Where to write the safetensors checkpoint.
         #[arg(long, default_value = "checkpoints/imported.safetensors")]
@@ -190,55 +148,113 @@ enum Command {
         overrides: Vec<String>,
     },
     /// Time the main jobs and print a table (or JSON).
-    Bench {
-        /// Config of the SDF scene to time.
-        #[arg(long, default_value = "box")]
-        config: String,
-        /// Repeats of the box render and the training step (the best is reported; the first
-        /// training step is a cold one, so use at least 2); the untrained frame is rendered
-        /// min(repeats, 2) times; the trained-NeRF rows render each view once and report the
-        /// mean.
-        #[arg(long, default_value_t = 3, value_parser = at_least_one)]
-        repeats: usize,
-        /// Print JSON instead of a table.
-        #[arg(long)]
-        json: bool,
-        /// Trained NeRF to time dense against accelerated rendering (skipped when missing).
-        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-        checkpoint: PathBuf,
-        /// Lego dataset directory for the ground truth (default ../shared/data/lego).
-        #[arg(long)]
-        data_dir: Option<PathBuf>,
-        /// Test views rendered for the trained-NeRF benchmark.
-        #[arg(long, default_value_t = 5, value_parser = at_least_one)]
-        views: usize,
-        /// Hydra-style overrides for the SDF config (the NeRF rows use the built-in nerf_lego
-        /// and lego configs, at the work of the PyTorch figures).
-        overrides: Vec<String>,
-    },
+    Bench(BenchArgs),
     /// Measure error against run time (box, lego, training) and write a Markdown report with
     /// PNG plots.
-    Report {
-        /// Output directory (report.md, report.json, plots).
-        #[arg(long, default_value = "reports")]
-        out_dir: PathBuf,
-        /// CI-sized run: small images, fewer sample counts and views, one repeat.
-        #[arg(long)]
-        quick: bool,
-        /// Trained NeRF for the lego section (skipped with a note when missing).
-        #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
-        checkpoint: PathBuf,
-        /// Lego dataset directory (default ../shared/data/lego).
-        #[arg(long)]
-        data_dir: Option<PathBuf>,
-        /// Test views for the lego section (default 5; 2 with --quick).
-        #[arg(long, value_parser = at_least_one)]
-        views: Option<usize>,
-        /// Training logs to plot (default: the checkpoint's .log.jsonl and
-        /// checkpoints/homework/nerf_lego.log.jsonl).
-        #[arg(long = "log")]
-        logs: Vec<PathBuf>,
-    },
+    Report(ReportArgs),
+}
+
+/// The options of `nerf run`.
+#[derive(clap::Args)]
+struct RunArgs {
+    /// Config name (configs/NAME.yaml or built-in, e.g. train_box) or path to a YAML file.
+    #[arg(long, alias = "config-name")]
+    config: String,
+    /// Output directory for images.
+    #[arg(long, default_value = "images")]
+    out_dir: PathBuf,
+    /// NeRF checkpoint to render (default: training.checkpoint_path, else
+    /// checkpoints/nerf_lego.safetensors); a file of ours or PyTorch's, or a directory.
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Dataset directory for train_nerf (default: data.data_dir, else
+    /// ../shared/data/<dataset_name>).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Hydra-style overrides, e.g. training.num_epochs=100.
+    overrides: Vec<String>,
+}
+
+/// The options of `nerf eval`.
+#[derive(clap::Args)]
+struct EvalArgs {
+    /// Config name or path (e.g. lego).
+    #[arg(long, alias = "config-name")]
+    config: String,
+    /// Which split to score.
+    #[arg(long, value_enum, default_value = "test")]
+    split: SplitArg,
+    /// NeRF checkpoint to evaluate (default: training.checkpoint_path, else
+    /// checkpoints/nerf_lego.safetensors): a safetensors or PyTorch file, or a directory.
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Write each predicted view as <frame>.png into this directory.
+    #[arg(long)]
+    save_images: Option<PathBuf>,
+    /// Score only the first N views.
+    #[arg(long, value_parser = at_least_one)]
+    limit: Option<usize>,
+    /// Print JSON instead of a summary.
+    #[arg(long)]
+    json: bool,
+    /// Hydra-style overrides.
+    overrides: Vec<String>,
+}
+
+/// The options of `nerf bench`.
+#[derive(clap::Args)]
+struct BenchArgs {
+    /// Config of the SDF scene to time.
+    #[arg(long, alias = "config-name", default_value = "box")]
+    config: String,
+    /// Repeats of the box render and the training step (the best is reported; the first
+    /// training step is a cold one, so use at least 2); the untrained frame is rendered
+    /// min(repeats, 2) times; the trained-NeRF rows render each view once and report the
+    /// mean.
+    #[arg(long, default_value_t = 3, value_parser = at_least_one)]
+    repeats: usize,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Trained NeRF to time dense against accelerated rendering (skipped when missing).
+    #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
+    checkpoint: PathBuf,
+    /// Lego dataset directory for the ground truth (default ../shared/data/lego).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Test views rendered for the trained-NeRF benchmark.
+    #[arg(long, default_value_t = 5, value_parser = at_least_one)]
+    views: usize,
+    /// Hydra-style overrides for the SDF config (the NeRF rows use the built-in nerf_lego
+    /// and lego configs, at the work of the PyTorch figures).
+    overrides: Vec<String>,
+}
+
+/// The options of `nerf report`.
+#[derive(clap::Args)]
+struct ReportArgs {
+    /// Output directory (report.md, report.json, plots).
+    #[arg(long, default_value = "reports")]
+    out_dir: PathBuf,
+    /// CI-sized run: small images, fewer sample counts and views, one repeat.
+    #[arg(long)]
+    quick: bool,
+    /// Trained NeRF for the lego section (skipped with a note when missing).
+    #[arg(long, default_value = "checkpoints/nerf_lego.safetensors")]
+    checkpoint: PathBuf,
+    /// Lego dataset directory (default ../shared/data/lego).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Test views for the lego section (default 5; 2 with --quick).
+    #[arg(long, value_parser = at_least_one)]
+    views: Option<usize>,
+    /// Training logs to plot (default: the checkpoint's .log.jsonl and
+    /// checkpoints/homework/nerf_lego.log.jsonl).
+    #[arg(long = "log")]
+    logs: Vec<PathBuf>,
 }
 
 /// A count of at least 1, for clap.
@@ -267,6 +283,91 @@ impl From<SplitArg> for nerf::io::dataset::Split {
     }
 }
 
+/// `nerf run`: the job of the config's `type`.
+fn run_config(a: RunArgs, device: &Device) -> Result<()> {
+    let loaded = Config::load(&a.config, &a.overrides)?;
+    match jobs::run_job(&loaded, &a.config)? {
+        jobs::RunJob::Render => print_written(&render_scene(
+            &loaded,
+            a.checkpoint.as_deref(),
+            &a.out_dir,
+            false,
+            device,
+        )?),
+        jobs::RunJob::Train(job) => {
+            let nerf = jobs::NerfTrainOptions {
+                data_dir: a.data_dir,
+                epochs: None,
+            };
+            print_lines(&jobs::train(&loaded, job, &nerf, &a.out_dir, device)?)
+        }
+    }
+    Ok(())
+}
+
+/// `nerf eval`.
+fn eval(a: EvalArgs, device: &Device) -> Result<()> {
+    let config = Config::load(&a.config, &a.overrides)?;
+    let data_dir = jobs::data_dir_for(&config, a.data_dir);
+    let report = nerf::app::evaluate::eval_nerf(
+        &config,
+        a.checkpoint.as_deref(),
+        &data_dir,
+        a.split.into(),
+        a.save_images.as_deref(),
+        a.limit,
+        device,
+    )?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!("{}", report.summary());
+    }
+    Ok(())
+}
+
+/// `nerf bench`.
+fn bench(a: BenchArgs, device: &Device) -> Result<()> {
+    let config = Config::load(&a.config, &a.overrides)?;
+    let lego = nerf::app::bench::LegoBench {
+        checkpoint: a.checkpoint,
+        data_dir: a
+            .data_dir
+            .unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
+        views: a.views,
+    };
+    let report = nerf::app::bench::run_benchmarks(&config, a.repeats, Some(&lego), device)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", nerf::app::bench::format_table(&report));
+    }
+    Ok(())
+}
+
+/// `nerf report`.
+fn report(a: ReportArgs, device: &Device) -> Result<()> {
+    let training_logs = if a.logs.is_empty() {
+        nerf::app::report::default_training_logs(&a.checkpoint)
+    } else {
+        a.logs
+    };
+    let options = nerf::app::report::ReportOptions {
+        out_dir: a.out_dir,
+        quick: a.quick,
+        checkpoint: a.checkpoint,
+        data_dir: a
+            .data_dir
+            .unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
+        views: a.views,
+        training_logs,
+    };
+    for p in nerf::app::report::write_report(&options, device)? {
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
 fn run(cli: Cli) -> Result<()> {
     nerf::kernels::set_kernel_choice(match cli.kernels {
         KernelsArg::Fused => nerf::kernels::KernelChoice::Fused,
@@ -274,31 +375,7 @@ fn run(cli: Cli) -> Result<()> {
     });
     let device = device(cli.device)?;
     match cli.command {
-        Command::Run {
-            config,
-            out_dir,
-            checkpoint,
-            data_dir,
-            overrides,
-        } => {
-            let loaded = Config::load(&config, &overrides)?;
-            match jobs::run_job(&loaded, &config)? {
-                jobs::RunJob::Render => print_written(&render_scene(
-                    &loaded,
-                    checkpoint.as_deref(),
-                    &out_dir,
-                    false,
-                    &device,
-                )?),
-                jobs::RunJob::Train(job) => {
-                    let nerf = jobs::NerfTrainOptions {
-                        data_dir,
-                        epochs: None,
-                    };
-                    print_lines(&jobs::train(&loaded, job, &nerf, &out_dir, &device)?)
-                }
-            }
-        }
+        Command::Run(a) => run_config(a, &device)?,
         Command::Render {
             config,
             out_dir,
@@ -331,33 +408,7 @@ fn run(cli: Cli) -> Result<()> {
             let config = Config::load(&config, &overrides)?;
             print_written(&nerf::app::train_box::write_targets(&config, &device)?);
         }
-        Command::Eval {
-            config,
-            split,
-            checkpoint,
-            data_dir,
-            save_images,
-            limit,
-            json,
-            overrides,
-        } => {
-            let config = Config::load(&config, &overrides)?;
-            let data_dir = jobs::data_dir_for(&config, data_dir);
-            let report = nerf::app::evaluate::eval_nerf(
-                &config,
-                checkpoint.as_deref(),
-                &data_dir,
-                split.into(),
-                save_images.as_deref(),
-                limit,
-                &device,
-            )?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                println!("{}", report.summary());
-            }
-        }
+        Command::Eval(a) => eval(a, &device)?,
         Command::ImportTorch {
             pth,
             config,
@@ -372,53 +423,8 @@ fn run(cli: Cli) -> Result<()> {
                 pth.display()
             );
         }
-        Command::Bench {
-            config,
-            repeats,
-            json,
-            checkpoint,
-            data_dir,
-            views,
-            overrides,
-        } => {
-            let config = Config::load(&config, &overrides)?;
-            let lego = nerf::app::bench::LegoBench {
-                checkpoint,
-                data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
-                views,
-            };
-            let report = nerf::app::bench::run_benchmarks(&config, repeats, Some(&lego), &device)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                print!("{}", nerf::app::bench::format_table(&report));
-            }
-        }
-        Command::Report {
-            out_dir,
-            quick,
-            checkpoint,
-            data_dir,
-            views,
-            logs,
-        } => {
-            let training_logs = if logs.is_empty() {
-                nerf::app::report::default_training_logs(&checkpoint)
-            } else {
-                logs
-            };
-            let options = nerf::app::report::ReportOptions {
-                out_dir,
-                quick,
-                checkpoint,
-                data_dir: data_dir.unwrap_or_else(|| nerf::io::dataset::default_data_dir("lego")),
-                views,
-                training_logs,
-            };
-            for p in nerf::app::report::write_report(&options, &device)? {
-                println!("wrote {}", p.display());
-            }
-        }
+        Command::Bench(a) => bench(a, &device)?,
+        Command::Report(a) => report(a, &device)?,
     }
     Ok(())
 }
