@@ -89,35 +89,36 @@ fn project(p: &[f32], size: usize, view: &PointView) -> Option<Splat> {
     })
 }
 
-/// The rows `first..first + kept.len() / (size · k)` of the image being splatted: per pixel,
-/// the (depth, α) of the nearest `k` covering points so far and how many there are.
+/// The rows `first..first + n_kept.len() / size` of the image being splatted: per pixel, the
+/// (depth, α) of the nearest `k` covering points so far, how many there are, and which of
+/// them is the farthest once there are `k`.
 struct Band {
     first: usize,
     kept: Vec<(f64, f64)>,
-    n_kept: Vec<usize>,
+    n_kept: Vec<u8>,
+    far: Vec<u8>,
 }
 
 impl Band {
-    /// Adds the part of `s` that falls in this band's rows.
-    fn splat(&mut self, s: &Splat, size: usize, k: usize, radius: f64) {
+    /// Adds the part of `s` that falls in this band's rows; `centres[i]` is the NDC
+    /// coordinate `1 − (2i + 1)/size` of pixel row or column `i`.
+    fn splat(&mut self, s: &Splat, size: usize, k: usize, radius: f64, centres: &[f64]) {
         let last = self.first + self.n_kept.len() / size;
-        let (i0, i1) = (
-            s.rows.0.max(self.first),
-            s.rows.1.min(last.saturating_sub(1)),
-        );
+        let (i0, i1) = (s.rows.0.max(self.first), s.rows.1.min(last.saturating_sub(1)));
         if s.rows.1 < self.first || s.rows.0 >= last || i0 > i1 {
             return;
         }
         for i in i0..=i1 {
+            let dy = centres[i] - s.y;
             for j in s.cols.0..=s.cols.1 {
-                let dx = (1.0 - (2 * j + 1) as f64 / size as f64) - s.x;
-                let dy = (1.0 - (2 * i + 1) as f64 / size as f64) - s.y;
+                let dx = centres[j] - s.x;
                 let alpha = 1.0 - (dx * dx + dy * dy) / (radius * radius);
                 if alpha > 0.0 {
                     let pixel = (i - self.first) * size + j;
                     keep_nearest(
                         &mut self.kept[pixel * k..(pixel + 1) * k],
                         &mut self.n_kept[pixel],
+                        &mut self.far[pixel],
                         (s.depth, alpha),
                     );
                 }
@@ -138,7 +139,14 @@ pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<Rg
         view.points_per_pixel >= 1,
         "points_per_pixel must be at least 1"
     );
+    anyhow::ensure!(
+        view.points_per_pixel <= u8::MAX as usize,
+        "points_per_pixel must be at most 255"
+    );
     let k = view.points_per_pixel;
+    let centres: Vec<f64> = (0..size)
+        .map(|i| 1.0 - (2 * i + 1) as f64 / size as f64)
+        .collect();
     let rows_per_band = size
         .div_ceil(2 * rayon::current_num_threads().max(1))
         .max(1);
@@ -150,6 +158,7 @@ pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<Rg
                 first,
                 kept: vec![(0.0, 0.0); rows * size * k],
                 n_kept: vec![0; rows * size],
+                far: vec![0; rows * size],
             }
         })
         .collect();
@@ -160,14 +169,14 @@ pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<Rg
             .collect();
         bands.par_iter_mut().for_each(|band| {
             for s in &splats {
-                band.splat(s, size, k, view.radius);
+                band.splat(s, size, k, view.radius, &centres);
             }
         });
     }
     let mut data = Vec::with_capacity(size * size * 3);
     for band in &bands {
         for (pixel, &n) in band.n_kept.iter().enumerate() {
-            let clear: f64 = band.kept[pixel * k..pixel * k + n]
+            let clear: f64 = band.kept[pixel * k..pixel * k + n as usize]
                 .iter()
                 .map(|&(_, alpha)| 1.0 - alpha)
                 .product();
@@ -179,21 +188,33 @@ pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<Rg
 
 /// Adds `point` (depth, α) to the `*n` points in `kept`, keeping the `kept.len()` nearest:
 /// when full, it replaces the farthest if nearer (ties keep the earlier point, as the order
-/// of the input decides in pytorch3d).
-fn keep_nearest(kept: &mut [(f64, f64)], n: &mut usize, point: (f64, f64)) {
-    if *n < kept.len() {
-        kept[*n] = point;
+/// of the input decides in pytorch3d). `*far` caches the farthest one's index (the last of
+/// equally far ones) while `kept` is full.
+fn keep_nearest(kept: &mut [(f64, f64)], n: &mut u8, far: &mut u8, point: (f64, f64)) {
+    let k = kept.len();
+    if (*n as usize) < k {
+        kept[*n as usize] = point;
         *n += 1;
+        if *n as usize == k {
+            *far = farthest(kept);
+        }
         return;
     }
-    let (far, &(far_depth, _)) = kept
-        .iter()
-        .enumerate()
-        .max_by(|a, b| a.1 .0.total_cmp(&b.1 .0))
-        .expect("at least one kept point");
-    if point.0 < far_depth {
-        kept[far] = point;
+    if point.0 < kept[*far as usize].0 {
+        kept[*far as usize] = point;
+        *far = farthest(kept);
     }
+}
+
+/// The index of the largest depth in `kept` (the last of equal ones, as `Iterator::max_by`).
+fn farthest(kept: &[(f64, f64)]) -> u8 {
+    let mut best = 0;
+    for (i, p) in kept.iter().enumerate().skip(1) {
+        if p.0.total_cmp(&kept[best].0) != std::cmp::Ordering::Less {
+            best = i;
+        }
+    }
+    best as u8
 }
 
 #[cfg(test)]
@@ -261,9 +282,9 @@ mod tests {
             assert!((got - coverage).abs() < 1e-5, "k={k}: {got} vs {coverage}");
         }
         let mut kept = [(0.0, 0.0); 2];
-        let mut n = 0;
+        let (mut n, mut far) = (0, 0);
         for p in [(3.0, 0.1), (1.0, 0.2), (2.0, 0.3), (5.0, 0.4)] {
-            keep_nearest(&mut kept, &mut n, p);
+            keep_nearest(&mut kept, &mut n, &mut far, p);
         }
         assert_eq!((n, kept), (2, [(2.0, 0.3), (1.0, 0.2)]));
     }
