@@ -498,7 +498,7 @@ pub fn format_table(report: &BenchReport) -> String {
     s += "| benchmark | work | time (s) | PyTorch CPU (s) | ratio | error |\n|---|---|---|---|---|---|\n";
     for r in &report.results {
         let (pt, ratio) = match r.pytorch_seconds {
-            Some(p) => (format!("{p:.2}"), format!("{:.2}x", r.seconds / p)),
+            Some(p) => (format!("{p:.3}"), format!("{:.2}x", r.seconds / p)),
             None => ("-".into(), "-".into()),
         };
         s += &format!(
@@ -536,6 +536,15 @@ mod tests {
         assert_eq!(
             pytorch_seconds(ReferenceWork::Step(rays, points)),
             Some(1.0)
+        );
+        let train_box = Config::load("train_box", &[]).unwrap();
+        let settings = train_box.sdf_fit_settings().unwrap();
+        assert_eq!(
+            pytorch_seconds(ReferenceWork::BoxStep(
+                settings.batch_size,
+                train_box.sampler.n_pts_per_ray
+            )),
+            Some(0.055)
         );
         // Other sizes have no figure.
         assert_eq!(pytorch_seconds(ReferenceWork::Box(20, 16, 16, 64)), None);

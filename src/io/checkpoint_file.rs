@@ -31,19 +31,25 @@ pub enum CheckpointFormat {
     Torch,
 }
 
-/// The format of the file at `path`, from its first bytes; an error names a file that is
-/// neither.
+/// The format of the file at `path`, from its first bytes: a safetensors file is an 8-byte
+/// little-endian header length that fits in the file, then the JSON header's `{`; a
+/// `torch.save` file is a zip archive (or a legacy pickle stream). An error names a file that
+/// is neither.
 pub fn detect_format(path: &Path) -> Result<CheckpointFormat> {
     let mut head = [0u8; 9];
     let mut file = std::fs::File::open(path)
         .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
+    let len = file.metadata()?.len();
     let n = file.read(&mut head)?;
     let head = &head[..n];
+    if n == 9 && head[8] == b'{' {
+        let header = u64::from_le_bytes(head[..8].try_into().expect("8 bytes"));
+        if header <= len.saturating_sub(8) {
+            return Ok(CheckpointFormat::Safetensors);
+        }
+    }
     if looks_like_torch(head) {
         return Ok(CheckpointFormat::Torch);
-    }
-    if n == 9 && head[8] == b'{' {
-        return Ok(CheckpointFormat::Safetensors);
     }
     bail!(
         "checkpoint {} is corrupt or not a checkpoint (neither safetensors nor a PyTorch file)",
@@ -120,5 +126,63 @@ pub fn training_checkpoint(path: &Path, stem: &str) -> PathBuf {
         path.to_path_buf()
     } else {
         path.join(format!("{stem}.safetensors"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn format_is_told_by_content() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, bytes: &[u8]| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, bytes).unwrap();
+            p
+        };
+        // A safetensors header of 0x480 bytes starts with 0x80, as a pickle stream does.
+        let mut st = 0x480u64.to_le_bytes().to_vec();
+        st.push(b'{');
+        st.resize(8 + 0x480, b' ');
+        let st = write("model.pth", &st);
+        assert_eq!(detect_format(&st).unwrap(), CheckpointFormat::Safetensors);
+        let zip = write("model.safetensors", b"PK\x03\x04rest of a zip");
+        assert_eq!(detect_format(&zip).unwrap(), CheckpointFormat::Torch);
+        let legacy = write("old", &[0x80, 0x02, 0x8a, 0x0a, 0x6c, 0xfc]);
+        assert_eq!(detect_format(&legacy).unwrap(), CheckpointFormat::Torch);
+        // A header length past the end of the file is not safetensors.
+        let mut short = 1000u64.to_le_bytes().to_vec();
+        short.push(b'{');
+        let short = write("short", &short);
+        assert!(detect_format(&short)
+            .unwrap_err()
+            .to_string()
+            .contains("not a checkpoint"));
+        let text = write("notes.txt", b"hello world");
+        assert!(detect_format(&text).is_err());
+    }
+
+    #[test]
+    fn directories_hold_one_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        assert!(resolve(d, "nerf_lego")
+            .unwrap_err()
+            .to_string()
+            .contains("holds no checkpoint"));
+        std::fs::write(d.join("a.pth"), b"PK\x03\x04").unwrap();
+        std::fs::write(d.join("notes.txt"), b"not a checkpoint").unwrap();
+        assert_eq!(resolve(d, "nerf_lego").unwrap(), d.join("a.pth"));
+        std::fs::write(d.join("b.ckpt"), b"PK\x03\x04").unwrap();
+        let err = resolve(d, "nerf_lego").unwrap_err().to_string();
+        assert!(err.contains("a.pth, b.ckpt"), "{err}");
+        // Ours by name wins.
+        let ours = d.join("nerf_lego.safetensors");
+        std::fs::write(&ours, b"").unwrap();
+        assert_eq!(resolve(d, "nerf_lego").unwrap(), ours);
+        assert_eq!(training_checkpoint(d, "nerf_lego"), ours);
+        assert_eq!(training_checkpoint(&d.join("a.pth"), "x"), d.join("a.pth"));
+        assert!(resolve(&d.join("none"), "x").is_err());
     }
 }

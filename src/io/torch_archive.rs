@@ -29,7 +29,7 @@ impl TorchArchive {
     pub fn open(path: &Path) -> Result<Self> {
         let bytes =
             std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-        if bytes.first() == Some(&0x80) {
+        if is_legacy_torch(&bytes) {
             bail!(
                 "{} is a legacy (non-zip) PyTorch file; re-save it with torch.save(obj, path) from PyTorch 1.6 or later",
                 path.display()
@@ -147,8 +147,14 @@ pub fn as_int(obj: &Object) -> Option<i64> {
     }
 }
 
-/// The file starts as a zip archive does (`PK\x03\x04`), which is how a `torch.save` file
-/// starts; a legacy PyTorch pickle starts with the pickle protocol opcode `0x80`.
+/// The file starts as a `torch.save` file does: a zip archive (`PK\x03\x04`), or a legacy
+/// (pre-1.6) one ([`is_legacy_torch`]).
 pub fn looks_like_torch(head: &[u8]) -> bool {
-    head.starts_with(b"PK\x03\x04") || head.first() == Some(&0x80)
+    head.starts_with(b"PK\x03\x04") || is_legacy_torch(head)
+}
+
+/// A legacy `torch.save` stream: pickle protocol 2 (`0x80 0x02`) whose first object is
+/// PyTorch's magic number, a 10-byte `LONG1` (`0x8a 0x0a`).
+pub fn is_legacy_torch(head: &[u8]) -> bool {
+    head.starts_with(&[0x80, 0x02, 0x8a, 0x0a])
 }

@@ -234,3 +234,60 @@ pub fn torch_save(path: &Path, root: &PyValue) -> Result<()> {
         Ok(())
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::torch_archive::{as_int, dict_get, storage_key, TorchArchive};
+    use candle_core::pickle::Object;
+
+    #[test]
+    fn archives_read_back_with_their_tensors_order_and_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ckpt");
+        let dev = &Device::Cpu;
+        let a = Tensor::new(&[[1f32, 2.0, 3.0], [4.0, 5.0, 6.0]], dev).unwrap();
+        let b = Tensor::new(7.5f32, dev).unwrap();
+        let root = PyValue::Dict(vec![
+            (
+                PyValue::Str("model".into()),
+                PyValue::OrderedDict(vec![
+                    ("w".into(), PyValue::Tensor(a.clone())),
+                    ("s".into(), PyValue::Tensor(b)),
+                ]),
+            ),
+            (PyValue::Str("epoch".into()), PyValue::Int(70_000)),
+            (PyValue::Str("neg".into()), PyValue::Int(-3)),
+            (
+                PyValue::Str("misc".into()),
+                PyValue::List(vec![
+                    PyValue::Float(0.25),
+                    PyValue::Bool(true),
+                    PyValue::None,
+                    PyValue::Tuple(vec![]),
+                ]),
+            ),
+        ]);
+        torch_save(&path, &root).unwrap();
+        assert!(std::fs::read(&path).unwrap().starts_with(b"PK\x03\x04"));
+        let mut archive = TorchArchive::open(&path).unwrap();
+        let r = archive.root.clone();
+        assert_eq!(dict_get(&r, "epoch").and_then(as_int), Some(70_000));
+        assert_eq!(dict_get(&r, "neg").and_then(as_int), Some(-3));
+        let Some(Object::List(misc)) = dict_get(&r, "misc") else {
+            panic!("misc")
+        };
+        assert_eq!(misc[0], Object::Float(0.25));
+        let model = dict_get(&r, "model").unwrap();
+        let w = dict_get(model, "w").unwrap();
+        assert_eq!(storage_key(w), Some("0"));
+        let back = archive.tensor(w).unwrap().unwrap();
+        assert_eq!(back.to_vec2::<f32>().unwrap(), a.to_vec2::<f32>().unwrap());
+        let s = archive
+            .tensor(dict_get(model, "s").unwrap())
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.dims(), &[] as &[usize]);
+        assert_eq!(s.to_scalar::<f32>().unwrap(), 7.5);
+    }
+}

@@ -104,7 +104,10 @@ impl Band {
     /// coordinate `1 − (2i + 1)/size` of pixel row or column `i`.
     fn splat(&mut self, s: &Splat, size: usize, k: usize, radius: f64, centres: &[f64]) {
         let last = self.first + self.n_kept.len() / size;
-        let (i0, i1) = (s.rows.0.max(self.first), s.rows.1.min(last.saturating_sub(1)));
+        let (i0, i1) = (
+            s.rows.0.max(self.first),
+            s.rows.1.min(last.saturating_sub(1)),
+        );
         if s.rows.1 < self.first || s.rows.0 >= last || i0 > i1 {
             return;
         }
