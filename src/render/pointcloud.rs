@@ -113,8 +113,8 @@ impl Band {
         }
         for i in i0..=i1 {
             let dy = centres[i] - s.y;
-            for j in s.cols.0..=s.cols.1 {
-                let dx = centres[j] - s.x;
+            for (j, centre) in centres.iter().enumerate().take(s.cols.1 + 1).skip(s.cols.0) {
+                let dx = centre - s.x;
                 let alpha = 1.0 - (dx * dx + dy * dy) / (radius * radius);
                 if alpha > 0.0 {
                     let pixel = (i - self.first) * size + j;
