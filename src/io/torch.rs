@@ -317,7 +317,27 @@ pub fn write_torch_checkpoint(
         }
     }
     let s = |k: &str| PyValue::Str(k.to_string());
-    let group = PyValue::Dict(vec![
+    let group = adam_param_group(optimizer, names.len());
+    let root = PyValue::Dict(vec![
+        (s("model"), PyValue::OrderedDict(model)),
+        (
+            s("optimizer"),
+            PyValue::Dict(vec![
+                (s("state"), PyValue::Dict(state)),
+                (s("param_groups"), PyValue::List(vec![group])),
+            ]),
+        ),
+        (s("epoch"), PyValue::Int(info.epoch as i64)),
+    ]);
+    torch_save(path, &root)
+}
+
+/// `torch.optim.Adam`'s one parameter group (PyTorch's defaults, no weight decay) over `n`
+/// parameters, with the current and the schedule's initial learning rate.
+fn adam_param_group(optimizer: TorchOptimizerInfo, n: usize) -> crate::io::torch_save::PyValue {
+    use crate::io::torch_save::PyValue;
+    let s = |k: &str| PyValue::Str(k.to_string());
+    PyValue::Dict(vec![
         (s("lr"), PyValue::Float(optimizer.lr)),
         (
             s("betas"),
@@ -334,19 +354,7 @@ pub fn write_torch_checkpoint(
         (s("initial_lr"), PyValue::Float(optimizer.initial_lr)),
         (
             s("params"),
-            PyValue::List((0..names.len() as i64).map(PyValue::Int).collect()),
+            PyValue::List((0..n as i64).map(PyValue::Int).collect()),
         ),
-    ]);
-    let root = PyValue::Dict(vec![
-        (s("model"), PyValue::OrderedDict(model)),
-        (
-            s("optimizer"),
-            PyValue::Dict(vec![
-                (s("state"), PyValue::Dict(state)),
-                (s("param_groups"), PyValue::List(vec![group])),
-            ]),
-        ),
-        (s("epoch"), PyValue::Int(info.epoch as i64)),
-    ]);
-    torch_save(path, &root)
+    ])
 }
