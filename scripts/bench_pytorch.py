@@ -9,6 +9,9 @@ cameras, NDC with +X left / +Y up, look_at, the homework's pixel grid, stratifie
 delta 1e10, exclusive-cumprod weights):
 
 * box render: the homework's box.yaml, 20 surround frames 256x256 x 64 points (no gradients);
+* train_box step: the homework's `train` loop on train_box.yaml (box centre and side lengths
+  trainable), 4096 random pixels x 64 points of a 256x256 target, forward, MSE, backward,
+  Adam(5e-4); the mean over --box-steps steps (best of the repeats);
 * NeRF training step: the homework's NeRF (harmonics 6/2, 6x128 layers, skip at 3, 64-wide
   direction layer), 1024 random rays x 128 jittered points, forward, MSE, backward, Adam(5e-4);
 * NeRF render: one dense 128x128 frame x 128 points, no gradients, 4096 rays per chunk.
@@ -132,6 +135,68 @@ def render_box(cam, size=256, n_pts=64, chunk=32768):
     return torch.cat(colours)
 
 
+class BoxVolume(nn.Module):
+    """The homework's SDF volume for train_box: a rainbow box whose centre and side lengths
+    are parameters (opt: True), alpha 1, beta 0.05."""
+
+    def __init__(self, center, side_lengths, alpha=1.0, beta=0.05):
+        super().__init__()
+        self.center = nn.Parameter(torch.tensor(center, dtype=torch.float32)[None])
+        self.side_lengths = nn.Parameter(torch.tensor(side_lengths, dtype=torch.float32)[None])
+        self.alpha, self.beta = alpha, beta
+
+    def forward(self, points, deltas):
+        p = points - self.center
+        diff = p.abs() - self.side_lengths / 2.0
+        sdf = diff.clamp(min=0).norm(dim=-1) + diff.max(dim=-1).values.clamp(max=0)
+        e = torch.exp(-sdf.abs() / self.beta)
+        density = self.alpha * torch.where(sdf > 0, 0.5 * e, 1.0 - 0.5 * e)
+        sigma = -torch.log(1.0 - density) / deltas
+        colour = p.abs().clamp(0.02, 0.98)
+        return sigma, colour
+
+
+def render_volume(volume, origins, dirs, n_pts=64, near=0.0, far=5.0):
+    lengths = sample_lengths(origins.shape[0], n_pts, near, far, False)
+    points = origins[:, None] + lengths[..., None] * dirs[:, None]
+    deltas = torch.cat(
+        [lengths[:, 1:] - lengths[:, :-1], torch.full_like(lengths[:, :1], 1e10)], dim=1
+    )
+    sigma, colour = volume(points, deltas)
+    return composite(sigma, lengths, colour)[0]
+
+
+def train_box_cameras():
+    """The four cameras of the homework's train_box.yaml."""
+    eyes = [[-2.5, 0.0, 0.0], [-1.0, 0.0, -2.2], [0.0, 0.0, -2.5], [1.0, 0.0, -2.2]]
+    return [look_at(e, [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]) + (1.0,) for e in eyes]
+
+
+def train_box_steps(n_steps, size=256, batch=4096):
+    """n_steps of the homework's train loop on train_box.yaml: targets rendered from another
+    box, the fit starting from train_box's (centre 0, sides 1.5); returns seconds per step."""
+    cams = train_box_cameras()
+    truth = BoxVolume([0.1, -0.1, 0.05], [1.7, 1.3, 1.6])
+    with torch.no_grad():
+        targets = []
+        for cam in cams:
+            o, d = rays_for_pixels(cam, size, size, np.arange(size * size))
+            targets.append(torch.cat([render_volume(truth, o[s:s + 32768], d[s:s + 32768])
+                                      for s in range(0, size * size, 32768)]))
+    model = BoxVolume([0.0, 0.0, 0.0], [1.5, 1.5, 1.5])
+    opt = torch.optim.Adam(model.parameters(), lr=5e-4)
+    start = time.perf_counter()
+    for step in range(n_steps):
+        i = np.random.randint(len(cams))
+        pixels = np.random.choice(size * size, batch)
+        o, d = rays_for_pixels(cams[i], size, size, pixels)
+        loss = ((render_volume(model, o, d) - targets[i][pixels]) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return (time.perf_counter() - start) / n_steps
+
+
 # ---------------------------------------------------------------- the homework NeRF
 
 
@@ -193,6 +258,8 @@ def main():
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--box-steps", type=int, default=40,
+                    help="train_box steps timed per repeat (the mean step is reported)")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -205,6 +272,11 @@ def main():
         secs, runs = best_of(lambda: [render_box(c) for c in box_cams], args.repeats)
     results.append({"name": "box render", "work": "20 frames 256x256 x 64 points",
                     "seconds": secs, "runs": runs})
+
+    runs = [train_box_steps(args.box_steps) for _ in range(args.repeats)]
+    results.append({"name": "train_box step",
+                    "work": "4096 rays x 64 points of 256x256, fwd+bwd+Adam (box SDF)",
+                    "seconds": min(runs), "runs": runs})
 
     model = Nerf()
     opt = torch.optim.Adam(model.parameters(), lr=5e-4)

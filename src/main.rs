@@ -8,7 +8,7 @@ use candle_core::Device;
 use clap::{Args, Parser, Subcommand};
 
 use nerf::app::config::Config;
-use nerf::train::fit::FitOutcome;
+use nerf::app::jobs;
 
 /// mimalloc keeps freed segments for reuse: Candle allocates a fresh buffer of up to tens of
 /// megabytes per op, and an allocator that returns each to the OS pays page faults on the next
@@ -65,11 +65,25 @@ fn device(arg: DeviceArg) -> Result<Device> {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run a config's job by its `type`, as the homework's main.py: render, render_nerf,
+    /// train (fit an SDF volume to images) or train_nerf.
+    Run(RunArgs),
     /// Render a scene's surround views and visualisations (or a camera path) into an output
     /// directory.
     Render(RenderArgs),
-    /// Train a NeRF (checkpoints and resume as the config's training section says).
+    /// Train: a NeRF (type train_nerf; checkpoints and resume as the config's training
+    /// section says), or fit an SDF volume's opt: True parameters to the images of
+    /// data.cameras (type train, e.g. train_box).
     Train(TrainArgs),
+    /// Write a training config's target images (the `.npy` of each data.cameras entry),
+    /// rendered from its SDF volume with every parameter at its initial value.
+    Targets {
+        /// Config name or path (e.g. train_box).
+        #[arg(long, alias = "config-name")]
+        config: String,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
     /// PSNR and SSIM of a trained NeRF over a dataset split at the config's image size.
     Eval(EvalArgs),
     /// Convert a PyTorch state dict of the homework's NeRF (.pth) into a checkpoint.
@@ -90,11 +104,30 @@ enum Command {
     },
 }
 
+/// Run a config's job by its `type`.
+#[derive(Args)]
+struct RunArgs {
+    /// Config name (configs/NAME.yaml or built-in) or path to a YAML file with a `type`.
+    #[arg(long, alias = "config-name")]
+    config: String,
+    /// Output directory for images.
+    #[arg(long, default_value = "images")]
+    out_dir: PathBuf,
+    /// Checkpoint to render (render_nerf configs; the same default as `nerf render`).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Dataset directory (train_nerf configs).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Hydra-style overrides.
+    overrides: Vec<String>,
+}
+
 /// Render a scene's surround views and visualisations into an output directory.
 #[derive(Args)]
 struct RenderArgs {
     /// Config name (configs/NAME.yaml or built-in) or path to a YAML file.
-    #[arg(long)]
+    #[arg(long, alias = "config-name")]
     config: String,
     /// Output directory.
     #[arg(long, default_value = "images")]
@@ -119,7 +152,7 @@ struct RenderArgs {
 #[derive(Args)]
 struct TrainArgs {
     /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. nerf_lego).
-    #[arg(long)]
+    #[arg(long, alias = "config-name")]
     config: String,
     /// Dataset directory (default: data.data_dir, else ../shared/data/<dataset_name>).
     #[arg(long)]
@@ -142,7 +175,7 @@ struct TrainArgs {
 #[derive(Args)]
 struct EvalArgs {
     /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego).
-    #[arg(long)]
+    #[arg(long, alias = "config-name")]
     config: String,
     /// Which split to score.
     #[arg(long, value_enum, default_value = "test")]
@@ -180,7 +213,7 @@ struct ImportTorchArgs {
     pth: PathBuf,
     /// Config name (configs/NAME.yaml or built-in) or path to a YAML file: its
     /// implicit_function gives the model's sizes (e.g. nerf_lego).
-    #[arg(long)]
+    #[arg(long, alias = "config-name")]
     config: String,
     /// Where to write the safetensors checkpoint.
     #[arg(long, default_value = "checkpoints/imported.safetensors")]
@@ -194,7 +227,7 @@ struct ImportTorchArgs {
 struct BenchArgs {
     /// Config name (configs/NAME.yaml or built-in) or path to a YAML file: the SDF scene to
     /// time (e.g. box; the NeRF rows use the built-in nerf_lego and lego configs).
-    #[arg(long)]
+    #[arg(long, alias = "config-name")]
     config: String,
     /// Repeats of the box render and the training step (the best is reported; the first
     /// training step is a cold one, so use at least 2); the untrained frame is rendered
@@ -251,7 +284,7 @@ struct ReportArgs {
 #[derive(Args)]
 struct ViewArgs {
     /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego, box).
-    #[arg(long)]
+    #[arg(long, alias = "config-name")]
     config: String,
     /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
     /// directory holding nerf_<dataset>.safetensors — else the shipped
@@ -274,7 +307,7 @@ enum ExportCommand {
     /// Marching cubes on the density, vertex colours from the field: a binary PLY mesh.
     Mesh {
         /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego, box).
-        #[arg(long)]
+        #[arg(long, alias = "config-name")]
         config: String,
         /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
         /// directory holding nerf_<dataset>.safetensors — else the shipped
@@ -299,7 +332,7 @@ enum ExportCommand {
     /// colours: a binary PLY point cloud.
     Points {
         /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego).
-        #[arg(long)]
+        #[arg(long, alias = "config-name")]
         config: String,
         /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
         /// directory holding nerf_<dataset>.safetensors — else the shipped
@@ -324,7 +357,7 @@ enum ExportCommand {
     /// A depth .npy (H, W) and a viridis PNG for each view of a split.
     Depth {
         /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego).
-        #[arg(long)]
+        #[arg(long, alias = "config-name")]
         config: String,
         /// Checkpoint to use (default: the config's training.checkpoint_path — a file, or a
         /// directory holding nerf_<dataset>.safetensors — else the shipped
@@ -364,7 +397,7 @@ fn cmd_export(what: ExportCommand, device: &Device) -> Result<()> {
     use nerf::app::export::{export_depth, export_mesh, export_points, MeshOptions, ViewSelection};
     let views = |config: &Config, split: SplitArg, data_dir, limit| ViewSelection {
         split: split.into(),
-        data_dir: data_dir_for(config, data_dir),
+        data_dir: jobs::data_dir_for(config, data_dir),
         limit,
     };
     match what {
@@ -454,16 +487,6 @@ impl From<SplitArg> for nerf::io::dataset::Split {
     }
 }
 
-fn data_dir_for(config: &Config, given: Option<PathBuf>) -> PathBuf {
-    given
-        .or_else(|| config.data.data_dir.clone())
-        .unwrap_or_else(|| {
-            nerf::io::dataset::default_data_dir(
-                config.data.dataset_name.as_deref().unwrap_or("lego"),
-            )
-        })
-}
-
 /// Writing to stdout failed (a closed pipe, a full disk).
 #[derive(Debug)]
 struct StdoutError(std::io::Error);
@@ -496,8 +519,16 @@ fn run(cli: Cli) -> Result<()> {
     });
     let device = device(cli.device)?;
     match cli.command {
+        Command::Run(args) => cmd_run(args, &device),
         Command::Render(args) => cmd_render(args, &device),
         Command::Train(args) => cmd_train(args, &device),
+        Command::Targets { config, overrides } => {
+            let config = Config::load(&config, &overrides)?;
+            for p in nerf::app::train_box::write_targets(&config, &device)? {
+                say(&format!("wrote {}", p.display()))?;
+            }
+            Ok(())
+        }
         Command::Eval(args) => cmd_eval(args, &device),
         Command::ImportTorch(args) => cmd_import_torch(args, &device),
         Command::Bench(args) => cmd_bench(args, &device),
@@ -544,34 +575,72 @@ fn cmd_train(args: TrainArgs, device: &Device) -> Result<()> {
         overwrite,
         overrides,
     } = args;
-    let name = config;
-    let config = Config::load(&name, &overrides)?;
-    if config.training.is_none() {
-        anyhow::bail!(
-            "{name} is a render config (it has no training section): train with nerf_lego or \
-             nerf_lego_fast, or give a config with a training section"
-        );
+    let loaded = Config::load(&config, &overrides)?;
+    let job = jobs::train_job(&loaded, &config)?;
+    let options = jobs::NerfTrainOptions {
+        data_dir,
+        epochs,
+        overwrite,
+    };
+    train_and_say(&loaded, job, &options, &out_dir, device)
+}
+
+/// Runs a training job, stopping after the current step on SIGINT/SIGTERM, and prints what it
+/// did (or, stopped, how to resume).
+fn train_and_say(
+    config: &Config,
+    job: jobs::TrainJob,
+    options: &jobs::NerfTrainOptions,
+    out_dir: &std::path::Path,
+    device: &Device,
+) -> Result<()> {
+    let stop = match job {
+        jobs::TrainJob::Nerf => Some(nerf::app::train::stop_on_signal()?),
+        jobs::TrainJob::Sdf => None,
+    };
+    match jobs::train(config, job, options, out_dir, stop, device)? {
+        jobs::TrainOutcome::Done(lines) => lines.iter().try_for_each(|l| say(l)),
+        jobs::TrainOutcome::Stopped { info, checkpoint } => {
+            Err(anyhow::Error::new(Stopped(format!(
+                "stopped at epoch {} step {}; checkpoint {}; resume with: {}",
+                info.epoch,
+                info.adam_step,
+                checkpoint.display(),
+                resume_command(config.training()?.resume)
+            ))))
+        }
     }
-    let data_dir = data_dir_for(&config, data_dir);
-    let paths = config.train_paths(&out_dir)?;
-    nerf::app::train::check_fresh_start(&config, &paths, overwrite)?;
-    let stop = nerf::app::train::stop_on_signal()?;
-    let outcome =
-        nerf::app::train::train_nerf(&config, &data_dir, &paths, epochs, Some(stop), device)?;
-    match outcome {
-        FitOutcome::Finished(info) => say(&format!(
-            "trained to epoch {} ({} Adam steps); checkpoint {}",
-            info.epoch,
-            info.adam_step,
-            paths.checkpoint.display()
-        )),
-        FitOutcome::Stopped(info) => Err(anyhow::Error::new(Stopped(format!(
-            "stopped at epoch {} step {}; checkpoint {}; resume with: {}",
-            info.epoch,
-            info.adam_step,
-            paths.checkpoint.display(),
-            resume_command(config.training()?.resume)
-        )))),
+}
+
+fn cmd_run(args: RunArgs, device: &Device) -> Result<()> {
+    let RunArgs {
+        config,
+        out_dir,
+        checkpoint,
+        data_dir,
+        overrides,
+    } = args;
+    let loaded = Config::load(&config, &overrides)?;
+    match jobs::run_job(&loaded, &config)? {
+        jobs::RunJob::Render => {
+            let written = nerf::app::scene::render_scene(
+                &loaded,
+                checkpoint.as_deref(),
+                &out_dir,
+                false,
+                device,
+            )?;
+            written
+                .iter()
+                .try_for_each(|p| say(&format!("wrote {}", p.display())))
+        }
+        jobs::RunJob::Train(job) => {
+            let options = jobs::NerfTrainOptions {
+                data_dir,
+                ..Default::default()
+            };
+            train_and_say(&loaded, job, &options, &out_dir, device)
+        }
     }
 }
 
@@ -628,7 +697,7 @@ fn cmd_eval(args: EvalArgs, device: &Device) -> Result<()> {
     if white {
         config.renderer.white_background = true;
     }
-    let data_dir = data_dir_for(&config, data_dir);
+    let data_dir = jobs::data_dir_for(&config, data_dir);
     let report = nerf::app::evaluate::eval_nerf(
         &config,
         checkpoint.as_deref(),
@@ -677,7 +746,7 @@ fn cmd_bench(args: BenchArgs, device: &Device) -> Result<()> {
     let lego_config = Config::load("lego", &[])?;
     let lego = nerf::app::bench::LegoBench {
         checkpoint: lego_config.checkpoint(checkpoint.as_deref()),
-        data_dir: data_dir_for(&lego_config, data_dir),
+        data_dir: jobs::data_dir_for(&lego_config, data_dir),
         views,
     };
     let report = nerf::app::bench::run_benchmarks(&config, repeats, Some(&lego), device)?;
@@ -709,7 +778,7 @@ fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
         out_dir,
         quick,
         checkpoint,
-        data_dir: data_dir_for(&lego_config, data_dir),
+        data_dir: jobs::data_dir_for(&lego_config, data_dir),
         views,
         training_logs,
     };

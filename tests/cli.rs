@@ -633,10 +633,14 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
     // About 0.1 s per epoch, a checkpoint after each: kills land anywhere, writes included.
     let epochs = 30;
     let straight = dir.path().join("straight");
+    let timer = std::time::Instant::now();
     assert!(common::tiny_train(&straight, &data, epochs, 1)
         .status()
         .unwrap()
         .success());
+    // Kill moments spread over an uninterrupted run's length: on a busy machine loading the
+    // data alone can take over a second, and fixed delays would all land before epoch 1.
+    let span = (timer.elapsed().as_millis() as u64).max(1000);
     let killed = dir.path().join("killed");
     let ckpt = killed.join("nerf_lego.safetensors");
     // Kill at varied moments (seeded): while loading data, mid-epoch, mid-write.
@@ -647,7 +651,7 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
         state = state
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
-        let delay = 100 + (state >> 33) % 900;
+        let delay = span / 10 + (state >> 33) % span;
         if round % 3 == 2 {
             // Temporary files of an earlier killed write (the run removes them too, at start).
             for e in std::fs::read_dir(&killed).into_iter().flatten().flatten() {

@@ -7,7 +7,7 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::app::config::Config;
+use crate::app::config::{Config, TrainingConfig};
 use crate::app::scene::render_views;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::image::RgbImage;
@@ -41,6 +41,7 @@ pub fn pytorch_seconds(work: ReferenceWork) -> Option<f64> {
         ReferenceWork::Box(20, 256, 256, 64) => Some(3.65),
         ReferenceWork::Frame(128, 128, 128) => Some(6.7),
         ReferenceWork::Step(1024, 128) => Some(1.0),
+        ReferenceWork::BoxStep(4096, 64) => Some(0.055),
         _ => None,
     }
 }
@@ -54,6 +55,8 @@ pub enum ReferenceWork {
     Frame(usize, usize, usize),
     /// One training step: rays, points per ray.
     Step(usize, usize),
+    /// One step of the box fit (train_box): rays, points per ray.
+    BoxStep(usize, usize),
 }
 
 /// Machine facts printed with every table.
@@ -135,6 +138,90 @@ pub fn bench_sdf_render(
     ))
 }
 
+/// Times the whole `nerf render` job of the SDF `config` (grid, rays, point cloud, every
+/// surround frame, depth and GIF, written into a temporary directory), best of `repeats`,
+/// against PyTorch's render of the frames alone.
+pub fn bench_box_command(config: &Config, repeats: usize, device: &Device) -> Result<BenchResult> {
+    let dir = std::env::temp_dir().join(format!("nerf-bench-{}", std::process::id()));
+    let timed = time_runs(repeats, || {
+        crate::app::scene::render_sdf_scene(config, &dir, false, device)
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+    let (runs, written) = timed?;
+    let (w, h) = config.image_size();
+    let (n, s) = (config.cameras.n_poses, config.sampler.n_pts_per_ray);
+    Ok(BenchResult {
+        name: "box command (all outputs)".into(),
+        work: format!(
+            "`nerf render`: {} files, {n} frames {w}x{h} x {s} points, point cloud, GIF",
+            written.len()
+        ),
+        seconds: fastest(&runs),
+        runs,
+        pytorch_seconds: pytorch_seconds(ReferenceWork::Box(n, w, h, s)),
+        error: None,
+    })
+}
+
+/// Steps of the box fit timed per repeat by [`bench_train_box`].
+pub const BOX_FIT_STEPS: usize = 40;
+
+/// The box fit of the built-in `train_box` config (256x256 targets of another box, rendered
+/// in memory; 4096 rays x 64 points per step, forward, backward, Adam): the mean step over
+/// [`BOX_FIT_STEPS`] steps, best of `repeats` (the fit's accuracy is tested, not timed
+/// here: `tests/homework.rs` and `tests/sdf_gradients.rs`).
+pub fn bench_train_box(repeats: usize, device: &Device) -> Result<BenchResult> {
+    use crate::train::fit_sdf::{fit_sdf, SdfView};
+    let truth = Config::load(
+        "train_box",
+        &[
+            "implicit_function.sdf.center.val=[0.1,-0.1,0.05]".into(),
+            "implicit_function.sdf.side_lengths.val=[1.7,1.3,1.6]".into(),
+        ],
+    )?;
+    let (w, h) = truth.image_size();
+    let field = truth.sdf_field(device)?;
+    let cameras = truth.data_cameras()?;
+    let (sampler, renderer) = (truth.sampler()?, truth.renderer()?);
+    let views = cameras
+        .iter()
+        .map(|(_, camera, _)| {
+            let image = render_view(&field, camera, (w, h), &sampler, &renderer, device)?.color;
+            Ok(SdfView {
+                camera: *camera,
+                image,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let config = Config::load("train_box", &[])?;
+    let mut settings = config.sdf_fit_settings()?;
+    settings.num_epochs = BOX_FIT_STEPS / views.len();
+    let mut runs = Vec::with_capacity(repeats);
+    for _ in 0..repeats {
+        let fit = crate::field::sdf::SdfField::new(
+            &config.sdf_volume()?,
+            config.sdf_trainable()?,
+            device,
+        )?;
+        let report = fit_sdf(&fit, &views, &settings, device, |_, _, _| {})?;
+        runs.push(report.seconds / report.steps as f64);
+    }
+    Ok(BenchResult {
+        name: "train_box step".into(),
+        work: format!(
+            "{} rays x {} points of {w}x{h}, fwd+bwd+Adam (mean of {BOX_FIT_STEPS} steps)",
+            settings.batch_size, sampler.n_pts_per_ray
+        ),
+        seconds: fastest(&runs),
+        runs,
+        pytorch_seconds: pytorch_seconds(ReferenceWork::BoxStep(
+            settings.batch_size,
+            sampler.n_pts_per_ray,
+        )),
+        error: None,
+    })
+}
+
 /// Everything `nerf bench` measures.
 #[derive(Debug, Clone, Serialize)]
 pub struct BenchReport {
@@ -173,7 +260,9 @@ pub fn run_benchmarks(
         max_abs(&frames[0].color.data, &colors),
         max_abs(&frames[0].depth, &depths)
     ));
-    let mut results = vec![result];
+    let whole = bench_box_command(config, repeats, device)?;
+    let mut results = vec![result, whole];
+    results.push(bench_train_box(repeats, device)?);
     if let Some(lego) = lego {
         if lego.checkpoint.is_file() {
             results.extend(bench_trained_nerf(lego, device)?);
@@ -202,15 +291,18 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
     use rand::SeedableRng;
     let nerf = config.nerf_params()?;
     let training = config.training()?;
+    let job = "time a NeRF training step";
+    let batch_size = TrainingConfig::required(training.batch_size, "batch_size", job)?;
+    let lr = TrainingConfig::required(training.lr, "lr", job)?;
     let state = NerfState::seeded(&nerf, 0, device)?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
     let (w, h) = config.image_size();
     let camera = crate::core::camera::surround_cameras(4.0, 20, glam::DVec3::Z, 2.0)[0];
     let mut rng = rand::rngs::StdRng::seed_from_u64(0);
-    let mut adam = Adam::new(named_vars(&state.varmap), training.lr)?;
+    let mut adam = Adam::new(named_vars(&state.varmap), lr)?;
     let (step_runs, ()) = time_runs(repeats, || {
-        let pixels = crate::core::rays::random_pixel_indices(w, h, training.batch_size, &mut rng);
+        let pixels = crate::core::rays::random_pixel_indices(w, h, batch_size, &mut rng);
         let rays = crate::core::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
         let target = candle_core::Tensor::full(0.5f32, (pixels.len(), 3), device)?;
         let field = NerfField {
@@ -231,12 +323,12 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             name: "NeRF training step".into(),
             work: format!(
                 "{} rays x {} points, fwd+bwd+Adam",
-                training.batch_size, sampler.n_pts_per_ray
+                batch_size, sampler.n_pts_per_ray
             ),
             seconds: fastest(&step_runs),
             runs: step_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Step(
-                training.batch_size,
+                batch_size,
                 sampler.n_pts_per_ray,
             )),
             error: None,
@@ -431,7 +523,7 @@ pub fn format_table(report: &BenchReport) -> String {
     s += "| benchmark | work | time (s) | PyTorch CPU (s) | ratio | error |\n|---|---|---|---|---|---|\n";
     for r in &report.results {
         let (pt, ratio) = match r.pytorch_seconds {
-            Some(p) => (format!("{p:.2}"), format!("{:.2}x", r.seconds / p)),
+            Some(p) => (format!("{p:.3}"), format!("{:.2}x", r.seconds / p)),
             None => ("-".into(), "-".into()),
         };
         s += &format!(
@@ -465,10 +557,19 @@ mod tests {
             pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             Some(6.7)
         );
-        let rays = lego.training.as_ref().unwrap().batch_size;
+        let rays = lego.training.as_ref().unwrap().batch_size.unwrap();
         assert_eq!(
             pytorch_seconds(ReferenceWork::Step(rays, points)),
             Some(1.0)
+        );
+        let train_box = Config::load("train_box", &[]).unwrap();
+        let settings = train_box.sdf_fit_settings().unwrap();
+        assert_eq!(
+            pytorch_seconds(ReferenceWork::BoxStep(
+                settings.batch_size,
+                train_box.sampler.n_pts_per_ray
+            )),
+            Some(0.055)
         );
         // Other sizes have no figure.
         assert_eq!(pytorch_seconds(ReferenceWork::Box(20, 16, 16, 64)), None);

@@ -92,6 +92,15 @@ const BUILT_IN: &[(&str, &str)] = &[
         "nerf_lego_fast",
         include_str!("../../configs/nerf_lego_fast.yaml"),
     ),
+    (
+        "nerf_lego_highres",
+        include_str!("../../configs/nerf_lego_highres.yaml"),
+    ),
+    (
+        "nerf_lego_render",
+        include_str!("../../configs/nerf_lego_render.yaml"),
+    ),
+    ("train_box", include_str!("../../configs/train_box.yaml")),
 ];
 
 /// A homework parameter `{val, opt}`; `opt` marks it trainable in the homework.
@@ -117,6 +126,9 @@ pub struct DataConfig {
     /// Directory holding the dataset (extension; default `../shared/data/<dataset_name>`).
     #[serde(default)]
     pub data_dir: Option<PathBuf>,
+    /// `data.cameras`: the training cameras of an SDF fit (`type: train`), in order.
+    #[serde(default)]
+    pub cameras: Option<DataCameras>,
 }
 
 /// The `renderer` section (the homework's keys plus the acceleration extensions).
@@ -419,29 +431,43 @@ pub enum ImplicitFunctionConfig {
     Ngp(NgpConfig),
 }
 
-/// `training` (the homework's nerf_lego.yaml keys).
-#[derive(Debug, Clone, Deserialize, PartialEq)]
+/// `training`, as written: every key may be missing, since each job reads only its own
+/// (`train_nerf` all of the homework's, `train` the first three, `render_nerf` only the
+/// checkpoint). A job asks for a key with [`TrainingConfig::required`], which names a missing
+/// one. The homework's code has no defaults for these keys.
+#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct TrainingConfig {
-    /// Epochs to train, one step per training image each (`training.num_epochs`).
-    pub num_epochs: usize,
+    /// Epochs to train (`training.num_epochs`): one step per training image (NeRF) or per
+    /// training camera (the box fit) each.
+    #[serde(default)]
+    pub num_epochs: Option<usize>,
     /// Rays per training step (`training.batch_size`).
-    pub batch_size: usize,
+    #[serde(default)]
+    pub batch_size: Option<usize>,
     /// Initial Adam learning rate (`training.lr`).
-    pub lr: f64,
+    #[serde(default)]
+    pub lr: Option<f64>,
     /// Epochs between learning-rate decays (`training.lr_scheduler_step_size`).
-    pub lr_scheduler_step_size: usize,
+    #[serde(default)]
+    pub lr_scheduler_step_size: Option<usize>,
     /// Learning-rate factor per `lr_scheduler_step_size` epochs (`training.lr_scheduler_gamma`).
-    pub lr_scheduler_gamma: f64,
-    /// Directory of the checkpoint and log, `nerf_<dataset_name>.*` (`training.checkpoint_path`).
-    pub checkpoint_path: PathBuf,
+    #[serde(default)]
+    pub lr_scheduler_gamma: Option<f64>,
+    /// The checkpoint (`training.checkpoint_path`): a checkpoint file (ours or a PyTorch
+    /// one), or a directory holding `nerf_<dataset_name>.safetensors` (see
+    /// `crate::app::checkpoints`). An empty string means none, as in the homework.
+    #[serde(default)]
+    pub checkpoint_path: Option<PathBuf>,
     /// Epochs between checkpoints (`training.checkpoint_interval`).
-    pub checkpoint_interval: usize,
+    #[serde(default)]
+    pub checkpoint_interval: Option<usize>,
     /// Continue from the checkpoint when one exists (`training.resume`, default false).
     #[serde(default)]
     pub resume: bool,
     /// Epochs between preview renders (`training.render_interval`).
-    pub render_interval: usize,
+    #[serde(default)]
+    pub render_interval: Option<usize>,
     /// Extension: draw each batch's rays from all training images instead of one image per
     /// step (the homework's scheme, the default).
     #[serde(default)]
@@ -455,6 +481,100 @@ pub struct TrainingConfig {
     /// (0 = off).
     #[serde(default)]
     pub eval_views: usize,
+}
+
+impl TrainingConfig {
+    /// The value of `training.<key>`, or an error naming the key and the job that needs it.
+    pub fn required<T: Copy>(value: Option<T>, key: &str, job: &str) -> Result<T> {
+        value.ok_or_else(|| anyhow!("training.{key}: missing (needed to {job})"))
+    }
+
+    /// The checkpoint path, `None` when missing or empty (the homework's "no checkpoint").
+    pub fn checkpoint(&self) -> Option<&Path> {
+        self.checkpoint_path
+            .as_deref()
+            .filter(|p| !p.as_os_str().is_empty())
+    }
+}
+
+/// The homework's top-level `type`: the job `nerf run` (the homework's `main.py`) runs.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum JobKind {
+    /// `render`: render a scene (`nerf render`).
+    Render,
+    /// `render_nerf`: render a trained NeRF from `training.checkpoint_path` (`nerf render`).
+    RenderNerf,
+    /// `train`: fit an SDF volume's `opt: True` parameters to images (`nerf train`).
+    Train,
+    /// `train_nerf`: train a NeRF on a dataset (`nerf train`).
+    TrainNerf,
+}
+
+impl JobKind {
+    /// The name as written in a config.
+    pub fn name(self) -> &'static str {
+        match self {
+            JobKind::Render => "render",
+            JobKind::RenderNerf => "render_nerf",
+            JobKind::Train => "train",
+            JobKind::TrainNerf => "train_nerf",
+        }
+    }
+
+    /// Whether the job renders (rather than trains).
+    pub fn renders(self) -> bool {
+        matches!(self, JobKind::Render | JobKind::RenderNerf)
+    }
+}
+
+/// One camera of `data.cameras` (the homework's `train_box.yaml`): pytorch3d's
+/// `look_at_view_transform(eye, scene_center, up)` with an NDC focal length and principal
+/// point, and the image it sees.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DataCameraConfig {
+    /// NDC focal length (both axes).
+    pub focal: f64,
+    /// Camera position in world units.
+    pub eye: [f64; 3],
+    /// NDC principal point `(p_x, p_y)`.
+    pub principal_point: [f64; 2],
+    /// The point the camera looks at.
+    pub scene_center: [f64; 3],
+    /// Up direction.
+    pub up: [f64; 3],
+    /// The target image: a `.npy` float array `(H, W, 3)`, relative to the working directory
+    /// (needed to train).
+    #[serde(default)]
+    pub image: Option<PathBuf>,
+}
+
+/// `data.cameras`: named cameras in the order written.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DataCameras(pub Vec<(String, DataCameraConfig)>);
+
+impl<'de> Deserialize<'de> for DataCameras {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct Ordered;
+        impl<'de> serde::de::Visitor<'de> for Ordered {
+            type Value = DataCameras;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a mapping of camera names to cameras")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> std::result::Result<DataCameras, A::Error> {
+                let mut cameras = Vec::new();
+                while let Some((name, camera)) = map.next_entry::<String, DataCameraConfig>()? {
+                    cameras.push((name, camera));
+                }
+                Ok(DataCameras(cameras))
+            }
+        }
+        d.deserialize_map(Ordered)
+    }
 }
 
 /// `cameras` (extension): the surround views rendered by `nerf render`.
@@ -486,7 +606,7 @@ struct RawConfig {
     #[serde(default)]
     seed: Option<u64>,
     #[serde(rename = "type", default)]
-    kind: Option<String>,
+    kind: Option<JobKind>,
     data: DataConfig,
     renderer: RendererConfig,
     sampler: SamplerConfig,
@@ -502,8 +622,9 @@ struct RawConfig {
 pub struct Config {
     /// Random seed (top-level `seed`, default 0).
     pub seed: u64,
-    /// The homework's top-level `type` (informational; the subcommand decides what runs).
-    pub kind: Option<String>,
+    /// The homework's top-level `type`: the job `nerf run` runs (`nerf render` and
+    /// `nerf train` check it).
+    pub kind: Option<JobKind>,
     /// The `data` section.
     pub data: DataConfig,
     /// The `renderer` section.
@@ -721,6 +842,7 @@ impl Config {
                 n.params()?;
             }
         }
+        self.validate_data_cameras()?;
         self.validate_training()
     }
 
@@ -801,25 +923,26 @@ impl Config {
         let Some(t) = &self.training else {
             return Ok(());
         };
-        finite("training.lr", t.lr)?;
-        finite("training.lr_scheduler_gamma", t.lr_scheduler_gamma)?;
-        if t.lr <= 0.0 {
-            bail!("training.lr: must be positive (got {})", t.lr);
+        for (key, v) in [
+            ("training.lr", t.lr),
+            ("training.lr_scheduler_gamma", t.lr_scheduler_gamma),
+        ] {
+            if let Some(v) = v {
+                finite(key, v)?;
+                if v <= 0.0 {
+                    bail!("{key}: must be positive (got {v})");
+                }
+            }
         }
-        if t.lr_scheduler_gamma <= 0.0 {
-            bail!(
-                "training.lr_scheduler_gamma: must be positive (got {})",
-                t.lr_scheduler_gamma
-            );
-        }
-        let samples = t.batch_size.saturating_mul(self.sampler.n_pts_per_ray);
-        if samples > limits::BATCH_SAMPLES {
-            bail!(
-                "training.batch_size: {} rays x {} points is {samples} samples per step, more than {}",
-                t.batch_size,
-                self.sampler.n_pts_per_ray,
-                limits::BATCH_SAMPLES
-            );
+        if let Some(batch) = t.batch_size {
+            let samples = batch.saturating_mul(self.sampler.n_pts_per_ray);
+            if samples > limits::BATCH_SAMPLES {
+                bail!(
+                    "training.batch_size: {batch} rays x {} points is {samples} samples per step, more than {}",
+                    self.sampler.n_pts_per_ray,
+                    limits::BATCH_SAMPLES
+                );
+            }
         }
         for (key, v) in [
             ("training.num_epochs", t.num_epochs),
@@ -828,8 +951,46 @@ impl Config {
             ("training.checkpoint_interval", t.checkpoint_interval),
             ("training.render_interval", t.render_interval),
         ] {
-            if v == 0 {
+            if v == Some(0) {
                 bail!("{key}: must be at least 1");
+            }
+        }
+        Ok(())
+    }
+
+    /// `data.cameras`: finite values, a positive focal length, a non-zero up vector and an eye
+    /// away from the scene centre (else pytorch3d's look-at divides by zero).
+    fn validate_data_cameras(&self) -> Result<()> {
+        let Some(cameras) = &self.data.cameras else {
+            return Ok(());
+        };
+        if cameras.0.len() > limits::POSES {
+            bail!("data.cameras: at most {} cameras", limits::POSES);
+        }
+        for (name, c) in &cameras.0 {
+            let key = format!("data.cameras.{name}");
+            let values = c
+                .eye
+                .iter()
+                .chain(&c.scene_center)
+                .chain(&c.up)
+                .chain(&c.principal_point)
+                .chain([&c.focal]);
+            for v in values {
+                finite(&key, *v)?;
+            }
+            if c.focal <= 0.0 {
+                bail!("{key}.focal: must be positive (got {})", c.focal);
+            }
+            if c.up.iter().all(|v| *v == 0.0) {
+                bail!("{key}.up: must be a non-zero vector");
+            }
+            let d: f64 = (0..3).map(|k| (c.eye[k] - c.scene_center[k]).powi(2)).sum();
+            if d.sqrt() < 1e-5 {
+                bail!(
+                    "{key}.eye: equals scene_center {:?}, so the camera has no viewing direction",
+                    c.scene_center
+                );
             }
         }
         Ok(())

@@ -5,11 +5,13 @@ pub mod camera_path;
 pub mod config;
 pub mod evaluate;
 pub mod export;
+pub mod jobs;
 #[cfg(feature = "cli")]
 pub mod report;
 pub mod runtime;
 pub mod scene;
 pub mod train;
+pub mod train_box;
 #[cfg(feature = "cli")]
 pub mod view;
 pub mod view_request;

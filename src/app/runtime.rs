@@ -9,7 +9,7 @@ use candle_core::Device;
 use glam::DVec3;
 
 use crate::app::config::{Config, ImplicitFunctionConfig, NerfConfig, SdfKind, TrainingConfig};
-use crate::core::camera::{surround_cameras, PerspectiveCamera};
+use crate::core::camera::{look_at_view_transform, surround_cameras, PerspectiveCamera};
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::field::nerf::NerfParams;
 use crate::field::sdf::{SdfField, SdfTrainable};
@@ -18,6 +18,7 @@ use crate::render::occupancy::{density_threshold, OccupancyGridParams};
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 use crate::train::fit::{GridSchedule, TrainPaths, TrainSettings};
+use crate::train::fit_sdf::SdfFitSettings;
 use crate::train::state::NerfState;
 use crate::train::step::StepSettings;
 
@@ -121,11 +122,24 @@ impl Config {
         })
     }
 
-    /// Which SDF parameters the config marks `opt: True`.
+    /// Which SDF parameters the config marks `opt: True`. An error names an `opt: True` on
+    /// a parameter the shape does not have (a box's `radius`, a sphere's `side_lengths`).
     pub fn sdf_trainable(&self) -> Result<SdfTrainable> {
         let ImplicitFunctionConfig::SdfVolume(s) = &self.implicit_function else {
             bail!("implicit_function.type: this command needs sdf_volume");
         };
+        let p = "implicit_function.sdf";
+        match s.sdf.kind {
+            SdfKind::Box if s.sdf.radius.as_ref().is_some_and(|r| r.opt) => {
+                bail!("{p}.radius.opt: a box has no radius to train (it has side_lengths)")
+            }
+            SdfKind::Sphere if s.sdf.side_lengths.as_ref().is_some_and(|r| r.opt) => {
+                bail!(
+                    "{p}.side_lengths.opt: a sphere has no side lengths to train (it has a radius)"
+                )
+            }
+            _ => {}
+        }
         Ok(SdfTrainable {
             center: s.sdf.center.opt,
             side_lengths: s.sdf.side_lengths.as_ref().is_some_and(|p| p.opt),
@@ -133,6 +147,53 @@ impl Config {
             alpha: s.alpha.opt,
             beta: s.beta.opt,
             feature: s.feature.opt,
+        })
+    }
+
+    /// The cameras of `data.cameras`, in order, with their names and target image paths:
+    /// pytorch3d's `look_at_view_transform(eye, scene_center, up)` with the NDC focal length
+    /// and principal point. An error when the config has none.
+    pub fn data_cameras(&self) -> Result<Vec<(String, PerspectiveCamera, Option<PathBuf>)>> {
+        let cameras = self
+            .data
+            .cameras
+            .as_ref()
+            .filter(|c| !c.0.is_empty())
+            .context(
+                "data.cameras: missing (a `type: train` config lists its training cameras there)",
+            )?;
+        Ok(cameras
+            .0
+            .iter()
+            .map(|(name, c)| {
+                let (r, t) = look_at_view_transform(
+                    DVec3::from_array(c.eye),
+                    DVec3::from_array(c.scene_center),
+                    DVec3::from_array(c.up),
+                );
+                let camera = PerspectiveCamera {
+                    r,
+                    t,
+                    focal: [c.focal, c.focal],
+                    principal_point: c.principal_point,
+                };
+                (name.clone(), camera, c.image.clone())
+            })
+            .collect())
+    }
+
+    /// The settings of an SDF fit (`type: train`): `training.num_epochs`, `batch_size` and
+    /// `lr` (an error names a missing one), the seed, sampler and renderer.
+    pub fn sdf_fit_settings(&self) -> Result<SdfFitSettings> {
+        let t = self.training()?;
+        let job = "fit an SDF volume (type: train)";
+        Ok(SdfFitSettings {
+            num_epochs: TrainingConfig::required(t.num_epochs, "num_epochs", job)?,
+            batch_size: TrainingConfig::required(t.batch_size, "batch_size", job)?,
+            lr: TrainingConfig::required(t.lr, "lr", job)?,
+            seed: self.seed,
+            sampler: self.sampler()?,
+            renderer: self.renderer()?,
         })
     }
 
@@ -172,16 +233,19 @@ impl Config {
             .context("training: section missing from the config")
     }
 
-    /// Everything the NeRF training loop needs from the config.
+    /// Everything the NeRF training loop needs from the config; an error names a missing
+    /// `training` key.
     pub fn train_settings(&self) -> Result<TrainSettings> {
         let t = self.training()?;
         let ImplicitFunctionConfig::Nerf(nerf) = &self.implicit_function else {
             bail!("implicit_function.type: this command needs nerf");
         };
+        let job = "train a NeRF";
+        let req = |v: Option<usize>, key: &str| TrainingConfig::required(v, key, job);
         Ok(TrainSettings {
             model: nerf.params(),
             step: StepSettings {
-                batch_size: t.batch_size,
+                batch_size: req(t.batch_size, "batch_size")?,
                 rays_from_all_images: t.rays_from_all_images,
                 random_background: t.random_background,
                 density_noise: nerf.density_noise_std,
@@ -189,12 +253,16 @@ impl Config {
                 renderer: self.renderer()?,
             },
             seed: self.seed,
-            num_epochs: t.num_epochs,
-            lr: t.lr,
-            lr_scheduler_step_size: t.lr_scheduler_step_size,
-            lr_scheduler_gamma: t.lr_scheduler_gamma,
-            checkpoint_interval: t.checkpoint_interval,
-            render_interval: t.render_interval,
+            num_epochs: req(t.num_epochs, "num_epochs")?,
+            lr: TrainingConfig::required(t.lr, "lr", job)?,
+            lr_scheduler_step_size: req(t.lr_scheduler_step_size, "lr_scheduler_step_size")?,
+            lr_scheduler_gamma: TrainingConfig::required(
+                t.lr_scheduler_gamma,
+                "lr_scheduler_gamma",
+                job,
+            )?,
+            checkpoint_interval: req(t.checkpoint_interval, "checkpoint_interval")?,
+            render_interval: req(t.render_interval, "render_interval")?,
             resume: t.resume,
             grid: self.grid_schedule(),
         })
@@ -204,7 +272,9 @@ impl Config {
     /// or `checkpoint_path` itself when it names a file) and its `.log.jsonl` beside it;
     /// previews go to `images`.
     pub fn train_paths(&self, images: &Path) -> Result<TrainPaths> {
-        self.training()?;
+        let training = self.training()?;
+        // Training never falls back to the shipped model: it needs a place of its own.
+        TrainingConfig::required(training.checkpoint(), "checkpoint_path", "train a NeRF")?;
         let checkpoint = self.checkpoint(None);
         Ok(TrainPaths {
             log: checkpoint.with_extension("log.jsonl"),
@@ -221,16 +291,28 @@ impl Config {
         if let Some(p) = given {
             return p.to_path_buf();
         }
-        match &self.training {
-            Some(t) if t.checkpoint_path.is_dir() || t.checkpoint_path.extension().is_none() => {
-                t.checkpoint_path.join(format!(
-                    "nerf_{}.safetensors",
-                    self.data.dataset_name.as_deref().unwrap_or("scene")
-                ))
-            }
-            Some(t) => t.checkpoint_path.clone(),
-            None => PathBuf::from(SHIPPED_CHECKPOINT),
+        let Some(path) = self.training.as_ref().and_then(|t| t.checkpoint()) else {
+            return PathBuf::from(SHIPPED_CHECKPOINT);
+        };
+        let stem = self.dataset_stem();
+        if path.is_dir() {
+            // A directory holds ours by name, or else its one checkpoint of either format.
+            return crate::io::checkpoint_file::resolve(path, &stem)
+                .unwrap_or_else(|_| path.join(format!("{stem}.safetensors")));
         }
+        if path.is_file() || path.extension().is_some() {
+            return path.to_path_buf();
+        }
+        path.join(format!("{stem}.safetensors"))
+    }
+
+    /// `nerf_<data.dataset_name>` (`nerf_scene` without one): the file name, less its
+    /// extension, of the checkpoint in a `training.checkpoint_path` directory.
+    pub fn dataset_stem(&self) -> String {
+        format!(
+            "nerf_{}",
+            self.data.dataset_name.as_deref().unwrap_or("scene")
+        )
     }
 
     /// A trained field for rendering or evaluating with this config, whatever its kind (`nerf`

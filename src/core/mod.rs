@@ -2,6 +2,7 @@
 
 pub mod camera;
 pub mod compare;
+pub mod fastexp;
 pub mod image;
 pub mod marching_cubes;
 pub mod metrics;

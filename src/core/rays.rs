@@ -135,6 +135,15 @@ impl Rays {
         Self::from_ndc_points(camera, &points, device)
     }
 
+    /// The same rays in `dtype` (float64 for gradient checks: the renderer then works in
+    /// float64 through the generic tensor ops).
+    pub fn to_dtype(&self, dtype: candle_core::DType) -> Result<Self> {
+        Ok(Self {
+            origins: self.origins.to_dtype(dtype)?,
+            directions: self.directions.to_dtype(dtype)?,
+        })
+    }
+
     /// Number of rays N.
     pub fn len(&self) -> usize {
         self.origins.dims()[0]

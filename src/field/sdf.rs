@@ -5,6 +5,7 @@
 use anyhow::Result;
 use candle_core::{Device, Tensor, Var};
 
+use crate::core::rays::Rays;
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::kernels::sdf_volume::{sdf_volume, SdfTensors, ShapeTensors};
 use crate::render::field::{Field, FieldOutput};
@@ -84,6 +85,22 @@ impl SdfField {
         })
     }
 
+    /// Holds each trainable parameter inside the range where the volume is defined, after an
+    /// optimiser step: α in [0, 1] (above 1 the density exceeds 1 and σ = −ln(1 − density) is
+    /// NaN), β, side lengths and radius at least 1e-6. The homework does not clamp; an
+    /// unclamped step past these bounds would make its loss NaN.
+    pub fn clamp_to_valid(&self) -> Result<()> {
+        for (name, var) in &self.variables {
+            let (lo, hi) = match name.as_str() {
+                "alpha" => (0.0, 1.0),
+                "beta" | "side_lengths" | "radius" => (1e-6, f64::MAX),
+                _ => continue,
+            };
+            var.set(&var.as_tensor().clamp(lo, hi)?)?;
+        }
+        Ok(())
+    }
+
     /// The current parameter values as plain numbers.
     pub fn values(&self) -> Result<SdfVolume> {
         self.params.values()
@@ -106,6 +123,14 @@ impl Field for SdfField {
         // A few floats per sample: 2^22 samples are about 250 MB over all of a chunk's
         // tensors; the homework's box frame, 256² rays × 64 points, fits in one.
         1 << 22
+    }
+
+    fn render_fused(
+        &self,
+        rays: &Rays,
+        lengths: &Tensor,
+    ) -> Result<Option<(Tensor, Tensor, Tensor)>> {
+        crate::kernels::sdf_render::sdf_render(rays, lengths, &self.params)
     }
 
     fn evaluate(

@@ -8,63 +8,110 @@
 //! config needs must be present with the config's shape; the error names the tensor and both
 //! shapes. Extra tensors (optimizer state, other modules) are ignored.
 
-use std::collections::HashMap;
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Result};
-use candle_core::{DType, Device, Tensor};
+use candle_core::pickle::Object;
+use candle_core::Tensor;
 
 use crate::field::nerf::parameter_shapes;
 use crate::field::nerf::NerfParams;
 use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::torch_archive::{as_int, dict_get, storage_key, TorchArchive};
 
-/// Keys under which training scripts commonly nest the state dict.
+/// Keys under which training scripts commonly nest the state dict (`model` is the
+/// homework's).
 const NESTED_KEYS: &[&str] = &["model", "model_state_dict", "state_dict"];
 
-/// Reads the NeRF parameters from a PyTorch `.pth` file, by our names, as f32 on the CPU, each
-/// of the shape [`parameter_shapes`] gives for `config` (checked); an error names a missing,
-/// misshapen or non-finite tensor.
-pub fn read_torch_state_dict(path: &Path, config: &NerfParams) -> Result<Vec<(String, Tensor)>> {
+/// What a PyTorch file holds for the NeRF: the homework's training checkpoint
+/// `{"model": state_dict, "optimizer": Adam's state_dict, "epoch": E}`, or a bare state dict
+/// (then without optimizer state, at epoch 0).
+pub struct TorchCheckpoint {
+    /// The NeRF's parameters by our names, each of the config's shape.
+    pub model: Vec<(String, Tensor)>,
+    /// Adam's moments by our names, `adam.exp_avg.<name>` and `adam.exp_avg_sq.<name>`
+    /// (empty when the file has no optimizer state).
+    pub adam: Vec<(String, Tensor)>,
+    /// `epoch` (the homework's: the epoch a resumed run starts at) and Adam's step count.
+    pub info: CheckpointInfo,
+}
+
+/// The state dict's entries, in order: the root when it holds the model's tensors, else the
+/// dict nested under one of [`NESTED_KEYS`].
+fn state_dict<'a>(
+    root: &'a Object,
+    expected: &[(String, Vec<usize>)],
+) -> Option<&'a [(Object, Object)]> {
+    let holds_model = |obj: &Object| match obj {
+        Object::Dict(entries) => {
+            let names: Vec<&str> = entries.iter().filter_map(|(k, _)| unicode(k)).collect();
+            expected.iter().any(|(n, _)| lookup(&names, n).is_some())
+        }
+        _ => false,
+    };
+    let dict = if holds_model(root) {
+        root
+    } else {
+        NESTED_KEYS
+            .iter()
+            .filter_map(|k| dict_get(root, k))
+            .find(|d| holds_model(d))?
+    };
+    match dict {
+        Object::Dict(entries) => Some(entries),
+        _ => None,
+    }
+}
+
+fn unicode(obj: &Object) -> Option<&str> {
+    match obj {
+        Object::Unicode(s) => Some(s),
+        _ => None,
+    }
+}
+
+/// Reads the NeRF (and, when present, Adam's state and the epoch) from a PyTorch file, by our
+/// names, as f32 on the CPU. Every parameter must be present with the config's shape
+/// ([`parameter_shapes`]); an error names a missing, misshapen or non-finite tensor.
+pub fn read_torch_checkpoint(path: &Path, config: &NerfParams) -> Result<TorchCheckpoint> {
     if !path.is_file() {
         bail!("PyTorch file {} not found", path.display());
     }
     verify_archive(path)?;
+    let mut archive = TorchArchive::open(path)?;
+    let root = archive.root.clone();
     let expected = parameter_shapes(config);
-    let read = |key: Option<&str>| -> Result<HashMap<String, Tensor>> {
-        let tensors = candle_core::pickle::read_all_with_key(path, key).map_err(|e| {
-            anyhow!(
-                "cannot read {} as a PyTorch state dict: {e}",
-                path.display()
-            )
-        })?;
-        Ok(tensors.into_iter().collect())
-    };
-    let mut found = read(None)?;
-    if !expected.iter().any(|(n, _)| lookup(&found, n).is_some()) {
-        for key in NESTED_KEYS {
-            if let Ok(nested) = read(Some(key)) {
-                if expected.iter().any(|(n, _)| lookup(&nested, n).is_some()) {
-                    found = nested;
-                    break;
-                }
-            }
+    let entries = state_dict(&root, &expected).ok_or_else(|| {
+        anyhow!(
+            "{} holds no state dict of the homework's NeuralRadianceField (no tensor {}); if it \
+             was saved with torch.save(model), a whole module, save model.state_dict() instead",
+            path.display(),
+            expected[0].0
+        )
+    })?;
+    // The tensors in the state dict's order (Adam's state refers to parameters by their
+    // position), which their storage keys give.
+    let mut found = Vec::new();
+    for (k, v) in entries {
+        if let (Some(name), Some(t)) = (unicode(k), archive.tensor(v)?) {
+            let key = storage_key(v).and_then(|k| k.parse::<usize>().ok());
+            found.push((key, name.to_string(), t));
         }
     }
-    if found.is_empty() {
-        bail!(
-            "{} holds no tensors by name: if it was saved with torch.save(model), a whole \
-             module, save model.state_dict() instead",
-            path.display()
-        );
-    }
-    let mut out = Vec::with_capacity(expected.len());
-    for (name, shape) in expected {
-        let t = lookup(&found, &name).ok_or_else(|| {
+    found.sort_by_key(|(key, _, _)| *key);
+    let (names, tensors): (Vec<String>, Vec<Tensor>) =
+        found.into_iter().map(|(_, n, t)| (n, t)).unzip();
+    let name_refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    let mut model = Vec::with_capacity(expected.len());
+    let mut positions = Vec::with_capacity(expected.len());
+    for (name, shape) in &expected {
+        let i = lookup(&name_refs, name).ok_or_else(|| {
             anyhow!(
                 "{} has no tensor {name} (a state dict of the homework's NeuralRadianceField is expected)",
                 path.display()
             )
         })?;
+        let t = &tensors[i];
         if t.dims() != &shape[..] {
             bail!(
                 "{}: tensor {name} has shape {:?} but the config needs {:?}",
@@ -73,14 +120,28 @@ pub fn read_torch_state_dict(path: &Path, config: &NerfParams) -> Result<Vec<(St
                 shape
             );
         }
-        let t = t
-            .to_dtype(DType::F32)?
-            .to_device(&Device::Cpu)?
-            .contiguous()?;
-        checkpoint::ensure_finite_values(path, &name, &t.flatten_all()?.to_vec1::<f32>()?)?;
-        out.push((name, t));
+        checkpoint::ensure_finite_values(path, name, &t.flatten_all()?.to_vec1::<f32>()?)?;
+        model.push((name.clone(), t.clone()));
+        positions.push(i);
     }
-    Ok(out)
+    let (adam, adam_step) = match dict_get(&root, "optimizer") {
+        Some(opt) => read_adam(&mut archive, opt, &model, &positions)?,
+        None => (Vec::new(), 0),
+    };
+    let epoch = dict_get(&root, "epoch")
+        .and_then(as_int)
+        .unwrap_or(0)
+        .max(0) as usize;
+    Ok(TorchCheckpoint {
+        model,
+        adam,
+        info: CheckpointInfo {
+            epoch,
+            adam_step,
+            wall_seconds: 0.0,
+            ..CheckpointInfo::default()
+        },
+    })
 }
 
 /// Reads every member of the `.pth` zip archive through to its end, so that one whose stored
@@ -112,15 +173,96 @@ pub fn verify_archive(path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The tensor named `name`, or the only one named `<prefix>.name`.
-fn lookup<'a>(tensors: &'a HashMap<String, Tensor>, name: &str) -> Option<&'a Tensor> {
-    if let Some(t) = tensors.get(name) {
-        return Some(t);
+/// Adam's moments from `torch.optim.Adam.state_dict()` (`{"state": {id: {"step",
+/// "exp_avg", "exp_avg_sq"}}, "param_groups": [{"params": [id, ...]}]}`): the i-th id of the
+/// groups is the model's i-th parameter, the i-th tensor of its state dict. `positions`
+/// gives each of `model`'s parameters' place there. Returns the moments by our names and the
+/// step count (empty and 0 when Adam has not stepped).
+fn read_adam(
+    archive: &mut TorchArchive,
+    opt: &Object,
+    model: &[(String, Tensor)],
+    positions: &[usize],
+) -> Result<(Vec<(String, Tensor)>, u64)> {
+    let path = archive.path().to_path_buf();
+    let bad = |what: &str| anyhow!("{}: optimizer state {what}", path.display());
+    let ids: Vec<i64> = match dict_get(opt, "param_groups") {
+        Some(Object::List(groups)) => groups
+            .iter()
+            .filter_map(|g| match dict_get(g, "params") {
+                Some(Object::List(ids)) => Some(ids.iter().filter_map(as_int).collect::<Vec<_>>()),
+                _ => None,
+            })
+            .flatten()
+            .collect(),
+        _ => return Err(bad("has no param_groups")),
+    };
+    let Some(Object::Dict(state)) = dict_get(opt, "state") else {
+        return Err(bad("has no state"));
+    };
+    if state.is_empty() {
+        return Ok((Vec::new(), 0));
+    }
+    let mut moments = Vec::new();
+    let mut step = 0u64;
+    for ((name, param), &pos) in model.iter().zip(positions) {
+        let id = *ids
+            .get(pos)
+            .ok_or_else(|| bad(&format!("lists no parameter for {name}")))?;
+        let entry = state
+            .iter()
+            .find(|(k, _)| as_int(k) == Some(id))
+            .map(|(_, v)| v)
+            .ok_or_else(|| bad(&format!("has no entry for {name} (parameter {id})")))?;
+        for key in ["exp_avg", "exp_avg_sq"] {
+            let obj = dict_get(entry, key).ok_or_else(|| bad(&format!("lacks {key} of {name}")))?;
+            let t = archive
+                .tensor(obj)?
+                .ok_or_else(|| bad(&format!("{key} of {name} is not a tensor")))?;
+            if t.dims() != param.dims() {
+                return Err(bad(&format!(
+                    "{key} of {name} has shape {:?}, the parameter {:?} (the optimizer's parameter order does not match the state dict's)",
+                    t.dims(),
+                    param.dims()
+                )));
+            }
+            moments.push((format!("adam.{key}.{name}"), t));
+        }
+        if let Some(s) = dict_get(entry, "step") {
+            step = match archive.tensor(s)? {
+                Some(t) => t.flatten_all()?.to_vec1::<f32>()?[0] as u64,
+                None => as_int(s)
+                    .or(match s {
+                        Object::Float(f) => Some(*f as i64),
+                        _ => None,
+                    })
+                    .unwrap_or(0) as u64,
+            };
+        }
+    }
+    Ok((moments, step))
+}
+
+/// Reads the NeRF parameters from a PyTorch `.pth` file, by our names, as f32 on the CPU, each
+/// of the shape [`parameter_shapes`] gives for `config` (checked); an error names a missing,
+/// misshapen or non-finite tensor.
+pub fn read_torch_state_dict(path: &Path, config: &NerfParams) -> Result<Vec<(String, Tensor)>> {
+    Ok(read_torch_checkpoint(path, config)?.model)
+}
+
+/// The index of the name `name`, or of the only one ending in `.name` (a prefix such as the
+/// homework's `implicit_fn.`).
+fn lookup(names: &[&str], name: &str) -> Option<usize> {
+    if let Some(i) = names.iter().position(|n| *n == name) {
+        return Some(i);
     }
     let suffix = format!(".{name}");
-    let mut matches = tensors.iter().filter(|(k, _)| k.ends_with(&suffix));
+    let mut matches = names
+        .iter()
+        .enumerate()
+        .filter(|(_, k)| k.ends_with(&suffix));
     match (matches.next(), matches.next()) {
-        (Some((_, t)), None) => Some(t),
+        (Some((i, _)), None) => Some(i),
         _ => None,
     }
 }
@@ -142,4 +284,109 @@ pub fn import_torch(pth: &Path, config: &NerfParams, out: &Path) -> Result<usize
     let n = tensors.iter().map(|(_, t)| t.elem_count()).sum();
     checkpoint::save(out, &tensors, CheckpointInfo::default())?;
     Ok(n)
+}
+
+/// The prefix of the homework's parameter names: its `Model` holds the field as
+/// `implicit_fn`.
+pub const HOMEWORK_PREFIX: &str = "implicit_fn.";
+
+/// What [`write_torch_checkpoint`] writes besides the weights.
+#[derive(Debug, Clone, Copy)]
+pub struct TorchOptimizerInfo {
+    /// Adam's current learning rate (`param_groups[0]["lr"]`).
+    pub lr: f64,
+    /// The schedule's initial learning rate (`initial_lr`, which PyTorch's `LambdaLR` needs
+    /// to resume).
+    pub initial_lr: f64,
+}
+
+/// Writes the homework's training checkpoint, `torch.save({"model": state_dict, "optimizer":
+/// Adam's state_dict, "epoch": E}, path)`: parameters named `implicit_fn.<name>` in the
+/// module's order ([`parameter_shapes`]), Adam's moments `adam.exp_avg.<name>` /
+/// `adam.exp_avg_sq.<name>` from `tensors` as its per-parameter state (with `step`) when
+/// present, and `epoch` = epochs completed (the epoch a resumed run starts at).
+pub fn write_torch_checkpoint(
+    path: &Path,
+    config: &NerfParams,
+    tensors: &std::collections::HashMap<String, Tensor>,
+    info: CheckpointInfo,
+    optimizer: TorchOptimizerInfo,
+) -> Result<()> {
+    use crate::io::torch_save::{torch_save, PyValue};
+    let names: Vec<String> = parameter_shapes(config)
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    let mut model = Vec::with_capacity(names.len());
+    let mut state = Vec::new();
+    for (i, name) in names.iter().enumerate() {
+        let t = tensors
+            .get(name)
+            .ok_or_else(|| anyhow!("no parameter {name} to save"))?;
+        model.push((
+            format!("{HOMEWORK_PREFIX}{name}"),
+            PyValue::Tensor(t.clone()),
+        ));
+        let moments = (
+            tensors.get(&format!("adam.exp_avg.{name}")),
+            tensors.get(&format!("adam.exp_avg_sq.{name}")),
+        );
+        if let (Some(m), Some(v)) = moments {
+            if info.adam_step > 0 {
+                let step = Tensor::new(info.adam_step as f32, m.device())?;
+                state.push((
+                    PyValue::Int(i as i64),
+                    PyValue::Dict(vec![
+                        (PyValue::Str("step".into()), PyValue::Tensor(step)),
+                        (PyValue::Str("exp_avg".into()), PyValue::Tensor(m.clone())),
+                        (
+                            PyValue::Str("exp_avg_sq".into()),
+                            PyValue::Tensor(v.clone()),
+                        ),
+                    ]),
+                ));
+            }
+        }
+    }
+    let s = |k: &str| PyValue::Str(k.to_string());
+    let group = adam_param_group(optimizer, names.len());
+    let root = PyValue::Dict(vec![
+        (s("model"), PyValue::OrderedDict(model)),
+        (
+            s("optimizer"),
+            PyValue::Dict(vec![
+                (s("state"), PyValue::Dict(state)),
+                (s("param_groups"), PyValue::List(vec![group])),
+            ]),
+        ),
+        (s("epoch"), PyValue::Int(info.epoch as i64)),
+    ]);
+    torch_save(path, &root)
+}
+
+/// `torch.optim.Adam`'s one parameter group (PyTorch's defaults, no weight decay) over `n`
+/// parameters, with the current and the schedule's initial learning rate.
+fn adam_param_group(optimizer: TorchOptimizerInfo, n: usize) -> crate::io::torch_save::PyValue {
+    use crate::io::torch_save::PyValue;
+    let s = |k: &str| PyValue::Str(k.to_string());
+    PyValue::Dict(vec![
+        (s("lr"), PyValue::Float(optimizer.lr)),
+        (
+            s("betas"),
+            PyValue::Tuple(vec![PyValue::Float(0.9), PyValue::Float(0.999)]),
+        ),
+        (s("eps"), PyValue::Float(1e-8)),
+        (s("weight_decay"), PyValue::Int(0)),
+        (s("amsgrad"), PyValue::Bool(false)),
+        (s("maximize"), PyValue::Bool(false)),
+        (s("foreach"), PyValue::None),
+        (s("capturable"), PyValue::Bool(false)),
+        (s("differentiable"), PyValue::Bool(false)),
+        (s("fused"), PyValue::None),
+        (s("initial_lr"), PyValue::Float(optimizer.initial_lr)),
+        (
+            s("params"),
+            PyValue::List((0..n as i64).map(PyValue::Int).collect()),
+        ),
+    ])
 }

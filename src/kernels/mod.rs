@@ -19,7 +19,10 @@ pub mod bias;
 pub mod composite;
 pub mod hash_grid;
 pub mod sample_points;
+pub mod sdf_ray;
+pub mod sdf_render;
 pub mod sdf_volume;
+pub mod sdf_volume_grad;
 pub mod storage;
 pub mod trunk;
 

@@ -62,6 +62,19 @@ impl SdfTensors {
         v
     }
 
+    /// The parameters packed into one `(P,)` tensor, `[center, side_lengths | radius, alpha,
+    /// beta, feature]` ([`crate::core::sdf::PackedLayout`]), by a differentiable
+    /// concatenation: gradients with respect to it reach each variable.
+    pub fn packed(&self) -> Result<Tensor> {
+        let dtype = self.center().dtype();
+        let parts = self
+            .tensors()
+            .into_iter()
+            .map(|t| t.to_dtype(dtype))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        Ok(Tensor::cat(&parts, 0)?)
+    }
+
     /// The shape's centre `(3,)`.
     pub fn center(&self) -> &Tensor {
         match &self.shape {
@@ -101,8 +114,10 @@ impl SdfTensors {
     }
 }
 
-/// σ and colour at every sample: the fused kernel where [`use_fused`] allows and nothing is
-/// tracked by autograd, else [`sdf_volume_tensor_ops`].
+/// σ and colour at every sample. Where [`use_fused`] allows: the fused kernel when nothing is
+/// tracked by autograd (rendering), else the fused kernels with backward passes of
+/// [`crate::kernels::sdf_volume_grad`] (training); otherwise, or when the spacings are
+/// tracked, [`sdf_volume_tensor_ops`].
 ///
 /// `points`: `(N, S, 3)`; `deltas`: `(N, S, 1)`. Returns σ `(N, S, 1)` and colour `(N, S, 3)`.
 pub fn sdf_volume(
@@ -111,8 +126,16 @@ pub fn sdf_volume(
     volume: &SdfTensors,
 ) -> Result<(Tensor, Tensor)> {
     let tracked = needs_grad(points) || volume.tensors().into_iter().any(needs_grad);
-    if !use_fused(points) || tracked {
+    if !use_fused(points) || needs_grad(deltas) {
         return sdf_volume_tensor_ops(points, deltas, volume);
+    }
+    if tracked {
+        return crate::kernels::sdf_volume_grad::sdf_volume_fused_grad(
+            points,
+            deltas,
+            &volume.packed()?,
+            volume.values()?,
+        );
     }
     let fused = points
         .contiguous()?
@@ -165,17 +188,28 @@ pub fn signed_distance(shape: &ShapeTensors, points: &Tensor) -> Result<Tensor> 
                 .broadcast_sub(&center.to_dtype(dtype)?)?
                 .abs()?
                 .broadcast_sub(&half)?;
-            let outside = q.relu()?.sqr()?.sum_keepdim(D::Minus1)?.sqrt()?;
+            let outside = safe_sqrt(&q.relu()?.sqr()?.sum_keepdim(D::Minus1)?)?;
             let inside = q.max_keepdim(D::Minus1)?.minimum(0f32)?;
             Ok(outside.add(&inside)?)
         }
-        ShapeTensors::Sphere { center, radius } => Ok(points
-            .broadcast_sub(&center.to_dtype(dtype)?)?
-            .sqr()?
-            .sum_keepdim(D::Minus1)?
-            .sqrt()?
-            .broadcast_sub(&radius.to_dtype(dtype)?)?),
+        ShapeTensors::Sphere { center, radius } => Ok(safe_sqrt(
+            &points
+                .broadcast_sub(&center.to_dtype(dtype)?)?
+                .sqr()?
+                .sum_keepdim(D::Minus1)?,
+        )?
+        .broadcast_sub(&radius.to_dtype(dtype)?)?),
     }
+}
+
+/// Below this, [`safe_sqrt`] and [`density_to_sigma`] hold their argument (see there).
+const TINY: f64 = 1e-30;
+
+/// `√max(x, 1e-30)`: the value differs from `√x` by at most 1e-15 where `x` is 0, and the
+/// gradient there is 0, as PyTorch's norm gives, instead of the `∞ · 0 = NaN` of `√x` (a point
+/// inside the box has `‖max(q, 0)‖ = 0`).
+fn safe_sqrt(x: &Tensor) -> Result<Tensor> {
+    Ok(x.maximum(TINY)?.sqrt()?)
 }
 
 /// The homework's SDF → density: `α · (½·e^(−s/β) if s > 0 else 1 − ½·e^(s/β))`.
@@ -194,10 +228,17 @@ pub fn sdf_to_density(sdf: &Tensor, alpha: &Tensor, beta: &Tensor) -> Result<Ten
 
 /// The homework's density → volume density: `σ = −ln(1 − density) / Δ`.
 ///
-/// `density`, `deltas`: `(N, S, 1)`; returns `(N, S, 1)`. Density 1 gives σ = ∞, which the
-/// renderer treats as an opaque sample (see `core::volume`).
+/// `density`, `deltas`: `(N, S, 1)`; returns `(N, S, 1)`. Where `1 − density` is below 1e-30
+/// (density 1 in float32: the homework's σ = ∞) it is held at 1e-30, so σΔ is 69: the sample
+/// is opaque to within 1e-30 (the fused kernel's σ = ∞ is clamped by the renderer, see
+/// `core::volume`), and the gradient there is 0 instead of the `0/0 = NaN` of `ln 0`.
 pub fn density_to_sigma(density: &Tensor, deltas: &Tensor) -> Result<Tensor> {
-    Ok(density.affine(-1.0, 1.0)?.log()?.neg()?.div(deltas)?)
+    Ok(density
+        .affine(-1.0, 1.0)?
+        .maximum(TINY)?
+        .log()?
+        .neg()?
+        .div(deltas)?)
 }
 
 /// Fused CPU kernel: points `(N, S, 3)` and deltas `(N, S, 1)` → `(N, S, 4)` = `[σ, r, g, b]`.

@@ -5,6 +5,7 @@
 use anyhow::Result;
 use candle_core::Tensor;
 
+use crate::core::rays::Rays;
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
 
@@ -30,6 +31,19 @@ pub trait Field {
         deltas: &Tensor,
         directions: &Tensor,
     ) -> Result<FieldOutput>;
+
+    /// Colour `(N, 3)`, depth `(N, 1)` and opacity `(N, 1)` of `rays` (N) densely sampled at
+    /// `lengths` `(N, S, 1)`, rendered by the field itself in one fused pass: the values that
+    /// [`Field::evaluate`] followed by the renderer's compositing give, and differentiable
+    /// the same way. `None` (the default) when the field has no such kernel for these inputs;
+    /// the renderer then samples, evaluates and composites.
+    fn render_fused(
+        &self,
+        _rays: &Rays,
+        _lengths: &Tensor,
+    ) -> Result<Option<(Tensor, Tensor, Tensor)>> {
+        Ok(None)
+    }
 
     /// The most samples (rays × points per ray) to evaluate at once. The renderer lowers its
     /// `chunk_size` to fit, which bounds memory without changing any output.

@@ -11,6 +11,7 @@
 
 use anyhow::Result;
 use glam::DVec3;
+use rayon::prelude::*;
 
 use crate::core::camera::{
     camera_position_from_spherical_angles, look_at_view_transform, PerspectiveCamera,
@@ -45,84 +46,178 @@ impl Default for PointView {
     }
 }
 
-/// Splats points (`P × 3` world positions, flattened) into a `size × size` image.
-pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<RgbImage> {
-    anyhow::ensure!(
-        view.points_per_pixel >= 1,
-        "points_per_pixel must be at least 1"
-    );
-    let k = view.points_per_pixel;
-    // Per pixel, the (depth, α) of the nearest `k` covering points seen so far.
-    let mut kept = vec![(0f64, 0f64); size * size * k];
-    let mut n_kept = vec![0usize; size * size];
-    let r = view.radius;
+/// A projected point: its NDC position and depth, and the pixel rows and columns it covers.
+#[derive(Debug, Clone, Copy)]
+struct Splat {
+    x: f64,
+    y: f64,
+    depth: f64,
+    rows: (usize, usize),
+    cols: (usize, usize),
+}
+
+/// Projects one point; `None` when it is behind the camera or covers no pixel.
+fn project(p: &[f32], size: usize, view: &PointView) -> Option<Splat> {
+    let q = view
+        .camera
+        .project(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+    if q.z.is_nan() || q.z <= 1e-3 || !q.x.is_finite() || !q.y.is_finite() {
+        return None;
+    }
+    // Pixel centre (i, j) sits at NDC x = 1 − (2j + 1)/W, y = 1 − (2i + 1)/H.
     let half_px = size as f64 / 2.0;
-    for p in points.chunks_exact(3) {
-        let q = view
-            .camera
-            .project(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
-        if q.z.is_nan() || q.z <= 1e-3 || !q.x.is_finite() || !q.y.is_finite() {
-            continue;
-        }
-        // Pixel centre (i, j) sits at NDC x = 1 − (2j + 1)/W, y = 1 − (2i + 1)/H.
-        let col = (1.0 - q.x) * half_px - 0.5;
-        let row = (1.0 - q.y) * half_px - 0.5;
-        let reach = r * half_px;
-        let (j0, j1) = (
-            (col - reach).ceil().max(0.0),
-            (col + reach).floor().min(size as f64 - 1.0),
-        );
+    let col = (1.0 - q.x) * half_px - 0.5;
+    let row = (1.0 - q.y) * half_px - 0.5;
+    let reach = view.radius * half_px;
+    let (j0, j1) = (
+        (col - reach).ceil().max(0.0),
+        (col + reach).floor().min(size as f64 - 1.0),
+    );
+    let (i0, i1) = (
+        (row - reach).ceil().max(0.0),
+        (row + reach).floor().min(size as f64 - 1.0),
+    );
+    if j0 > j1 || i0 > i1 {
+        return None;
+    }
+    Some(Splat {
+        x: q.x,
+        y: q.y,
+        depth: q.z,
+        rows: (i0 as usize, i1 as usize),
+        cols: (j0 as usize, j1 as usize),
+    })
+}
+
+/// The rows `first..first + n_kept.len() / size` of the image being splatted: per pixel, the
+/// (depth, α) of the nearest `k` covering points so far, how many there are, and which of
+/// them is the farthest once there are `k`.
+struct Band {
+    first: usize,
+    kept: Vec<(f64, f64)>,
+    n_kept: Vec<u8>,
+    far: Vec<u8>,
+}
+
+impl Band {
+    /// Adds the part of `s` that falls in this band's rows; `centres[i]` is the NDC
+    /// coordinate `1 − (2i + 1)/size` of pixel row or column `i`.
+    fn splat(&mut self, s: &Splat, size: usize, k: usize, radius: f64, centres: &[f64]) {
+        let last = self.first + self.n_kept.len() / size;
         let (i0, i1) = (
-            (row - reach).ceil().max(0.0),
-            (row + reach).floor().min(size as f64 - 1.0),
+            s.rows.0.max(self.first),
+            s.rows.1.min(last.saturating_sub(1)),
         );
-        if j0 > j1 || i0 > i1 {
-            continue;
+        if s.rows.1 < self.first || s.rows.0 >= last || i0 > i1 {
+            return;
         }
-        for i in i0 as usize..=i1 as usize {
-            for j in j0 as usize..=j1 as usize {
-                let dx = (1.0 - (2 * j + 1) as f64 / size as f64) - q.x;
-                let dy = (1.0 - (2 * i + 1) as f64 / size as f64) - q.y;
-                let alpha = 1.0 - (dx * dx + dy * dy) / (r * r);
+        for i in i0..=i1 {
+            let dy = centres[i] - s.y;
+            for (j, centre) in centres.iter().enumerate().take(s.cols.1 + 1).skip(s.cols.0) {
+                let dx = centre - s.x;
+                let alpha = 1.0 - (dx * dx + dy * dy) / (radius * radius);
                 if alpha > 0.0 {
-                    let pixel = i * size + j;
+                    let pixel = (i - self.first) * size + j;
                     keep_nearest(
-                        &mut kept[pixel * k..(pixel + 1) * k],
-                        &mut n_kept[pixel],
-                        (q.z, alpha),
+                        &mut self.kept[pixel * k..(pixel + 1) * k],
+                        &mut self.n_kept[pixel],
+                        &mut self.far[pixel],
+                        (s.depth, alpha),
                     );
                 }
             }
         }
     }
+}
+
+/// Points projected at a time (then splatted, each band of rows on its own thread).
+const POINTS_PER_PASS: usize = 1 << 18;
+
+/// Splats points (`P × 3` world positions, flattened) into a `size × size` image. Points are
+/// projected in parallel, and the image's row bands are splatted in parallel, each taking the
+/// points in their order, so every pixel sees its points in input order (as one thread
+/// would).
+pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<RgbImage> {
+    anyhow::ensure!(
+        view.points_per_pixel >= 1,
+        "points_per_pixel must be at least 1"
+    );
+    anyhow::ensure!(
+        view.points_per_pixel <= u8::MAX as usize,
+        "points_per_pixel must be at most 255"
+    );
+    let k = view.points_per_pixel;
+    let centres: Vec<f64> = (0..size)
+        .map(|i| 1.0 - (2 * i + 1) as f64 / size as f64)
+        .collect();
+    let rows_per_band = size
+        .div_ceil(2 * rayon::current_num_threads().max(1))
+        .max(1);
+    let mut bands: Vec<Band> = (0..size)
+        .step_by(rows_per_band)
+        .map(|first| {
+            let rows = rows_per_band.min(size - first);
+            Band {
+                first,
+                kept: vec![(0.0, 0.0); rows * size * k],
+                n_kept: vec![0; rows * size],
+                far: vec![0; rows * size],
+            }
+        })
+        .collect();
+    for chunk in points.chunks(3 * POINTS_PER_PASS) {
+        let splats: Vec<Splat> = chunk
+            .par_chunks_exact(3)
+            .filter_map(|p| project(p, size, view))
+            .collect();
+        bands.par_iter_mut().for_each(|band| {
+            for s in &splats {
+                band.splat(s, size, k, view.radius, &centres);
+            }
+        });
+    }
     let mut data = Vec::with_capacity(size * size * 3);
-    for (pixel, &n) in n_kept.iter().enumerate() {
-        let clear: f64 = kept[pixel * k..pixel * k + n]
-            .iter()
-            .map(|&(_, alpha)| 1.0 - alpha)
-            .product();
-        data.extend(view.color.map(|c| c * (1.0 - clear) as f32));
+    for band in &bands {
+        for (pixel, &n) in band.n_kept.iter().enumerate() {
+            let clear: f64 = band.kept[pixel * k..pixel * k + n as usize]
+                .iter()
+                .map(|&(_, alpha)| 1.0 - alpha)
+                .product();
+            data.extend(view.color.map(|c| c * (1.0 - clear) as f32));
+        }
     }
     RgbImage::new(size, size, data)
 }
 
 /// Adds `point` (depth, α) to the `*n` points in `kept`, keeping the `kept.len()` nearest:
 /// when full, it replaces the farthest if nearer (ties keep the earlier point, as the order
-/// of the input decides in pytorch3d).
-fn keep_nearest(kept: &mut [(f64, f64)], n: &mut usize, point: (f64, f64)) {
-    if *n < kept.len() {
-        kept[*n] = point;
+/// of the input decides in pytorch3d). `*far` caches the farthest one's index (the last of
+/// equally far ones) while `kept` is full.
+fn keep_nearest(kept: &mut [(f64, f64)], n: &mut u8, far: &mut u8, point: (f64, f64)) {
+    let k = kept.len();
+    if (*n as usize) < k {
+        kept[*n as usize] = point;
         *n += 1;
+        if *n as usize == k {
+            *far = farthest(kept);
+        }
         return;
     }
-    let (far, &(far_depth, _)) = kept
-        .iter()
-        .enumerate()
-        .max_by(|a, b| a.1 .0.total_cmp(&b.1 .0))
-        .expect("at least one kept point");
-    if point.0 < far_depth {
-        kept[far] = point;
+    if point.0 < kept[*far as usize].0 {
+        kept[*far as usize] = point;
+        *far = farthest(kept);
     }
+}
+
+/// The index of the largest depth in `kept` (the last of equal ones, as `Iterator::max_by`).
+fn farthest(kept: &[(f64, f64)]) -> u8 {
+    let mut best = 0;
+    for (i, p) in kept.iter().enumerate().skip(1) {
+        if p.0.total_cmp(&kept[best].0) != std::cmp::Ordering::Less {
+            best = i;
+        }
+    }
+    best as u8
 }
 
 #[cfg(test)]
@@ -190,9 +285,9 @@ mod tests {
             assert!((got - coverage).abs() < 1e-5, "k={k}: {got} vs {coverage}");
         }
         let mut kept = [(0.0, 0.0); 2];
-        let mut n = 0;
+        let (mut n, mut far) = (0, 0);
         for p in [(3.0, 0.1), (1.0, 0.2), (2.0, 0.3), (5.0, 0.4)] {
-            keep_nearest(&mut kept, &mut n, p);
+            keep_nearest(&mut kept, &mut n, &mut far, p);
         }
         assert_eq!((n, kept), (2, [(2.0, 0.3), (1.0, 0.2)]));
     }

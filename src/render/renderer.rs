@@ -10,8 +10,9 @@ use candle_core::{DType, Tensor};
 use crate::core::rays::Rays;
 use crate::core::volume::deltas;
 use crate::kernels::composite::composite;
+use crate::kernels::sample_points::sample_points;
 use crate::render::field::Field;
-use crate::render::sampler::StratifiedSampler;
+use crate::render::sampler::{RaySamples, StratifiedSampler};
 use crate::render::skipping::SampleCounts;
 
 /// What the renderer produces for a batch of N rays.
@@ -68,7 +69,8 @@ impl VolumeRenderer {
         (field.occupancy().is_some() || self.early_termination > 0.0) && field.supports_packed()
     }
 
-    /// Renders one chunk of rays (no chunking): sample → field → weights → aggregate.
+    /// Renders one chunk of rays (no chunking): sample → field → weights → aggregate, or the
+    /// field's own fused pass ([`Field::render_fused`]) when it has one for dense sampling.
     ///
     /// `rays`: N rays; returns colour `(N, 3)`, depth and opacity `(N, 1)`.
     pub fn render_chunk(
@@ -78,22 +80,53 @@ impl VolumeRenderer {
         rays: &Rays,
         jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
+        if !self.skips_samples(field) {
+            let lengths = sampler.lengths(rays, jitter)?;
+            if let Some((color, depth, opacity)) = field.render_fused(rays, &lengths)? {
+                let counts = SampleCounts::dense(lengths.elem_count());
+                return self.finish(color, depth, opacity, counts);
+            }
+            return self.composite_samples(field, rays, lengths);
+        }
         let samples = sampler.sample(rays, jitter)?;
-        let (out, counts) = if self.skips_samples(field) {
-            crate::render::skipping::evaluate_skipping(
-                field,
-                self.early_termination,
-                &samples,
-                &rays.directions,
-            )?
-        } else {
-            let deltas = deltas(&samples.lengths)?;
-            (
-                field.evaluate(&samples, &deltas, &rays.directions)?,
-                SampleCounts::dense(samples.lengths.elem_count()),
-            )
-        };
-        let (mut color, depth, opacity) = composite(&out.density, &out.feature, &samples.lengths)?;
+        let (out, counts) = crate::render::skipping::evaluate_skipping(
+            field,
+            self.early_termination,
+            &samples,
+            &rays.directions,
+        )?;
+        let (color, depth, opacity) = composite(&out.density, &out.feature, &samples.lengths)?;
+        self.finish(color, depth, opacity, counts)
+    }
+
+    /// Dense rendering at `lengths` `(N, S, 1)`: sample points, evaluate the field, composite.
+    fn composite_samples(
+        &self,
+        field: &dyn Field,
+        rays: &Rays,
+        lengths: Tensor,
+    ) -> Result<RenderOutput> {
+        let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
+        let samples = RaySamples { points, lengths };
+        let deltas = deltas(&samples.lengths)?;
+        let out = field.evaluate(&samples, &deltas, &rays.directions)?;
+        let (color, depth, opacity) = composite(&out.density, &out.feature, &samples.lengths)?;
+        self.finish(
+            color,
+            depth,
+            opacity,
+            SampleCounts::dense(samples.lengths.elem_count()),
+        )
+    }
+
+    /// The output, composited onto white (`colour + 1 − opacity`) with `white_background`.
+    fn finish(
+        &self,
+        mut color: Tensor,
+        depth: Tensor,
+        opacity: Tensor,
+        samples: SampleCounts,
+    ) -> Result<RenderOutput> {
         if self.white_background {
             color = color.add(&opacity.affine(-1.0, 1.0)?.broadcast_as(color.shape())?)?;
         }
@@ -101,7 +134,7 @@ impl VolumeRenderer {
             color,
             depth,
             opacity,
-            samples: counts,
+            samples,
         })
     }
 

@@ -1,7 +1,7 @@
 //! Stratified sampling of points along rays.
 
 use anyhow::{ensure, Result};
-use candle_core::Tensor;
+use candle_core::{DType, Tensor};
 use rand::Rng;
 
 use crate::core::rays::{linspace, Rays};
@@ -94,16 +94,29 @@ impl StratifiedSampler {
 
     /// Samples every ray at the same depths (`jitter = None`) or at per-ray jittered depths.
     ///
-    /// `rays`: N rays; returns points `(N, S, 3)` and lengths `(N, S, 1)`.
+    /// `rays`: N rays; returns points `(N, S, 3)` and lengths `(N, S, 1)`, in the rays' dtype
+    /// (float64 rays get depths computed in float64).
     pub fn sample(
         &self,
         rays: &Rays,
         jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RaySamples> {
+        let lengths = self.lengths(rays, jitter)?;
+        let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
+        Ok(RaySamples { points, lengths })
+    }
+
+    /// The sample depths of [`StratifiedSampler::sample`] alone, `(N, S, 1)` in the rays'
+    /// dtype (for fields that place the points themselves, [`crate::render::field::Field::render_fused`]).
+    pub fn lengths(&self, rays: &Rays, jitter: Option<&mut dyn rand::RngCore>) -> Result<Tensor> {
         let n = rays.len();
         let s = self.n_pts_per_ray;
         let device = rays.origins.device();
+        let dtype = rays.origins.dtype();
         let lengths = match jitter {
+            None if dtype == DType::F64 => Tensor::from_vec(self.depths(), (1, s, 1), device)?
+                .broadcast_as((n, s, 1))?
+                .contiguous()?,
             None => {
                 let z: Vec<f32> = self.depths().into_iter().map(|v| v as f32).collect();
                 Tensor::from_vec(z, (1, s, 1), device)?
@@ -112,10 +125,10 @@ impl StratifiedSampler {
             }
             Some(rng) => {
                 Tensor::from_vec(self.jittered_depths(n, &mut RngRef(rng)), (n, s, 1), device)?
+                    .to_dtype(dtype)?
             }
         };
-        let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
-        Ok(RaySamples { points, lengths })
+        Ok(lengths)
     }
 }
 

@@ -24,9 +24,11 @@ use crate::core::term::note;
 
 use crate::field::nerf::{NerfField, NerfParams};
 use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::checkpoint_file::{self, CheckpointFormat};
 use crate::io::dataset::Dataset;
 use crate::io::images::{remove_stale_temp_files, write_atomically};
 use crate::io::progress::{progress_bar, Progress};
+use crate::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
 use crate::train::adam::Adam;
@@ -155,7 +157,7 @@ fn start_or_resume(
     }
     let mut adam = Adam::new(named_vars(&state.varmap), settings.lr)?;
     if info.adam_step > 0 {
-        let (tensors, _) = checkpoint::load(&paths.checkpoint, device)?;
+        let (tensors, _) = checkpoint_file::load(&paths.checkpoint, &settings.model, device)?;
         adam.load_state(&tensors, info.adam_step)?;
         if let (Some(schedule), Some(saved)) = (&settings.grid, tensors.get(CHECKPOINT_KEY)) {
             state.occupancy = Some(OccupancyGrid::from_tensor(&schedule.grid, saved)?);
@@ -197,8 +199,11 @@ fn prepare_outputs(settings: &TrainSettings, paths: &TrainPaths, step: u64) -> R
         .with_context(|| format!("cannot open training log {}", paths.log.display()))
 }
 
-/// Writes the model, Adam state and occupancy grid atomically.
+/// Writes the model, Adam state and occupancy grid atomically, in the format of the file
+/// already there: a PyTorch checkpoint (the homework's, which this run resumed from) stays
+/// one (model, Adam and epoch; it has no place for the grid), anything else is ours.
 fn save(
+    settings: &TrainSettings,
     paths: &TrainPaths,
     state: &NerfState,
     info: &CheckpointInfo,
@@ -207,6 +212,22 @@ fn save(
 ) -> Result<()> {
     let mut tensors = checkpoint::model_tensors(&state.varmap);
     tensors.extend(adam.state_tensors());
+    let torch = paths.checkpoint.is_file()
+        && checkpoint_file::detect_format(&paths.checkpoint).ok() == Some(CheckpointFormat::Torch);
+    if torch {
+        let optimizer = TorchOptimizerInfo {
+            lr: adam.lr,
+            initial_lr: settings.lr,
+        };
+        let tensors = tensors.into_iter().collect();
+        return write_torch_checkpoint(
+            &paths.checkpoint,
+            &settings.model,
+            &tensors,
+            *info,
+            optimizer,
+        );
+    }
     if let Some(grid) = &state.occupancy {
         tensors.push((CHECKPOINT_KEY.to_string(), grid.to_tensor(device)?));
     }
@@ -410,7 +431,14 @@ impl Run<'_> {
                 ));
                 self.excluded += t.elapsed().as_secs_f64();
             }
-            save(self.paths, &self.state, &self.info, &self.adam, self.device)?;
+            save(
+                s,
+                self.paths,
+                &self.state,
+                &self.info,
+                &self.adam,
+                self.device,
+            )?;
         }
         if (epoch + 1).is_multiple_of(s.render_interval) {
             if let Some(preview) = hooks.preview.as_mut() {
@@ -496,18 +524,18 @@ pub fn fit(
                 step_in_epoch,
                 rng_word_pos,
             };
-            save(paths, &run.state, &run.info, &run.adam, device)?;
+            save(settings, paths, &run.state, &run.info, &run.adam, device)?;
             run.bar.finish_and_clear();
             return Ok(FitOutcome::Stopped(run.info));
         }
         run.after_epoch(epoch, mean_loss, &mut hooks)?;
         if stop.is_some_and(|f| f.load(Ordering::SeqCst)) && epoch + 1 < first + planned {
-            save(paths, &run.state, &run.info, &run.adam, device)?;
+            save(settings, paths, &run.state, &run.info, &run.adam, device)?;
             run.bar.finish_and_clear();
             return Ok(FitOutcome::Stopped(run.info));
         }
     }
-    save(paths, &run.state, &run.info, &run.adam, device)?;
+    save(settings, paths, &run.state, &run.info, &run.adam, device)?;
     run.bar.finish_and_clear();
     Ok(FitOutcome::Finished(run.info))
 }

@@ -1,8 +1,9 @@
 //! Training: the Adam optimiser (dense, and sparse for hash tables), the model state, one step
-//! and the loop.
+//! and the loop, and the SDF volume fit.
 
 pub mod adam;
 pub mod fit;
+pub mod fit_sdf;
 pub mod sparse_adam;
 pub mod state;
 pub mod step;

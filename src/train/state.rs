@@ -10,6 +10,7 @@ use rand::SeedableRng;
 
 use crate::field::nerf::{Nerf, NerfField, NerfParams};
 use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::checkpoint_file;
 use crate::render::occupancy::{grid_for_checkpoint, OccupancyGrid, OccupancyGridParams};
 
 /// A NeRF with its parameters.
@@ -57,27 +58,29 @@ impl NerfState {
         })
     }
 
-    /// A model loaded from a checkpoint (names and shapes checked).
+    /// A model loaded from a checkpoint of either format, ours or PyTorch's (names and shapes
+    /// checked).
     pub fn from_checkpoint(
         params: &NerfParams,
         path: &Path,
         device: &Device,
     ) -> Result<(Self, CheckpointInfo)> {
-        let (tensors, info) = checkpoint::load(path, device)?;
+        let (tensors, info) = checkpoint_file::load(path, params, device)?;
         let state = Self::new(params, device)?;
         checkpoint::load_model_into(&state.varmap, &tensors, params, path)?;
         Ok((state, info))
     }
 
-    /// A trained model for rendering: weights from the checkpoint at `path`, and, with `grid`,
-    /// an occupancy grid (the one saved in the checkpoint, or one built from the model).
+    /// A trained model for rendering: weights from the checkpoint file at `path` (ours or a
+    /// PyTorch file, told apart by content), and, with `grid`, an occupancy grid (the one
+    /// saved in the checkpoint, or one built from the model).
     pub fn load(
         params: &NerfParams,
         grid: Option<&OccupancyGridParams>,
         path: &Path,
         device: &Device,
     ) -> Result<(Self, CheckpointInfo)> {
-        let (tensors, info) = checkpoint::load(path, device)?;
+        let (tensors, info) = checkpoint_file::load(path, params, device)?;
         let mut state = Self::new(params, device)?;
         checkpoint::load_model_into(&state.varmap, &tensors, params, path)?;
         if let Some(grid) = grid {

@@ -13,6 +13,23 @@ pub fn nerf(args: &[&str]) -> Output {
         .expect("run nerf")
 }
 
+/// Runs the `nerf` binary with `args` in the working directory `dir` (the homework's configs
+/// name files relative to it).
+pub fn nerf_in(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("run nerf")
+}
+
+/// The homework's verbatim config `name` (`../shared/homework/configs/<name>.yaml`), or a
+/// visible skip.
+pub fn homework_config(name: &str, test: &str) -> Option<PathBuf> {
+    shared("homework/configs", &format!("{name}.yaml"), test)
+        .map(|d| d.join(format!("{name}.yaml")))
+}
+
 /// A run's stderr as text.
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).to_string()

@@ -1,0 +1,178 @@
+//! The jobs of the `nerf` command, chosen as the homework's `main.py` chooses them: by the
+//! config's top-level `type` (`nerf run`), or by the subcommand (`nerf render`, `nerf train`),
+//! which checks that the config suits it.
+//!
+//! * `render` and `render_nerf` configs render (`nerf render`): an SDF scene's outputs, or a
+//!   NeRF's surround GIF from its checkpoint.
+//! * `train` configs fit an SDF volume to images ([`crate::app::train_box`]); `train_nerf`
+//!   configs train a NeRF ([`crate::app::train`]). `nerf render` of a training config renders
+//!   its initial volume or its training checkpoint; `nerf train` of a render config is an
+//!   error that names the command to use.
+//! * A config without `type` (an extension) is trained by its field: an SDF volume is fitted,
+//!   a NeRF trained.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{bail, Result};
+use candle_core::Device;
+
+use crate::app::config::{Config, ImplicitFunctionConfig, JobKind};
+use crate::app::train_box::train_sdf;
+use crate::train::fit::FitOutcome;
+
+/// What `nerf train` (or `nerf run` of a training config) does with a config.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrainJob {
+    /// Fit an SDF volume's `opt: True` parameters to images (`type: train`).
+    Sdf,
+    /// Train a NeRF on a dataset (`type: train_nerf`).
+    Nerf,
+}
+
+/// The training job for `config` (named `name` in messages); an error for a render config
+/// (naming `nerf render`) or a `type` its field cannot do.
+pub fn train_job(config: &Config, name: &str) -> Result<TrainJob> {
+    let nerf = matches!(config.implicit_function, ImplicitFunctionConfig::Nerf(_));
+    match config.kind {
+        Some(kind) if kind.renders() => bail!(
+            "config {name} has `type: {}`: it renders, it does not train; run `nerf render --config {name}` (or `nerf run --config {name}`)",
+            kind.name()
+        ),
+        Some(JobKind::Train) if nerf => bail!(
+            "config {name} has `type: train`, which fits an SDF volume, but its implicit_function is a nerf (use `type: train_nerf`)"
+        ),
+        Some(JobKind::TrainNerf) if !nerf => bail!(
+            "config {name} has `type: train_nerf`, but its implicit_function is an sdf_volume (use `type: train` to fit it)"
+        ),
+        _ if nerf => Ok(TrainJob::Nerf),
+        _ => Ok(TrainJob::Sdf),
+    }
+}
+
+/// What `nerf run` does: the job of the config's `type`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RunJob {
+    /// `render` / `render_nerf`.
+    Render,
+    /// `train` / `train_nerf`.
+    Train(TrainJob),
+}
+
+/// The job `nerf run` runs for `config`; an error when it has no `type`.
+pub fn run_job(config: &Config, name: &str) -> Result<RunJob> {
+    match config.kind {
+        None => bail!(
+            "config {name} has no `type` (render, render_nerf, train or train_nerf); use `nerf render` or `nerf train`"
+        ),
+        Some(kind) if kind.renders() => Ok(RunJob::Render),
+        Some(_) => Ok(RunJob::Train(train_job(config, name)?)),
+    }
+}
+
+/// Options of the NeRF training job.
+#[derive(Debug, Clone, Default)]
+pub struct NerfTrainOptions {
+    /// Dataset directory (`--data-dir`; default `data.data_dir`, else
+    /// `../shared/data/<dataset_name>`).
+    pub data_dir: Option<PathBuf>,
+    /// Stop after this many epochs in this run.
+    pub epochs: Option<usize>,
+    /// With `training.resume: False`, replace an existing checkpoint and its log.
+    pub overwrite: bool,
+}
+
+/// How a training job ended.
+#[derive(Debug, Clone)]
+pub enum TrainOutcome {
+    /// It ran to its end; the lines to print.
+    Done(Vec<String>),
+    /// A signal stopped NeRF training after a step; the checkpoint holds it.
+    Stopped {
+        /// Progress at the stop.
+        info: crate::io::checkpoint::CheckpointInfo,
+        /// The checkpoint written.
+        checkpoint: PathBuf,
+    },
+}
+
+/// The dataset directory: `given`, else `data.data_dir`, else the default for the dataset
+/// name (lego when unnamed).
+pub fn data_dir_for(config: &Config, given: Option<PathBuf>) -> PathBuf {
+    given
+        .or_else(|| config.data.data_dir.clone())
+        .unwrap_or_else(|| {
+            crate::io::dataset::default_data_dir(
+                config.data.dataset_name.as_deref().unwrap_or("lego"),
+            )
+        })
+}
+
+/// Runs the training job `job` of `config`, writing images into `out_dir`; `stop` ends NeRF
+/// training after the current step. Done carries the lines to print (the homework's `Box
+/// center` and `Box side lengths` for a box fit).
+pub fn train(
+    config: &Config,
+    job: TrainJob,
+    nerf: &NerfTrainOptions,
+    out_dir: &Path,
+    stop: Option<&AtomicBool>,
+    device: &Device,
+) -> Result<TrainOutcome> {
+    match job {
+        TrainJob::Sdf => {
+            let o = train_sdf(config, out_dir, device)?;
+            let mut lines = fit_summary(&o.fitted);
+            lines.push(format!(
+                "{} steps in {:.1} s, final loss {:.3e}",
+                o.report.steps, o.report.seconds, o.report.final_loss
+            ));
+            lines.extend(o.written.iter().map(|p| format!("wrote {}", p.display())));
+            Ok(TrainOutcome::Done(lines))
+        }
+        TrainJob::Nerf => {
+            let data_dir = data_dir_for(config, nerf.data_dir.clone());
+            let paths = config.train_paths(out_dir)?;
+            crate::app::train::check_fresh_start(config, &paths, nerf.overwrite)?;
+            let outcome = crate::app::train::train_nerf(
+                config,
+                &data_dir,
+                &paths,
+                nerf.epochs,
+                stop,
+                device,
+            )?;
+            Ok(match outcome {
+                FitOutcome::Finished(info) => TrainOutcome::Done(vec![format!(
+                    "trained to epoch {} ({} Adam steps); checkpoint {}",
+                    info.epoch,
+                    info.adam_step,
+                    paths.checkpoint.display()
+                )]),
+                FitOutcome::Stopped(info) => TrainOutcome::Stopped {
+                    info,
+                    checkpoint: paths.checkpoint,
+                },
+            })
+        }
+    }
+}
+
+/// The homework's printout of the fitted shape: `Box center: (x, y, z)` and `Box side
+/// lengths: (x, y, z)` (a sphere: `Sphere center` and `Sphere radius`).
+pub fn fit_summary(v: &crate::core::sdf::SdfVolume) -> Vec<String> {
+    let t = |a: [f32; 3]| format!("({}, {}, {})", a[0], a[1], a[2]);
+    match v.sdf {
+        crate::core::sdf::Sdf::Box {
+            center,
+            side_lengths,
+        } => vec![
+            format!("Box center: {}", t(center)),
+            format!("Box side lengths: {}", t(side_lengths)),
+        ],
+        crate::core::sdf::Sdf::Sphere { center, radius } => vec![
+            format!("Sphere center: {}", t(center)),
+            format!("Sphere radius: {radius}"),
+        ],
+    }
+}

@@ -1,0 +1,440 @@
+//! The SDF volume's differentiable fused CPU kernels: σ and colour as two ops, each with a
+//! hand-written backward pass, for training an SDF volume (the homework's `type: train`).
+//!
+//! Both read the volume's parameters packed into one `(P,)` tensor (see
+//! [`crate::core::sdf::PackedLayout`]: `[center, side_lengths | radius, alpha, beta,
+//! feature]`), which is built from the field's variables with a differentiable
+//! concatenation, so their gradients reach each variable. The backward passes are one
+//! multi-threaded pass over the samples each, summing `g · ∂σ/∂θ` (or `g · ∂colour/∂θ`) in
+//! float64 ([`SdfVolume::sigma_vjp`], [`SdfVolume::colour_vjp`]); they also return the
+//! gradient with respect to the points when the points were tracked. Spacings get none (they
+//! come from the sampler's depths, which are never trained).
+//!
+//! Two ops rather than one `(N, S, 4)` output: the compositing kernel's gradients arrive as
+//! separate σ `(N, S, 1)` and colour `(N, S, 3)` tensors, which two ops take as they are
+//! (one packed output would be sliced, and Candle's slice backward pads and adds full-size
+//! zero tensors).
+
+use anyhow::Result;
+use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
+use rayon::prelude::*;
+
+use crate::core::sdf::SdfVolume;
+use crate::kernels::storage::contiguous_f32;
+
+/// One block of σ's backward pass: points, spacings, `∂L/∂σ`, and where `∂L/∂points` goes.
+type SigmaBlock<'a> = (((&'a [f32], &'a [f32]), &'a [f32]), &'a mut [f32]);
+
+/// Samples per parallel work item.
+const BLOCK: usize = 4096;
+
+/// σ `(N, S, 1)` and colour `(N, S, 3)` at `points` `(N, S, 3)` with spacings `deltas`
+/// `(N, S, 1)`, for the volume whose values are `volume` and whose packed parameter tensor
+/// `(P,)` is `packed` (gradients flow to it, and to `points` when they are tracked).
+pub fn sdf_volume_fused_grad(
+    points: &Tensor,
+    deltas: &Tensor,
+    packed: &Tensor,
+    volume: SdfVolume,
+) -> Result<(Tensor, Tensor)> {
+    let points_grad = crate::kernels::needs_grad(points);
+    let points = points.contiguous()?;
+    let sigma = points.apply_op3(
+        &deltas.contiguous()?,
+        packed,
+        SigmaOp {
+            volume,
+            points_grad,
+        },
+    )?;
+    let colour = points.apply_op2(
+        packed,
+        ColourOp {
+            volume,
+            points_grad,
+        },
+    )?;
+    Ok((sigma, colour))
+}
+
+/// Sums per-block `(P,)` float64 partial gradients.
+fn sum_blocks(parts: Vec<Vec<f64>>, len: usize) -> Vec<f32> {
+    let mut total = vec![0f64; len];
+    for part in parts {
+        for (t, v) in total.iter_mut().zip(part) {
+            *t += v;
+        }
+    }
+    total.into_iter().map(|v| v as f32).collect()
+}
+
+/// The gradients an op's backward returns: packed parameters `(P,)`, and the points
+/// `(N, S, 3)` when they are tracked.
+fn split_gradients(
+    flat: &Tensor,
+    p: usize,
+    points: &Tensor,
+    points_grad: bool,
+) -> candle_core::Result<(Option<Tensor>, Tensor)> {
+    let g_params = flat.narrow(0, 0, p)?;
+    let g_points = if points_grad {
+        Some(
+            flat.narrow(0, p, points.elem_count())?
+                .reshape(points.shape())?,
+        )
+    } else {
+        None
+    };
+    Ok((g_points, g_params))
+}
+
+/// σ: `(points (N, S, 3), deltas (N, S, 1), packed (P,))` → `(N, S, 1)`.
+struct SigmaOp {
+    volume: SdfVolume,
+    points_grad: bool,
+}
+
+impl CustomOp3 for SigmaOp {
+    fn name(&self) -> &'static str {
+        "fused-sdf-sigma"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        _s3: &CpuStorage,
+        _l3: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let points = contiguous_f32(s1, l1, "fused-sdf-sigma")?;
+        let deltas = contiguous_f32(s2, l2, "fused-sdf-sigma")?;
+        if points.len() != 3 * deltas.len() {
+            candle_core::bail!("fused-sdf-sigma: points and deltas disagree in size");
+        }
+        let mut out = vec![0f32; deltas.len()];
+        out.par_chunks_mut(BLOCK)
+            .zip(points.par_chunks(3 * BLOCK))
+            .zip(deltas.par_chunks(BLOCK))
+            .for_each(|((o, p), d)| {
+                for ((o, p), &delta) in o.iter_mut().zip(p.chunks_exact(3)).zip(d) {
+                    *o = self.volume.evaluate_point([p[0], p[1], p[2]], delta).0;
+                }
+            });
+        Ok((CpuStorage::F32(out), l2.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        points: &Tensor,
+        deltas: &Tensor,
+        packed: &Tensor,
+        _res: &Tensor,
+        grad_res: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let p = packed.elem_count();
+        let flat = points.apply_op3_no_bwd(
+            &deltas.contiguous()?,
+            &grad_res.contiguous()?,
+            &SigmaBackward {
+                volume: self.volume,
+                points_grad: self.points_grad,
+            },
+        )?;
+        let (g_points, g_params) = split_gradients(&flat, p, points, self.points_grad)?;
+        Ok((g_points, None, Some(g_params)))
+    }
+}
+
+/// σ's backward: `(points, deltas, ∂L/∂σ)` → `[∂L/∂packed (P), ∂L/∂points (N·S·3)?]`.
+struct SigmaBackward {
+    volume: SdfVolume,
+    points_grad: bool,
+}
+
+impl CustomOp3 for SigmaBackward {
+    fn name(&self) -> &'static str {
+        "fused-sdf-sigma-backward"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let name = "fused-sdf-sigma-backward";
+        let points = contiguous_f32(s1, l1, name)?;
+        let deltas = contiguous_f32(s2, l2, name)?;
+        let grad = contiguous_f32(s3, l3, name)?;
+        let p = self.volume.packed_layout().len();
+        let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
+        let work = |(((p3, d), g), gp): SigmaBlock| {
+            let mut acc = vec![0f64; p];
+            for (i, ((x, &delta), &g)) in p3.chunks_exact(3).zip(d).zip(g).enumerate() {
+                let dp = self
+                    .volume
+                    .sigma_vjp([x[0], x[1], x[2]], delta, g, &mut acc);
+                if !gp.is_empty() {
+                    gp[3 * i..3 * i + 3].copy_from_slice(&dp);
+                }
+            }
+            acc
+        };
+        let parts: Vec<Vec<f64>> = if self.points_grad {
+            points
+                .par_chunks(3 * BLOCK)
+                .zip(deltas.par_chunks(BLOCK))
+                .zip(grad.par_chunks(BLOCK))
+                .zip(g_points.par_chunks_mut(3 * BLOCK))
+                .map(work)
+                .collect()
+        } else {
+            points
+                .par_chunks(3 * BLOCK)
+                .zip(deltas.par_chunks(BLOCK))
+                .zip(grad.par_chunks(BLOCK))
+                .map(|t| work((t, &mut [])))
+                .collect()
+        };
+        let mut out = sum_blocks(parts, p);
+        out.extend(g_points);
+        let n = out.len();
+        Ok((CpuStorage::F32(out), Shape::from(n)))
+    }
+}
+
+/// Colour: `(points (N, S, 3), packed (P,))` → `(N, S, 3)`.
+struct ColourOp {
+    volume: SdfVolume,
+    points_grad: bool,
+}
+
+impl CustomOp2 for ColourOp {
+    fn name(&self) -> &'static str {
+        "fused-sdf-colour"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        _s2: &CpuStorage,
+        _l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let points = contiguous_f32(s1, l1, "fused-sdf-colour")?;
+        let mut out = vec![0f32; points.len()];
+        out.par_chunks_mut(3 * BLOCK)
+            .zip(points.par_chunks(3 * BLOCK))
+            .for_each(|(o, p)| {
+                for (o, p) in o.chunks_exact_mut(3).zip(p.chunks_exact(3)) {
+                    o.copy_from_slice(&self.volume.colour_at([p[0], p[1], p[2]]));
+                }
+            });
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        points: &Tensor,
+        packed: &Tensor,
+        _res: &Tensor,
+        grad_res: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        let flat = points.apply_op2_no_bwd(
+            &grad_res.contiguous()?,
+            &ColourBackward {
+                volume: self.volume,
+                points_grad: self.points_grad,
+            },
+        )?;
+        let (g_points, g_params) =
+            split_gradients(&flat, packed.elem_count(), points, self.points_grad)?;
+        Ok((g_points, Some(g_params)))
+    }
+}
+
+/// Colour's backward: `(points, ∂L/∂colour)` → `[∂L/∂packed (P), ∂L/∂points (N·S·3)?]`.
+struct ColourBackward {
+    volume: SdfVolume,
+    points_grad: bool,
+}
+
+impl CustomOp2 for ColourBackward {
+    fn name(&self) -> &'static str {
+        "fused-sdf-colour-backward"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let name = "fused-sdf-colour-backward";
+        let points = contiguous_f32(s1, l1, name)?;
+        let grad = contiguous_f32(s2, l2, name)?;
+        let p = self.volume.packed_layout().len();
+        let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
+        let work = |((p3, g), gp): ((&[f32], &[f32]), &mut [f32])| {
+            let mut acc = vec![0f64; p];
+            for (i, (x, g)) in p3.chunks_exact(3).zip(g.chunks_exact(3)).enumerate() {
+                let dp = self
+                    .volume
+                    .colour_vjp([x[0], x[1], x[2]], [g[0], g[1], g[2]], &mut acc);
+                if !gp.is_empty() {
+                    gp[3 * i..3 * i + 3].copy_from_slice(&dp);
+                }
+            }
+            acc
+        };
+        let parts: Vec<Vec<f64>> = if self.points_grad {
+            points
+                .par_chunks(3 * BLOCK)
+                .zip(grad.par_chunks(3 * BLOCK))
+                .zip(g_points.par_chunks_mut(3 * BLOCK))
+                .map(work)
+                .collect()
+        } else {
+            points
+                .par_chunks(3 * BLOCK)
+                .zip(grad.par_chunks(3 * BLOCK))
+                .map(|t| work((t, &mut [])))
+                .collect()
+        };
+        let mut out = sum_blocks(parts, p);
+        out.extend(g_points);
+        let n = out.len();
+        Ok((CpuStorage::F32(out), Shape::from(n)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::sdf::Sdf;
+    use crate::kernels::sdf_volume::{sdf_volume, sdf_volume_tensor_ops, SdfTensors, ShapeTensors};
+    use candle_core::{Device, Var};
+
+    /// A volume whose every parameter is a variable, and those variables.
+    fn variables(v: &SdfVolume) -> (SdfTensors, Vec<Var>) {
+        let dev = &Device::Cpu;
+        let mut vars = Vec::new();
+        let mut var = |x: &[f32]| {
+            let v = Var::new(x, dev).unwrap();
+            vars.push(v.clone());
+            v.as_tensor().clone()
+        };
+        let shape = match v.sdf {
+            Sdf::Box {
+                center,
+                side_lengths,
+            } => ShapeTensors::Box {
+                center: var(&center),
+                side_lengths: var(&side_lengths),
+            },
+            Sdf::Sphere { center, radius } => ShapeTensors::Sphere {
+                center: var(&center),
+                radius: var(&[radius]),
+            },
+        };
+        let tensors = SdfTensors {
+            shape,
+            alpha: var(&[v.alpha as f32]),
+            beta: var(&[v.beta as f32]),
+            rainbow: v.rainbow,
+            feature: var(&v.feature),
+        };
+        (tensors, vars)
+    }
+
+    fn volumes() -> Vec<SdfVolume> {
+        vec![
+            SdfVolume {
+                sdf: Sdf::Box {
+                    center: [0.1, -0.05, 0.2],
+                    side_lengths: [1.5, 1.2, 1.7],
+                },
+                alpha: 0.9,
+                beta: 0.1,
+                rainbow: true,
+                feature: [1.0, 0.8, 0.6],
+            },
+            SdfVolume {
+                sdf: Sdf::Sphere {
+                    center: [0.0, 0.2, -0.1],
+                    radius: 0.9,
+                },
+                alpha: 0.7,
+                beta: 0.2,
+                rainbow: false,
+                feature: [0.3, 0.5, 0.9],
+            },
+        ]
+    }
+
+    #[test]
+    fn fused_gradients_match_tensor_op_autodiff() {
+        let dev = &Device::Cpu;
+        let (n, s) = (200, 24);
+        let points =
+            Var::from_tensor(&Tensor::rand(-1.5f32, 1.5, (n, s, 3), dev).unwrap()).unwrap();
+        let deltas = Tensor::rand(0.01f32, 0.2, (n, s, 1), dev).unwrap();
+        let w_sigma = Tensor::randn(0f32, 1.0, (n, s, 1), dev).unwrap();
+        let w_colour = Tensor::randn(0f32, 1.0, (n, s, 3), dev).unwrap();
+        for volume in volumes() {
+            let (tensors, vars) = variables(&volume);
+            let loss = |(sigma, colour): (Tensor, Tensor)| {
+                (sigma.mul(&w_sigma).unwrap().sum_all().unwrap()
+                    + colour.mul(&w_colour).unwrap().sum_all().unwrap())
+                .unwrap()
+            };
+            let fused = loss(sdf_volume(points.as_tensor(), &deltas, &tensors).unwrap());
+            let generic =
+                loss(sdf_volume_tensor_ops(points.as_tensor(), &deltas, &tensors).unwrap());
+            let diff =
+                (fused.to_scalar::<f32>().unwrap() - generic.to_scalar::<f32>().unwrap()).abs();
+            assert!(diff < 1e-3, "forward differs by {diff}");
+            let (gf, gg) = (fused.backward().unwrap(), generic.backward().unwrap());
+            for var in vars.iter().chain([&points]) {
+                let a = gf.get(var.as_tensor()).expect("fused gradient");
+                let b = gg.get(var.as_tensor()).expect("generic gradient");
+                let scale = b
+                    .abs()
+                    .unwrap()
+                    .max_all()
+                    .unwrap()
+                    .to_scalar::<f32>()
+                    .unwrap();
+                let d = crate::core::compare::max_abs_difference(a, b).unwrap();
+                assert!(
+                    d <= 2e-4 * scale.max(1.0),
+                    "gradient differs by {d} (scale {scale}) for {:?}",
+                    var.dims()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn untracked_points_get_no_gradient_and_params_still_do() {
+        let dev = &Device::Cpu;
+        let points = Tensor::rand(-1.5f32, 1.5, (10, 8, 3), dev).unwrap();
+        let deltas = Tensor::full(0.1f32, (10, 8, 1), dev).unwrap();
+        let (tensors, vars) = variables(&volumes()[0]);
+        let (sigma, colour) = sdf_volume(&points, &deltas, &tensors).unwrap();
+        let grads = (sigma.sum_all().unwrap() + colour.sum_all().unwrap())
+            .unwrap()
+            .backward()
+            .unwrap();
+        assert!(grads.get(&points).is_none());
+        for v in &vars {
+            assert!(grads.get(v.as_tensor()).is_some());
+        }
+    }
+}
