@@ -20,6 +20,11 @@ pub fn eval_nerf(
     limit: Option<usize>,
     device: &Device,
 ) -> Result<EvalReport> {
+    if let crate::app::config::ImplicitFunctionConfig::SdfVolume(_) = config.implicit_function {
+        anyhow::bail!(
+            "implicit_function.type sdf_volume: eval scores a trained field (nerf or ngp) against a dataset"
+        );
+    }
     let (w, h) = config.image_size();
     let dataset = Dataset::load_first(
         data_dir,
