@@ -69,7 +69,7 @@ pub use crate::render::renderer::{RenderOutput, VolumeRenderer};
 pub use crate::render::sampler::{RaySamples, StratifiedSampler};
 pub use crate::render::view::{render_view, RenderedView};
 pub use crate::train::adam::Adam;
-pub use crate::train::fit::{fit, Hooks, TrainPaths, TrainSettings};
+pub use crate::train::fit::{fit, Hooks, RunLimits, TrainPaths, TrainSettings};
 pub use crate::train::state::{named_vars, NerfState};
 
 /// For programs that use this library on the system allocator (the `nerf` binary uses mimalloc

@@ -160,6 +160,10 @@ struct TrainArgs {
     /// Stop after this many epochs in this run (a checkpoint is written; resume continues).
     #[arg(long, value_parser = at_least_one)]
     epochs: Option<usize>,
+    /// Stop after this many minutes of training in this run (a checkpoint is written; resume
+    /// continues exactly).
+    #[arg(long, value_parser = positive_minutes)]
+    minutes: Option<f64>,
     /// Where training GIFs go.
     #[arg(long, default_value = "images")]
     out_dir: PathBuf,
@@ -354,6 +358,23 @@ enum ExportCommand {
         /// Hydra-style overrides (data.image_size sets the rendering size).
         overrides: Vec<String>,
     },
+    /// The model of a training checkpoint without the optimiser's state (an NGP's hash table
+    /// as f16): what rendering and evaluation need, a fraction of the size.
+    Model {
+        /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g.
+        /// nerf_lego_ngp).
+        #[arg(long, alias = "config-name")]
+        config: String,
+        /// Checkpoint to read (default: the config's training.checkpoint_path, else the
+        /// shipped checkpoints/nerf_lego.safetensors).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// The safetensors file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Hydra-style overrides.
+        overrides: Vec<String>,
+    },
     /// A depth .npy (H, W) and a viridis PNG for each view of a split.
     Depth {
         /// Config name (configs/NAME.yaml or built-in) or path to a YAML file (e.g. lego).
@@ -439,6 +460,27 @@ fn cmd_export(what: ExportCommand, device: &Device) -> Result<()> {
             let n = export_points(&config, checkpoint.as_deref(), &views, &out, device)?;
             say(&format!("wrote {} ({n} points)", out.display()))?;
         }
+        ExportCommand::Model {
+            config,
+            checkpoint,
+            out,
+            overrides,
+        } => {
+            let config = Config::load(&config, &overrides)?;
+            let e = nerf::app::export_model::export_model(
+                &config,
+                checkpoint.as_deref(),
+                &out,
+                device,
+            )?;
+            say(&format!(
+                "wrote {} ({} tensors, {:.1} MB; largest f16 rounding of the table {:.1e})",
+                out.display(),
+                e.tensors,
+                e.bytes as f64 / 1e6,
+                e.table_rounding
+            ))?;
+        }
         ExportCommand::Depth {
             config,
             checkpoint,
@@ -462,6 +504,14 @@ fn cmd_export(what: ExportCommand, device: &Device) -> Result<()> {
 }
 
 /// A count of at least 1, for clap.
+fn positive_minutes(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(m) if m.is_finite() && m > 0.0 => Ok(m),
+        Ok(_) => Err("must be a positive number of minutes".into()),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
 fn at_least_one(s: &str) -> Result<usize, String> {
     match s.parse::<usize>() {
         Ok(0) => Err("must be at least 1".into()),
@@ -571,6 +621,7 @@ fn cmd_train(args: TrainArgs, device: &Device) -> Result<()> {
         config,
         data_dir,
         epochs,
+        minutes,
         out_dir,
         overwrite,
         overrides,
@@ -580,6 +631,7 @@ fn cmd_train(args: TrainArgs, device: &Device) -> Result<()> {
     let options = jobs::NerfTrainOptions {
         data_dir,
         epochs,
+        minutes,
         overwrite,
     };
     train_and_say(&loaded, job, &options, &out_dir, device)

@@ -11,8 +11,9 @@ use nerf::app::config::Config;
 use nerf::app::train::train_nerf;
 use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::dataset::{Dataset, Frame};
+use nerf::train::model::{Optimizer, TrainModel};
 use nerf::train::step::train_step;
-use nerf::{render_view, Adam, NerfField, NerfState};
+use nerf::{render_view, NerfField, NerfState};
 use rand::SeedableRng;
 
 /// A small NeRF config (the homework's architecture, smaller sizes) with overrides.
@@ -71,8 +72,8 @@ fn a_few_steps_lower_the_loss() {
     let config = tiny_config(&["training.lr=0.005"]);
     let dataset = box_dataset(&config);
     let nerf_cfg = config.nerf_params().unwrap();
-    let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
-    let mut adam = Adam::new(named_vars(&state), 0.005).unwrap();
+    let state = TrainModel::Nerf(NerfState::new(&nerf_cfg, &Device::Cpu).unwrap());
+    let mut adam = Optimizer::new(&state, 0.005).unwrap();
     let mut rng = nerf::train::step::TrainRng::seed_from_u64(5);
     let mut losses = Vec::new();
     for step in 0..60 {
@@ -168,24 +169,17 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
     ]);
     let dataset = box_dataset(&config);
     let nerf_cfg = config.nerf_params().unwrap();
-    let mut state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
+    let mut state = TrainModel::Nerf(NerfState::new(&nerf_cfg, &Device::Cpu).unwrap());
     let settings = config.occupancy_grid().unwrap();
-    state.occupancy = Some(nerf::OccupancyGrid::new(&settings).unwrap());
-    let mut adam = Adam::new(named_vars(&state), 0.005).unwrap();
+    *state.occupancy_mut() = Some(nerf::OccupancyGrid::new(&settings).unwrap());
+    let mut adam = Optimizer::new(&state, 0.005).unwrap();
     let mut rng = nerf::train::step::TrainRng::seed_from_u64(5);
     let mut losses = Vec::new();
     for step in 0..60 {
         if step % 4 == 0 {
-            let model = state.model.detached();
-            let grid = state.occupancy.as_mut().unwrap();
-            grid.update(
-                &|p| model.density(p),
-                step < 8,
-                0.95,
-                &mut rng,
-                &Device::Cpu,
-            )
-            .unwrap();
+            state
+                .update_grid(step < 8, 0.95, &mut rng, &Device::Cpu)
+                .unwrap();
         }
         let (loss, samples) = train_step(
             &state,
@@ -202,7 +196,7 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
     }
     let first: f64 = losses[..10].iter().sum::<f64>() / 10.0;
     let last: f64 = losses[50..].iter().sum::<f64>() / 10.0;
-    let grid = state.occupancy.as_ref().unwrap();
+    let grid = state.occupancy().unwrap();
     eprintln!(
         "loss {first:.4} -> {last:.4}; {:.1}% of cells occupied",
         100.0 * grid.occupied_fraction()
@@ -343,7 +337,11 @@ fn resume_continues_exactly() {
         o.push(format!("training.checkpoint_path={}", dir.display()));
         let config = Config::load("nerf_lego", &o).unwrap();
         let paths = config.train_paths(&dir.join("images")).unwrap();
-        train_nerf(&config, &data, &paths, stop, None, &Device::Cpu).unwrap();
+        let limits = nerf::RunLimits {
+            epochs: stop,
+            seconds: None,
+        };
+        train_nerf(&config, &data, &paths, limits, None, &Device::Cpu).unwrap();
         paths.checkpoint
     };
     let straight = tempfile::tempdir().unwrap();
@@ -477,4 +475,61 @@ fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
         .unwrap_err()
         .to_string();
     assert!(missing.contains("not found"), "{missing}");
+}
+
+#[test]
+fn ngp_training_resumes_exactly_after_a_time_limit() {
+    let Some(data) = lego_dir() else { return };
+    let base = [
+        "data.image_size=[8,8]",
+        "sampler.n_pts_per_ray=8",
+        "training.batch_size=16",
+        "training.num_epochs=2",
+        "training.checkpoint_interval=1",
+        "training.eval_views=0",
+        "renderer.occupancy_grid.resolution=8",
+        "renderer.occupancy_grid.update_interval=4",
+        "renderer.occupancy_grid.warmup_steps=8",
+        "implicit_function.n_levels=4",
+        "implicit_function.log2_hashmap_size=10",
+        "implicit_function.max_resolution=32",
+    ];
+    let run = |dir: &Path, seconds: Option<f64>| {
+        let mut o: Vec<String> = base.iter().map(|s| s.to_string()).collect();
+        o.push(format!(
+            "training.checkpoint_path={}",
+            dir.join("ngp.safetensors").display()
+        ));
+        let config = Config::load("nerf_lego_ngp", &o).unwrap();
+        let paths = config.train_paths(&dir.join("images")).unwrap();
+        let limits = nerf::RunLimits {
+            epochs: None,
+            seconds,
+        };
+        train_nerf(&config, &data, &paths, limits, None, &Device::Cpu).unwrap();
+        paths.checkpoint
+    };
+    let straight = tempfile::tempdir().unwrap();
+    let a = run(straight.path(), None);
+    // A zero time limit stops after the first step, mid-epoch; each resume takes one more.
+    let split = tempfile::tempdir().unwrap();
+    let first = run(split.path(), Some(0.0));
+    let info = checkpoint::load(&first, &Device::Cpu).unwrap().1;
+    assert_eq!((info.epoch, info.step_in_epoch, info.adam_step), (0, 1, 1));
+    for _ in 0..3 {
+        run(split.path(), Some(0.0));
+    }
+    let b = run(split.path(), None);
+    let (wa, wb) = (weights_of(&a), weights_of(&b));
+    assert_eq!(checkpoint::load(&b, &Device::Cpu).unwrap().1.adam_step, 200);
+    // Every tensor (model, both optimisers' state including each table row's step count,
+    // the occupancy grid) is bit-identical to the uninterrupted run's.
+    assert!(wa.contains_key("adam.row_steps.encoding.table"));
+    assert_eq!(wa.keys().len(), wb.keys().len());
+    for (name, x) in &wa {
+        assert!(x == &wb[name], "{name}: resumed run differs");
+    }
+    // The sparse optimiser left rows no sample touched exactly at their initial values.
+    let steps = &wa["adam.row_steps.encoding.table"];
+    assert!(steps.iter().any(|&s| s == 0.0) && steps.iter().any(|&s| s > 0.0));
 }

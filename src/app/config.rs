@@ -101,6 +101,11 @@ const BUILT_IN: &[(&str, &str)] = &[
         include_str!("../../configs/nerf_lego_render.yaml"),
     ),
     ("train_box", include_str!("../../configs/train_box.yaml")),
+    (
+        "nerf_lego_ngp",
+        include_str!("../../configs/nerf_lego_ngp.yaml"),
+    ),
+    ("lego_ngp", include_str!("../../configs/lego_ngp.yaml")),
 ];
 
 /// A homework parameter `{val, opt}`; `opt` marks it trainable in the homework.
@@ -481,6 +486,11 @@ pub struct TrainingConfig {
     /// (0 = off).
     #[serde(default)]
     pub eval_views: usize,
+    /// Extension: adapt the rays per step so that each step evaluates about this many samples
+    /// (instant-ngp's scheme: many rays once the occupancy grid and early termination leave
+    /// few samples per ray); `batch_size` is then the first step's rays. Unset: fixed.
+    #[serde(default)]
+    pub samples_per_step: Option<usize>,
 }
 
 impl TrainingConfig {

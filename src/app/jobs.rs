@@ -33,7 +33,10 @@ pub enum TrainJob {
 /// The training job for `config` (named `name` in messages); an error for a render config
 /// (naming `nerf render`) or a `type` its field cannot do.
 pub fn train_job(config: &Config, name: &str) -> Result<TrainJob> {
-    let nerf = matches!(config.implicit_function, ImplicitFunctionConfig::Nerf(_));
+    let nerf = matches!(
+        config.implicit_function,
+        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_)
+    );
     match config.kind {
         Some(kind) if kind.renders() => bail!(
             "config {name} has `type: {}`: it renders, it does not train; run `nerf render --config {name}` (or `nerf run --config {name}`)",
@@ -78,6 +81,8 @@ pub struct NerfTrainOptions {
     pub data_dir: Option<PathBuf>,
     /// Stop after this many epochs in this run.
     pub epochs: Option<usize>,
+    /// Stop after this many minutes of training in this run.
+    pub minutes: Option<f64>,
     /// With `training.resume: False`, replace an existing checkpoint and its log.
     pub overwrite: bool,
 }
@@ -138,15 +143,23 @@ pub fn train(
                 config,
                 &data_dir,
                 &paths,
-                nerf.epochs,
+                crate::train::fit::RunLimits {
+                    epochs: nerf.epochs,
+                    seconds: nerf.minutes.map(|m| m * 60.0),
+                },
                 stop,
                 device,
             )?;
             Ok(match outcome {
                 FitOutcome::Finished(info) => TrainOutcome::Done(vec![format!(
-                    "trained to epoch {} ({} Adam steps); checkpoint {}",
+                    "trained to epoch {}{} ({} Adam steps, {:.1} min); checkpoint {}",
                     info.epoch,
+                    match info.step_in_epoch {
+                        0 => String::new(),
+                        s => format!(" step {s}"),
+                    },
                     info.adam_step,
+                    info.wall_seconds / 60.0,
                     paths.checkpoint.display()
                 )]),
                 FitOutcome::Stopped(info) => TrainOutcome::Stopped {

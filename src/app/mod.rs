@@ -5,6 +5,7 @@ pub mod camera_path;
 pub mod config;
 pub mod evaluate;
 pub mod export;
+pub mod export_model;
 pub mod jobs;
 #[cfg(feature = "cli")]
 pub mod report;

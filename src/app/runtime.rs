@@ -19,6 +19,7 @@ use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 use crate::train::fit::{GridSchedule, TrainPaths, TrainSettings};
 use crate::train::fit_sdf::SdfFitSettings;
+use crate::train::model::ModelParams;
 use crate::train::state::NerfState;
 use crate::train::step::StepSettings;
 
@@ -237,18 +238,24 @@ impl Config {
     /// `training` key.
     pub fn train_settings(&self) -> Result<TrainSettings> {
         let t = self.training()?;
-        let ImplicitFunctionConfig::Nerf(nerf) = &self.implicit_function else {
-            bail!("implicit_function.type: this command needs nerf");
+        let (model, density_noise) = match &self.implicit_function {
+            ImplicitFunctionConfig::Nerf(nerf) => {
+                (ModelParams::Nerf(nerf.params()), nerf.density_noise_std)
+            }
+            ImplicitFunctionConfig::Ngp(ngp) => (ModelParams::Ngp(ngp.params()?), 0.0),
+            ImplicitFunctionConfig::SdfVolume(_) => {
+                bail!("implicit_function.type: this command needs nerf or ngp")
+            }
         };
         let job = "train a NeRF";
         let req = |v: Option<usize>, key: &str| TrainingConfig::required(v, key, job);
         Ok(TrainSettings {
-            model: nerf.params(),
+            model,
             step: StepSettings {
                 batch_size: req(t.batch_size, "batch_size")?,
                 rays_from_all_images: t.rays_from_all_images,
                 random_background: t.random_background,
-                density_noise: nerf.density_noise_std,
+                density_noise,
                 sampler: self.sampler()?,
                 renderer: self.renderer()?,
             },
@@ -265,6 +272,7 @@ impl Config {
             render_interval: req(t.render_interval, "render_interval")?,
             resume: t.resume,
             grid: self.grid_schedule(),
+            samples_per_step: t.samples_per_step,
         })
     }
 
@@ -306,6 +314,21 @@ impl Config {
         path.join(format!("{stem}.safetensors"))
     }
 
+    /// An error when `path` (from [`Config::checkpoint`]) is not a file: for the config's own
+    /// `training.checkpoint_path`, it names that key and what may be put there.
+    pub fn ensure_checkpoint(&self, path: &Path) -> Result<()> {
+        let configured = self.training.as_ref().and_then(|t| t.checkpoint());
+        if let Some(c) = configured.filter(|c| !path.is_file() && !c.exists()) {
+            if path == self.checkpoint(None) {
+                bail!(
+                    "checkpoint {} not found (training.checkpoint_path; put a checkpoint there, ours or the homework's torch.save file, or pass --checkpoint, e.g. the shipped {SHIPPED_CHECKPOINT})",
+                    c.display()
+                );
+            }
+        }
+        crate::io::checkpoint::ensure_checkpoint_file(path)
+    }
+
     /// `nerf_<data.dataset_name>` (`nerf_scene` without one): the file name, less its
     /// extension, of the checkpoint in a `training.checkpoint_path` directory.
     pub fn dataset_stem(&self) -> String {
@@ -341,7 +364,7 @@ impl Config {
         device: &Device,
     ) -> Result<crate::field::ngp::NgpField> {
         use crate::field::ngp::{Ngp, NgpField};
-        crate::io::checkpoint::ensure_checkpoint_file(path)?;
+        self.ensure_checkpoint(path)?;
         let (tensors, info) = crate::io::checkpoint::load(path, device)?;
         let vb =
             candle_nn::VarBuilder::from_tensors(tensors.clone(), candle_core::DType::F32, device);
@@ -370,7 +393,7 @@ impl Config {
     /// and the occupancy grid the config asks for. Says on stderr which file it loaded and at
     /// which epoch.
     pub fn load_nerf(&self, path: &Path, device: &Device) -> Result<(NerfState, CheckpointInfo)> {
-        crate::io::checkpoint::ensure_checkpoint_file(path)?;
+        self.ensure_checkpoint(path)?;
         let (state, info) = NerfState::load(
             &self.nerf_params()?,
             self.occupancy_grid().as_ref(),

@@ -12,7 +12,7 @@ use crate::app::config::Config;
 use crate::app::scene::render_nerf_gif;
 use crate::eval::evaluate::evaluate;
 use crate::io::dataset::{Dataset, Split};
-use crate::train::fit::{fit, CheckpointScore, FitOutcome, Hooks, TrainPaths};
+use crate::train::fit::{fit, CheckpointScore, FitOutcome, Hooks, RunLimits, TrainPaths};
 
 /// Refuses to start a fresh run over an existing checkpoint (`training.resume: False`) unless
 /// `overwrite`; with it, removes the old checkpoint and log together, so that the new run's
@@ -57,14 +57,14 @@ pub fn stop_on_signal() -> Result<&'static AtomicBool> {
     Ok(&STOP)
 }
 
-/// Runs `nerf train` for `config` on the dataset in `data_dir`. `stop_after_epochs` ends the
-/// run early (after writing a checkpoint) once that many epochs have been done in this process;
+/// Runs `nerf train` for `config` on the dataset in `data_dir`. `limits` end the run early
+/// (after writing a checkpoint) after that many epochs or seconds of training in this process;
 /// `stop` ends it after the current step.
 pub fn train_nerf(
     config: &Config,
     data_dir: &Path,
     paths: &TrainPaths,
-    stop_after_epochs: Option<usize>,
+    limits: RunLimits,
     stop: Option<&AtomicBool>,
     device: &Device,
 ) -> Result<FitOutcome> {
@@ -108,13 +108,5 @@ pub fn train_nerf(
     hooks.preview = Some(Box::new(move |field| {
         render_nerf_gif(config, field, &gif, device)
     }));
-    fit(
-        &settings,
-        &dataset,
-        paths,
-        stop_after_epochs,
-        stop,
-        hooks,
-        device,
-    )
+    fit(&settings, &dataset, paths, limits, stop, hooks, device)
 }

@@ -21,7 +21,9 @@ use candle_core::{DType, Tensor};
 use candle_nn::{Init, Linear, VarBuilder};
 
 use crate::field::nerf::linear;
-use crate::kernels::hash_grid::{hash_encode, HashGridParams};
+use crate::kernels::hash_grid::{hash_encode, HashGridParams, TableGradient};
+use crate::kernels::ngp_mlp::{ngp_mlp, ngp_mlp_tensor_ops, pack_parameters, MlpLayers, MlpShape};
+use crate::kernels::use_fused;
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
@@ -138,6 +140,9 @@ pub struct Ngp {
     table: Tensor,
     density: [Linear; 2],
     color: [Linear; 3],
+    /// Where the fused encoding leaves the table's gradient, when training with the sparse
+    /// optimiser ([`Ngp::with_table_gradient`]).
+    gradient: Option<Arc<TableGradient>>,
 }
 
 impl Ngp {
@@ -164,7 +169,15 @@ impl Ngp {
                 new_linear(HIDDEN, HIDDEN, c.pp("2"))?,
                 new_linear(HIDDEN, 3, c.pp("4"))?,
             ],
+            gradient: None,
         })
+    }
+
+    /// The same model whose fused encoding hands the table's gradient to `gradient` instead of
+    /// autograd (for [`crate::train::sparse_adam::SparseAdam`]).
+    pub fn with_table_gradient(mut self, gradient: Arc<TableGradient>) -> Self {
+        self.gradient = Some(gradient);
+        self
     }
 
     /// The hash table `(L·T, F)` (the parameter the sparse optimiser treats row by row).
@@ -190,49 +203,87 @@ impl Ngp {
     /// σ `(M, 1)` (0 outside the box) and the geometry features `(M, 15)` at `points` `(M, 3)`.
     pub fn geometry(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
         let (unit, inside) = self.normalise(points)?;
-        let enc = hash_encode(&unit, &self.table, &self.params.grid)?;
+        let enc = hash_encode(
+            &unit,
+            &self.table,
+            &self.params.grid,
+            self.gradient.as_ref(),
+        )?;
         let h = linear(&self.density[0], &enc)?.relu()?;
         let out = linear(&self.density[1], &h)?;
-        let raw = out.narrow(1, 0, 1)?;
-        let sigma = match self.params.density_activation {
-            DensityActivation::TruncExp => trunc_exp(&raw)?,
-            DensityActivation::Softplus => (raw.exp()? + 1.0)?.log()?,
-        };
-        Ok(((sigma * inside)?, out.narrow(1, 1, GEO_FEATURES)?))
+        let sigma = self.activate(&out.narrow(1, 0, 1)?, &inside)?;
+        Ok((sigma, out.narrow(1, 1, GEO_FEATURES)?))
     }
 
-    /// The colour MLP's first layer split into its per-sample part `(M, 64)` (from `geo`
-    /// `(M, 15)`) and its per-ray part `(N, 64)` (from the SH of `directions` `(N, 3)`, bias
-    /// included), to be added by the caller.
-    fn color_parts(&self, geo: &Tensor, directions: &Tensor) -> Result<(Tensor, Tensor)> {
-        let w = self.color[0].weight();
-        let (w_geo, w_sh) = (
-            w.narrow(1, 0, GEO_FEATURES)?,
-            w.narrow(1, GEO_FEATURES, SH_DIM)?,
-        );
+    /// The per-ray part of the colour MLP's first layer: the SH of `directions` `(N, 3)` times
+    /// its direction columns, plus its bias: `(N, 64)`.
+    fn per_ray(&self, directions: &Tensor) -> Result<Tensor> {
+        let w_sh = self.color[0].weight().narrow(1, GEO_FEATURES, SH_DIM)?;
         let mut per_ray = sh_encode(directions)?.matmul(&w_sh.t()?)?;
         if let Some(b) = self.color[0].bias() {
             per_ray = per_ray.broadcast_add(b)?;
         }
-        Ok((geo.matmul(&w_geo.t()?)?, per_ray))
+        Ok(per_ray)
     }
 
-    /// The rest of the colour MLP: `sigmoid(L4(relu(L2(relu(h)))))`, `(M, 64)` → `(M, 3)`.
-    fn color_head(&self, h: &Tensor) -> Result<Tensor> {
-        let h = linear(&self.color[1], &h.relu()?)?.relu()?;
-        Ok(candle_nn::ops::sigmoid(&linear(&self.color[2], &h)?)?)
+    /// Both MLPs on the encoding `enc` `(M, L·F)` of samples on rays `ray_index` `(M,)` u32
+    /// whose [`Ngp::per_ray`] part is `per_ray` `(N, 64)`: `(M, 4)`, the raw density and RGB.
+    /// The fused kernel where [`use_fused`] allows, else its tensor-op twin.
+    fn mlps(&self, enc: &Tensor, per_ray: &Tensor, ray_index: &Tensor) -> Result<Tensor> {
+        let bias = |l: &Linear| l.bias().cloned().expect("NGP layers have biases");
+        let (b0, b1, b2, b3) = (
+            bias(&self.density[0]),
+            bias(&self.density[1]),
+            bias(&self.color[1]),
+            bias(&self.color[2]),
+        );
+        let wg = self.color[0].weight().narrow(1, 0, GEO_FEATURES)?;
+        let (w0, w1) = (self.density[0].weight(), self.density[1].weight());
+        let (w2, w3) = (self.color[1].weight(), self.color[2].weight());
+        if use_fused(enc) && enc.device().is_cpu() {
+            let shape = MlpShape {
+                enc: self.params.grid.output_dim(),
+                hidden: HIDDEN,
+                geo: GEO_FEATURES,
+            };
+            let packed = pack_parameters(w0, &b0, w1, &b1, &wg, [w2, &b2, w3, &b3])?;
+            let rays = ray_index.to_vec1::<u32>()?;
+            return Ok(ngp_mlp(enc, per_ray, &rays, &packed, shape)?);
+        }
+        let layers = MlpLayers {
+            w0,
+            b0: &b0,
+            w1,
+            b1: &b1,
+            wg: &wg,
+            w2,
+            b2: &b2,
+            w3,
+            b3: &b3,
+        };
+        Ok(ngp_mlp_tensor_ops(enc, per_ray, ray_index, &layers)?)
+    }
+
+    /// σ from the raw density (the configured activation), 0 where `inside` is 0.
+    fn activate(&self, raw: &Tensor, inside: &Tensor) -> Result<Tensor> {
+        let sigma = match self.params.density_activation {
+            DensityActivation::TruncExp => trunc_exp(raw)?,
+            DensityActivation::Softplus => (raw.exp()? + 1.0)?.log()?,
+        };
+        Ok((sigma * inside)?)
     }
 
     /// Density `(N, S, 1)` and colour `(N, S, 3)` at `points` `(N, S, 3)` of rays with unit
     /// `directions` `(N, 3)`.
     pub fn forward(&self, points: &Tensor, directions: &Tensor) -> Result<FieldOutput> {
         let (n, s, _) = points.dims3()?;
-        let (sigma, geo) = self.geometry(&points.reshape((n * s, 3))?)?;
-        let (per_sample, per_ray) = self.color_parts(&geo, directions)?;
-        let h = crate::kernels::bias::add_per_group(&per_sample, &per_ray, s)?;
+        let ray_index: Vec<u32> = (0..(n * s) as u32).map(|i| i / s as u32).collect();
+        let ray_index = Tensor::from_vec(ray_index, n * s, points.device())?;
+        let (sigma, rgb) =
+            self.forward_packed(&points.reshape((n * s, 3))?, &ray_index, directions)?;
         Ok(FieldOutput {
             density: sigma.reshape((n, s, 1))?,
-            feature: self.color_head(&h)?.reshape((n, s, 3))?,
+            feature: rgb.reshape((n, s, 3))?,
         })
     }
 
@@ -244,10 +295,34 @@ impl Ngp {
         ray_index: &Tensor,
         directions: &Tensor,
     ) -> Result<(Tensor, Tensor)> {
-        let (sigma, geo) = self.geometry(points)?;
-        let (per_sample, per_ray) = self.color_parts(&geo, directions)?;
-        let h = per_sample.add(&per_ray.index_select(ray_index, 0)?)?;
-        Ok((sigma, self.color_head(&h)?))
+        let (unit, inside) = self.normalise(points)?;
+        let enc = hash_encode(
+            &unit,
+            &self.table,
+            &self.params.grid,
+            self.gradient.as_ref(),
+        )?;
+        // The per-ray part only for the rays that have samples here (a segment of a skipping
+        // render holds a few of them), the samples' ray indices renumbered to match.
+        let rays = ray_index.to_vec1::<u32>()?;
+        let mut used = rays.clone();
+        used.sort_unstable();
+        used.dedup();
+        let out = if used.len() < directions.dim(0)? {
+            let local: Vec<u32> = rays
+                .iter()
+                .map(|r| used.binary_search(r).unwrap_or(0) as u32)
+                .collect();
+            let dev = directions.device();
+            let n_used = used.len();
+            let directions = directions.index_select(&Tensor::from_vec(used, n_used, dev)?, 0)?;
+            let local = Tensor::from_vec(local, rays.len(), dev)?;
+            self.mlps(&enc, &self.per_ray(&directions)?, &local)?
+        } else {
+            self.mlps(&enc, &self.per_ray(directions)?, ray_index)?
+        };
+        let sigma = self.activate(&out.narrow(1, 0, 1)?, &inside)?;
+        Ok((sigma, out.narrow(1, 1, 3)?))
     }
 
     /// Density alone at `points` `(M, 3)`: `(M, 1)` (what the occupancy grid probes).
@@ -263,6 +338,7 @@ impl Ngp {
             table: self.table.detach(),
             density: self.density.clone().map(|l| detach(&l)),
             color: self.color.clone().map(|l| detach(&l)),
+            gradient: None,
         }
     }
 }

@@ -31,35 +31,34 @@ pub struct CheckpointInfo {
     /// With `step_in_epoch > 0`: the position of that epoch's random stream, so a resumed run
     /// draws what the uninterrupted run would have.
     pub rng_word_pos: u128,
+    /// Rays of the next step when training adapts them (`training.samples_per_step`; 0 when
+    /// it does not).
+    pub rays_per_step: usize,
 }
 
-/// Writes `tensors` (any shapes and float dtype; stored as f32) and `info` to `path` (temp
-/// file + rename).
+/// Writes `tensors` (any shapes; f16 ones stored as f16, every other float dtype as f32) and
+/// `info` to `path` (temp file + rename).
 pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> Result<()> {
     let mut data = Vec::with_capacity(tensors.len());
     for (name, t) in tensors {
-        let t = t
-            .to_device(&Device::Cpu)?
-            .to_dtype(DType::F32)?
-            .contiguous()?;
-        let bytes: Vec<u8> = t
-            .flatten_all()?
-            .to_vec1::<f32>()?
-            .iter()
-            .flat_map(|v| v.to_le_bytes())
-            .collect();
-        data.push((name.clone(), t.dims().to_vec(), bytes));
+        let t = t.to_device(&Device::Cpu)?.contiguous()?;
+        let (dtype, bytes): (safetensors::Dtype, Vec<u8>) = if t.dtype() == DType::F16 {
+            let v = t.flatten_all()?.to_vec1::<half::f16>()?;
+            let bytes = v.iter().flat_map(|v| v.to_le_bytes()).collect();
+            (safetensors::Dtype::F16, bytes)
+        } else {
+            let v = t.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?;
+            let bytes = v.iter().flat_map(|v| v.to_le_bytes()).collect();
+            (safetensors::Dtype::F32, bytes)
+        };
+        data.push((name.clone(), dtype, t.dims().to_vec(), bytes));
     }
     let views: Vec<(String, safetensors::tensor::TensorView)> = data
         .iter()
-        .map(|(n, shape, bytes)| {
+        .map(|(n, dtype, shape, bytes)| {
             Ok((
                 n.clone(),
-                safetensors::tensor::TensorView::new(
-                    safetensors::Dtype::F32,
-                    shape.clone(),
-                    bytes,
-                )?,
+                safetensors::tensor::TensorView::new(*dtype, shape.clone(), bytes)?,
             ))
         })
         .collect::<Result<_>>()?;
@@ -72,6 +71,7 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
         ),
         ("step_in_epoch".to_string(), info.step_in_epoch.to_string()),
         ("rng_word_pos".to_string(), info.rng_word_pos.to_string()),
+        ("rays_per_step".to_string(), info.rays_per_step.to_string()),
         ("format".to_string(), "nerf-candle-1".to_string()),
     ]
     .into();
@@ -106,7 +106,12 @@ pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
 pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
     let bytes = std::fs::read(path)
         .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
-    if bytes.starts_with(b"PK\x03\x04") || bytes.first() == Some(&0x80) {
+    // A safetensors file: an 8-byte header length that fits, then the JSON header's `{` (its
+    // first byte may be 0x80, as a pickle stream's is).
+    let safetensors_like = bytes.len() > 8
+        && bytes[8] == b'{'
+        && u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) <= bytes.len() as u64 - 8;
+    if !safetensors_like && (bytes.starts_with(b"PK\x03\x04") || bytes.first() == Some(&0x80)) {
         bail!(
             "checkpoint {} is a PyTorch file (torch.save), not safetensors: convert it with \
              `nerf import-torch {} --config CONFIG --out FILE.safetensors`",
@@ -150,21 +155,26 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
         wall_seconds,
         step_in_epoch: num("step_in_epoch")? as usize,
         rng_word_pos,
+        rays_per_step: num("rays_per_step")? as usize,
     };
     let mut tensors = HashMap::new();
     for (name, view) in st.tensors() {
-        if view.dtype() != safetensors::Dtype::F32 {
-            bail!(
-                "checkpoint {}: tensor {name} is {:?}, expected F32",
-                path.display(),
-                view.dtype()
-            );
-        }
-        let values: Vec<f32> = view
-            .data()
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect();
+        let values: Vec<f32> = match view.dtype() {
+            safetensors::Dtype::F32 => view
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect(),
+            safetensors::Dtype::F16 => view
+                .data()
+                .chunks_exact(2)
+                .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
+                .collect(),
+            other => bail!(
+                "checkpoint {}: tensor {name} is {other:?}, expected F32 or F16",
+                path.display()
+            ),
+        };
         ensure_finite_values(path, &name, &values)?;
         tensors.insert(name, Tensor::from_vec(values, view.shape(), device)?);
     }

@@ -16,6 +16,8 @@
 //! backward is the `index_add` scatter); corner indices and weights come from the points
 //! (never trained) on the host.
 
+use std::sync::{Arc, Mutex};
+
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -168,19 +170,92 @@ impl Level {
 /// Encodes `points` `(M, 3)` (in [0, 1]³) with `table` `(L·T, F)`: `(M, L·F)`, level-major
 /// (level `l`'s `F` features at columns `l·F..(l+1)·F`). The gradient flows to `table` only.
 /// Fused on the CPU for f32 ([`use_fused`]); [`hash_encode_generic`] elsewhere.
+///
+/// With a `sink`, the fused backward pass adds the table gradient there (touched rows only)
+/// instead of returning a dense one through autograd; the twin ignores it.
 pub fn hash_encode(
     points: &Tensor,
     table: &Tensor,
     params: &HashGridParams,
+    sink: Option<&Arc<TableGradient>>,
 ) -> candle_core::Result<Tensor> {
     check_shapes(points, table, params)?;
     if use_fused(table) && points.device().is_cpu() {
-        points
-            .to_dtype(DType::F32)?
-            .contiguous()?
-            .apply_op2(&table.contiguous()?, HashEncode { params: *params })
+        let op = HashEncode {
+            params: *params,
+            sink: sink.cloned(),
+        };
+        let points = points.to_dtype(DType::F32)?.contiguous()?;
+        let table = table.contiguous()?;
+        if table.track_op() {
+            points.apply_op2(&table, op)
+        } else {
+            points.apply_op2_no_bwd(&table, &op)
+        }
     } else {
         hash_encode_generic(points, table, params)
+    }
+}
+
+/// The table gradient of the fused encoding's backward passes, kept apart from autograd for
+/// the sparse optimiser: a dense `(L·T, F)` buffer that persists between steps (allocated
+/// once, zeroed lazily by the OS) and the rows written since the last [`TableGradient::take`].
+/// Through Candle's autograd the same gradient costs a freshly zeroed dense tensor, then
+/// another zeroed accumulator and a dense add (three passes over `L·T·F` floats per step); here
+/// only touched rows are written, and they are cleared when taken.
+pub struct TableGradient {
+    state: Mutex<GradientState>,
+}
+
+impl std::fmt::Debug for TableGradient {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("TableGradient")
+    }
+}
+
+struct GradientState {
+    values: Vec<f32>,
+    seen: Vec<bool>,
+    /// Touched rows (within the level) per level.
+    touched: Vec<Vec<u32>>,
+}
+
+impl TableGradient {
+    /// An empty gradient for tables of `params`' shape.
+    pub fn new(params: &HashGridParams) -> Self {
+        Self {
+            state: Mutex::new(GradientState {
+                values: vec![0.0; params.n_rows() * params.n_features],
+                seen: vec![false; params.n_rows()],
+                touched: vec![Vec::new(); params.n_levels],
+            }),
+        }
+    }
+
+    /// Hands `f` the touched rows (into the whole table, level offsets added) and the dense
+    /// gradient, then clears both.
+    pub fn take<R>(&self, params: &HashGridParams, f: impl FnOnce(&[u32], &[f32]) -> R) -> R {
+        let mut s = self.state.lock().expect("table gradient lock");
+        let t = params.table_size() as u32;
+        let rows: Vec<u32> = s
+            .touched
+            .iter()
+            .enumerate()
+            .flat_map(|(l, rows)| rows.iter().map(move |&r| l as u32 * t + r))
+            .collect();
+        let out = f(&rows, &s.values);
+        let width = params.n_features;
+        let GradientState {
+            values,
+            seen,
+            touched,
+        } = &mut *s;
+        for &r in &rows {
+            values[r as usize * width..(r as usize + 1) * width].fill(0.0);
+            seen[r as usize] = false;
+        }
+        touched.iter_mut().for_each(Vec::clear);
+        out
     }
 }
 
@@ -251,6 +326,7 @@ pub fn hash_encode_generic(
 
 struct HashEncode {
     params: HashGridParams,
+    sink: Option<Arc<TableGradient>>,
 }
 
 impl CustomOp2 for HashEncode {
@@ -302,6 +378,36 @@ impl CustomOp2 for HashEncode {
         let width = p.output_dim();
         let pts = points.flatten_all()?.to_vec1::<f32>()?;
         let g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        if let Some(sink) = &self.sink {
+            let mut guard = sink.state.lock().expect("table gradient lock");
+            let GradientState {
+                values,
+                seen,
+                touched,
+            } = &mut *guard;
+            values
+                .par_chunks_mut(t * f)
+                .zip(seen.par_chunks_mut(t))
+                .zip(touched.par_iter_mut())
+                .zip(levels.par_iter())
+                .enumerate()
+                .for_each(|(l, (((d, seen), touched), level))| {
+                    for (q, g) in pts.chunks_exact(3).zip(g.chunks_exact(width)) {
+                        let g = &g[l * f..(l + 1) * f];
+                        for (i, w) in level.corners([q[0], q[1], q[2]]) {
+                            if !seen[i as usize] {
+                                seen[i as usize] = true;
+                                touched.push(i);
+                            }
+                            let row = i as usize * f;
+                            for (d, g) in d[row..row + f].iter_mut().zip(g) {
+                                *d += w * g;
+                            }
+                        }
+                    }
+                });
+            return Ok((None, None));
+        }
         let mut dtable = vec![0f32; p.n_rows() * f];
         // One task per level: each writes only its own slice of the table gradient.
         dtable
@@ -456,7 +562,7 @@ mod tests {
                 &p,
             );
             for choice in [KernelChoice::Fused, KernelChoice::Generic] {
-                let got = with_kernel_choice(choice, || hash_encode(&points, &table, &p))
+                let got = with_kernel_choice(choice, || hash_encode(&points, &table, &p, None))
                     .unwrap()
                     .flatten_all()
                     .unwrap()
@@ -488,7 +594,7 @@ mod tests {
                 .to_scalar::<f64>()
                 .unwrap()
         };
-        let enc = hash_encode(&points, &table, &p).unwrap();
+        let enc = hash_encode(&points, &table, &p, None).unwrap();
         let grads = (enc * &proj)
             .unwrap()
             .sum_all()
@@ -527,7 +633,7 @@ mod tests {
         let proj = Tensor::from_vec(values(500 * 8, 4, -1.0, 1.0), (500, 8), &dev).unwrap();
         let run = |choice| {
             with_kernel_choice(choice, || {
-                let enc = hash_encode(&points, &table, &p).unwrap();
+                let enc = hash_encode(&points, &table, &p, None).unwrap();
                 let grads = (&enc * &proj)
                     .unwrap()
                     .sum_all()
@@ -567,7 +673,57 @@ mod tests {
     fn bad_shapes_are_errors() {
         let p = params(6);
         let (points, table) = inputs(&p, 4);
-        assert!(hash_encode(&points.narrow(1, 0, 2).unwrap(), &table, &p).is_err());
-        assert!(hash_encode(&points, &table.narrow(0, 0, 10).unwrap(), &p).is_err());
+        assert!(hash_encode(&points.narrow(1, 0, 2).unwrap(), &table, &p, None).is_err());
+        assert!(hash_encode(&points, &table.narrow(0, 0, 10).unwrap(), &p, None).is_err());
+    }
+
+    #[test]
+    fn gradient_sink_holds_the_dense_gradient_on_the_touched_rows() {
+        let p = params(6);
+        let (points, table) = inputs(&p, 150);
+        let weight = Tensor::randn(0f32, 1.0, (150, p.output_dim()), &Device::Cpu).unwrap();
+        let dense = hash_encode(&points, &table, &p, None)
+            .unwrap()
+            .mul(&weight)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap();
+        let dense = dense.get(&table).unwrap().flatten_all().unwrap();
+        let dense = dense.to_vec1::<f32>().unwrap();
+        let sink = Arc::new(TableGradient::new(&p));
+        // Two backward passes accumulate, as two chunks of one step do.
+        for half in [0, 75] {
+            let pts = points.narrow(0, half, 75).unwrap();
+            let w = weight.narrow(0, half, 75).unwrap();
+            let grads = hash_encode(&pts, &table, &p, Some(&sink))
+                .unwrap()
+                .mul(&w)
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .backward()
+                .unwrap();
+            assert!(
+                grads.get(&table).is_none(),
+                "the table gradient went to autograd"
+            );
+        }
+        let mut rows = sink.take(&p, |rows, values| {
+            for (r, (a, b)) in values.chunks(2).zip(dense.chunks(2)).enumerate() {
+                assert!(
+                    (a[0] - b[0]).abs() < 1e-5 && (a[1] - b[1]).abs() < 1e-5,
+                    "row {r}"
+                );
+            }
+            rows.to_vec()
+        });
+        rows.sort_unstable();
+        assert_eq!(rows, touched_rows(&points, &p).unwrap());
+        // Taken means cleared.
+        sink.take(&p, |rows, values| {
+            assert!(rows.is_empty() && values.iter().all(|&v| v == 0.0));
+        });
     }
 }

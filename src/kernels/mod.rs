@@ -17,7 +17,9 @@ use candle_core::{DType, Tensor};
 
 pub mod bias;
 pub mod composite;
+pub mod gemm;
 pub mod hash_grid;
+pub mod ngp_mlp;
 pub mod sample_points;
 pub mod sdf_ray;
 pub mod sdf_render;

@@ -20,6 +20,7 @@ use candle_nn::Linear;
 use rayon::prelude::*;
 
 use crate::kernels::bias::bias_add;
+use crate::kernels::gemm::gemm_f32;
 use crate::kernels::storage::contiguous_f32;
 use crate::kernels::use_fused;
 
@@ -135,60 +136,6 @@ struct FusedTrunk {
     keep: bool,
 }
 
-/// `dst (m×n) = [dst +] lhs · rhs` with explicit row and column strides, multi-threaded.
-#[allow(clippy::too_many_arguments)]
-fn gemm_f32(
-    (m, n, k): (usize, usize, usize),
-    dst: &mut [f32],
-    dst_rs: usize,
-    accumulate: bool,
-    lhs: &[f32],
-    (lhs_rs, lhs_cs): (usize, usize),
-    rhs: &[f32],
-    (rhs_rs, rhs_cs): (usize, usize),
-) {
-    if m == 0 || n == 0 {
-        return;
-    }
-    // Bounds: the last element each operand is read or written at.
-    assert!(dst.len() > (m - 1) * dst_rs + (n - 1));
-    if k > 0 {
-        assert!(lhs.len() > (m - 1) * lhs_rs + (k - 1) * lhs_cs);
-        assert!(rhs.len() > (k - 1) * rhs_rs + (n - 1) * rhs_cs);
-    }
-    let threads = rayon::current_num_threads();
-    let parallelism = if threads > 1 {
-        gemm::Parallelism::Rayon(threads)
-    } else {
-        gemm::Parallelism::None
-    };
-    // SAFETY: the asserts above keep every access of the strided operands inside the slices;
-    // dst does not alias lhs or rhs (distinct borrows).
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            dst_rs as isize,
-            accumulate,
-            lhs.as_ptr(),
-            lhs_cs as isize,
-            lhs_rs as isize,
-            rhs.as_ptr(),
-            rhs_cs as isize,
-            rhs_rs as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            parallelism,
-        )
-    }
-}
-
 impl FusedTrunk {
     /// Forward pass: every layer's output, `(M, H)` each.
     fn layers(&self, x: &[f32], params: &[f32], m: usize) -> Vec<Vec<f32>> {
@@ -215,6 +162,7 @@ impl FusedTrunk {
                 (y_dim, 1),
                 w,
                 (1, in_i),
+                true,
             );
             if i > 0 && s.skip[i] {
                 // + x · W[:, h:]ᵀ.
@@ -227,6 +175,7 @@ impl FusedTrunk {
                     (s.input_dim, 1),
                     &w[h..],
                     (1, in_i),
+                    true,
                 );
             }
             out.par_chunks_mut(ROWS_PER_TASK * h).for_each(|rows| {
@@ -331,7 +280,17 @@ impl CustomOp2 for FusedTrunk {
                 (outputs[i - 1].as_slice(), h)
             };
             // dW[:, :y_dim] = Gᵀ · y: lhs(h_out, m) = G[m][h_out], rhs(m, k) = y[m][k].
-            gemm_f32((h, y_dim, m), dw, in_i, false, &g, (1, h), y, (y_dim, 1));
+            gemm_f32(
+                (h, y_dim, m),
+                dw,
+                in_i,
+                false,
+                &g,
+                (1, h),
+                y,
+                (y_dim, 1),
+                true,
+            );
             if i > 0 && s.skip[i] {
                 gemm_f32(
                     (h, s.input_dim, m),
@@ -342,13 +301,24 @@ impl CustomOp2 for FusedTrunk {
                     (1, h),
                     &xs,
                     (s.input_dim, 1),
+                    true,
                 );
             }
             if i > 0 {
                 // G_{i-1} = G · W[:, :h]: rhs(k = h_out, n) = W[h_out][n].
                 let w = &ps[off..off + h * in_i];
                 let mut prev = vec![0f32; m * h];
-                gemm_f32((m, h, h), &mut prev, h, false, &g, (h, 1), w, (in_i, 1));
+                gemm_f32(
+                    (m, h, h),
+                    &mut prev,
+                    h,
+                    false,
+                    &g,
+                    (h, 1),
+                    w,
+                    (in_i, 1),
+                    true,
+                );
                 g = prev;
             }
         }

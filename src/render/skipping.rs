@@ -1,10 +1,12 @@
 //! Evaluating a field only at the samples that can contribute: empty-space skipping with an
 //! [`crate::render::occupancy::OccupancyGrid`] and early ray termination.
 //!
-//! The samples of a ray are visited in segments of [`SEGMENT`] (front to back). In each
-//! segment the field is evaluated at the samples of still-live rays that lie in occupied cells,
-//! as one packed batch. After a segment, a ray whose transmittance `exp(−Σ τ)` has fallen below
-//! the early-termination threshold is dropped. The packed densities and colours are then
+//! The samples of a ray that lie in occupied cells are visited in segments, front to back:
+//! [`segment_sizes`] of them per ray (4, 4, 8, then 16 at a time), so that most rays, which
+//! end within a few samples of the surface, cost a few field calls. In each segment the field
+//! is evaluated at the next occupied samples of still-live rays, as one packed batch. After a
+//! segment, a ray whose transmittance `exp(−Σ τ)` has fallen below the early-termination
+//! threshold is dropped. The packed densities and colours are then
 //! scattered into dense `(N, S, ·)` tensors with zeros at skipped samples, and the ordinary
 //! compositing runs on them: a skipped sample has σ = 0, so its weight is exactly 0.
 //!
@@ -21,11 +23,20 @@ use crate::core::volume::{clamped_optical_depth, spacing};
 use crate::render::field::{Field, FieldOutput};
 use crate::render::sampler::RaySamples;
 
-/// Samples per ray evaluated between early-termination checks.
-pub const SEGMENT: usize = 4;
+/// The most occupied samples per ray evaluated between early-termination checks.
+pub const SEGMENT: usize = 16;
 
-/// Samples per ray evaluated in one batch: [`SEGMENT`] with early termination, all of them
-/// without (there is nothing to check between segments).
+/// How many occupied samples per ray the `k`-th segment takes: 4, 4, 8, then [`SEGMENT`].
+pub fn segment_sizes(k: usize) -> usize {
+    match k {
+        0 | 1 => 4,
+        2 => 8,
+        _ => SEGMENT,
+    }
+}
+
+/// The most samples per ray evaluated in one batch: [`SEGMENT`] with early termination, all
+/// of them without (there is nothing to check between segments).
 pub fn segment_length(n_pts_per_ray: usize, early_termination: f64) -> usize {
     if early_termination > 0.0 {
         SEGMENT.min(n_pts_per_ray)
@@ -118,21 +129,35 @@ pub fn evaluate_skipping(
         f32::INFINITY
     };
     let mut ray_depth = vec![0f32; n];
-    let seg = segment_length(s, early_termination);
+    // Each ray's occupied samples (flat indices `ray · S + i`), front to back.
+    let occupied: Vec<Vec<u32>> = (0..n)
+        .map(|ray| {
+            (ray * s..(ray + 1) * s)
+                .filter(|&k| keep[k])
+                .map(|k| k as u32)
+                .collect()
+        })
+        .collect();
     let mut all_index: Vec<u32> = Vec::new();
     let mut densities = Vec::new();
     let mut colours = Vec::new();
-    for start in (0..s).step_by(seg) {
-        let end = (start + seg).min(s);
+    let mut taken = 0;
+    for k in 0.. {
+        let size = if early_termination > 0.0 {
+            segment_sizes(k)
+        } else {
+            s
+        };
         let index: Vec<u32> = (0..n)
             .filter(|&ray| ray_depth[ray] < depth_limit)
-            .flat_map(|ray| (start..end).map(move |i| ray * s + i))
-            .filter(|&k| keep[k])
-            .map(|k| k as u32)
+            .flat_map(|ray| occupied[ray].iter().skip(taken).take(size).copied())
             .collect();
+        taken += size;
         if index.is_empty() {
-            continue;
+            break;
         }
+        // Occupied samples per ray taken so far (no ray has more than S).
+        let end = taken;
         let m = index.len();
         let packed: Vec<f32> = index
             .iter()

@@ -22,17 +22,16 @@ use rand::SeedableRng;
 
 use crate::core::term::note;
 
-use crate::field::nerf::{NerfField, NerfParams};
 use crate::io::checkpoint::{self, CheckpointInfo};
 use crate::io::checkpoint_file::{self, CheckpointFormat};
 use crate::io::dataset::Dataset;
 use crate::io::images::{remove_stale_temp_files, write_atomically};
 use crate::io::progress::{progress_bar, Progress};
 use crate::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
+use crate::render::field::Field;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
-use crate::train::adam::Adam;
-use crate::train::state::{named_vars, NerfState};
+use crate::train::model::{ModelParams, Optimizer, TrainModel};
 use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings, TrainRng};
 
 /// How training keeps an occupancy grid up to date (nerfacc's schedule).
@@ -52,8 +51,8 @@ pub struct GridSchedule {
 /// per-step settings.
 #[derive(Debug, Clone)]
 pub struct TrainSettings {
-    /// The NeRF's sizes.
-    pub model: NerfParams,
+    /// The model's kind and sizes.
+    pub model: ModelParams,
     /// What each step does (batch, rays, background, sampler, renderer).
     pub step: StepSettings,
     /// Seeds the initial weights and each epoch's random numbers.
@@ -74,6 +73,16 @@ pub struct TrainSettings {
     pub resume: bool,
     /// The occupancy grid, when training uses one.
     pub grid: Option<GridSchedule>,
+    /// Adapt the rays per step to evaluate about this many samples ([`next_rays`]).
+    pub samples_per_step: Option<usize>,
+}
+
+/// The rays of the next step when each step should evaluate about `target` samples and the
+/// last one evaluated `evaluated` with `rays` rays: the geometric mean of `rays` and the count
+/// that would have hit the target (damped, so the count settles), within 64..=65536.
+pub fn next_rays(rays: usize, evaluated: usize, target: usize) -> usize {
+    let ideal = rays as f64 * target as f64 / evaluated.max(1) as f64;
+    ((rays as f64 * ideal).sqrt().round() as usize).clamp(64, 1 << 16)
 }
 
 /// Where a training run writes.
@@ -97,10 +106,10 @@ pub struct CheckpointScore {
 }
 
 /// Scores the current model at a checkpoint.
-pub type EvaluateHook<'a> = Box<dyn FnMut(&NerfField) -> Result<CheckpointScore> + 'a>;
+pub type EvaluateHook<'a> = Box<dyn FnMut(&dyn Field) -> Result<CheckpointScore> + 'a>;
 
 /// Renders a preview of the current model; returns the file it wrote.
-pub type PreviewHook<'a> = Box<dyn FnMut(&NerfField) -> Result<PathBuf> + 'a>;
+pub type PreviewHook<'a> = Box<dyn FnMut(&dyn Field) -> Result<PathBuf> + 'a>;
 
 /// Callbacks of the loop; their time is left out of the logged training time.
 #[derive(Default)]
@@ -142,25 +151,25 @@ fn start_or_resume(
     settings: &TrainSettings,
     paths: &TrainPaths,
     device: &Device,
-) -> Result<(NerfState, Adam, CheckpointInfo)> {
-    let (mut state, info) = if settings.resume && paths.checkpoint.is_file() {
-        NerfState::from_checkpoint(&settings.model, &paths.checkpoint, device)?
+) -> Result<(TrainModel, Optimizer, CheckpointInfo)> {
+    let (mut state, tensors, info) = if settings.resume && paths.checkpoint.is_file() {
+        TrainModel::from_checkpoint(&settings.model, &paths.checkpoint, device)?
     } else {
         (
-            NerfState::seeded(&settings.model, settings.seed, device)?,
+            TrainModel::seeded(&settings.model, settings.seed, device)?,
+            Default::default(),
             CheckpointInfo::default(),
         )
     };
     if let Some(schedule) = &settings.grid {
         // Every cell occupied until the first update probes them.
-        state.occupancy = Some(OccupancyGrid::new(&schedule.grid)?);
+        *state.occupancy_mut() = Some(OccupancyGrid::new(&schedule.grid)?);
     }
-    let mut adam = Adam::new(named_vars(&state.varmap), settings.lr)?;
+    let mut adam = Optimizer::new(&state, settings.lr)?;
     if info.adam_step > 0 {
-        let (tensors, _) = checkpoint_file::load(&paths.checkpoint, &settings.model, device)?;
         adam.load_state(&tensors, info.adam_step)?;
         if let (Some(schedule), Some(saved)) = (&settings.grid, tensors.get(CHECKPOINT_KEY)) {
-            state.occupancy = Some(OccupancyGrid::from_tensor(&schedule.grid, saved)?);
+            *state.occupancy_mut() = Some(OccupancyGrid::from_tensor(&schedule.grid, saved)?);
         }
         note(&format!(
             "resuming from {} at epoch {}{}",
@@ -199,53 +208,46 @@ fn prepare_outputs(settings: &TrainSettings, paths: &TrainPaths, step: u64) -> R
         .with_context(|| format!("cannot open training log {}", paths.log.display()))
 }
 
-/// Writes the model, Adam state and occupancy grid atomically, in the format of the file
-/// already there: a PyTorch checkpoint (the homework's, which this run resumed from) stays
-/// one (model, Adam and epoch; it has no place for the grid), anything else is ours.
+/// Writes the model, optimiser state and occupancy grid atomically, in the format of the
+/// file already there: a PyTorch checkpoint (the homework's, which this run resumed from)
+/// stays one (model, Adam and epoch; it has no place for the grid), anything else is ours.
 fn save(
     settings: &TrainSettings,
     paths: &TrainPaths,
-    state: &NerfState,
+    state: &TrainModel,
     info: &CheckpointInfo,
-    adam: &Adam,
+    adam: &Optimizer,
     device: &Device,
 ) -> Result<()> {
-    let mut tensors = checkpoint::model_tensors(&state.varmap);
-    tensors.extend(adam.state_tensors());
     let torch = paths.checkpoint.is_file()
         && checkpoint_file::detect_format(&paths.checkpoint).ok() == Some(CheckpointFormat::Torch);
-    if torch {
+    if let (true, ModelParams::Nerf(params)) = (torch, &settings.model) {
+        let mut tensors = checkpoint::model_tensors(state.varmap());
+        tensors.extend(adam.state_tensors()?);
         let optimizer = TorchOptimizerInfo {
-            lr: adam.lr,
+            lr: adam.lr(),
             initial_lr: settings.lr,
         };
         let tensors = tensors.into_iter().collect();
-        return write_torch_checkpoint(
-            &paths.checkpoint,
-            &settings.model,
-            &tensors,
-            *info,
-            optimizer,
-        );
+        return write_torch_checkpoint(&paths.checkpoint, params, &tensors, *info, optimizer);
     }
-    if let Some(grid) = &state.occupancy {
-        tensors.push((CHECKPOINT_KEY.to_string(), grid.to_tensor(device)?));
-    }
+    let mut tensors = state.tensors(device)?;
+    tensors.extend(adam.state_tensors()?);
     checkpoint::save(&paths.checkpoint, &tensors, *info)
 }
 
-/// One step's log line.
+/// One step's log line (`rays`: the step's rays).
 fn log_step(
     log: &mut File,
     step: u64,
     epoch: usize,
     wall: f64,
     loss: f64,
-    samples: SampleCounts,
+    (samples, rays): (SampleCounts, usize),
 ) -> Result<()> {
     writeln!(
         log,
-        "{{\"step\":{step},\"epoch\":{epoch},\"wall_s\":{wall:.3},\"loss\":{loss:.6e},\"psnr\":{:.3},\"evaluated\":{:.4}}}",
+        "{{\"step\":{step},\"epoch\":{epoch},\"wall_s\":{wall:.3},\"loss\":{loss:.6e},\"psnr\":{:.3},\"evaluated\":{:.4},\"rays\":{rays}}}",
         logged_psnr(loss),
         samples.evaluated_fraction()
     )?;
@@ -258,8 +260,8 @@ struct Run<'a> {
     dataset: &'a Dataset,
     paths: &'a TrainPaths,
     device: &'a Device,
-    state: NerfState,
-    adam: Adam,
+    state: TrainModel,
+    adam: Optimizer,
     info: CheckpointInfo,
     log: File,
     bar: Progress,
@@ -269,6 +271,10 @@ struct Run<'a> {
     wall_offset: f64,
     /// When the last plain progress line was printed (seconds since `start`).
     last_plain_line: f64,
+    /// Training seconds this call may take.
+    seconds: Option<f64>,
+    /// Rays of the next step.
+    rays: usize,
 }
 
 /// Seconds between progress lines when stderr is not a terminal (`NERF_PROGRESS_SECONDS`
@@ -295,22 +301,31 @@ impl Run<'_> {
         self.wall_offset + self.start.elapsed().as_secs_f64() - self.excluded
     }
 
+    /// The next step's rays, as the checkpoint keeps them (0 when they do not adapt).
+    fn rays_to_save(&self) -> usize {
+        match self.settings.samples_per_step {
+            Some(_) => self.rays,
+            None => 0,
+        }
+    }
+
+    /// Whether the time limit of this call has been reached.
+    fn out_of_time(&self) -> bool {
+        self.seconds
+            .is_some_and(|s| self.wall() - self.wall_offset >= s)
+    }
+
     /// Updates the occupancy grid when the schedule says so.
     fn update_grid(&mut self, rng: &mut TrainRng) -> Result<()> {
-        let (Some(grid), Some(schedule)) = (&mut self.state.occupancy, &self.settings.grid) else {
+        let Some(schedule) = &self.settings.grid else {
             return Ok(());
         };
-        if !self
-            .adam
-            .step
-            .is_multiple_of(schedule.update_interval as u64)
-        {
+        let step = self.adam.step_count();
+        if !step.is_multiple_of(schedule.update_interval as u64) {
             return Ok(());
         }
-        let model = self.state.model.detached();
-        grid.update(
-            &|p| model.density(p),
-            self.adam.step < schedule.warmup_steps as u64,
+        self.state.update_grid(
+            step < schedule.warmup_steps as u64,
             schedule.decay as f32,
             rng,
             self.device,
@@ -329,7 +344,12 @@ impl Run<'_> {
         stop: Option<&AtomicBool>,
     ) -> Result<(f64, Option<(usize, u128)>)> {
         let s = self.settings;
-        self.adam.lr = learning_rate(s.lr, s.lr_scheduler_gamma, s.lr_scheduler_step_size, epoch);
+        self.adam.set_lr(learning_rate(
+            s.lr,
+            s.lr_scheduler_gamma,
+            s.lr_scheduler_step_size,
+            epoch,
+        ));
         let mut rng =
             TrainRng::seed_from_u64(s.seed.wrapping_mul(1_000_003).wrapping_add(epoch as u64));
         let n_images = self.dataset.images.len();
@@ -342,7 +362,8 @@ impl Run<'_> {
         for (k, &i) in order.iter().enumerate().skip(first_step) {
             let loss = self.step(epoch, i, &mut rng)?;
             epoch_loss += loss;
-            if stop.is_some_and(|f| f.load(Ordering::SeqCst)) && k + 1 < n_images {
+            let halt = stop.is_some_and(|f| f.load(Ordering::SeqCst)) || self.out_of_time();
+            if halt && k + 1 < n_images {
                 let taken = k + 1 - first_step;
                 return Ok((epoch_loss / taken as f64, Some((k + 1, rng.get_word_pos()))));
             }
@@ -353,9 +374,11 @@ impl Run<'_> {
     /// One training step on image `image`: grid update, Adam step, log line, progress.
     fn step(&mut self, epoch: usize, image: usize, rng: &mut TrainRng) -> Result<f64> {
         self.update_grid(rng)?;
+        let mut step_settings = self.settings.step.clone();
+        step_settings.batch_size = self.rays;
         let (loss, samples) = train_step(
             &self.state,
-            &self.settings.step,
+            &step_settings,
             self.dataset,
             image,
             &mut self.adam,
@@ -366,7 +389,12 @@ impl Run<'_> {
             bail!("training diverged at epoch {epoch}: loss is {loss}");
         }
         let wall = self.wall();
-        log_step(&mut self.log, self.adam.step, epoch, wall, loss, samples)?;
+        let rays = self.rays;
+        if let Some(target) = self.settings.samples_per_step {
+            self.rays = next_rays(self.rays, samples.evaluated, target);
+        }
+        let step = self.adam.step_count();
+        log_step(&mut self.log, step, epoch, wall, loss, (samples, rays))?;
         self.progress(epoch, loss);
         Ok(loss)
     }
@@ -375,8 +403,7 @@ impl Run<'_> {
     fn progress(&mut self, epoch: usize, loss: f64) {
         let occupied = self
             .state
-            .occupancy
-            .as_ref()
+            .occupancy()
             .map(|g| format!(" occupied {:.1}%", 100.0 * g.occupied_fraction()))
             .unwrap_or_default();
         let message = format!(
@@ -395,7 +422,7 @@ impl Run<'_> {
             let eta = now / done.max(1) as f64 * total.saturating_sub(done) as f64;
             note(&format!(
                 "step {} ({done}/{total} this run): {message}; eta {}",
-                self.adam.step,
+                self.adam.step_count(),
                 format_duration(eta)
             ));
         }
@@ -406,18 +433,19 @@ impl Run<'_> {
         let s = self.settings;
         self.info = CheckpointInfo {
             epoch: epoch + 1,
-            adam_step: self.adam.step,
+            adam_step: self.adam.step_count(),
             wall_seconds: self.wall(),
+            rays_per_step: self.rays_to_save(),
             ..CheckpointInfo::default()
         };
         if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
             if let Some(evaluate) = hooks.evaluate.as_mut() {
                 let t = Instant::now();
-                let score = evaluate(&self.state.field())?;
+                let score = evaluate(&*self.state.field())?;
                 writeln!(
                     self.log,
                     "{{\"step\":{},\"epoch\":{},\"wall_s\":{:.3},\"test_psnr\":{:.3},\"test_views\":{}}}",
-                    self.adam.step,
+                    self.adam.step_count(),
                     epoch + 1,
                     self.info.wall_seconds,
                     score.psnr,
@@ -443,7 +471,7 @@ impl Run<'_> {
         if (epoch + 1).is_multiple_of(s.render_interval) {
             if let Some(preview) = hooks.preview.as_mut() {
                 let t = Instant::now();
-                let written = preview(&self.state.field())?;
+                let written = preview(&*self.state.field())?;
                 self.bar.println(&format!(
                     "epoch {}: mean train loss {mean_loss:.5}, wrote {}",
                     epoch + 1,
@@ -456,10 +484,20 @@ impl Run<'_> {
     }
 }
 
+/// How much of the training a call to [`fit`] may do (both count this call only).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RunLimits {
+    /// Stop after this many epochs.
+    pub epochs: Option<usize>,
+    /// Stop after the step that reaches this many seconds of training (hooks not counted).
+    pub seconds: Option<f64>,
+}
+
 /// How a call to [`fit`] ended.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum FitOutcome {
-    /// Every planned epoch ran; the checkpoint holds the last one.
+    /// Every planned epoch ran, or the time limit was reached; the checkpoint holds the last
+    /// step.
     Finished(CheckpointInfo),
     /// A stop was requested; the checkpoint holds the run up to the last whole step.
     Stopped(CheckpointInfo),
@@ -474,15 +512,15 @@ impl FitOutcome {
     }
 }
 
-/// Trains a NeRF on `dataset` (the training split). `stop_after_epochs` ends the run early
-/// (after writing a checkpoint) once that many epochs have been done in this call; `stop`,
+/// Trains a NeRF on `dataset` (the training split). `limits` end the run early (after
+/// writing a checkpoint) after that many epochs or seconds of training in this call; `stop`,
 /// when it becomes true, ends it after the current step (after writing a checkpoint that a
 /// later call resumes from exactly, mid-epoch if need be).
 pub fn fit(
     settings: &TrainSettings,
     dataset: &Dataset,
     paths: &TrainPaths,
-    stop_after_epochs: Option<usize>,
+    limits: RunLimits,
     stop: Option<&AtomicBool>,
     mut hooks: Hooks,
     device: &Device,
@@ -494,7 +532,7 @@ pub fn fit(
     }
     let log = prepare_outputs(settings, paths, info.adam_step)?;
     let remaining = settings.num_epochs - info.epoch;
-    let planned = stop_after_epochs.map_or(remaining, |s| s.min(remaining));
+    let planned = limits.epochs.map_or(remaining, |s| s.min(remaining));
     let n_images = dataset.images.len();
     let mut run = Run {
         settings,
@@ -510,29 +548,40 @@ pub fn fit(
         excluded: 0.0,
         wall_offset: info.wall_seconds,
         last_plain_line: 0.0,
+        seconds: limits.seconds,
+        rays: match info.rays_per_step {
+            0 => settings.step.batch_size,
+            n => n,
+        },
     };
     let first = info.epoch;
     let (mut first_step, mut word_pos) = (info.step_in_epoch, info.rng_word_pos);
     for epoch in first..first + planned {
         let (mean_loss, stopped) = run.epoch(epoch, first_step, word_pos, stop)?;
         (first_step, word_pos) = (0, 0);
+        let signalled = stop.is_some_and(|f| f.load(Ordering::SeqCst));
+        let ended = |info| match signalled {
+            true => FitOutcome::Stopped(info),
+            false => FitOutcome::Finished(info),
+        };
         if let Some((step_in_epoch, rng_word_pos)) = stopped {
             run.info = CheckpointInfo {
                 epoch,
-                adam_step: run.adam.step,
+                adam_step: run.adam.step_count(),
                 wall_seconds: run.wall(),
                 step_in_epoch,
                 rng_word_pos,
+                rays_per_step: run.rays_to_save(),
             };
             save(settings, paths, &run.state, &run.info, &run.adam, device)?;
             run.bar.finish_and_clear();
-            return Ok(FitOutcome::Stopped(run.info));
+            return Ok(ended(run.info));
         }
         run.after_epoch(epoch, mean_loss, &mut hooks)?;
-        if stop.is_some_and(|f| f.load(Ordering::SeqCst)) && epoch + 1 < first + planned {
+        if (signalled || run.out_of_time()) && epoch + 1 < first + planned {
             save(settings, paths, &run.state, &run.info, &run.adam, device)?;
             run.bar.finish_and_clear();
-            return Ok(FitOutcome::Stopped(run.info));
+            return Ok(ended(run.info));
         }
     }
     save(settings, paths, &run.state, &run.info, &run.adam, device)?;

@@ -4,6 +4,7 @@
 pub mod adam;
 pub mod fit;
 pub mod fit_sdf;
+pub mod model;
 pub mod sparse_adam;
 pub mod state;
 pub mod step;

@@ -9,6 +9,8 @@
 use std::collections::HashMap;
 use std::sync::Mutex;
 
+use rayon::prelude::*;
+
 use anyhow::{bail, ensure, Context, Result};
 use candle_core::{CpuStorage, DType, InplaceOp1, Layout, Storage, Tensor, Var};
 
@@ -76,7 +78,18 @@ impl SparseAdam {
         let Storage::Cpu(cpu) = &*storage else {
             bail!("sparse Adam: the gradient must be on the CPU");
         };
-        let g = contiguous_f32(cpu, layout, "sparse-adam")?;
+        self.step_rows(contiguous_f32(cpu, layout, "sparse-adam")?, rows)
+    }
+
+    /// [`SparseAdam::step`] with the gradient as the `R·F` values of a row-major `(R, F)`
+    /// buffer.
+    pub fn step_rows(&self, g: &[f32], rows: &[u32]) -> Result<()> {
+        ensure!(
+            g.len() == self.var.elem_count(),
+            "sparse Adam: {} gradient values for a parameter of {}",
+            g.len(),
+            self.var.elem_count()
+        );
         let n_rows = self.var.dim(0)?;
         if let Some(bad) = rows.iter().find(|&&r| r as usize >= n_rows) {
             bail!("sparse Adam: row {bad} of a {n_rows}-row parameter");
@@ -88,6 +101,27 @@ impl SparseAdam {
         };
         self.var.as_tensor().inplace_op1(&op)?;
         Ok(())
+    }
+
+    /// The parameter this optimiser updates.
+    pub fn var(&self) -> &Var {
+        &self.var
+    }
+
+    /// Updates the rows of the parameter whose gradient in `grad` `(R, F)` is not all zero
+    /// (tiny-cuda-nn's rule for the hash encoding: a parameter with an exactly zero gradient is
+    /// left alone, value and moments) and returns how many rows that was.
+    pub fn step_nonzero(&self, grad: &Tensor) -> Result<usize> {
+        let g = grad.to_dtype(DType::F32)?.contiguous()?;
+        let rows = {
+            let (storage, layout) = g.storage_and_layout();
+            let Storage::Cpu(cpu) = &*storage else {
+                bail!("sparse Adam: the gradient must be on the CPU");
+            };
+            nonzero_rows(contiguous_f32(cpu, layout, "sparse-adam")?, self.width)
+        };
+        self.step(&g, &rows)?;
+        Ok(rows.len())
     }
 
     /// State tensors: `adam.exp_avg.<name>`, `adam.exp_avg_sq.<name>` `(R, F)` and
@@ -142,6 +176,23 @@ impl SparseAdam {
     }
 }
 
+/// The rows (of `width` values each) of `grad` holding a non-zero value, in order.
+pub fn nonzero_rows(grad: &[f32], width: usize) -> Vec<u32> {
+    grad.par_chunks(ROWS_PER_TASK * width)
+        .enumerate()
+        .flat_map_iter(|(task, chunk)| {
+            chunk
+                .chunks_exact(width)
+                .enumerate()
+                .filter(|(_, row)| row.iter().any(|&v| v != 0.0))
+                .map(move |(i, _)| (task * ROWS_PER_TASK + i) as u32)
+        })
+        .collect()
+}
+
+/// Rows per task of the update.
+const ROWS_PER_TASK: usize = 1 << 14;
+
 /// The in-place update of the touched rows.
 struct Update<'a> {
     adam: &'a SparseAdam,
@@ -166,22 +217,49 @@ impl InplaceOp1 for Update<'_> {
         let f = a.width;
         let mut s = a.state.lock().expect("sparse Adam lock");
         let RowState { m, v, steps } = &mut *s;
+        // Rows bucketed by block of ROWS_PER_TASK (a counting sort), so that each task owns
+        // its block's slice of the parameter and state.
+        let n_blocks = steps.len().div_ceil(ROWS_PER_TASK);
+        let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); n_blocks];
         for &r in self.rows {
-            let r = r as usize;
-            steps[r] += 1;
-            let t = steps[r] as i32;
-            let bias1 = 1.0 - a.beta1.powi(t);
-            let bias2_sqrt = (1.0 - a.beta2.powi(t)).sqrt();
-            for k in r * f..(r + 1) * f {
-                let g = self.grad[k] as f64;
-                let mk = a.beta1 * m[k] as f64 + (1.0 - a.beta1) * g;
-                let vk = a.beta2 * v[k] as f64 + (1.0 - a.beta2) * g * g;
-                m[k] = mk as f32;
-                v[k] = vk as f32;
-                let denom = (vk as f32).sqrt() as f64 / bias2_sqrt + a.eps;
-                p[k] -= (a.lr / bias1 * mk as f32 as f64 / denom) as f32;
-            }
+            buckets[r as usize / ROWS_PER_TASK].push(r);
         }
+        let (b1, b2, lr, eps) = (a.beta1, a.beta2, a.lr, a.eps);
+        let grad = self.grad;
+        // Bias corrections by step count, up to the largest count after this step (a row's
+        // count is at most the optimiser's steps).
+        let most = 1 + self
+            .rows
+            .iter()
+            .map(|&r| steps[r as usize])
+            .max()
+            .unwrap_or(0) as usize;
+        let corrections: Vec<(f64, f64)> = (0..=most)
+            .map(|t| (1.0 - b1.powi(t as i32), (1.0 - b2.powi(t as i32)).sqrt()))
+            .collect();
+        p.par_chunks_mut(ROWS_PER_TASK * f)
+            .zip(m.par_chunks_mut(ROWS_PER_TASK * f))
+            .zip(v.par_chunks_mut(ROWS_PER_TASK * f))
+            .zip(steps.par_chunks_mut(ROWS_PER_TASK))
+            .zip(buckets.par_iter())
+            .enumerate()
+            .for_each(|(block, ((((p, m), v), steps), rows))| {
+                let first = block * ROWS_PER_TASK;
+                for &r in rows {
+                    let local = r as usize - first;
+                    steps[local] += 1;
+                    let (bias1, bias2_sqrt) = corrections[steps[local] as usize];
+                    for k in 0..f {
+                        let (i, g) = (local * f + k, grad[r as usize * f + k] as f64);
+                        let mk = b1 * m[i] as f64 + (1.0 - b1) * g;
+                        let vk = b2 * v[i] as f64 + (1.0 - b2) * g * g;
+                        m[i] = mk as f32;
+                        v[i] = vk as f32;
+                        let denom = (vk as f32).sqrt() as f64 / bias2_sqrt + eps;
+                        p[i] -= (lr / bias1 * mk as f32 as f64 / denom) as f32;
+                    }
+                }
+            });
         Ok(())
     }
 }

@@ -1,4 +1,4 @@
-//! One NeRF training step: the learning-rate schedule, a batch of rays with their targets,
+//! One training step (NeRF MLP or hash grid): the learning-rate schedule, a batch of rays with their targets,
 //! and an Adam step on the MSE.
 
 use anyhow::Result;
@@ -10,8 +10,7 @@ use crate::io::dataset::Dataset;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 use crate::render::skipping::SampleCounts;
-use crate::train::adam::Adam;
-use crate::train::state::NerfState;
+use crate::train::model::{Optimizer, TrainModel};
 
 /// The training loop's random generator: ChaCha12, the generator behind
 /// `rand::rngs::StdRng` (the same stream for the same seed), whose position can be saved and
@@ -118,11 +117,11 @@ pub struct StepSettings {
 
 /// One optimisation step on a [`training_batch`]; returns the MSE and the sample counts.
 pub fn train_step(
-    state: &NerfState,
+    model: &TrainModel,
     settings: &StepSettings,
     dataset: &Dataset,
     image_index: usize,
-    adam: &mut Adam,
+    optimizer: &mut Optimizer,
     rng: &mut TrainRng,
     device: &Device,
 ) -> Result<(f64, SampleCounts)> {
@@ -134,7 +133,7 @@ pub fn train_step(
         rng,
         device,
     )?;
-    let field = state.training_field(settings.density_noise);
+    let field = model.training_field(settings.density_noise);
     let mut renderer = settings.renderer;
     let background = if settings.random_background {
         // b ~ U(0, 1)³ per ray; the target moves from the dataset's background to b.
@@ -149,7 +148,7 @@ pub fn train_step(
     } else {
         None
     };
-    let out = renderer.render(&field, &settings.sampler, &rays, Some(rng))?;
+    let out = renderer.render(&*field, &settings.sampler, &rays, Some(rng))?;
     let color = match &background {
         Some(b) => out
             .color
@@ -158,6 +157,6 @@ pub fn train_step(
     };
     let loss = color.sub(&target)?.sqr()?.mean_all()?;
     let grads = loss.backward()?;
-    adam.step(&grads)?;
+    optimizer.step(&grads)?;
     Ok((loss.to_scalar::<f32>()? as f64, out.samples))
 }

@@ -1,0 +1,593 @@
+//! The NGP field's two small MLPs ([`crate::field::ngp`]) as one fused CPU op with a
+//! hand-written backward pass.
+//!
+//! Through Candle ops, each of the MLPs' dozen steps (matmul, bias, ReLU, narrow, the per-ray
+//! add, sigmoid) reads and writes an `(M, 64)` buffer: about 50 MB each at the ~200k samples of
+//! a training step, and the backward pass allocates a zeroed buffer per activation and adds
+//! into it. Here each task takes 256 samples through every layer while they sit in cache
+//! (`gemm` on the calling thread), and the backward pass recomputes them the same way and
+//! accumulates the weight gradients per thread.
+//!
+//! For samples `i` with encoding `e_i` and ray `r(i)`:
+//!
+//! * `h0 = relu(W0·e + b0)`, `o1 = W1·h0 + b1` (`1 + G` values: the raw density, then `G`
+//!   geometry features `g`);
+//! * `h1 = relu(Wg·g + p_{r(i)})` where `p` `(N, H)` is the per-ray part of the colour MLP's
+//!   first layer (its direction weights times the direction encoding, plus its bias);
+//! * `h2 = relu(W2·h1 + b2)`, `rgb = sigmoid(W3·h2 + b3)`.
+//!
+//! The output is `(M, 4)`: `[raw density, r, g, b]`. Parameters are passed packed (see
+//! [`MlpShape`]); the tensor-op twin is [`ngp_mlp_tensor_ops`].
+
+use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
+use rayon::prelude::*;
+
+use crate::kernels::gemm::gemm_f32;
+use crate::kernels::storage::contiguous_f32;
+
+const ROWS_PER_TASK: usize = 256;
+
+/// Widths of the two MLPs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MlpShape {
+    /// Encoding width `E` (`L·F`).
+    pub enc: usize,
+    /// Hidden width `H` of every layer.
+    pub hidden: usize,
+    /// Geometry features `G` passed from the density MLP to the colour MLP.
+    pub geo: usize,
+}
+
+/// Offsets of the packed parameters, in order: `W0 (H, E)`, `b0 (H)`, `W1 (1+G, H)`,
+/// `b1 (1+G)`, `Wg (H, G)`, `W2 (H, H)`, `b2 (H)`, `W3 (3, H)`, `b3 (3)`; weights row-major
+/// `(out, in)` as PyTorch's `nn.Linear`.
+#[derive(Debug, Clone, Copy)]
+struct Offsets {
+    w0: usize,
+    b0: usize,
+    w1: usize,
+    b1: usize,
+    wg: usize,
+    w2: usize,
+    b2: usize,
+    w3: usize,
+    b3: usize,
+    end: usize,
+}
+
+impl MlpShape {
+    fn offsets(&self) -> Offsets {
+        let (e, h, o) = (self.enc, self.hidden, 1 + self.geo);
+        let w0 = 0;
+        let b0 = w0 + h * e;
+        let w1 = b0 + h;
+        let b1 = w1 + o * h;
+        let wg = b1 + o;
+        let w2 = wg + h * self.geo;
+        let b2 = w2 + h * h;
+        let w3 = b2 + h;
+        let b3 = w3 + 3 * h;
+        Offsets {
+            w0,
+            b0,
+            w1,
+            b1,
+            wg,
+            w2,
+            b2,
+            w3,
+            b3,
+            end: b3 + 3,
+        }
+    }
+
+    /// Number of packed parameters.
+    pub fn n_parameters(&self) -> usize {
+        self.offsets().end
+    }
+}
+
+/// The layers' parameters flattened in the packed order of [`MlpShape`]: `(P)`.
+/// Differentiable (a `cat`). `wg` is the geometry columns of the colour MLP's first weight.
+pub fn pack_parameters(
+    w0: &Tensor,
+    b0: &Tensor,
+    w1: &Tensor,
+    b1: &Tensor,
+    wg: &Tensor,
+    [w2, b2, w3, b3]: [&Tensor; 4],
+) -> candle_core::Result<Tensor> {
+    let parts = [w0, b0, w1, b1, wg, w2, b2, w3, b3]
+        .iter()
+        .map(|t| t.flatten_all())
+        .collect::<candle_core::Result<Vec<_>>>()?;
+    Tensor::cat(&parts, 0)
+}
+
+/// The fused MLPs: `enc` `(M, E)`, `per_ray` `(N, H)`, `ray_index` (the ray of each sample,
+/// `M` entries below `N`), packed `params` `(P)`, all f32 on the CPU; returns `(M, 4)`
+/// (`[raw density, r, g, b]`). Gradients flow to `enc`, `per_ray` and `params`.
+pub fn ngp_mlp(
+    enc: &Tensor,
+    per_ray: &Tensor,
+    ray_index: &[u32],
+    params: &Tensor,
+    shape: MlpShape,
+) -> candle_core::Result<Tensor> {
+    let (m, e) = enc.dims2()?;
+    let (n, h) = per_ray.dims2()?;
+    if e != shape.enc || h != shape.hidden || ray_index.len() != m {
+        candle_core::bail!(
+            "ngp-mlp: encoding {:?}, per-ray {:?}, {} ray indices for shape {shape:?}",
+            enc.dims(),
+            per_ray.dims(),
+            ray_index.len()
+        );
+    }
+    if let Some(bad) = ray_index.iter().find(|&&r| r as usize >= n) {
+        candle_core::bail!("ngp-mlp: ray index {bad} of {n} rays");
+    }
+    let op = NgpMlp {
+        shape,
+        rays: ray_index.to_vec(),
+    };
+    let (enc, per_ray, params) = (
+        enc.contiguous()?,
+        per_ray.contiguous()?,
+        params.contiguous()?,
+    );
+    if enc.track_op() || per_ray.track_op() || params.track_op() {
+        enc.apply_op3(&per_ray, &params, op)
+    } else {
+        enc.apply_op3_no_bwd(&per_ray, &params, &op)
+    }
+}
+
+/// The tensor-op twin of [`ngp_mlp`] (any device and dtype): the same layers through Candle
+/// ops, `ray_index` `(M,)` u32 on the tensors' device.
+pub fn ngp_mlp_tensor_ops(
+    enc: &Tensor,
+    per_ray: &Tensor,
+    ray_index: &Tensor,
+    layers: &MlpLayers,
+) -> candle_core::Result<Tensor> {
+    let lin = |x: &Tensor, w: &Tensor, b: Option<&Tensor>| -> candle_core::Result<Tensor> {
+        let y = x.matmul(&w.t()?)?;
+        match b {
+            Some(b) => y.broadcast_add(b),
+            None => Ok(y),
+        }
+    };
+    let h0 = lin(enc, layers.w0, Some(layers.b0))?.relu()?;
+    let o1 = lin(&h0, layers.w1, Some(layers.b1))?;
+    let geo = o1.narrow(1, 1, o1.dim(1)? - 1)?;
+    let h1 = lin(&geo, layers.wg, None)?
+        .add(&per_ray.index_select(ray_index, 0)?)?
+        .relu()?;
+    let h2 = lin(&h1, layers.w2, Some(layers.b2))?.relu()?;
+    let rgb = candle_nn::ops::sigmoid(&lin(&h2, layers.w3, Some(layers.b3))?)?;
+    Tensor::cat(&[&o1.narrow(1, 0, 1)?, &rgb], 1)
+}
+
+/// The MLPs' parameters as separate tensors, for [`ngp_mlp_tensor_ops`].
+pub struct MlpLayers<'a> {
+    /// Density layer 0 weight `(H, E)`.
+    pub w0: &'a Tensor,
+    /// Density layer 0 bias `(H)`.
+    pub b0: &'a Tensor,
+    /// Density layer 1 weight `(1+G, H)`.
+    pub w1: &'a Tensor,
+    /// Density layer 1 bias `(1+G)`.
+    pub b1: &'a Tensor,
+    /// Colour layer 0's geometry columns `(H, G)`.
+    pub wg: &'a Tensor,
+    /// Colour layer 1 weight `(H, H)`.
+    pub w2: &'a Tensor,
+    /// Colour layer 1 bias `(H)`.
+    pub b2: &'a Tensor,
+    /// Colour layer 2 weight `(3, H)`.
+    pub w3: &'a Tensor,
+    /// Colour layer 2 bias `(3)`.
+    pub b3: &'a Tensor,
+}
+
+struct NgpMlp {
+    shape: MlpShape,
+    rays: Vec<u32>,
+}
+
+/// One task's activations, `c` rows each.
+struct Activations {
+    h0: Vec<f32>,
+    o1: Vec<f32>,
+    h1: Vec<f32>,
+    h2: Vec<f32>,
+    rgb: Vec<f32>,
+}
+
+/// `out (c×n) = x · Wᵀ [+ b]` for `W` `(n, k)` row-major, on the calling thread.
+fn linear(
+    out: &mut [f32],
+    x: &[f32],
+    (c, k, n): (usize, usize, usize),
+    w: &[f32],
+    b: Option<&[f32]>,
+) {
+    gemm_f32((c, n, k), out, n, false, x, (k, 1), w, (1, k), false);
+    if let Some(b) = b {
+        for row in out.chunks_exact_mut(n) {
+            row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
+        }
+    }
+}
+
+fn relu(v: &mut [f32]) {
+    v.iter_mut().for_each(|x| *x = x.max(0.0));
+}
+
+impl NgpMlp {
+    /// The forward pass of `c = enc.len() / E` samples whose rays are `rays`.
+    fn forward(&self, enc: &[f32], rays: &[u32], per_ray: &[f32], p: &[f32]) -> Activations {
+        let MlpShape {
+            enc: e,
+            hidden: h,
+            geo: g,
+        } = self.shape;
+        let o = self.shape.offsets();
+        let c = rays.len();
+        let mut a = Activations {
+            h0: vec![0.0; c * h],
+            o1: vec![0.0; c * (1 + g)],
+            h1: vec![0.0; c * h],
+            h2: vec![0.0; c * h],
+            rgb: vec![0.0; c * 3],
+        };
+        linear(
+            &mut a.h0,
+            enc,
+            (c, e, h),
+            &p[o.w0..o.b0],
+            Some(&p[o.b0..o.w1]),
+        );
+        relu(&mut a.h0);
+        linear(
+            &mut a.o1,
+            &a.h0,
+            (c, h, 1 + g),
+            &p[o.w1..o.b1],
+            Some(&p[o.b1..o.wg]),
+        );
+        // h1 = Wg·geo + p_ray: geo is o1 from column 1, row stride 1 + G.
+        gemm_f32(
+            (c, h, g),
+            &mut a.h1,
+            h,
+            false,
+            &a.o1[1..],
+            (1 + g, 1),
+            &p[o.wg..o.w2],
+            (1, g),
+            false,
+        );
+        for (row, &r) in a.h1.chunks_exact_mut(h).zip(rays) {
+            let pr = &per_ray[r as usize * h..(r as usize + 1) * h];
+            row.iter_mut()
+                .zip(pr)
+                .for_each(|(v, q)| *v = (*v + q).max(0.0));
+        }
+        linear(
+            &mut a.h2,
+            &a.h1,
+            (c, h, h),
+            &p[o.w2..o.b2],
+            Some(&p[o.b2..o.w3]),
+        );
+        relu(&mut a.h2);
+        linear(
+            &mut a.rgb,
+            &a.h2,
+            (c, h, 3),
+            &p[o.w3..o.b3],
+            Some(&p[o.b3..o.end]),
+        );
+        a.rgb
+            .iter_mut()
+            .for_each(|v| *v = 1.0 / (1.0 + (-*v).exp()));
+        a
+    }
+}
+
+/// Per-thread gradient sums of the backward pass.
+struct Sums {
+    params: Vec<f32>,
+    per_ray: Vec<f32>,
+}
+
+/// `dW (n_out×k) += Dᵀ · X` for `D` `(c, n_out)` and `X` `(c, k)` (row strides given), and
+/// `db += Σ_rows D`.
+#[allow(clippy::too_many_arguments)]
+fn weight_grad(
+    dw: &mut [f32],
+    db: Option<&mut [f32]>,
+    d: &[f32],
+    x: &[f32],
+    x_rs: usize,
+    (c, n_out, k): (usize, usize, usize),
+) {
+    gemm_f32(
+        (n_out, k, c),
+        dw,
+        k,
+        true,
+        d,
+        (1, n_out),
+        x,
+        (x_rs, 1),
+        false,
+    );
+    if let Some(db) = db {
+        for row in d.chunks_exact(n_out) {
+            db.iter_mut().zip(row).for_each(|(b, v)| *b += v);
+        }
+    }
+}
+
+/// `out (c×k) = D · W` for `D` `(c, n)` and `W` `(n, k)` row-major.
+fn input_grad(out: &mut [f32], d: &[f32], w: &[f32], (c, n, k): (usize, usize, usize)) {
+    gemm_f32((c, k, n), out, k, false, d, (n, 1), w, (k, 1), false);
+}
+
+impl NgpMlp {
+    /// The backward pass of one task's samples: their encoding gradient into `d_enc`, the
+    /// parameter and per-ray gradients added into `sums`.
+    #[allow(clippy::too_many_arguments)]
+    fn backward(
+        &self,
+        enc: &[f32],
+        rays: &[u32],
+        grad: &[f32],
+        per_ray: &[f32],
+        p: &[f32],
+        d_enc: &mut [f32],
+        sums: &mut Sums,
+    ) {
+        let MlpShape {
+            enc: e,
+            hidden: h,
+            geo: g,
+        } = self.shape;
+        let o = self.shape.offsets();
+        let c = rays.len();
+        let a = self.forward(enc, rays, per_ray, p);
+        let dp = &mut sums.params;
+        // Colour head: sigmoid, then the two ReLU layers.
+        let d_c2: Vec<f32> = grad
+            .chunks_exact(4)
+            .zip(a.rgb.chunks_exact(3))
+            .flat_map(|(gr, y)| (0..3).map(move |j| gr[1 + j] * y[j] * (1.0 - y[j])))
+            .collect();
+        let (dw3, db3) = dp[o.w3..o.end].split_at_mut(3 * h);
+        weight_grad(dw3, Some(db3), &d_c2, &a.h2, h, (c, 3, h));
+        let mut d_c1 = vec![0f32; c * h];
+        input_grad(&mut d_c1, &d_c2, &p[o.w3..o.b3], (c, 3, h));
+        mask(&mut d_c1, &a.h2);
+        let (dw2, db2) = dp[o.w2..o.w3].split_at_mut(h * h);
+        weight_grad(dw2, Some(db2), &d_c1, &a.h1, h, (c, h, h));
+        let mut d_c0 = vec![0f32; c * h];
+        input_grad(&mut d_c0, &d_c1, &p[o.w2..o.b2], (c, h, h));
+        mask(&mut d_c0, &a.h1);
+        weight_grad(
+            &mut dp[o.wg..o.w2],
+            None,
+            &d_c0,
+            &a.o1[1..],
+            1 + g,
+            (c, h, g),
+        );
+        for (row, &r) in d_c0.chunks_exact(h).zip(rays) {
+            let dst = &mut sums.per_ray[r as usize * h..(r as usize + 1) * h];
+            dst.iter_mut().zip(row).for_each(|(d, v)| *d += v);
+        }
+        // Density MLP: the raw density's gradient and the geometry features'.
+        let mut d_o1 = vec![0f32; c * (1 + g)];
+        for (i, row) in d_o1.chunks_exact_mut(1 + g).enumerate() {
+            row[0] = grad[4 * i];
+        }
+        gemm_f32(
+            (c, g, h),
+            &mut d_o1[1..],
+            1 + g,
+            false,
+            &d_c0,
+            (h, 1),
+            &p[o.wg..o.w2],
+            (g, 1),
+            false,
+        );
+        let (dw1, db1) = dp[o.w1..o.wg].split_at_mut((1 + g) * h);
+        weight_grad(dw1, Some(db1), &d_o1, &a.h0, h, (c, 1 + g, h));
+        let mut d_a0 = vec![0f32; c * h];
+        input_grad(&mut d_a0, &d_o1, &p[o.w1..o.b1], (c, 1 + g, h));
+        mask(&mut d_a0, &a.h0);
+        let (dw0, db0) = dp[o.w0..o.w1].split_at_mut(h * e);
+        weight_grad(dw0, Some(db0), &d_a0, enc, e, (c, h, e));
+        input_grad(d_enc, &d_a0, &p[o.w0..o.b0], (c, h, e));
+    }
+}
+
+/// `d ⊙ [y > 0]` (the ReLU's backward through its output `y`).
+fn mask(d: &mut [f32], y: &[f32]) {
+    d.iter_mut()
+        .zip(y)
+        .for_each(|(d, y)| *d = if *y > 0.0 { *d } else { 0.0 });
+}
+
+impl CustomOp3 for NgpMlp {
+    fn name(&self) -> &'static str {
+        "ngp-mlp"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let enc = contiguous_f32(s1, l1, "ngp-mlp")?;
+        let per_ray = contiguous_f32(s2, l2, "ngp-mlp")?;
+        let params = contiguous_f32(s3, l3, "ngp-mlp")?;
+        if params.len() != self.shape.n_parameters() {
+            candle_core::bail!(
+                "ngp-mlp: {} parameters, expected {}",
+                params.len(),
+                self.shape.n_parameters()
+            );
+        }
+        let e = self.shape.enc;
+        let m = self.rays.len();
+        let mut out = vec![0f32; m * 4];
+        out.par_chunks_mut(ROWS_PER_TASK * 4)
+            .zip(enc.par_chunks(ROWS_PER_TASK * e))
+            .zip(self.rays.par_chunks(ROWS_PER_TASK))
+            .for_each(|((out, enc), rays)| {
+                let a = self.forward(enc, rays, per_ray, params);
+                let g1 = 1 + self.shape.geo;
+                for (i, row) in out.chunks_exact_mut(4).enumerate() {
+                    row[0] = a.o1[i * g1];
+                    row[1..].copy_from_slice(&a.rgb[3 * i..3 * i + 3]);
+                }
+            });
+        Ok((CpuStorage::F32(out), Shape::from((m, 4))))
+    }
+
+    fn bwd(
+        &self,
+        enc: &Tensor,
+        per_ray: &Tensor,
+        params: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let e = self.shape.enc;
+        let n_params = self.shape.n_parameters();
+        let per_ray_len = per_ray.elem_count();
+        let enc_v = enc.flatten_all()?.to_vec1::<f32>()?;
+        let per_ray_v = per_ray.flatten_all()?.to_vec1::<f32>()?;
+        let p = params.flatten_all()?.to_vec1::<f32>()?;
+        let g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let mut d_enc = vec![0f32; enc_v.len()];
+        let new_sums = || Sums {
+            params: vec![0f32; n_params],
+            per_ray: vec![0f32; per_ray_len],
+        };
+        let sums = d_enc
+            .par_chunks_mut(ROWS_PER_TASK * e)
+            .zip(enc_v.par_chunks(ROWS_PER_TASK * e))
+            .zip(self.rays.par_chunks(ROWS_PER_TASK))
+            .zip(g.par_chunks(ROWS_PER_TASK * 4))
+            .fold(new_sums, |mut sums, (((d_enc, enc), rays), g)| {
+                self.backward(enc, rays, g, &per_ray_v, &p, d_enc, &mut sums);
+                sums
+            })
+            .reduce(new_sums, |mut a, b| {
+                a.params
+                    .iter_mut()
+                    .zip(&b.params)
+                    .for_each(|(x, y)| *x += y);
+                a.per_ray
+                    .iter_mut()
+                    .zip(&b.per_ray)
+                    .for_each(|(x, y)| *x += y);
+                a
+            });
+        let dev = enc.device();
+        Ok((
+            Some(Tensor::from_vec(d_enc, enc.shape(), dev)?),
+            Some(Tensor::from_vec(sums.per_ray, per_ray.shape(), dev)?),
+            Some(Tensor::from_vec(sums.params, n_params, dev)?),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{Device, Var};
+
+    #[test]
+    fn fused_matches_tensor_ops_forward_and_backward() {
+        let dev = Device::Cpu;
+        let shape = MlpShape {
+            enc: 6,
+            hidden: 8,
+            geo: 3,
+        };
+        let var = |dims: &[usize], s: f64| Var::randn(0f32, s as f32, dims, &dev).unwrap();
+        let (h, g, e) = (shape.hidden, shape.geo, shape.enc);
+        let w0 = var(&[h, e], 0.5);
+        let b0 = var(&[h], 0.2);
+        let w1 = var(&[1 + g, h], 0.5);
+        let b1 = var(&[1 + g], 0.2);
+        let wg = var(&[h, g], 0.5);
+        let w2 = var(&[h, h], 0.5);
+        let b2 = var(&[h], 0.2);
+        let w3 = var(&[3, h], 0.5);
+        let b3 = var(&[3], 0.2);
+        // 600 samples of 7 rays (more than two tasks, a ray split across tasks, one ray with
+        // no sample, and one out of order).
+        let m = 600;
+        let mut rays: Vec<u32> = (0..m as u32).map(|i| (i * 7 / m as u32).min(5)).collect();
+        rays[10] = 6;
+        let enc = var(&[m, e], 1.0);
+        let per_ray = var(&[7, h], 0.5);
+        let weight = Tensor::randn(0f32, 1.0, (m, 4), &dev).unwrap();
+        let all = [&w0, &b0, &w1, &b1, &wg, &w2, &b2, &w3, &b3, &enc, &per_ray];
+        let packed =
+            pack_parameters(&w0, &b0, &w1, &b1, &wg, [w2.as_tensor(), &b2, &w3, &b3]).unwrap();
+        let fast = ngp_mlp(&enc, &per_ray, &rays, &packed, shape).unwrap();
+        let layers = MlpLayers {
+            w0: &w0,
+            b0: &b0,
+            w1: &w1,
+            b1: &b1,
+            wg: &wg,
+            w2: &w2,
+            b2: &b2,
+            w3: &w3,
+            b3: &b3,
+        };
+        let idx = Tensor::new(rays.as_slice(), &dev).unwrap();
+        let slow = ngp_mlp_tensor_ops(&enc, &per_ray, &idx, &layers).unwrap();
+        let diff = |a: &Tensor, b: &Tensor| crate::core::compare::max_abs_difference(a, b).unwrap();
+        assert!(diff(&fast, &slow) < 1e-5, "forward {}", diff(&fast, &slow));
+        let grads = |t: &Tensor| {
+            t.mul(&weight)
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .backward()
+                .unwrap()
+        };
+        let (gf, gs) = (grads(&fast), grads(&slow));
+        for v in all {
+            let (a, b) = (gf.get(v).unwrap(), gs.get(v).unwrap());
+            let scale = b
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap()
+                .max(1.0);
+            assert!(
+                diff(a, b) < 1e-5 * scale,
+                "gradient {:?}: {}",
+                v.dims(),
+                diff(a, b)
+            );
+        }
+    }
+}
