@@ -425,3 +425,99 @@ fn export_refuses_bad_input_in_one_line_and_writes_nothing() {
         "only the blocker file is left"
     );
 }
+
+/// Overrides that make `nerf_lego_ngp` tiny: 16×16 images, a 4-level 2^10 table.
+const TINY_NGP: [&str; 7] = [
+    "data.image_size=[16,16]",
+    "sampler.n_pts_per_ray=16",
+    "training.eval_views=0",
+    "renderer.occupancy_grid.resolution=8",
+    "implicit_function.n_levels=4",
+    "implicit_function.log2_hashmap_size=10",
+    "implicit_function.max_resolution=32",
+];
+
+#[test]
+fn ngp_trains_for_minutes_then_exports_a_half_precision_model_that_evaluates_the_same() {
+    let Some(data) = lego_dir("ngp export") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = dir.path().join("ngp.safetensors");
+    let ckpt_key = format!("training.checkpoint_path={}", ckpt.display());
+    let with = |head: &[&str]| -> Vec<String> {
+        head.iter()
+            .map(|s| s.to_string())
+            .chain(TINY_NGP.iter().map(|s| s.to_string()))
+            .chain([ckpt_key.clone()])
+            .collect()
+    };
+    let run = |args: &[String]| {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = nerf(&args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        String::from_utf8_lossy(&o.stdout).to_string()
+    };
+    let data_arg = data.to_str().unwrap();
+    let out = run(&with(&[
+        "train",
+        "--config",
+        "nerf_lego_ngp",
+        "--data-dir",
+        data_arg,
+        "--minutes",
+        "0.05",
+    ]));
+    // Three seconds of training end mid-epoch, in a checkpoint that says so.
+    assert!(out.contains("trained to epoch 0 step"), "{out}");
+    let model = dir.path().join("model.safetensors");
+    let out = run(&with(&[
+        "export",
+        "model",
+        "--config",
+        "nerf_lego_ngp",
+        "--out",
+        model.to_str().unwrap(),
+    ]));
+    assert!(out.contains("largest f16 rounding"), "{out}");
+    let (full, _) = nerf::io::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
+    let (slim, _) = nerf::io::checkpoint::load(&model, &candle_core::Device::Cpu).unwrap();
+    assert!(full.keys().any(|k| k.starts_with("adam.")));
+    assert!(!slim.keys().any(|k| k.starts_with("adam.")));
+    assert_eq!(
+        slim.len(),
+        full.keys().filter(|k| !k.starts_with("adam.")).count()
+    );
+    assert!(std::fs::metadata(&model).unwrap().len() * 3 < std::fs::metadata(&ckpt).unwrap().len());
+    // Both score within the table's f16 rounding of each other.
+    let score = |checkpoint: &Path| -> f64 {
+        let mut args = with(&[
+            "eval",
+            "--config",
+            "nerf_lego_ngp",
+            "--data-dir",
+            data_arg,
+            "--limit",
+            "2",
+            "--json",
+            "--checkpoint",
+        ]);
+        args.insert(9, checkpoint.display().to_string());
+        let json: serde_json::Value = serde_json::from_str(&run(&args)).unwrap();
+        json["mean_psnr"].as_f64().unwrap()
+    };
+    let (a, b) = (score(&ckpt), score(&model));
+    assert!((a - b).abs() < 0.05, "full {a} dB, exported {b} dB");
+    // The exported model renders the surround views.
+    let images = dir.path().join("images");
+    run(&with(&[
+        "render",
+        "--config",
+        "nerf_lego_ngp",
+        "--checkpoint",
+        model.to_str().unwrap(),
+        "--out-dir",
+        images.to_str().unwrap(),
+    ]));
+    assert!(images.join("render_nerf.gif").is_file());
+}

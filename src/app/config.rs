@@ -106,6 +106,14 @@ const BUILT_IN: &[(&str, &str)] = &[
         include_str!("../../configs/nerf_lego_ngp.yaml"),
     ),
     ("lego_ngp", include_str!("../../configs/lego_ngp.yaml")),
+    (
+        "nerf_lego_ngp_400",
+        include_str!("../../configs/nerf_lego_ngp_400.yaml"),
+    ),
+    (
+        "lego_ngp_400",
+        include_str!("../../configs/lego_ngp_400.yaml"),
+    ),
 ];
 
 /// A homework parameter `{val, opt}`; `opt` marks it trainable in the homework.

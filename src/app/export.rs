@@ -13,12 +13,12 @@ use crate::app::scene::{load_scene_field, SceneField};
 use crate::core::camera::PerspectiveCamera;
 use crate::core::marching_cubes::{marching_cubes, TriMesh, VolumeGrid};
 use crate::core::sdf::{sdf_at_density, Sdf, SdfVolume};
-use crate::field::nerf::NerfField;
 use crate::io::dataset::{read_split, Split};
 use crate::io::images::{prepare_out_dir, viridis_image, write_npy, write_png};
 use crate::io::ply::{write_mesh_ply, write_points_ply};
 use crate::io::progress::progress_bar;
 use crate::render::depth_points::{depth_points, ColoredPoints};
+use crate::render::field::Field;
 use crate::render::surface::{sample_grid, surface_colors};
 use crate::render::view::render_view;
 
@@ -108,7 +108,7 @@ fn sdf_grid(volume: &SdfVolume, dims: [usize; 3], threshold: f64) -> Result<(Vol
 /// only in occupied cells.
 fn nerf_grid(
     config: &Config,
-    field: &NerfField,
+    field: &dyn Field,
     dims: [usize; 3],
     device: &Device,
 ) -> Result<VolumeGrid> {
@@ -120,13 +120,9 @@ fn nerf_grid(
         .map(|v| v as f32);
     let scalar = |p: &[f32]| -> Result<Vec<f32>> {
         let points = Tensor::from_slice(p, (p.len() / 3, 3), device)?;
-        Ok(field
-            .model
-            .density(&points)?
-            .flatten_all()?
-            .to_vec1::<f32>()?)
+        Ok(field.density(&points)?.flatten_all()?.to_vec1::<f32>()?)
     };
-    sample_grid(dims, aabb, field.occupancy.as_deref(), 0.0, &scalar)
+    sample_grid(dims, aabb, field.occupancy(), 0.0, &scalar)
 }
 
 /// The largest value of a grid, for the error when no surface is found.
@@ -167,7 +163,11 @@ pub fn export_mesh(
         SceneField::Nerf(field) => {
             let t = options.threshold.unwrap_or(DEFAULT_NERF_THRESHOLD);
             ensure!(t > 0.0, "--threshold must be a positive density (got {t})");
-            (nerf_grid(config, field, dims, device)?, t as f32, t)
+            (
+                nerf_grid(config, field.as_ref(), dims, device)?,
+                t as f32,
+                t,
+            )
         }
     };
     let mesh = marching_cubes(&grid, level)?;

@@ -273,6 +273,7 @@ impl Config {
             resume: t.resume,
             grid: self.grid_schedule(),
             samples_per_step: t.samples_per_step,
+            max_rays: crate::app::config::limits::BATCH_SAMPLES / self.sampler.n_pts_per_ray.max(1),
         })
     }
 
@@ -345,7 +346,7 @@ impl Config {
         &self,
         path: &Path,
         device: &Device,
-    ) -> Result<Box<dyn crate::render::field::Field>> {
+    ) -> Result<Box<dyn crate::render::field::Field + Send + Sync>> {
         match &self.implicit_function {
             ImplicitFunctionConfig::Ngp(n) => {
                 Ok(Box::new(self.load_ngp(&n.params()?, path, device)?))

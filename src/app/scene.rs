@@ -9,7 +9,6 @@ use crate::app::config::{Config, ImplicitFunctionConfig};
 use crate::core::camera::PerspectiveCamera;
 use crate::core::rays::{pixel_grid, Rays};
 use crate::core::sdf::SdfVolume;
-use crate::field::nerf::NerfField;
 use crate::field::sdf::SdfField;
 use crate::io::images::{
     prepare_out_dir, viridis_image, write_gif, write_npy, write_png, RgbImage,
@@ -264,8 +263,9 @@ pub enum SceneField {
         /// Its shape, density and colour parameters.
         volume: SdfVolume,
     },
-    /// A trained NeRF (with its occupancy grid when the config asks for one).
-    Nerf(NerfField),
+    /// A trained field, the NeRF MLP or the hash grid (with its occupancy grid when the
+    /// config asks for one).
+    Nerf(Box<dyn Field + Send + Sync>),
 }
 
 impl SceneField {
@@ -273,7 +273,7 @@ impl SceneField {
     pub fn as_field(&self) -> &dyn Field {
         match self {
             SceneField::Sdf { field, .. } => field,
-            SceneField::Nerf(field) => field,
+            SceneField::Nerf(field) => field.as_ref(),
         }
     }
 }
@@ -299,13 +299,8 @@ pub fn load_scene_field(
                 volume: config.sdf_volume()?,
             })
         }
-        ImplicitFunctionConfig::Nerf(_) => {
-            let (state, _) = config.load_nerf(&config.checkpoint(checkpoint), device)?;
-            Ok(SceneField::Nerf(state.field()))
-        }
-        ImplicitFunctionConfig::Ngp(_) => anyhow::bail!(
-            "implicit_function.type ngp: the viewer and export take SDF and NeRF configs for now \
-             (render and eval load ngp checkpoints)"
-        ),
+        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_) => Ok(SceneField::Nerf(
+            config.load_field(&config.checkpoint(checkpoint), device)?,
+        )),
     }
 }

@@ -365,7 +365,10 @@ pub fn serve(
     };
     let kind = match worker.scene {
         SceneField::Sdf { .. } => "sdf",
-        SceneField::Nerf(_) => "nerf",
+        SceneField::Nerf(_) => match config.implicit_function {
+            crate::app::config::ImplicitFunctionConfig::Ngp(_) => "ngp",
+            _ => "nerf",
+        },
     };
     let info = serde_json::json!({
         "scene": name, "field": kind,

@@ -332,6 +332,10 @@ impl Field for NerfField {
     fn occupancy(&self) -> Option<&OccupancyGrid> {
         self.occupancy.as_deref()
     }
+
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        self.model.density(points)
+    }
 }
 
 /// `layer(x)` with the bias gradient summed in one pass ([`crate::kernels::bias::bias_add`]).

@@ -322,7 +322,7 @@ impl Ngp {
             self.mlps(&enc, &self.per_ray(directions)?, ray_index)?
         };
         let sigma = self.activate(&out.narrow(1, 0, 1)?, &inside)?;
-        Ok((sigma, out.narrow(1, 1, 3)?))
+        Ok((sigma, out.narrow(1, 1, 3)?.contiguous()?))
     }
 
     /// Density alone at `points` `(M, 3)`: `(M, 1)` (what the occupancy grid probes).
@@ -381,6 +381,10 @@ impl Field for NgpField {
 
     fn occupancy(&self) -> Option<&OccupancyGrid> {
         self.occupancy.as_deref()
+    }
+
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        self.model.density(points)
     }
 }
 

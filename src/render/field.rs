@@ -74,4 +74,15 @@ pub trait Field {
     fn occupancy(&self) -> Option<&OccupancyGrid> {
         None
     }
+
+    /// Density alone at `points` `(M, 3)`: `(M, 1)` (meshes, grids), for fields with packed
+    /// evaluation, whose density does not depend on the direction. The default evaluates
+    /// [`Field::evaluate_packed`] with every point on one ray along +z and keeps the density.
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        let m = points.dim(0)?;
+        let dev = points.device();
+        let directions = Tensor::new(&[[0f32, 0.0, 1.0]], dev)?.to_dtype(points.dtype())?;
+        let ray_index = Tensor::zeros(m, candle_core::DType::U32, dev)?;
+        Ok(self.evaluate_packed(points, &ray_index, &directions)?.0)
+    }
 }

@@ -202,8 +202,8 @@ fn scatter_packed(
     if !index.is_empty() {
         let m = index.len();
         let index = Tensor::from_vec(index, m, device)?;
-        density = density.index_add(&index, &Tensor::cat(densities, 0)?, 0)?;
-        colour = colour.index_add(&index, &Tensor::cat(colours, 0)?, 0)?;
+        density = density.index_add(&index, &Tensor::cat(densities, 0)?.contiguous()?, 0)?;
+        colour = colour.index_add(&index, &Tensor::cat(colours, 0)?.contiguous()?, 0)?;
     }
     Ok(FieldOutput {
         density: density.reshape((n, s, 1))?,

@@ -75,14 +75,16 @@ pub struct TrainSettings {
     pub grid: Option<GridSchedule>,
     /// Adapt the rays per step to evaluate about this many samples ([`next_rays`]).
     pub samples_per_step: Option<usize>,
+    /// The most rays an adapted step may take (each draws all its samples before skipping).
+    pub max_rays: usize,
 }
 
 /// The rays of the next step when each step should evaluate about `target` samples and the
 /// last one evaluated `evaluated` with `rays` rays: the geometric mean of `rays` and the count
-/// that would have hit the target (damped, so the count settles), within 64..=65536.
-pub fn next_rays(rays: usize, evaluated: usize, target: usize) -> usize {
+/// that would have hit the target (damped, so the count settles), within 64..=`max_rays`.
+pub fn next_rays(rays: usize, evaluated: usize, target: usize, max_rays: usize) -> usize {
     let ideal = rays as f64 * target as f64 / evaluated.max(1) as f64;
-    ((rays as f64 * ideal).sqrt().round() as usize).clamp(64, 1 << 16)
+    ((rays as f64 * ideal).sqrt().round() as usize).clamp(64, max_rays.max(64))
 }
 
 /// Where a training run writes.
@@ -391,7 +393,7 @@ impl Run<'_> {
         let wall = self.wall();
         let rays = self.rays;
         if let Some(target) = self.settings.samples_per_step {
-            self.rays = next_rays(self.rays, samples.evaluated, target);
+            self.rays = next_rays(self.rays, samples.evaluated, target, self.settings.max_rays);
         }
         let step = self.adam.step_count();
         log_step(&mut self.log, step, epoch, wall, loss, (samples, rays))?;
@@ -587,4 +589,22 @@ pub fn fit(
     save(settings, paths, &run.state, &run.info, &run.adam, device)?;
     run.bar.finish_and_clear();
     Ok(FitOutcome::Finished(run.info))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rays_settle_where_the_samples_meet_the_target() {
+        // A scene where each ray evaluates 4 samples: 16384 samples need 4096 rays.
+        let mut rays = 1024;
+        for _ in 0..40 {
+            rays = next_rays(rays, 4 * rays, 16384, 1 << 16);
+        }
+        assert!((4090..=4100).contains(&rays), "{rays}");
+        // Bounds: no sample evaluated asks for the most; too many for the fewest.
+        assert_eq!(next_rays(1000, 0, 16384, 5000), 5000);
+        assert_eq!(next_rays(100, 1 << 30, 16, 5000), 64);
+    }
 }
