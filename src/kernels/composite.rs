@@ -55,6 +55,61 @@ pub fn composite(
     ))
 }
 
+/// Colour, depth and opacity, `(N, C + 2)` row-major, of N rays from the packed samples of a
+/// skipping render: `index` holds the flat sample index `ray · S + i` of each evaluated sample
+/// (any order, no repeats), `density` (M) and `feature` (M·C) the field's values there, and
+/// `lengths` (N·S) every sample's length. Samples not listed have σ = 0. This is the value
+/// [`composite`] gives on the dense tensors with zeros at the skipped samples, bit for bit: a
+/// zero optical depth leaves the transmittance and the sums unchanged, so only the listed
+/// samples are visited. No gradient (rendering); its twin is the dense scatter + [`composite`]
+/// that training uses.
+pub fn composite_packed(
+    index: &[u32],
+    density: &[f32],
+    feature: &[f32],
+    lengths: &[f32],
+    (n, s, c): (usize, usize, usize),
+) -> Vec<f32> {
+    // Entries grouped by ray (a counting sort), then in sample order within each ray.
+    let mut start = vec![0usize; n + 1];
+    for &k in index {
+        start[k as usize / s + 1] += 1;
+    }
+    for r in 0..n {
+        start[r + 1] += start[r];
+    }
+    let mut fill = start.clone();
+    let mut order = vec![0u32; index.len()];
+    for (e, &k) in index.iter().enumerate() {
+        let r = k as usize / s;
+        order[fill[r]] = e as u32;
+        fill[r] += 1;
+    }
+    for r in 0..n {
+        order[start[r]..start[r + 1]].sort_unstable_by_key(|&e| index[e as usize]);
+    }
+    let width = c + 2;
+    let mut out = vec![0f32; n * width];
+    out.par_chunks_mut(width).enumerate().for_each(|(ray, o)| {
+        let t_ray = &lengths[ray * s..(ray + 1) * s];
+        let mut t = 1f32;
+        for &e in &order[start[ray]..start[ray + 1]] {
+            let e = e as usize;
+            let i = index[e] as usize % s;
+            let tau = clamped_optical_depth(density[e], spacing(t_ray, i));
+            let a = (-tau).exp();
+            let w = t * (1.0 - a);
+            t *= a;
+            for (o, v) in o[..c].iter_mut().zip(&feature[e * c..(e + 1) * c]) {
+                *o += w * v;
+            }
+            o[c] += w * t_ray[i];
+            o[c + 1] += w;
+        }
+    });
+    out
+}
+
 /// [`composite`] as Candle tensor ops ([`weights`] and [`aggregate`]; any device, differentiable).
 ///
 /// `density`, `lengths`: `(N, S, 1)`; `feature`: `(N, S, C)`. Returns colour `(N, C)`, depth

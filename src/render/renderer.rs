@@ -11,6 +11,7 @@ use crate::core::rays::Rays;
 use crate::core::volume::deltas;
 use crate::kernels::composite::composite;
 use crate::kernels::sample_points::sample_points;
+use crate::kernels::use_fused;
 use crate::render::field::Field;
 use crate::render::sampler::{RaySamples, StratifiedSampler};
 use crate::render::skipping::SampleCounts;
@@ -89,13 +90,22 @@ impl VolumeRenderer {
             return self.composite_samples(field, rays, lengths);
         }
         let samples = sampler.sample(rays, jitter)?;
-        let (out, counts) = crate::render::skipping::evaluate_skipping(
+        let packed = crate::render::skipping::evaluate_packed(
             field,
             self.early_termination,
             &samples,
             &rays.directions,
         )?;
-        let (color, depth, opacity) = composite(&out.density, &out.feature, &samples.lengths)?;
+        let counts = packed.counts;
+        // Rendering composites the packed values directly; training (a tracked value) and
+        // the generic kernels go through the dense, differentiable tensors.
+        let lengths = &samples.lengths;
+        if !packed.tracks_gradient() && use_fused(lengths) && lengths.device().is_cpu() {
+            let (color, depth, opacity) = packed.composite(lengths)?;
+            return self.finish(color, depth, opacity, counts);
+        }
+        let out = packed.scatter(lengths.device())?;
+        let (color, depth, opacity) = composite(&out.density, &out.feature, lengths)?;
         self.finish(color, depth, opacity, counts)
     }
 

@@ -20,6 +20,7 @@ use anyhow::Result;
 use candle_core::{DType, Tensor};
 
 use crate::core::volume::{clamped_optical_depth, spacing};
+use crate::kernels::composite::composite_packed;
 use crate::render::field::{Field, FieldOutput};
 use crate::render::sampler::RaySamples;
 
@@ -85,19 +86,16 @@ impl std::ops::Add for SampleCounts {
     }
 }
 
-/// The field at the samples that matter; zeros elsewhere. The field must support packed
-/// evaluation ([`Field::supports_packed`]); its occupancy grid, if any, decides which samples
-/// lie in occupied cells.
+/// Evaluates `field` at the samples that can contribute (see the module), packed: the flat
+/// indices of the evaluated samples and the field's values there, by segment.
 ///
-/// `samples`: points `(N, S, 3)`, lengths `(N, S, 1)`; `directions`: `(N, 3)`. Returns density
-/// `(N, S, 1)` and colour `(N, S, 3)`, and the sample counts. `grid = None` keeps every sample
-/// (early termination only); `early_termination = 0` keeps every live sample (skipping only).
-pub fn evaluate_skipping(
+/// `samples`: points and lengths `(N, S, ·)`; `directions`: `(N, 3)`.
+pub fn evaluate_packed(
     field: &dyn Field,
     early_termination: f64,
     samples: &RaySamples,
     directions: &Tensor,
-) -> Result<(FieldOutput, SampleCounts)> {
+) -> Result<PackedSamples> {
     let (n, s, _) = samples.points.dims3()?;
     let device = samples.points.device();
     let points = samples
@@ -182,8 +180,105 @@ pub fn evaluate_skipping(
         colours.push(colour);
     }
     stats.evaluated = all_index.len();
-    let out = scatter_packed(n, s, all_index, &densities, &colours, device)?;
-    Ok((out, stats))
+    Ok(PackedSamples {
+        rays: n,
+        per_ray: s,
+        index: all_index,
+        densities,
+        colours,
+        counts: stats,
+    })
+}
+
+/// The field's values at the samples [`evaluate_packed`] chose.
+pub struct PackedSamples {
+    /// Rays `N`.
+    pub rays: usize,
+    /// Samples per ray `S`.
+    pub per_ray: usize,
+    /// Flat sample index `ray · S + i` of each evaluated sample, in evaluation order.
+    pub index: Vec<u32>,
+    /// Densities `(M_k, 1)` per segment, in the order of `index`.
+    pub densities: Vec<Tensor>,
+    /// Colours `(M_k, 3)` per segment, in the order of `index`.
+    pub colours: Vec<Tensor>,
+    /// How many samples were drawn, lay in occupied cells and were evaluated.
+    pub counts: SampleCounts,
+}
+
+impl PackedSamples {
+    /// Whether any value is tracked by autograd (training), so that the dense,
+    /// differentiable path must composite it.
+    pub fn tracks_gradient(&self) -> bool {
+        self.densities
+            .iter()
+            .chain(&self.colours)
+            .any(|t| t.track_op())
+    }
+
+    /// Colour `(N, 3)`, depth and opacity `(N, 1)` composited straight from the packed values
+    /// ([`composite_packed`]; no gradient), given every sample's `lengths` `(N, S, 1)`.
+    pub fn composite(&self, lengths: &Tensor) -> Result<(Tensor, Tensor, Tensor)> {
+        let (n, s) = (self.rays, self.per_ray);
+        let device = lengths.device();
+        let flat = |parts: &[Tensor]| -> Result<Vec<f32>> {
+            Ok(match parts.len() {
+                0 => Vec::new(),
+                _ => Tensor::cat(parts, 0)?
+                    .to_dtype(DType::F32)?
+                    .flatten_all()?
+                    .to_vec1::<f32>()?,
+            })
+        };
+        let lengths_v = lengths
+            .to_dtype(DType::F32)?
+            .flatten_all()?
+            .to_vec1::<f32>()?;
+        let out = composite_packed(
+            &self.index,
+            &flat(&self.densities)?,
+            &flat(&self.colours)?,
+            &lengths_v,
+            (n, s, 3),
+        );
+        let out = Tensor::from_vec(out, (n, 5), device)?.to_dtype(lengths.dtype())?;
+        Ok((
+            out.narrow(1, 0, 3)?,
+            out.narrow(1, 3, 1)?,
+            out.narrow(1, 4, 1)?,
+        ))
+    }
+
+    /// The values scattered into dense density `(N, S, 1)` and colour `(N, S, 3)`, zeros at
+    /// skipped samples (differentiable).
+    pub fn scatter(self, device: &candle_core::Device) -> Result<FieldOutput> {
+        scatter_packed(
+            self.rays,
+            self.per_ray,
+            self.index,
+            &self.densities,
+            &self.colours,
+            device,
+        )
+    }
+}
+
+/// The field at the samples that matter; zeros elsewhere. The field must support packed
+/// evaluation ([`Field::supports_packed`]); its occupancy grid, if any, decides which samples
+/// lie in occupied cells.
+///
+/// `samples`: points `(N, S, 3)`, lengths `(N, S, 1)`; `directions`: `(N, 3)`. Returns density
+/// `(N, S, 1)` and colour `(N, S, 3)`, and the sample counts. `grid = None` keeps every sample
+/// (early termination only); `early_termination = 0` keeps every live sample (skipping only).
+pub fn evaluate_skipping(
+    field: &dyn Field,
+    early_termination: f64,
+    samples: &RaySamples,
+    directions: &Tensor,
+) -> Result<(FieldOutput, SampleCounts)> {
+    let packed = evaluate_packed(field, early_termination, samples, directions)?;
+    let counts = packed.counts;
+    Ok((packed.scatter(samples.points.device())?, counts))
 }
 
 /// Scatters packed densities `(M, 1)` and colours `(M, 3)` (in the order of `index`, flat
@@ -330,8 +425,10 @@ mod tests {
                 .with_early_termination(threshold)
                 .unwrap();
             let out = render(renderer, &field(&m, None), &sampler);
+            // Every ray turns opaque within its first 16 samples, so it stops by the end of
+            // the fourth segment (4 + 4 + 8 + 16 of its 64 samples).
             assert!(
-                out.samples.evaluated < out.samples.total / 2,
+                out.samples.evaluated <= out.samples.total / 2,
                 "{:?}",
                 out.samples
             );
@@ -380,5 +477,44 @@ mod tests {
         let (color, depth, _) = composite(&density, &dense.feature, &samples.lengths).unwrap();
         assert!(max_diff(&color, &out.color) < 1e-6);
         assert!(max_diff(&depth, &out.depth) < 1e-5);
+    }
+
+    #[test]
+    fn packed_compositing_equals_the_dense_scatter_bit_for_bit() {
+        let m = model(2.0);
+        let sampler = StratifiedSampler::new(48, 2.0, 6.0).unwrap();
+        let config = OccupancyGridParams {
+            resolution: 4,
+            aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
+            density_threshold: 1.0,
+        };
+        let mut grid = OccupancyGrid::new(&config).unwrap();
+        for (c, o) in grid.occupied.iter_mut().enumerate() {
+            *o = c % 5 != 0;
+        }
+        let f = field(&m.detached(), Some(grid));
+        let samples = sampler.sample(&rays(), None).unwrap();
+        for termination in [0.0, 1e-2] {
+            let packed = evaluate_packed(&f, termination, &samples, &rays().directions).unwrap();
+            assert!(!packed.tracks_gradient());
+            let (color, depth, opacity) = packed.composite(&samples.lengths).unwrap();
+            let dense = packed.scatter(&Device::Cpu).unwrap();
+            let (c2, d2, o2) = composite(&dense.density, &dense.feature, &samples.lengths).unwrap();
+            assert_eq!(
+                max_diff(&color, &c2),
+                0.0,
+                "colour, termination {termination}"
+            );
+            assert_eq!(
+                max_diff(&depth, &d2),
+                0.0,
+                "depth, termination {termination}"
+            );
+            assert_eq!(
+                max_diff(&opacity, &o2),
+                0.0,
+                "opacity, termination {termination}"
+            );
+        }
     }
 }
