@@ -411,26 +411,26 @@ fn bench_views(
     )
 }
 
-/// Loads the checkpoint with `config` and renders every camera once, timing each.
+/// Loads `checkpoint` with `config` and renders every camera once, timing each.
 fn render_run(
     config: &Config,
-    lego: &LegoBench,
+    checkpoint: &std::path::Path,
     cameras: &[PerspectiveCamera],
     device: &Device,
 ) -> Result<RenderRun> {
     let (w, h) = config.image_size();
     let n = cameras.len();
     let t = Instant::now();
-    let (state, _) = config.load_nerf(&lego.checkpoint, device)?;
+    let field = config.load_field(checkpoint, device)?;
     let load_seconds = t.elapsed().as_secs_f64();
-    let field = state.field();
+    let field = &*field;
     let (sampler, renderer) = (config.sampler()?, config.renderer()?);
     let mut frames = Vec::with_capacity(n);
     let mut runs = Vec::with_capacity(n);
     for cam in cameras {
         let t = Instant::now();
         frames.push(render_view(
-            &field,
+            field,
             cam,
             (w, h),
             &sampler,
@@ -455,7 +455,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
     let (w, h) = fast_config.image_size();
     let (cameras, truth) = bench_views(lego, &fast_config)?;
     let n = cameras.len();
-    let render_all = |config: &Config| render_run(config, lego, &cameras, device);
+    let render_all = |config: &Config| render_run(config, &lego.checkpoint, &cameras, device);
     let RenderRun {
         frames: dense,
         runs: dense_runs,
@@ -491,7 +491,8 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
         ),
     };
     let points = fast_config.sampler.n_pts_per_ray;
-    Ok(vec![
+    let mut rows = ngp_rows(&cameras, truth.as_deref(), device)?;
+    rows.splice(0..0, [
         BenchResult {
             name: "trained NeRF render, dense".into(),
             work: format!("1 frame {w}x{h} x {points} points (mean of {n})"),
@@ -509,6 +510,67 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
             runs: fast_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             error: Some(fast_error),
+        },
+    ]);
+    Ok(rows)
+}
+
+/// The shipped hash-grid model ([`crate::app::report::SHIPPED_NGP_CHECKPOINT`], config
+/// `lego_ngp`), when present: a frame of each camera, and the whole `nerf render` command
+/// (20 surround views and the GIF, into a temporary directory).
+fn ngp_rows(
+    cameras: &[PerspectiveCamera],
+    truth: Option<&[RgbImage]>,
+    device: &Device,
+) -> Result<Vec<BenchResult>> {
+    let checkpoint = std::path::Path::new(crate::app::report::SHIPPED_NGP_CHECKPOINT);
+    if !checkpoint.is_file() {
+        return Ok(Vec::new());
+    }
+    let config = Config::load("lego_ngp", &[])?;
+    let (w, h) = config.image_size();
+    let points = config.sampler.n_pts_per_ray;
+    let n = cameras.len();
+    let run = render_run(&config, checkpoint, cameras, device)?;
+    let counts = run
+        .frames
+        .iter()
+        .fold(crate::render::skipping::SampleCounts::default(), |a, f| {
+            a + f.samples
+        });
+    let evaluated = 100.0 * counts.evaluated_fraction();
+    let error = match truth {
+        Some(t) => format!(
+            "PSNR {:.2} dB vs ground truth; field at {evaluated:.1}% of samples",
+            mean_psnr_of_views(&run.frames, t)
+        ),
+        None => format!("field at {evaluated:.1}% of samples"),
+    };
+    let dir = std::env::temp_dir().join(format!("nerf-bench-ngp-{}", std::process::id()));
+    let timed = time_runs(2, || {
+        crate::app::scene::render_nerf_scene(&config, checkpoint, &dir, false, device)
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+    let (command_runs, _) = timed?;
+    let poses = config.cameras.n_poses;
+    Ok(vec![
+        BenchResult {
+            name: "hash-grid render (lego_ngp), grid + early termination".into(),
+            work: format!("1 frame {w}x{h} x {points} points (mean of {n})"),
+            seconds: mean(&run.runs),
+            runs: run.runs,
+            pytorch_seconds: None,
+            error: Some(error),
+        },
+        BenchResult {
+            name: "hash-grid render command (lego_ngp)".into(),
+            work: format!(
+                "`nerf render`: load, {poses} frames {w}x{h} x {points} points, GIF (best of 2)"
+            ),
+            seconds: fastest(&command_runs),
+            runs: command_runs,
+            pytorch_seconds: None,
+            error: None,
         },
     ])
 }
