@@ -17,7 +17,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use anyhow::Result;
-use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::kernels::storage::contiguous_f32;
@@ -55,48 +55,77 @@ pub fn composite(
     ))
 }
 
-/// Colour, depth and opacity, `(N, C + 2)` row-major, of N rays from the packed samples of a
-/// skipping render: `index` holds the flat sample index `ray · S + i` of each evaluated sample
-/// (any order, no repeats), `density` (M) and `feature` (M·C) the field's values there, and
-/// `lengths` (N·S) every sample's length. Samples not listed have σ = 0. This is the value
-/// [`composite`] gives on the dense tensors with zeros at the skipped samples, bit for bit: a
-/// zero optical depth leaves the transmittance and the sums unchanged, so only the listed
-/// samples are visited. No gradient (rendering); its twin is the dense scatter + [`composite`]
-/// that training uses.
-pub fn composite_packed(
-    index: &[u32],
-    density: &[f32],
-    feature: &[f32],
-    lengths: &[f32],
-    (n, s, c): (usize, usize, usize),
-) -> Vec<f32> {
-    // Entries grouped by ray (a counting sort), then in sample order within each ray.
-    let mut start = vec![0usize; n + 1];
-    for &k in index {
-        start[k as usize / s + 1] += 1;
+/// The packed samples of a skipping render grouped by ray: `index` holds the flat sample
+/// index `ray · S + i` of each evaluated sample (any order, no repeats).
+struct PackedRays {
+    n: usize,
+    s: usize,
+    index: Vec<u32>,
+    /// Entries of ray `r`: `order[start[r]..start[r + 1]]`, in sample order.
+    start: Vec<usize>,
+    order: Vec<u32>,
+    /// Every sample's length, `N·S`.
+    lengths: Vec<f32>,
+}
+
+impl PackedRays {
+    fn new(index: Vec<u32>, lengths: Vec<f32>, (n, s): (usize, usize)) -> Self {
+        // A counting sort by ray, then sample order within each ray.
+        let mut start = vec![0usize; n + 1];
+        for &k in &index {
+            start[k as usize / s + 1] += 1;
+        }
+        for r in 0..n {
+            start[r + 1] += start[r];
+        }
+        let mut fill = start.clone();
+        let mut order = vec![0u32; index.len()];
+        for (e, &k) in index.iter().enumerate() {
+            let r = k as usize / s;
+            order[fill[r]] = e as u32;
+            fill[r] += 1;
+        }
+        for r in 0..n {
+            order[start[r]..start[r + 1]].sort_unstable_by_key(|&e| index[e as usize]);
+        }
+        Self {
+            n,
+            s,
+            index,
+            start,
+            order,
+            lengths,
+        }
     }
-    for r in 0..n {
-        start[r + 1] += start[r];
+
+    /// Ray `ray`'s entries (sample order) with each one's sample position `i`, spacing `Δ` and
+    /// optical depth `τ` from `density`.
+    fn walk<'a>(
+        &'a self,
+        ray: usize,
+        density: &'a [f32],
+    ) -> impl Iterator<Item = (usize, usize, f32, f32)> + 'a {
+        let t_ray = &self.lengths[ray * self.s..(ray + 1) * self.s];
+        self.order[self.start[ray]..self.start[ray + 1]]
+            .iter()
+            .map(move |&e| {
+                let e = e as usize;
+                let i = self.index[e] as usize % self.s;
+                let delta = spacing(t_ray, i);
+                (e, i, delta, clamped_optical_depth(density[e], delta))
+            })
     }
-    let mut fill = start.clone();
-    let mut order = vec![0u32; index.len()];
-    for (e, &k) in index.iter().enumerate() {
-        let r = k as usize / s;
-        order[fill[r]] = e as u32;
-        fill[r] += 1;
-    }
-    for r in 0..n {
-        order[start[r]..start[r + 1]].sort_unstable_by_key(|&e| index[e as usize]);
-    }
+}
+
+/// Colour, depth and opacity of N rays, `(N, C + 2)` row-major, from the packed samples of a
+/// skipping render (see [`composite_packed`]), as slices.
+fn packed_forward(rays: &PackedRays, density: &[f32], feature: &[f32], c: usize) -> Vec<f32> {
     let width = c + 2;
-    let mut out = vec![0f32; n * width];
+    let mut out = vec![0f32; rays.n * width];
     out.par_chunks_mut(width).enumerate().for_each(|(ray, o)| {
-        let t_ray = &lengths[ray * s..(ray + 1) * s];
+        let t_ray = &rays.lengths[ray * rays.s..(ray + 1) * rays.s];
         let mut t = 1f32;
-        for &e in &order[start[ray]..start[ray + 1]] {
-            let e = e as usize;
-            let i = index[e] as usize % s;
-            let tau = clamped_optical_depth(density[e], spacing(t_ray, i));
+        for (e, i, _, tau) in rays.walk(ray, density) {
             let a = (-tau).exp();
             let w = t * (1.0 - a);
             t *= a;
@@ -108,6 +137,133 @@ pub fn composite_packed(
         }
     });
     out
+}
+
+/// Colour `(N, C)`, depth and opacity `(N, 1)` of N rays from the packed samples of a skipping
+/// render: `index` holds the flat sample index `ray · S + i` of each evaluated sample (any
+/// order, no repeats), `density` `(M, 1)` and `feature` `(M, C)` the field's values there
+/// (f32, CPU), and `lengths` `(N, S, 1)` every sample's length. Samples not listed have σ = 0.
+/// This is what [`composite`] gives on the dense tensors with zeros at the skipped samples,
+/// bit for bit (a zero optical depth leaves the transmittance and the sums unchanged), but
+/// only the listed samples are visited, forward and backward. Differentiable in `density`
+/// and `feature`; its twin is the dense scatter + [`composite`].
+pub fn composite_packed(
+    index: Vec<u32>,
+    density: &Tensor,
+    feature: &Tensor,
+    lengths: &Tensor,
+) -> Result<(Tensor, Tensor, Tensor)> {
+    let (n, s, _) = lengths.dims3()?;
+    let c = feature.dim(1)?;
+    let lengths_v = lengths
+        .to_dtype(DType::F32)?
+        .flatten_all()?
+        .to_vec1::<f32>()?;
+    let rays = PackedRays::new(index, lengths_v, (n, s));
+    let (density, feature) = (density.contiguous()?, feature.contiguous()?);
+    let op = PackedComposite { rays, c };
+    let out = if density.track_op() || feature.track_op() {
+        density.apply_op2(&feature, op)?
+    } else {
+        density.apply_op2_no_bwd(&feature, &op)?
+    };
+    Ok((
+        out.narrow(1, 0, c)?,
+        out.narrow(1, c, 1)?,
+        out.narrow(1, c + 1, 1)?,
+    ))
+}
+
+struct PackedComposite {
+    rays: PackedRays,
+    c: usize,
+}
+
+impl candle_core::CustomOp2 for PackedComposite {
+    fn name(&self) -> &'static str {
+        "packed-composite"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let density = contiguous_f32(s1, l1, "packed composite")?;
+        let feature = contiguous_f32(s2, l2, "packed composite")?;
+        let m = self.rays.index.len();
+        if density.len() != m || feature.len() != m * self.c {
+            candle_core::bail!(
+                "packed composite: {} densities and {} feature values for {m} samples",
+                density.len(),
+                feature.len()
+            );
+        }
+        let out = packed_forward(&self.rays, density, feature, self.c);
+        Ok((CpuStorage::F32(out), Shape::from((self.rays.n, self.c + 2))))
+    }
+
+    /// The dense backward pass ([`CompositeBackward`]) restricted to the listed samples.
+    fn bwd(
+        &self,
+        density: &Tensor,
+        feature: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        let (rays, c) = (&self.rays, self.c);
+        let width = c + 2;
+        let sigma = density.flatten_all()?.to_vec1::<f32>()?;
+        let values = feature.flatten_all()?.to_vec1::<f32>()?;
+        let go_all = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        // Per ray: (entry, ∂L/∂σ, ∂L/∂v) of each of its samples.
+        let per_ray: Vec<Vec<(usize, f32, Vec<f32>)>> = (0..rays.n)
+            .into_par_iter()
+            .map(|ray| {
+                let go = &go_all[ray * width..(ray + 1) * width];
+                let t_ray = &rays.lengths[ray * rays.s..(ray + 1) * rays.s];
+                let mut t = 1f32;
+                // (entry, Δ, σΔ, w, T after, g) front to back.
+                let walked: Vec<(usize, f32, f32, f32, f32, f32)> = rays
+                    .walk(ray, &sigma)
+                    .map(|(e, i, delta, tau)| {
+                        let a = (-tau).exp();
+                        let w = t * (1.0 - a);
+                        t *= a;
+                        let v = &values[e * c..(e + 1) * c];
+                        let g = go[c] * t_ray[i]
+                            + go[c + 1]
+                            + v.iter().zip(&go[..c]).map(|(v, g)| v * g).sum::<f32>();
+                        (e, delta, sigma[e] * delta, w, t, g)
+                    })
+                    .collect();
+                let mut suffix = 0f32;
+                let mut out = Vec::with_capacity(walked.len());
+                for &(e, delta, raw, w, t_after, g) in walked.iter().rev() {
+                    let d_tau = t_after * g - suffix;
+                    suffix += w * g;
+                    let active = (0.0..MAX_OPTICAL_DEPTH as f32).contains(&raw);
+                    let gs = if active { delta * d_tau } else { 0.0 };
+                    out.push((e, gs, go[..c].iter().map(|g| w * g).collect()));
+                }
+                out
+            })
+            .collect();
+        let m = rays.index.len();
+        let mut g_sigma = vec![0f32; m];
+        let mut g_values = vec![0f32; m * c];
+        for (e, gs, gv) in per_ray.into_iter().flatten() {
+            g_sigma[e] = gs;
+            g_values[e * c..(e + 1) * c].copy_from_slice(&gv);
+        }
+        let dev = density.device();
+        Ok((
+            Some(Tensor::from_vec(g_sigma, density.shape(), dev)?),
+            Some(Tensor::from_vec(g_values, feature.shape(), dev)?),
+        ))
+    }
 }
 
 /// [`composite`] as Candle tensor ops ([`weights`] and [`aggregate`]; any device, differentiable).

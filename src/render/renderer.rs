@@ -97,10 +97,10 @@ impl VolumeRenderer {
             &rays.directions,
         )?;
         let counts = packed.counts;
-        // Rendering composites the packed values directly; training (a tracked value) and
-        // the generic kernels go through the dense, differentiable tensors.
+        // The fused kernels composite the packed values directly (rendering and training);
+        // the generic ones scatter them into dense tensors first.
         let lengths = &samples.lengths;
-        if !packed.tracks_gradient() && use_fused(lengths) && lengths.device().is_cpu() {
+        if use_fused(lengths) && lengths.device().is_cpu() {
             let (color, depth, opacity) = packed.composite(lengths)?;
             return self.finish(color, depth, opacity, counts);
         }

@@ -6,15 +6,17 @@
 //! end within a few samples of the surface, cost a few field calls. In each segment the field
 //! is evaluated at the next occupied samples of still-live rays, as one packed batch. After a
 //! segment, a ray whose transmittance `exp(−Σ τ)` has fallen below the early-termination
-//! threshold is dropped. The packed densities and colours are then
-//! scattered into dense `(N, S, ·)` tensors with zeros at skipped samples, and the ordinary
-//! compositing runs on them: a skipped sample has σ = 0, so its weight is exactly 0.
+//! threshold is dropped. The packed densities and colours are then composited where they are
+//! ([`crate::kernels::composite::composite_packed`], forward and backward over the evaluated
+//! samples only), or, by its tensor-op twin, scattered into dense `(N, S, ·)` tensors with
+//! zeros at skipped samples for the ordinary compositing: a skipped sample has σ = 0, so its
+//! weight is exactly 0, and the two agree bit for bit.
 //!
 //! What that changes against dense rendering: samples in cells marked empty (density below the
 //! grid's threshold when it was last probed) and samples behind the termination point, whose
-//! weights sum to at most the threshold. Gradients flow through the scatter (`index_add`) to
-//! the evaluated samples, so training and rendering share this path; which samples are kept is
-//! decided from values, as in nerfacc.
+//! weights sum to at most the threshold. Gradients flow to the evaluated samples, so training
+//! and rendering share this path; which samples are kept is decided from values, as in
+//! nerfacc.
 
 use anyhow::Result;
 use candle_core::{DType, Tensor};
@@ -217,36 +219,21 @@ impl PackedSamples {
     }
 
     /// Colour `(N, 3)`, depth and opacity `(N, 1)` composited straight from the packed values
-    /// ([`composite_packed`]; no gradient), given every sample's `lengths` `(N, S, 1)`.
+    /// ([`composite_packed`]; differentiable), given every sample's `lengths` `(N, S, 1)`.
     pub fn composite(&self, lengths: &Tensor) -> Result<(Tensor, Tensor, Tensor)> {
-        let (n, s) = (self.rays, self.per_ray);
         let device = lengths.device();
-        let flat = |parts: &[Tensor]| -> Result<Vec<f32>> {
+        let cat = |parts: &[Tensor], width: usize| -> Result<Tensor> {
             Ok(match parts.len() {
-                0 => Vec::new(),
-                _ => Tensor::cat(parts, 0)?
-                    .to_dtype(DType::F32)?
-                    .flatten_all()?
-                    .to_vec1::<f32>()?,
+                0 => Tensor::zeros((0, width), DType::F32, device)?,
+                _ => Tensor::cat(parts, 0)?.to_dtype(DType::F32)?,
             })
         };
-        let lengths_v = lengths
-            .to_dtype(DType::F32)?
-            .flatten_all()?
-            .to_vec1::<f32>()?;
-        let out = composite_packed(
-            &self.index,
-            &flat(&self.densities)?,
-            &flat(&self.colours)?,
-            &lengths_v,
-            (n, s, 3),
-        );
-        let out = Tensor::from_vec(out, (n, 5), device)?.to_dtype(lengths.dtype())?;
-        Ok((
-            out.narrow(1, 0, 3)?,
-            out.narrow(1, 3, 1)?,
-            out.narrow(1, 4, 1)?,
-        ))
+        composite_packed(
+            self.index.clone(),
+            &cat(&self.densities, 1)?,
+            &cat(&self.colours, 3)?,
+            lengths,
+        )
     }
 
     /// The values scattered into dense density `(N, S, 1)` and colour `(N, S, 3)`, zeros at
@@ -515,6 +502,58 @@ mod tests {
                 0.0,
                 "opacity, termination {termination}"
             );
+        }
+    }
+
+    #[test]
+    fn packed_compositing_gradients_equal_the_dense_paths() {
+        let state = {
+            let cfg = NerfParams {
+                n_harmonic_functions_xyz: 3,
+                n_harmonic_functions_dir: 2,
+                n_hidden_neurons_xyz: 16,
+                n_hidden_neurons_dir: 8,
+                n_layers_xyz: 2,
+                append_xyz: vec![1],
+            };
+            crate::train::state::NerfState::seeded(&cfg, 5, &Device::Cpu).unwrap()
+        };
+        let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
+        let config = OccupancyGridParams {
+            resolution: 4,
+            aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
+            density_threshold: 1.0,
+        };
+        let mut grid = OccupancyGrid::new(&config).unwrap();
+        for (c, o) in grid.occupied.iter_mut().enumerate() {
+            *o = c % 4 != 1;
+        }
+        let f = field(&state.model, Some(grid));
+        let samples = sampler.sample(&rays(), None).unwrap();
+        let packed = evaluate_packed(&f, 1e-3, &samples, &rays().directions).unwrap();
+        assert!(packed.tracks_gradient());
+        let (color, depth, opacity) = packed.composite(&samples.lengths).unwrap();
+        let dense = packed.scatter(&Device::Cpu).unwrap();
+        let (c2, d2, o2) = composite(&dense.density, &dense.feature, &samples.lengths).unwrap();
+        let weight = Tensor::randn(0f32, 1.0, color.shape(), &Device::Cpu).unwrap();
+        let loss = |c: &Tensor, d: &Tensor, o: &Tensor| {
+            let l = (c.mul(&weight).unwrap().sum_all().unwrap()
+                + d.sum_all().unwrap().affine(0.1, 0.0).unwrap())
+            .unwrap();
+            (l + o.sum_all().unwrap()).unwrap().backward().unwrap()
+        };
+        let (ga, gb) = (loss(&color, &depth, &opacity), loss(&c2, &d2, &o2));
+        for (name, var) in crate::train::state::named_vars(&state.varmap) {
+            let (a, b) = (ga.get(&var).unwrap(), gb.get(&var).unwrap());
+            let scale = b
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap();
+            let d = max_diff(a, b);
+            assert!(d <= 1e-5 * scale.max(1.0), "{name}: {d} (scale {scale})");
         }
     }
 }
