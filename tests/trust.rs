@@ -535,7 +535,7 @@ fn messages_speak_the_users_language() {
     );
     fails_with(
         &["train", "--config", "lego"],
-        "lego is a render config (it has no training section): train with nerf_lego or nerf_lego_fast",
+        "config lego has `type: render`: it renders, it does not train; run `nerf render --config lego` (or `nerf run --config lego`); to train this scene: `nerf train --config nerf_lego_fast`",
     );
     fails_with(
         &["eval", "--config", "box"],
@@ -621,21 +621,32 @@ fn pytorch_files_where_safetensors_go_and_damaged_archives_are_named() {
     let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/tiny_nerf.pth");
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/tiny_nerf.yaml");
     let dir = tempfile::tempdir().unwrap();
-    // A .pth given as --checkpoint: say what it is and how to convert it.
-    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
-        .args(["render", "--config", "lego", "--checkpoint"])
-        .arg(&fixture)
-        .arg("--out-dir")
-        .arg(dir.path().join("o"))
-        .output()
-        .unwrap();
+    // A .pth given as --checkpoint is read as it is (by its content): it renders with its own
+    // config, and with another config's sizes the error names the tensor and both shapes.
+    let render = |config: &Path, out: &str| {
+        Command::new(env!("CARGO_BIN_EXE_nerf"))
+            .args(["render", "--config"])
+            .arg(config)
+            .arg("--checkpoint")
+            .arg(&fixture)
+            .arg("--out-dir")
+            .arg(dir.path().join(out))
+            .output()
+            .unwrap()
+    };
+    let o = render(Path::new("lego"), "o");
     let err = stderr(&o);
     assert!(!o.status.success());
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(
-        err.contains("is a PyTorch file (torch.save), not safetensors"),
+        err.contains(
+            "tensor mlp_xyz.mlp.0.0.weight has shape [8, 15] but the config needs [128, 39]"
+        ),
         "{err}"
     );
-    assert!(err.contains("nerf import-torch"), "{err}");
+    let o = render(&config, "tiny");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("tiny/render_nerf.gif").is_file());
     // One flipped byte inside a tensor's data: the zip CRC no longer matches, which PyTorch
     // would load silently; import-torch refuses it and writes nothing.
     let mut bytes = std::fs::read(&fixture).unwrap();

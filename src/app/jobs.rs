@@ -39,8 +39,13 @@ pub fn train_job(config: &Config, name: &str) -> Result<TrainJob> {
     );
     match config.kind {
         Some(kind) if kind.renders() => bail!(
-            "config {name} has `type: {}`: it renders, it does not train; run `nerf render --config {name}` (or `nerf run --config {name}`)",
-            kind.name()
+            "config {name} has `type: {}`: it renders, it does not train; run `nerf render --config {name}` (or `nerf run --config {name}`){}",
+            kind.name(),
+            if nerf {
+                "; to train this scene: `nerf train --config nerf_lego_fast` (or nerf_lego, nerf_lego_ngp)"
+            } else {
+                ""
+            }
         ),
         Some(JobKind::Train) if nerf => bail!(
             "config {name} has `type: train`, which fits an SDF volume, but its implicit_function is a nerf (use `type: train_nerf`)"

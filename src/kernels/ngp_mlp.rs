@@ -27,6 +27,10 @@ use crate::kernels::storage::contiguous_f32;
 
 const ROWS_PER_TASK: usize = 256;
 
+/// Tasks of [`ROWS_PER_TASK`] rows whose gradients one backward block sums before the blocks
+/// are added in order.
+const BLOCKS_PER_SUM: usize = 8;
+
 /// Widths of the two MLPs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MlpShape {
@@ -483,16 +487,30 @@ impl CustomOp3 for NgpMlp {
             params: vec![0f32; n_params],
             per_ray: vec![0f32; per_ray_len],
         };
-        let sums = d_enc
-            .par_chunks_mut(ROWS_PER_TASK * e)
-            .zip(enc_v.par_chunks(ROWS_PER_TASK * e))
-            .zip(self.rays.par_chunks(ROWS_PER_TASK))
-            .zip(g.par_chunks(ROWS_PER_TASK * 4))
-            .fold(new_sums, |mut sums, (((d_enc, enc), rays), g)| {
-                self.backward(enc, rays, g, &per_ray_v, &p, d_enc, &mut sums);
+        // Fixed blocks summed in order, so the gradients do not depend on how the work was
+        // shared between threads (a resumed run repeats an uninterrupted one bit for bit).
+        let block = ROWS_PER_TASK * BLOCKS_PER_SUM;
+        let partial: Vec<Sums> = d_enc
+            .par_chunks_mut(block * e)
+            .zip(enc_v.par_chunks(block * e))
+            .zip(self.rays.par_chunks(block))
+            .zip(g.par_chunks(block * 4))
+            .map(|(((d_enc, enc), rays), g)| {
+                let mut sums = new_sums();
+                for (((d_enc, enc), rays), g) in d_enc
+                    .chunks_mut(ROWS_PER_TASK * e)
+                    .zip(enc.chunks(ROWS_PER_TASK * e))
+                    .zip(rays.chunks(ROWS_PER_TASK))
+                    .zip(g.chunks(ROWS_PER_TASK * 4))
+                {
+                    self.backward(enc, rays, g, &per_ray_v, &p, d_enc, &mut sums);
+                }
                 sums
             })
-            .reduce(new_sums, |mut a, b| {
+            .collect();
+        let sums = partial
+            .into_iter()
+            .reduce(|mut a, b| {
                 a.params
                     .iter_mut()
                     .zip(&b.params)
@@ -502,7 +520,8 @@ impl CustomOp3 for NgpMlp {
                     .zip(&b.per_ray)
                     .for_each(|(x, y)| *x += y);
                 a
-            });
+            })
+            .unwrap_or_else(new_sums);
         let dev = enc.device();
         Ok((
             Some(Tensor::from_vec(d_enc, enc.shape(), dev)?),
