@@ -22,7 +22,7 @@ pub fn eval_nerf(
 ) -> Result<EvalReport> {
     if let crate::app::config::ImplicitFunctionConfig::SdfVolume(_) = config.implicit_function {
         anyhow::bail!(
-            "implicit_function.type sdf_volume: eval scores a trained field (nerf or ngp) against a dataset"
+            "implicit_function.type sdf_volume: this command needs a NeRF config (e.g. lego); eval scores a trained field against a dataset"
         );
     }
     let (w, h) = config.image_size();

@@ -529,6 +529,10 @@ pub fn fit(
 ) -> Result<FitOutcome> {
     let (state, adam, info) = start_or_resume(settings, paths, device)?;
     if info.epoch >= settings.num_epochs {
+        // A run killed while rewriting its final checkpoint leaves a temporary file; nothing
+        // else will clean it up here.
+        remove_stale_temp_files(&paths.checkpoint);
+        remove_stale_temp_files(&paths.log);
         note(&format!("already trained for {} epochs", info.epoch));
         return Ok(FitOutcome::Finished(info));
     }
