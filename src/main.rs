@@ -833,7 +833,7 @@ fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
         data_dir: jobs::data_dir_for(&lego_config, data_dir),
         views,
         training_logs,
-        ngp_checkpoint: Some(nerf::app::report::SHIPPED_NGP_CHECKPOINT.into()),
+        ngp_checkpoint: Some(nerf::app::runtime::SHIPPED_NGP_CHECKPOINT.into()),
     };
     for p in nerf::app::report::write_report(&options, device)? {
         say(&format!("wrote {}", p.display()))?;

@@ -615,12 +615,9 @@ pub fn default_training_logs(checkpoint: &Path) -> Vec<PathBuf> {
     vec![
         checkpoint.with_extension("log.jsonl"),
         PathBuf::from("checkpoints/homework/nerf_lego.log.jsonl"),
-        PathBuf::from(SHIPPED_NGP_CHECKPOINT).with_extension("log.jsonl"),
+        PathBuf::from(crate::app::runtime::SHIPPED_NGP_CHECKPOINT).with_extension("log.jsonl"),
     ]
 }
-
-/// The shipped hash-grid lego model (the `lego_ngp` config's checkpoint).
-pub const SHIPPED_NGP_CHECKPOINT: &str = "checkpoints/ngp_lego.safetensors";
 
 /// Runs every measurement.
 pub fn measure(options: &ReportOptions, device: &Device) -> Result<Report> {
@@ -981,7 +978,9 @@ fn lego_section(out: &mut String, report: &Report, plot: &str, m: &str) {
             if l.rows.iter().any(|r| r.acceleration == HASH_GRID_ROWS) {
                 let _ = writeln!(
                     out,
-                    "The `{HASH_GRID_ROWS}` rows render the hash-grid model `{SHIPPED_NGP_CHECKPOINT}`                      (config `lego_ngp`) on the same views; it has no dense reference.\n"
+                    "The `{HASH_GRID_ROWS}` rows render the hash-grid model `{}` (config \
+                     `lego_ngp`) on the same views; it has no dense reference.\n",
+                    crate::app::runtime::SHIPPED_NGP_CHECKPOINT
                 );
             }
             out.push_str(plot);

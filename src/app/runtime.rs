@@ -27,6 +27,9 @@ use crate::train::step::StepSettings;
 /// neither `--checkpoint` nor the config's `training.checkpoint_path` names one.
 pub const SHIPPED_CHECKPOINT: &str = "checkpoints/nerf_lego.safetensors";
 
+/// The shipped hash-grid lego model (the `lego_ngp` config's checkpoint).
+pub const SHIPPED_NGP_CHECKPOINT: &str = "checkpoints/ngp_lego.safetensors";
+
 /// `one` or `many` by `n`.
 pub fn plural<'a>(n: usize, one: &'a str, many: &'a str) -> &'a str {
     if n == 1 {

@@ -200,7 +200,7 @@ impl TrainModel {
         &mut self,
         warmup: bool,
         decay: f32,
-        rng: &mut crate::train::step::TrainRng,
+        rng: &mut impl rand::Rng,
         device: &Device,
     ) -> Result<()> {
         match self {
