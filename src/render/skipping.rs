@@ -350,6 +350,20 @@ mod tests {
         }
     }
 
+    /// A 4³ grid over ±1 with cell `c` empty where `c % every == empty`.
+    fn striped_grid(every: usize, empty: usize) -> OccupancyGrid {
+        let config = OccupancyGridParams {
+            resolution: 4,
+            aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
+            density_threshold: 1.0,
+        };
+        let mut grid = OccupancyGrid::new(&config).unwrap();
+        for (c, o) in grid.occupied.iter_mut().enumerate() {
+            *o = c % every != empty;
+        }
+        grid
+    }
+
     #[test]
     fn packed_forward_equals_dense_forward() {
         let m = model(0.1);
@@ -434,15 +448,7 @@ mod tests {
     fn empty_cells_render_as_zero_density() {
         let m = model(1.0);
         let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
-        let config = OccupancyGridParams {
-            resolution: 4,
-            aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
-            density_threshold: 1.0,
-        };
-        let mut grid = OccupancyGrid::new(&config).unwrap();
-        for (c, o) in grid.occupied.iter_mut().enumerate() {
-            *o = c % 3 != 0;
-        }
+        let grid = striped_grid(3, 0);
         let renderer = VolumeRenderer::new(1000, false).unwrap();
         let out = render(renderer, &field(&m, Some(grid.clone())), &sampler);
         assert!(out.samples.evaluated < out.samples.total);
@@ -470,15 +476,7 @@ mod tests {
     fn packed_compositing_equals_the_dense_scatter_bit_for_bit() {
         let m = model(2.0);
         let sampler = StratifiedSampler::new(48, 2.0, 6.0).unwrap();
-        let config = OccupancyGridParams {
-            resolution: 4,
-            aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
-            density_threshold: 1.0,
-        };
-        let mut grid = OccupancyGrid::new(&config).unwrap();
-        for (c, o) in grid.occupied.iter_mut().enumerate() {
-            *o = c % 5 != 0;
-        }
+        let grid = striped_grid(5, 0);
         let f = field(&m.detached(), Some(grid));
         let samples = sampler.sample(&rays(), None).unwrap();
         for termination in [0.0, 1e-2] {
@@ -519,15 +517,7 @@ mod tests {
             crate::train::state::NerfState::seeded(&cfg, 5, &Device::Cpu).unwrap()
         };
         let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
-        let config = OccupancyGridParams {
-            resolution: 4,
-            aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
-            density_threshold: 1.0,
-        };
-        let mut grid = OccupancyGrid::new(&config).unwrap();
-        for (c, o) in grid.occupied.iter_mut().enumerate() {
-            *o = c % 4 != 1;
-        }
+        let grid = striped_grid(4, 1);
         let f = field(&state.model, Some(grid));
         let samples = sampler.sample(&rays(), None).unwrap();
         let packed = evaluate_packed(&f, 1e-3, &samples, &rays().directions).unwrap();
