@@ -421,7 +421,11 @@ impl Run<'_> {
         if now - self.last_plain_line >= plain_progress_seconds() {
             self.last_plain_line = now;
             let (done, total) = (self.bar.position(), self.bar.length());
-            let eta = now / done.max(1) as f64 * total.saturating_sub(done) as f64;
+            let mut eta = now / done.max(1) as f64 * total.saturating_sub(done) as f64;
+            if let Some(limit) = self.seconds {
+                // `--minutes` ends the run first.
+                eta = eta.min(limit - (self.wall() - self.wall_offset));
+            }
             note(&format!(
                 "step {} ({done}/{total} this run): {message}; eta {}",
                 self.adam.step_count(),
