@@ -227,9 +227,15 @@ impl Ngp {
     }
 
     /// Both MLPs on the encoding `enc` `(M, L·F)` of samples on rays `ray_index` `(M,)` u32
-    /// whose [`Ngp::per_ray`] part is `per_ray` `(N, 64)`: `(M, 4)`, the raw density and RGB.
+    /// (the same indices as `rays`) whose [`Ngp::per_ray`] part is `per_ray` `(N, 64)`:
+    /// `(M, 4)`, the raw density and RGB.
     /// The fused kernel where [`use_fused`] allows, else its tensor-op twin.
-    fn mlps(&self, enc: &Tensor, per_ray: &Tensor, ray_index: &Tensor) -> Result<Tensor> {
+    fn mlps(
+        &self,
+        enc: &Tensor,
+        per_ray: &Tensor,
+        (ray_index, rays): (&Tensor, &[u32]),
+    ) -> Result<Tensor> {
         let bias = |l: &Linear| l.bias().cloned().expect("NGP layers have biases");
         let (b0, b1, b2, b3) = (
             bias(&self.density[0]),
@@ -247,8 +253,7 @@ impl Ngp {
                 geo: GEO_FEATURES,
             };
             let packed = pack_parameters(w0, &b0, w1, &b1, &wg, [w2, &b2, w3, &b3])?;
-            let rays = ray_index.to_vec1::<u32>()?;
-            return Ok(ngp_mlp(enc, per_ray, &rays, &packed, shape)?);
+            return Ok(ngp_mlp(enc, per_ray, rays, &packed, shape)?);
         }
         let layers = MlpLayers {
             w0,
@@ -316,10 +321,10 @@ impl Ngp {
             let dev = directions.device();
             let n_used = used.len();
             let directions = directions.index_select(&Tensor::from_vec(used, n_used, dev)?, 0)?;
-            let local = Tensor::from_vec(local, rays.len(), dev)?;
-            self.mlps(&enc, &self.per_ray(&directions)?, &local)?
+            let local_t = Tensor::from_vec(local.clone(), rays.len(), dev)?;
+            self.mlps(&enc, &self.per_ray(&directions)?, (&local_t, &local))?
         } else {
-            self.mlps(&enc, &self.per_ray(directions)?, ray_index)?
+            self.mlps(&enc, &self.per_ray(directions)?, (ray_index, &rays))?
         };
         let sigma = self.activate(&out.narrow(1, 0, 1)?, &inside)?;
         Ok((sigma, out.narrow(1, 1, 3)?.contiguous()?))
