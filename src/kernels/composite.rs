@@ -64,7 +64,7 @@ struct PackedRays {
     /// Entries of ray `r`: `order[start[r]..start[r + 1]]`, in sample order.
     start: Vec<usize>,
     order: Vec<u32>,
-    /// Every sample's length, `N·S`.
+    /// Every sample's length, `N·S`, or one row of `S` shared by all rays.
     lengths: Vec<f32>,
 }
 
@@ -98,6 +98,12 @@ impl PackedRays {
         }
     }
 
+    /// Ray `ray`'s sample lengths, `S`.
+    fn ray_lengths(&self, ray: usize) -> &[f32] {
+        let row = if self.lengths.len() == self.s { 0 } else { ray };
+        &self.lengths[row * self.s..(row + 1) * self.s]
+    }
+
     /// Ray `ray`'s entries (sample order) with each one's sample position `i`, spacing `Δ` and
     /// optical depth `τ` from `density`.
     fn walk<'a>(
@@ -105,7 +111,7 @@ impl PackedRays {
         ray: usize,
         density: &'a [f32],
     ) -> impl Iterator<Item = (usize, usize, f32, f32)> + 'a {
-        let t_ray = &self.lengths[ray * self.s..(ray + 1) * self.s];
+        let t_ray = self.ray_lengths(ray);
         self.order[self.start[ray]..self.start[ray + 1]]
             .iter()
             .map(move |&e| {
@@ -123,7 +129,7 @@ fn packed_forward(rays: &PackedRays, density: &[f32], feature: &[f32], c: usize)
     let width = c + 2;
     let mut out = vec![0f32; rays.n * width];
     out.par_chunks_mut(width).enumerate().for_each(|(ray, o)| {
-        let t_ray = &rays.lengths[ray * rays.s..(ray + 1) * rays.s];
+        let t_ray = rays.ray_lengths(ray);
         let mut t = 1f32;
         for (e, i, _, tau) in rays.walk(ray, density) {
             let a = (-tau).exp();
@@ -142,18 +148,25 @@ fn packed_forward(rays: &PackedRays, density: &[f32], feature: &[f32], c: usize)
 /// Colour `(N, C)`, depth and opacity `(N, 1)` of N rays from the packed samples of a skipping
 /// render: `index` holds the flat sample index `ray · S + i` of each evaluated sample (any
 /// order, no repeats), `density` `(M, 1)` and `feature` `(M, C)` the field's values there
-/// (f32, CPU), and `lengths` `(N, S, 1)` every sample's length. Samples not listed have σ = 0.
+/// (f32, CPU), and `lengths` `(N, S, 1)` every sample's length, or `(1, S, 1)` lengths shared
+/// by all `n_rays` rays. Samples not listed have σ = 0.
 /// This is what [`composite`] gives on the dense tensors with zeros at the skipped samples,
 /// bit for bit (a zero optical depth leaves the transmittance and the sums unchanged), but
 /// only the listed samples are visited, forward and backward. Differentiable in `density`
 /// and `feature`; its twin is the dense scatter + [`composite`].
 pub fn composite_packed(
     index: Vec<u32>,
+    n_rays: usize,
     density: &Tensor,
     feature: &Tensor,
     lengths: &Tensor,
 ) -> Result<(Tensor, Tensor, Tensor)> {
-    let (n, s, _) = lengths.dims3()?;
+    let (rows, s, _) = lengths.dims3()?;
+    anyhow::ensure!(
+        rows == n_rays || rows == 1,
+        "composite_packed: lengths have {rows} rows for {n_rays} rays"
+    );
+    let n = n_rays;
     let c = feature.dim(1)?;
     let lengths_v = lengths
         .to_dtype(DType::F32)?
@@ -223,7 +236,7 @@ impl candle_core::CustomOp2 for PackedComposite {
             .into_par_iter()
             .map(|ray| {
                 let go = &go_all[ray * width..(ray + 1) * width];
-                let t_ray = &rays.lengths[ray * rays.s..(ray + 1) * rays.s];
+                let t_ray = rays.ray_lengths(ray);
                 let mut t = 1f32;
                 // (entry, Δ, σΔ, w, T after, g) front to back.
                 let walked: Vec<(usize, f32, f32, f32, f32, f32)> = rays

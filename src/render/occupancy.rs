@@ -18,6 +18,18 @@ use rand::Rng;
 /// Points evaluated per density batch when updating or building a grid.
 const DENSITY_BATCH: usize = 1 << 16;
 
+/// Cells per side of the blocks that ray marching skips whole ([`OccupancyGrid::empty_blocks`]).
+pub const BLOCK: usize = 8;
+
+/// Which blocks of [`BLOCK`]³ cells of a grid are empty (x slowest, as the cells).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EmptyBlocks {
+    /// Blocks per side, `ceil(R / BLOCK)`.
+    pub per_side: usize,
+    /// Per block: no occupied cell.
+    pub empty: Vec<bool>,
+}
+
 /// The occupancy grid of one field.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OccupancyGrid {
@@ -114,22 +126,99 @@ impl OccupancyGrid {
     #[inline]
     pub fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
         let r = self.resolution;
-        let mut idx = 0;
-        for ((v, lo), hi) in p.iter().zip(&self.aabb_min).zip(&self.aabb_max) {
-            let u = (v - lo) / (hi - lo);
+        let [x, y, z] = self.cell_coordinates(p)?;
+        Some((x * r + y) * r + z)
+    }
+
+    /// The integer coordinates `[ix, iy, iz]` of the cell holding `p`, or `None` outside the
+    /// bounding box (or for NaN).
+    #[inline]
+    pub fn cell_coordinates(&self, p: [f32; 3]) -> Option<[usize; 3]> {
+        let r = self.resolution;
+        let mut cell = [0; 3];
+        for k in 0..3 {
+            let (lo, hi) = (self.aabb_min[k], self.aabb_max[k]);
+            let u = (p[k] - lo) / (hi - lo);
             // Also rejects NaN.
             if !(0.0..1.0).contains(&u) {
                 return None;
             }
-            idx = idx * r + ((u * r as f32) as usize).min(r - 1);
+            cell[k] = ((u * r as f32) as usize).min(r - 1);
         }
-        Some(idx)
+        Some(cell)
     }
 
     /// Whether the field may have density at `p`.
     #[inline]
     pub fn is_occupied(&self, p: [f32; 3]) -> bool {
         self.cell_of(p).is_some_and(|c| self.occupied[c])
+    }
+
+    /// The depths `(enter, exit)` between which the ray `origin + t·direction` is inside the
+    /// bounding box (the slab test, in f64), or `None` when it misses the box.
+    pub fn crossing(&self, origin: [f32; 3], direction: [f32; 3]) -> Option<(f64, f64)> {
+        let (mut enter, mut exit) = (f64::NEG_INFINITY, f64::INFINITY);
+        for k in 0..3 {
+            let (o, d) = (f64::from(origin[k]), f64::from(direction[k]));
+            let (lo, hi) = (f64::from(self.aabb_min[k]), f64::from(self.aabb_max[k]));
+            if d == 0.0 {
+                if o < lo || o > hi {
+                    return None;
+                }
+                continue;
+            }
+            let (a, b) = ((lo - o) / d, (hi - o) / d);
+            enter = enter.max(a.min(b));
+            exit = exit.min(a.max(b));
+        }
+        (enter <= exit).then_some((enter, exit))
+    }
+
+    /// Which blocks of [`BLOCK`]³ cells hold no occupied cell, from the current flags.
+    pub fn empty_blocks(&self) -> EmptyBlocks {
+        let r = self.resolution;
+        let per_side = r.div_ceil(BLOCK);
+        let mut empty = vec![true; per_side * per_side * per_side];
+        for (cell, _) in self.occupied.iter().enumerate().filter(|(_, o)| **o) {
+            let [x, y, z] = [
+                cell / (r * r) / BLOCK,
+                (cell / r) % r / BLOCK,
+                cell % r / BLOCK,
+            ];
+            empty[(x * per_side + y) * per_side + z] = false;
+        }
+        EmptyBlocks { per_side, empty }
+    }
+
+    /// When `p` lies in an empty block of `blocks`, the depths `(enter, exit)` at which the
+    /// ray `origin + t·direction` crosses that block's box (f64); else `None`. Samples strictly
+    /// inside that depth range (with a margin for rounding) are in empty cells.
+    pub fn empty_block_crossing(
+        &self,
+        blocks: &EmptyBlocks,
+        p: [f32; 3],
+        origin: [f32; 3],
+        direction: [f32; 3],
+    ) -> Option<(f64, f64)> {
+        let cell = self.cell_coordinates(p)?;
+        let b = cell.map(|c| c / BLOCK);
+        let n = blocks.per_side;
+        if !blocks.empty[(b[0] * n + b[1]) * n + b[2]] {
+            return None;
+        }
+        let (mut enter, mut exit) = (f64::NEG_INFINITY, f64::INFINITY);
+        for k in 0..3 {
+            let size = f64::from(self.aabb_max[k] - self.aabb_min[k]) / self.resolution as f64;
+            let lo = f64::from(self.aabb_min[k]) + (b[k] * BLOCK) as f64 * size;
+            let hi = lo + BLOCK as f64 * size;
+            let (o, d) = (f64::from(origin[k]), f64::from(direction[k]));
+            if d != 0.0 {
+                let (a, c) = ((lo - o) / d, (hi - o) / d);
+                enter = enter.max(a.min(c));
+                exit = exit.min(a.max(c));
+            }
+        }
+        Some((enter, exit))
     }
 
     /// Fraction of cells marked occupied.

@@ -89,23 +89,20 @@ impl VolumeRenderer {
             }
             return self.composite_samples(field, rays, lengths);
         }
-        let samples = sampler.sample(rays, jitter)?;
-        let packed = crate::render::skipping::evaluate_packed(
-            field,
-            self.early_termination,
-            &samples,
-            &rays.directions,
-        )?;
+        // (1, S, 1) without jitter: no per-ray copies of the same depths.
+        let lengths = &sampler.compact_lengths(rays, jitter)?;
+        let packed =
+            crate::render::skipping::evaluate_packed(field, self.early_termination, rays, lengths)?;
         let counts = packed.counts;
         // The fused kernels composite the packed values directly (rendering and training);
         // the generic ones scatter them into dense tensors first.
-        let lengths = &samples.lengths;
         if use_fused(lengths) && lengths.device().is_cpu() {
             let (color, depth, opacity) = packed.composite(lengths)?;
             return self.finish(color, depth, opacity, counts);
         }
         let out = packed.scatter(lengths.device())?;
-        let (color, depth, opacity) = composite(&out.density, &out.feature, lengths)?;
+        let lengths = lengths.broadcast_as(out.density.shape())?.contiguous()?;
+        let (color, depth, opacity) = composite(&out.density, &out.feature, &lengths)?;
         self.finish(color, depth, opacity, counts)
     }
 

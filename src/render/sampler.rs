@@ -109,26 +109,33 @@ impl StratifiedSampler {
     /// The sample depths of [`StratifiedSampler::sample`] alone, `(N, S, 1)` in the rays'
     /// dtype (for fields that place the points themselves, [`crate::render::field::Field::render_fused`]).
     pub fn lengths(&self, rays: &Rays, jitter: Option<&mut dyn rand::RngCore>) -> Result<Tensor> {
+        let lengths = self.compact_lengths(rays, jitter)?;
+        let (_, s, _) = lengths.dims3()?;
+        Ok(lengths.broadcast_as((rays.len(), s, 1))?.contiguous()?)
+    }
+
+    /// The sample depths without repeats: `(1, S, 1)` shared by every ray without jitter,
+    /// `(N, S, 1)` with it; in the rays' dtype.
+    pub fn compact_lengths(
+        &self,
+        rays: &Rays,
+        jitter: Option<&mut dyn rand::RngCore>,
+    ) -> Result<Tensor> {
         let n = rays.len();
         let s = self.n_pts_per_ray;
         let device = rays.origins.device();
         let dtype = rays.origins.dtype();
-        let lengths = match jitter {
-            None if dtype == DType::F64 => Tensor::from_vec(self.depths(), (1, s, 1), device)?
-                .broadcast_as((n, s, 1))?
-                .contiguous()?,
+        Ok(match jitter {
+            None if dtype == DType::F64 => Tensor::from_vec(self.depths(), (1, s, 1), device)?,
             None => {
                 let z: Vec<f32> = self.depths().into_iter().map(|v| v as f32).collect();
                 Tensor::from_vec(z, (1, s, 1), device)?
-                    .broadcast_as((n, s, 1))?
-                    .contiguous()?
             }
             Some(rng) => {
                 Tensor::from_vec(self.jittered_depths(n, &mut RngRef(rng)), (n, s, 1), device)?
                     .to_dtype(dtype)?
             }
-        };
-        Ok(lengths)
+        })
     }
 }
 

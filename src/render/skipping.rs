@@ -20,11 +20,13 @@
 
 use anyhow::Result;
 use candle_core::{DType, Tensor};
+use rayon::prelude::*;
 
+use crate::core::rays::Rays;
 use crate::core::volume::{clamped_optical_depth, spacing};
 use crate::kernels::composite::composite_packed;
 use crate::render::field::{Field, FieldOutput};
-use crate::render::sampler::RaySamples;
+use crate::render::occupancy::{EmptyBlocks, OccupancyGrid};
 
 /// The most occupied samples per ray evaluated between early-termination checks.
 pub const SEGMENT: usize = 16;
@@ -48,14 +50,15 @@ pub fn segment_length(n_pts_per_ray: usize, early_termination: f64) -> usize {
     }
 }
 
-/// How many samples a render drew, how many lay in occupied cells, and at how many the
-/// field was evaluated.
+/// How many samples a render drew, how many it tested against the occupancy grid, and at how
+/// many the field was evaluated.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SampleCounts {
     /// Samples drawn (rays × samples per ray).
     pub total: usize,
-    /// Samples in occupied cells of the occupancy grid (all of them without a grid).
-    pub in_occupied_cells: usize,
+    /// Samples tested against the occupancy grid: those that can lie in its box, as far as
+    /// each ray stayed live (without a grid, every sample up to where the ray ended).
+    pub examined: usize,
     /// Samples at which the field was evaluated.
     pub evaluated: usize,
 }
@@ -70,7 +73,7 @@ impl SampleCounts {
     pub fn dense(total: usize) -> Self {
         Self {
             total,
-            in_occupied_cells: total,
+            examined: total,
             evaluated: total,
         }
     }
@@ -82,7 +85,7 @@ impl std::ops::Add for SampleCounts {
     fn add(self, other: Self) -> Self {
         Self {
             total: self.total + other.total,
-            in_occupied_cells: self.in_occupied_cells + other.in_occupied_cells,
+            examined: self.examined + other.examined,
             evaluated: self.evaluated + other.evaluated,
         }
     }
@@ -91,37 +94,48 @@ impl std::ops::Add for SampleCounts {
 /// Evaluates `field` at the samples that can contribute (see the module), packed: the flat
 /// indices of the evaluated samples and the field's values there, by segment.
 ///
-/// `samples`: points and lengths `(N, S, ·)`; `directions`: `(N, 3)`.
+/// The samples are marched, not materialised: each ray's points `o + t·d` are formed only
+/// where they are tested, from the first sample that can lie in the grid's bounding box
+/// ([`OccupancyGrid::crossing`]) and only as far as the ray is still live, so a ray that
+/// misses the box costs nothing and one that ends at a surface is not tested behind it.
+///
+/// `rays`: N rays; `lengths`: each ray's sample depths `(N, S, 1)`, increasing, or `(1, S, 1)`
+/// depths shared by all rays.
 pub fn evaluate_packed(
     field: &dyn Field,
     early_termination: f64,
-    samples: &RaySamples,
-    directions: &Tensor,
+    rays: &Rays,
+    lengths: &Tensor,
 ) -> Result<PackedSamples> {
-    let (n, s, _) = samples.points.dims3()?;
-    let device = samples.points.device();
-    let points = samples
-        .points
-        .to_dtype(DType::F32)?
-        .flatten_all()?
-        .to_vec1::<f32>()?;
-    let lengths = samples
-        .lengths
-        .to_dtype(DType::F32)?
-        .flatten_all()?
-        .to_vec1::<f32>()?;
-    let keep: Vec<bool> = match field.occupancy() {
-        Some(g) => points
-            .chunks_exact(3)
-            .map(|p| g.is_occupied([p[0], p[1], p[2]]))
-            .collect(),
-        None => vec![true; n * s],
+    let (rows, s, _) = lengths.dims3()?;
+    let n = rays.len();
+    anyhow::ensure!(
+        rows == n || rows == 1,
+        "sample lengths have {rows} rows for {n} rays"
+    );
+    // Ray `ray`'s depths start at `ray · stride` (0 when shared).
+    let stride = if rows == 1 { 0 } else { s };
+    let device = lengths.device();
+    let f32_values = |t: &Tensor| -> Result<Vec<f32>> {
+        Ok(t.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?)
     };
-    let mut stats = SampleCounts {
-        total: n * s,
-        in_occupied_cells: keep.iter().filter(|k| **k).count(),
-        evaluated: 0,
-    };
+    let (origins, directions) = (f32_values(&rays.origins)?, f32_values(&rays.directions)?);
+    let lengths = f32_values(lengths)?;
+    let grid = field.occupancy().map(|grid| MarchGrid {
+        grid,
+        blocks: grid.empty_blocks(),
+    });
+    let grid = grid.as_ref();
+    let mut marches: Vec<RayMarch> = (0..n)
+        .map(|ray| {
+            let t = &lengths[ray * stride..ray * stride + s];
+            let (o, d) = (
+                &origins[3 * ray..3 * ray + 3],
+                &directions[3 * ray..3 * ray + 3],
+            );
+            RayMarch::new(grid, [o[0], o[1], o[2]], [d[0], d[1], d[2]], t)
+        })
+        .collect();
     // A ray is live while its optical depth so far is below −ln(threshold).
     let depth_limit = if early_termination > 0.0 {
         -(early_termination.ln()) as f32
@@ -129,51 +143,58 @@ pub fn evaluate_packed(
         f32::INFINITY
     };
     let mut ray_depth = vec![0f32; n];
-    // Each ray's occupied samples (flat indices `ray · S + i`), front to back.
-    let occupied: Vec<Vec<u32>> = (0..n)
-        .map(|ray| {
-            (ray * s..(ray + 1) * s)
-                .filter(|&k| keep[k])
-                .map(|k| k as u32)
-                .collect()
-        })
-        .collect();
+    let mut counts = SampleCounts {
+        total: n * s,
+        ..SampleCounts::default()
+    };
     let mut all_index: Vec<u32> = Vec::new();
     let mut densities = Vec::new();
     let mut colours = Vec::new();
-    let mut taken = 0;
     for k in 0.. {
         let size = if early_termination > 0.0 {
             segment_sizes(k)
         } else {
             s
         };
-        let index: Vec<u32> = (0..n)
-            .filter(|&ray| ray_depth[ray] < depth_limit)
-            .flat_map(|ray| occupied[ray].iter().skip(taken).take(size).copied())
+        // Rays are marched in parallel blocks; the blocks' samples are joined in ray order.
+        let parts: Vec<Segment> = marches
+            .par_chunks_mut(MARCH_BLOCK)
+            .enumerate()
+            .map(|(b, block)| {
+                let mut part = Segment::default();
+                for (j, march) in block.iter_mut().enumerate() {
+                    let ray = b * MARCH_BLOCK + j;
+                    if ray_depth[ray] >= depth_limit {
+                        continue;
+                    }
+                    let t = &lengths[ray * stride..ray * stride + s];
+                    for _ in 0..size {
+                        let Some((i, p)) = march.next_occupied(grid, t) else {
+                            break;
+                        };
+                        part.index.push((ray * s + i) as u32);
+                        part.points.extend_from_slice(&p);
+                        part.ray_index.push(ray as u32);
+                    }
+                }
+                part
+            })
             .collect();
-        taken += size;
+        let (index, points, ray_index) = Segment::join(parts);
         if index.is_empty() {
             break;
         }
-        // Occupied samples per ray taken so far (no ray has more than S).
-        let end = taken;
         let m = index.len();
-        let packed: Vec<f32> = index
-            .iter()
-            .flat_map(|&k| points[3 * k as usize..3 * k as usize + 3].iter().copied())
-            .collect();
-        let ray_index: Vec<u32> = index.iter().map(|&k| k / s as u32).collect();
         let (density, colour) = field.evaluate_packed(
-            &Tensor::from_vec(packed, (m, 3), device)?,
+            &Tensor::from_vec(points, (m, 3), device)?,
             &Tensor::from_vec(ray_index, m, device)?,
-            directions,
+            &rays.directions,
         )?;
-        if depth_limit.is_finite() && end < s {
+        if depth_limit.is_finite() {
             let values = density.flatten_all()?.to_vec1::<f32>()?;
             for (&k, &sigma) in index.iter().zip(&values) {
                 let (ray, i) = (k as usize / s, k as usize % s);
-                let delta = spacing(&lengths[ray * s..(ray + 1) * s], i);
+                let delta = spacing(&lengths[ray * stride..ray * stride + s], i);
                 ray_depth[ray] += clamped_optical_depth(sigma, delta);
             }
         }
@@ -181,15 +202,118 @@ pub fn evaluate_packed(
         densities.push(density);
         colours.push(colour);
     }
-    stats.evaluated = all_index.len();
+    counts.evaluated = all_index.len();
+    counts.examined = marches.iter().map(|m| m.examined).sum();
     Ok(PackedSamples {
         rays: n,
         per_ray: s,
         index: all_index,
         densities,
         colours,
-        counts: stats,
+        counts,
     })
+}
+
+/// Rays marched together by one task.
+const MARCH_BLOCK: usize = 512;
+
+/// The samples one block of rays contributes to a segment: flat sample indices, points
+/// (3 values each) and ray indices.
+#[derive(Default)]
+struct Segment {
+    index: Vec<u32>,
+    points: Vec<f32>,
+    ray_index: Vec<u32>,
+}
+
+impl Segment {
+    /// The parts' samples, concatenated in order.
+    fn join(parts: Vec<Segment>) -> (Vec<u32>, Vec<f32>, Vec<u32>) {
+        let mut all = Segment::default();
+        for part in parts {
+            all.index.extend(part.index);
+            all.points.extend(part.points);
+            all.ray_index.extend(part.ray_index);
+        }
+        (all.index, all.points, all.ray_index)
+    }
+}
+
+/// The grid a march tests samples against, and its empty blocks.
+struct MarchGrid<'a> {
+    grid: &'a OccupancyGrid,
+    blocks: EmptyBlocks,
+}
+
+/// Depth margin, in world units, kept between a skipped sample and the edge of the empty
+/// block it was skipped in (far above f32 rounding of points; far below sample spacings).
+const BLOCK_MARGIN: f64 = 1e-4;
+
+/// One ray's walk over its samples, front to back: the next sample to test, the end of the
+/// samples that can lie in the grid's box, and how many were tested.
+struct RayMarch {
+    origin: [f32; 3],
+    direction: [f32; 3],
+    next: usize,
+    end: usize,
+    examined: usize,
+}
+
+impl RayMarch {
+    /// The walk over depths `t` (increasing) of the ray `origin + t·direction`: every sample
+    /// without a grid, else those that can lie in its box, one sample of margin either side
+    /// for rounding (the exact test is [`OccupancyGrid::is_occupied`] at each point).
+    fn new(grid: Option<&MarchGrid>, origin: [f32; 3], direction: [f32; 3], t: &[f32]) -> Self {
+        let (next, end) = match grid.map(|g| g.grid.crossing(origin, direction)) {
+            None => (0, t.len()),
+            Some(None) => (0, 0),
+            Some(Some((enter, exit))) => (
+                t.partition_point(|&v| f64::from(v) < enter)
+                    .saturating_sub(1),
+                (t.partition_point(|&v| f64::from(v) <= exit) + 1).min(t.len()),
+            ),
+        };
+        Self {
+            origin,
+            direction,
+            next,
+            end,
+            examined: 0,
+        }
+    }
+
+    /// The next sample in an occupied cell (all samples without a grid): its index along the
+    /// ray and its point `o + t·d` (the same f32 arithmetic as
+    /// [`crate::kernels::sample_points`]), or `None` when the ray has no more. Samples in an
+    /// empty block are passed over without a test, except within [`BLOCK_MARGIN`] of its
+    /// faces; the result is exactly the per-sample test's.
+    fn next_occupied(&mut self, grid: Option<&MarchGrid>, t: &[f32]) -> Option<(usize, [f32; 3])> {
+        while self.next < self.end {
+            let i = self.next;
+            self.next += 1;
+            self.examined += 1;
+            let p = std::array::from_fn(|k| self.origin[k] + t[i] * self.direction[k]);
+            let Some(g) = grid else {
+                return Some((i, p));
+            };
+            if g.grid.is_occupied(p) {
+                return Some((i, p));
+            }
+            let crossing = g
+                .grid
+                .empty_block_crossing(&g.blocks, p, self.origin, self.direction);
+            if let Some((enter, exit)) = crossing {
+                while self.next < self.end {
+                    let v = f64::from(t[self.next]);
+                    if v <= enter + BLOCK_MARGIN || v >= exit - BLOCK_MARGIN {
+                        break;
+                    }
+                    self.next += 1;
+                }
+            }
+        }
+        None
+    }
 }
 
 /// The field's values at the samples [`evaluate_packed`] chose.
@@ -204,7 +328,7 @@ pub struct PackedSamples {
     pub densities: Vec<Tensor>,
     /// Colours `(M_k, 3)` per segment, in the order of `index`.
     pub colours: Vec<Tensor>,
-    /// How many samples were drawn, lay in occupied cells and were evaluated.
+    /// How many samples were drawn, tested and evaluated.
     pub counts: SampleCounts,
 }
 
@@ -219,7 +343,8 @@ impl PackedSamples {
     }
 
     /// Colour `(N, 3)`, depth and opacity `(N, 1)` composited straight from the packed values
-    /// ([`composite_packed`]; differentiable), given every sample's `lengths` `(N, S, 1)`.
+    /// ([`composite_packed`]; differentiable), given every sample's `lengths` `(N, S, 1)` (or
+    /// `(1, S, 1)` shared by all rays).
     pub fn composite(&self, lengths: &Tensor) -> Result<(Tensor, Tensor, Tensor)> {
         let device = lengths.device();
         let cat = |parts: &[Tensor], width: usize| -> Result<Tensor> {
@@ -230,6 +355,7 @@ impl PackedSamples {
         };
         composite_packed(
             self.index.clone(),
+            self.rays,
             &cat(&self.densities, 1)?,
             &cat(&self.colours, 3)?,
             lengths,
@@ -254,18 +380,18 @@ impl PackedSamples {
 /// evaluation ([`Field::supports_packed`]); its occupancy grid, if any, decides which samples
 /// lie in occupied cells.
 ///
-/// `samples`: points `(N, S, 3)`, lengths `(N, S, 1)`; `directions`: `(N, 3)`. Returns density
-/// `(N, S, 1)` and colour `(N, S, 3)`, and the sample counts. `grid = None` keeps every sample
-/// (early termination only); `early_termination = 0` keeps every live sample (skipping only).
+/// `rays`: N rays; `lengths`: sample depths `(N, S, 1)`. Returns density `(N, S, 1)` and
+/// colour `(N, S, 3)`, and the sample counts. Without a grid every sample is kept (early
+/// termination only); `early_termination = 0` keeps every live sample (skipping only).
 pub fn evaluate_skipping(
     field: &dyn Field,
     early_termination: f64,
-    samples: &RaySamples,
-    directions: &Tensor,
+    rays: &Rays,
+    lengths: &Tensor,
 ) -> Result<(FieldOutput, SampleCounts)> {
-    let packed = evaluate_packed(field, early_termination, samples, directions)?;
+    let packed = evaluate_packed(field, early_termination, rays, lengths)?;
     let counts = packed.counts;
-    Ok((packed.scatter(samples.points.device())?, counts))
+    Ok((packed.scatter(lengths.device())?, counts))
 }
 
 /// Scatters packed densities `(M, 1)` and colours `(M, 3)` (in the order of `index`, flat
@@ -300,9 +426,9 @@ mod tests {
     use candle_core::Device;
 
     use super::*;
-    use crate::core::rays::Rays;
     use crate::field::nerf::{Nerf, NerfField, NerfParams};
     use crate::kernels::composite::composite;
+    use crate::kernels::sample_points::sample_points;
     use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams};
     use crate::render::renderer::{RenderOutput, VolumeRenderer};
     use crate::render::sampler::StratifiedSampler;
@@ -473,6 +599,60 @@ mod tests {
     }
 
     #[test]
+    fn marching_keeps_exactly_the_samples_in_occupied_cells() {
+        use rand::{Rng, SeedableRng};
+        // A 32³ grid over ±1.5 (4³ blocks): occupied cells scattered inside a ball, so most
+        // blocks are empty and whole blocks are skipped.
+        let config = OccupancyGridParams {
+            resolution: 32,
+            aabb: [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5],
+            density_threshold: 1.0,
+        };
+        let mut grid = OccupancyGrid::new(&config).unwrap();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        for (c, o) in grid.occupied.iter_mut().enumerate() {
+            let [x, y, z] = [c / 1024, (c / 32) % 32, c % 32].map(|v| v as f32 - 15.5);
+            *o = x * x + y * y + z * z < 100.0 && rng.random::<f32>() < 0.3;
+        }
+        assert!(grid.empty_blocks().empty.iter().any(|e| *e));
+        let f = field(&model(1.0).detached(), Some(grid.clone()));
+        let cam = crate::core::camera::surround_cameras(4.0, 3, glam::DVec3::Z, 2.0)[1];
+        let rays = Rays::for_image(&cam, 24, 20, &Device::Cpu).unwrap();
+        let sampler = StratifiedSampler::new(96, 2.0, 6.0).unwrap();
+        for jitter in [false, true] {
+            let lengths = if jitter {
+                sampler.compact_lengths(&rays, Some(&mut rng)).unwrap()
+            } else {
+                sampler.compact_lengths(&rays, None).unwrap()
+            };
+            let packed = evaluate_packed(&f, 0.0, &rays, &lengths).unwrap();
+            // Every sample materialised and tested on its own.
+            let dense_lengths = lengths.broadcast_as((rays.len(), 96, 1)).unwrap();
+            let points = sample_points(&rays.origins, &rays.directions, &dense_lengths)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap();
+            let expected: Vec<u32> = (0..points.len() / 3)
+                .filter(|&k| {
+                    grid.is_occupied([points[3 * k], points[3 * k + 1], points[3 * k + 2]])
+                })
+                .map(|k| k as u32)
+                .collect();
+            assert!(!expected.is_empty());
+            let mut got = packed.index.clone();
+            got.sort_unstable();
+            assert_eq!(got, expected, "jitter {jitter}");
+            assert!(
+                packed.counts.examined < packed.counts.total / 2,
+                "{:?}",
+                packed.counts
+            );
+        }
+    }
+
+    #[test]
     fn packed_compositing_equals_the_dense_scatter_bit_for_bit() {
         let m = model(2.0);
         let sampler = StratifiedSampler::new(48, 2.0, 6.0).unwrap();
@@ -480,7 +660,7 @@ mod tests {
         let f = field(&m.detached(), Some(grid));
         let samples = sampler.sample(&rays(), None).unwrap();
         for termination in [0.0, 1e-2] {
-            let packed = evaluate_packed(&f, termination, &samples, &rays().directions).unwrap();
+            let packed = evaluate_packed(&f, termination, &rays(), &samples.lengths).unwrap();
             assert!(!packed.tracks_gradient());
             let (color, depth, opacity) = packed.composite(&samples.lengths).unwrap();
             let dense = packed.scatter(&Device::Cpu).unwrap();
@@ -520,7 +700,7 @@ mod tests {
         let grid = striped_grid(4, 1);
         let f = field(&state.model, Some(grid));
         let samples = sampler.sample(&rays(), None).unwrap();
-        let packed = evaluate_packed(&f, 1e-3, &samples, &rays().directions).unwrap();
+        let packed = evaluate_packed(&f, 1e-3, &rays(), &samples.lengths).unwrap();
         assert!(packed.tracks_gradient());
         let (color, depth, opacity) = packed.composite(&samples.lengths).unwrap();
         let dense = packed.scatter(&Device::Cpu).unwrap();
