@@ -547,6 +547,38 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
     // 27.2 dB with the shipped model); the grid must skip most samples.
     assert!(psnr > 24.0, "{psnr}");
     assert!(evaluated < 0.1, "{evaluated}");
+    // Coarse-to-fine instead of the grid: 64 stratified samples, 64 more from their weights.
+    let dense = [
+        "renderer.occupancy_grid=null",
+        "renderer.early_termination=0",
+        "sampler.n_pts_per_ray=64",
+    ];
+    let fine = eval(&[&dense[..], &["sampler.n_pts_per_ray_fine=64"]].concat());
+    let fine_psnr = fine["mean_psnr"].as_f64().unwrap();
+    eprintln!("coarse-to-fine 64 + 64: {fine_psnr:.2} dB");
+    assert!(fine_psnr > 24.0, "{fine_psnr}");
+    assert!(fine["evaluated_fraction"].as_f64().unwrap() > 1.0);
+    let stratified = eval(&dense)["mean_psnr"].as_f64().unwrap();
+    assert!(
+        fine_psnr > stratified,
+        "{fine_psnr} vs stratified 64: {stratified}"
+    );
+    let o = nerf(&[
+        "eval",
+        "--config",
+        "lego",
+        "--checkpoint",
+        ckpt,
+        "--data-dir",
+        data_arg,
+        "sampler.n_pts_per_ray_fine=64",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("sampler.n_pts_per_ray_fine"),
+        "{}",
+        stderr(&o)
+    );
     // The render command writes the GIF from the checkpoint alone (no dataset).
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");

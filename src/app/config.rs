@@ -26,6 +26,10 @@ pub mod limits {
     /// Most samples in one training batch (`batch_size × n_pts_per_ray`), all held with
     /// their activations for the backward pass.
     pub const BATCH_SAMPLES: usize = 1 << 21;
+    /// Most samples drawn in one step whose rays adapt to `training.samples_per_step`: with an
+    /// occupancy grid or early termination only the evaluated ones hold activations, a drawn
+    /// one costs its depth and a grid test.
+    pub const DRAWN_SAMPLES: usize = 1 << 23;
     /// Most harmonic functions of a positional embedding (2^31 is past f32 precision).
     pub const HARMONICS: usize = 32;
     /// Widest hidden layer.
@@ -260,6 +264,12 @@ pub struct SamplerConfig {
     pub min_depth: f64,
     /// Depth of the last sample along each ray (`sampler.max_depth`, ≥ `min_depth`).
     pub max_depth: f64,
+    /// Coarse-to-fine sampling (`sampler.n_pts_per_ray_fine`, default 0 = off): this many
+    /// more depths per ray drawn from the weights of a coarse pass over the `n_pts_per_ray`
+    /// stratified ones ([`crate::render::hierarchical`]); not with an occupancy grid or early
+    /// termination.
+    #[serde(default)]
+    pub n_pts_per_ray_fine: usize,
 }
 
 /// `implicit_function.sdf`: the shape (`box` with `side_lengths`, or `sphere` with `radius`).
@@ -850,6 +860,13 @@ impl Config {
             self.sampler.n_pts_per_ray,
             limits::PTS_PER_RAY,
         )?;
+        if self.sampler.n_pts_per_ray_fine > limits::PTS_PER_RAY {
+            bail!(
+                "sampler.n_pts_per_ray_fine: must be at most {} (got {})",
+                limits::PTS_PER_RAY,
+                self.sampler.n_pts_per_ray_fine
+            );
+        }
         self.validate_renderer()?;
         self.validate_sampler()?;
         self.validate_cameras()?;
@@ -880,6 +897,9 @@ impl Config {
         let accelerated = early > 0.0 || self.renderer.occupancy_grid.is_some();
         if accelerated && matches!(self.implicit_function, ImplicitFunctionConfig::SdfVolume(_)) {
             bail!("renderer.occupancy_grid and renderer.early_termination need implicit_function.type nerf or ngp");
+        }
+        if accelerated && self.sampler.n_pts_per_ray_fine > 0 {
+            bail!("sampler.n_pts_per_ray_fine (coarse-to-fine sampling) renders densely: set renderer.occupancy_grid=null and renderer.early_termination=0");
         }
         Ok(())
     }
@@ -953,11 +973,12 @@ impl Config {
             }
         }
         if let Some(batch) = t.batch_size {
-            let samples = batch.saturating_mul(self.sampler.n_pts_per_ray);
+            let samples =
+                batch.saturating_mul(self.sampler.n_pts_per_ray + self.sampler.n_pts_per_ray_fine);
             if samples > limits::BATCH_SAMPLES {
                 bail!(
                     "training.batch_size: {batch} rays x {} points is {samples} samples per step, more than {}",
-                    self.sampler.n_pts_per_ray,
+                    self.sampler.n_pts_per_ray + self.sampler.n_pts_per_ray_fine,
                     limits::BATCH_SAMPLES
                 );
             }

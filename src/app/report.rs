@@ -49,6 +49,10 @@ pub struct ReportOptions {
 /// The name of the lego section's hash-grid rows.
 pub const HASH_GRID_ROWS: &str = "hash grid (grid + early termination)";
 
+/// The lego study's coarse-to-fine rows: the MLP rendered densely at `n/2` stratified depths
+/// and `n/2` more drawn from their weights ([`crate::render::hierarchical`]).
+pub const COARSE_TO_FINE_ROWS: &str = "coarse-to-fine (n/2 coarse + n/2 fine)";
+
 /// Sizes of a full or a quick run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Sizes {
@@ -493,6 +497,16 @@ pub fn lego_study(
             progress.inc(1);
         }
     }
+    for &n in &sizes.lego_pts {
+        let half = (n / 2).max(1);
+        let fine = format!("sampler.n_pts_per_ray_fine={}", n - half);
+        let mut overrides: Vec<&str> = dense_overrides.iter().map(|s| s.as_ref()).collect();
+        overrides.push(&fine);
+        let (frames, seconds) = run(&config_for(half, &overrides)?)?;
+        rows.push(lego_row(COARSE_TO_FINE_ROWS, n, seconds, &frames, &truth)?);
+        rows.last_mut().expect("pushed").psnr_vs_dense = mean_psnr_of_views(&frames, &reference);
+        progress.inc(1);
+    }
     if let Some(ngp) = options.ngp_checkpoint.as_ref().filter(|p| p.is_file()) {
         for &n in &sizes.lego_pts {
             let mut overrides = vec![
@@ -504,19 +518,7 @@ pub fn lego_study(
             let field = config.load_field(ngp, device)?;
             let (frames, seconds) =
                 timed_frames(&config, &*field, &cameras, sizes.repeats, device)?;
-            let counts = frames
-                .iter()
-                .fold(crate::render::skipping::SampleCounts::default(), |a, f| {
-                    a + f.samples
-                });
-            rows.push(LegoRow {
-                acceleration: HASH_GRID_ROWS.to_string(),
-                n_pts: n,
-                seconds_per_frame: seconds,
-                psnr_vs_truth: mean_psnr_of_views(&frames, &truth),
-                psnr_vs_dense: f64::NAN,
-                evaluated: counts.evaluated_fraction(),
-            });
+            rows.push(lego_row(HASH_GRID_ROWS, n, seconds, &frames, &truth)?);
         }
     }
     Ok(LegoStudy {
@@ -525,6 +527,30 @@ pub fn lego_study(
         views,
         reference_pts: sizes.lego_reference_pts,
         rows,
+    })
+}
+
+/// A lego study row of `frames` rendered in `seconds` per frame with `n_pts` samples per
+/// ray, scored against `truth` (no dense reference: `psnr_vs_dense` is NaN).
+fn lego_row(
+    acceleration: &str,
+    n_pts: usize,
+    seconds: f64,
+    frames: &[RenderedView],
+    truth: &[RgbImage],
+) -> Result<LegoRow> {
+    let counts = frames
+        .iter()
+        .fold(crate::render::skipping::SampleCounts::default(), |a, f| {
+            a + f.samples
+        });
+    Ok(LegoRow {
+        acceleration: acceleration.to_string(),
+        n_pts,
+        seconds_per_frame: seconds,
+        psnr_vs_truth: mean_psnr_of_views(frames, truth),
+        psnr_vs_dense: f64::NAN,
+        evaluated: counts.evaluated_fraction(),
     })
 }
 
@@ -624,7 +650,7 @@ pub fn measure(options: &ReportOptions, device: &Device) -> Result<Report> {
     let start = Instant::now();
     let sizes = Sizes::new(options.quick, options.views);
     let box_renders = 2 * (1 + sizes.box_pts.len());
-    let lego_renders = 1 + accelerations().len() * sizes.lego_pts.len();
+    let lego_renders = 1 + (accelerations().len() + 1) * sizes.lego_pts.len();
     let progress = crate::io::progress::progress_bar((box_renders + lego_renders) as u64, "report");
     let homework_box = box_study(HOMEWORK_BETA, false, &sizes, device, &progress)?;
     let hard_box = box_study(HARD_BETA, true, &sizes, device, &progress)?;
@@ -734,7 +760,7 @@ fn lego_plot(study: &LegoStudy) -> LinePlot {
         series: accelerations()
             .iter()
             .map(|(name, _)| *name)
-            .chain(std::iter::once(HASH_GRID_ROWS))
+            .chain([COARSE_TO_FINE_ROWS, HASH_GRID_ROWS])
             .filter(|name| study.rows.iter().any(|r| r.acceleration == *name))
             .map(|name| Series {
                 label: name.to_string(),
@@ -975,6 +1001,12 @@ fn lego_section(out: &mut String, report: &Report, plot: &str, m: &str) {
                 s.repeats,
                 l.reference_pts
             );
+            if l.rows.iter().any(|r| r.acceleration == COARSE_TO_FINE_ROWS) {
+                let _ = writeln!(
+                    out,
+                    "The `{COARSE_TO_FINE_ROWS}` rows render the same MLP densely in two                      passes (`sampler.n_pts_per_ray_fine`, pytorch3d's NeRF project's                      hierarchical sampling with one network): n/2 stratified samples, then                      n/2 more drawn from their weights, the fine pass evaluating all n.                      The field is evaluated at 150% of the n samples a ray keeps; compare                      the rows at equal seconds per frame.\n"
+                );
+            }
             if l.rows.iter().any(|r| r.acceleration == HASH_GRID_ROWS) {
                 let _ = writeln!(
                     out,

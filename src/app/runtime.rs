@@ -61,11 +61,12 @@ impl Config {
 
     /// The `sampler` section as a sampler.
     pub fn sampler(&self) -> Result<StratifiedSampler> {
-        StratifiedSampler::new(
+        Ok(StratifiedSampler::new(
             self.sampler.n_pts_per_ray,
             self.sampler.min_depth,
             self.sampler.max_depth,
-        )
+        )?
+        .with_fine(self.sampler.n_pts_per_ray_fine))
     }
 
     /// The `renderer` section as a renderer: chunk size, background, early termination (the
@@ -276,8 +277,22 @@ impl Config {
             resume: t.resume,
             grid: self.grid_schedule(),
             samples_per_step: t.samples_per_step,
-            max_rays: crate::app::config::limits::BATCH_SAMPLES / self.sampler.n_pts_per_ray.max(1),
+            max_rays: self.max_rays_per_step()?,
         })
+    }
+
+    /// The most rays an adapted training step may take: those whose drawn samples fit
+    /// [`limits::DRAWN_SAMPLES`] when the renderer skips samples (an occupancy grid or early
+    /// termination; only evaluated samples hold activations), else [`limits::BATCH_SAMPLES`].
+    fn max_rays_per_step(&self) -> Result<usize> {
+        use crate::app::config::limits;
+        let skips = self.grid_schedule().is_some() || self.renderer()?.early_termination > 0.0;
+        let budget = if skips {
+            limits::DRAWN_SAMPLES
+        } else {
+            limits::BATCH_SAMPLES
+        };
+        Ok(budget / self.sampler.n_pts_per_ray.max(1))
     }
 
     /// The checkpoint of [`Config::checkpoint`] (`<checkpoint_path>/nerf_<dataset>.safetensors`,

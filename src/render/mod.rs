@@ -2,6 +2,7 @@
 
 pub mod depth_points;
 pub mod field;
+pub mod hierarchical;
 pub mod occupancy;
 pub mod pointcloud;
 pub mod renderer;
