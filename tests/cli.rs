@@ -515,21 +515,17 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
     let ckpt = checkpoint.to_str().unwrap();
     let data_arg = data.to_str().unwrap();
     // With its occupancy grid and early termination (the lego config), and densely.
+    let eval_args = [
+        "eval",
+        "--config",
+        "lego",
+        "--checkpoint",
+        ckpt,
+        "--data-dir",
+        data_arg,
+    ];
     let eval = |extra: &[&str]| -> serde_json::Value {
-        let mut args = vec![
-            "eval",
-            "--config",
-            "lego",
-            "--checkpoint",
-            ckpt,
-            "--data-dir",
-            data_arg,
-            "--limit",
-            "3",
-            "--json",
-        ];
-        args.extend(extra);
-        let o = nerf(&args);
+        let o = nerf(&[&eval_args[..], &["--limit", "3", "--json"], extra].concat());
         assert!(o.status.success(), "{}", stderr(&o));
         serde_json::from_slice(&o.stdout).unwrap()
     };
@@ -563,16 +559,7 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
         fine_psnr > stratified,
         "{fine_psnr} vs stratified 64: {stratified}"
     );
-    let o = nerf(&[
-        "eval",
-        "--config",
-        "lego",
-        "--checkpoint",
-        ckpt,
-        "--data-dir",
-        data_arg,
-        "sampler.n_pts_per_ray_fine=64",
-    ]);
+    let o = nerf(&[&eval_args[..], &["sampler.n_pts_per_ray_fine=64"]].concat());
     assert!(!o.status.success());
     assert!(
         stderr(&o).contains("sampler.n_pts_per_ray_fine"),

@@ -34,11 +34,14 @@ pub fn sample_pdf(edges: &[f32], weights: &[f32], u: &[f32]) -> Vec<f32> {
         cdf.push(sum);
     }
     let last = cdf.len() - 1;
+    // Exactly 1, so that u = 1 maps to the far edge whatever the rounding of the sum.
+    cdf[last] = 1.0;
     u.iter()
         .map(|&u| {
-            // The first cdf entry above u (searchsorted, right = True).
-            let above = cdf.partition_point(|&c| c <= u).min(last);
-            let below = above.saturating_sub(1);
+            // The first cdf entry above u (searchsorted, right = True), and the bin edges
+            // either side of it (both the last one past the end).
+            let index = cdf.partition_point(|&c| c <= u);
+            let (below, above) = (index.saturating_sub(1), index.min(last));
             let mut denom = cdf[above] - cdf[below];
             if denom < WEIGHT_EPS {
                 denom = 1.0;
@@ -161,6 +164,65 @@ mod tests {
             }
             assert!((*g as f64 - depth).abs() < 1e-4, "u {u}: {g} vs {depth}");
         }
+    }
+
+    #[test]
+    fn matches_pytorch3d_hierarchical_sampling() {
+        // tests/fixtures/sample_pdf.json is written by scripts/make_sample_pdf_fixture.py with
+        // PyTorch (pytorch3d's sample_pdf and the NeRF project's concatenate-and-sort).
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/fixtures/sample_pdf.json"
+        );
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        let floats = |key: &str| -> Vec<f32> {
+            json[key]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap() as f32)
+                .collect()
+        };
+        let size = |key: &str| json[key].as_u64().unwrap() as usize;
+        let (n, s, fine) = (size("rays"), size("coarse"), size("fine"));
+        let (z, w, u_random) = (floats("lengths"), floats("weights"), floats("u_random"));
+        let close = |got: &[f32], expected: &[f32], what: &str| {
+            assert_eq!(got.len(), expected.len());
+            for (k, (g, e)) in got.iter().zip(expected).enumerate() {
+                assert!(
+                    (g - e).abs() <= 2e-5 * e.abs().max(1.0),
+                    "{what}[{k}]: {g} vs {e}"
+                );
+            }
+        };
+        // sample_pdf at PyTorch's random quantiles, ray by ray.
+        let fine_random = floats("fine_random");
+        for ray in 0..n {
+            let z = &z[ray * s..(ray + 1) * s];
+            let mids: Vec<f32> = z.windows(2).map(|p| 0.5 * (p[0] + p[1])).collect();
+            let got = sample_pdf(
+                &mids,
+                &w[ray * s + 1..(ray + 1) * s - 1],
+                &u_random[ray * fine..(ray + 1) * fine],
+            );
+            close(
+                &got,
+                &fine_random[ray * fine..(ray + 1) * fine],
+                "fine_random",
+            );
+        }
+        // The render-time fine pass depths (linspace quantiles), merged and sorted.
+        let dev = &Device::Cpu;
+        let lengths = Tensor::from_vec(z.clone(), (n, s, 1), dev).unwrap();
+        let weights = Tensor::from_vec(w.clone(), (n, s, 1), dev).unwrap();
+        let merged = fine_lengths(&lengths, &weights, fine, None)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        close(&merged, &floats("merged_render"), "merged_render");
     }
 
     #[test]
