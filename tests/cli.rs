@@ -884,14 +884,16 @@ fn report_quick_measures_and_writes_markdown_json_and_plots() {
     // Lego (where the data is): every acceleration at 32 and 128 samples per ray.
     if data.is_dir() {
         let lego = json["lego"]["Ok"]["rows"].as_array().unwrap();
-        // Four accelerations of the MLP at two sample counts, and the shipped hash-grid model
-        // at both counts.
+        // Four accelerations of the MLP and coarse-to-fine at two sample counts, and the
+        // shipped hash-grid model at both counts.
         let hash = "hash grid (grid + early termination)";
         let shipped_ngp = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("checkpoints/ngp_lego.safetensors")
             .is_file();
-        let hash_rows = lego.iter().filter(|r| r["acceleration"] == hash).count();
-        assert_eq!(lego.len() - hash_rows, 8);
+        let rows_of = |name: &str| lego.iter().filter(|r| r["acceleration"] == name).count();
+        let hash_rows = rows_of(hash);
+        assert_eq!(lego.len() - hash_rows, 10);
+        assert_eq!(rows_of("coarse-to-fine (n/2 coarse + n/2 fine)"), 2);
         assert_eq!(hash_rows, if shipped_ngp { 2 } else { 0 });
         for r in lego {
             let psnr = r["psnr_vs_truth"].as_f64().unwrap();

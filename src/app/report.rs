@@ -1004,7 +1004,12 @@ fn lego_section(out: &mut String, report: &Report, plot: &str, m: &str) {
             if l.rows.iter().any(|r| r.acceleration == COARSE_TO_FINE_ROWS) {
                 let _ = writeln!(
                     out,
-                    "The `{COARSE_TO_FINE_ROWS}` rows render the same MLP densely in two                      passes (`sampler.n_pts_per_ray_fine`, pytorch3d's NeRF project's                      hierarchical sampling with one network): n/2 stratified samples, then                      n/2 more drawn from their weights, the fine pass evaluating all n.                      The field is evaluated at 150% of the n samples a ray keeps; compare                      the rows at equal seconds per frame.\n"
+                    "The `{COARSE_TO_FINE_ROWS}` rows render the same MLP densely in two \
+                     passes (`sampler.n_pts_per_ray_fine`, pytorch3d's NeRF project's \
+                     hierarchical sampling with one network): n/2 stratified samples, then \
+                     n/2 more drawn from their weights, the fine pass evaluating all n. \
+                     The field is evaluated at 150% of the n samples a ray keeps; compare \
+                     the rows at equal seconds per frame.\n"
                 );
             }
             if l.rows.iter().any(|r| r.acceleration == HASH_GRID_ROWS) {
