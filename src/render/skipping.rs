@@ -116,26 +116,16 @@ pub fn evaluate_packed(
     // Ray `ray`'s depths start at `ray · stride` (0 when shared).
     let stride = if rows == 1 { 0 } else { s };
     let device = lengths.device();
-    let f32_values = |t: &Tensor| -> Result<Vec<f32>> {
-        Ok(t.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?)
-    };
-    let (origins, directions) = (f32_values(&rays.origins)?, f32_values(&rays.directions)?);
-    let lengths = f32_values(lengths)?;
+    let lengths = lengths
+        .to_dtype(DType::F32)?
+        .flatten_all()?
+        .to_vec1::<f32>()?;
     let grid = field.occupancy().map(|grid| MarchGrid {
         grid,
         blocks: grid.empty_blocks(),
     });
     let grid = grid.as_ref();
-    let mut marches: Vec<RayMarch> = (0..n)
-        .map(|ray| {
-            let t = &lengths[ray * stride..ray * stride + s];
-            let (o, d) = (
-                &origins[3 * ray..3 * ray + 3],
-                &directions[3 * ray..3 * ray + 3],
-            );
-            RayMarch::new(grid, [o[0], o[1], o[2]], [d[0], d[1], d[2]], t)
-        })
-        .collect();
+    let mut marches = start_marches(grid, rays, &lengths, stride, s)?;
     // A ray is live while its optical depth so far is below −ln(threshold).
     let depth_limit = if early_termination > 0.0 {
         -(early_termination.ln()) as f32
@@ -156,31 +146,9 @@ pub fn evaluate_packed(
         } else {
             s
         };
-        // Rays are marched in parallel blocks; the blocks' samples are joined in ray order.
-        let parts: Vec<Segment> = marches
-            .par_chunks_mut(MARCH_BLOCK)
-            .enumerate()
-            .map(|(b, block)| {
-                let mut part = Segment::default();
-                for (j, march) in block.iter_mut().enumerate() {
-                    let ray = b * MARCH_BLOCK + j;
-                    if ray_depth[ray] >= depth_limit {
-                        continue;
-                    }
-                    let t = &lengths[ray * stride..ray * stride + s];
-                    for _ in 0..size {
-                        let Some((i, p)) = march.next_occupied(grid, t) else {
-                            break;
-                        };
-                        part.index.push((ray * s + i) as u32);
-                        part.points.extend_from_slice(&p);
-                        part.ray_index.push(ray as u32);
-                    }
-                }
-                part
-            })
-            .collect();
-        let (index, points, ray_index) = Segment::join(parts);
+        let live: Vec<bool> = ray_depth.iter().map(|&d| d < depth_limit).collect();
+        let (index, points, ray_index) =
+            march_segment(&mut marches, &live, grid, &lengths, stride, s, size);
         if index.is_empty() {
             break;
         }
@@ -212,6 +180,65 @@ pub fn evaluate_packed(
         colours,
         counts,
     })
+}
+
+/// One [`RayMarch`] per ray of `rays`; ray `r`'s `s` depths start at `lengths[r · stride]`.
+fn start_marches(
+    grid: Option<&MarchGrid>,
+    rays: &Rays,
+    lengths: &[f32],
+    stride: usize,
+    s: usize,
+) -> Result<Vec<RayMarch>> {
+    let f32_values = |t: &Tensor| -> Result<Vec<f32>> {
+        Ok(t.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?)
+    };
+    let (origins, directions) = (f32_values(&rays.origins)?, f32_values(&rays.directions)?);
+    Ok((0..rays.len())
+        .map(|ray| {
+            let t = &lengths[ray * stride..ray * stride + s];
+            let (o, d) = (&origins[3 * ray..], &directions[3 * ray..]);
+            RayMarch::new(grid, [o[0], o[1], o[2]], [d[0], d[1], d[2]], t)
+        })
+        .collect())
+}
+
+/// The next `size` occupied samples of every `live` ray, marched in parallel blocks of rays
+/// and joined in ray order: flat sample indices `ray · S + i`, points (3 values each) and ray
+/// indices. `lengths`: ray `r`'s `S` depths start at `r · stride`.
+fn march_segment(
+    marches: &mut [RayMarch],
+    live: &[bool],
+    grid: Option<&MarchGrid>,
+    lengths: &[f32],
+    stride: usize,
+    s: usize,
+    size: usize,
+) -> (Vec<u32>, Vec<f32>, Vec<u32>) {
+    let parts: Vec<Segment> = marches
+        .par_chunks_mut(MARCH_BLOCK)
+        .enumerate()
+        .map(|(b, block)| {
+            let mut part = Segment::default();
+            for (j, march) in block.iter_mut().enumerate() {
+                let ray = b * MARCH_BLOCK + j;
+                if !live[ray] {
+                    continue;
+                }
+                let t = &lengths[ray * stride..ray * stride + s];
+                for _ in 0..size {
+                    let Some((i, p)) = march.next_occupied(grid, t) else {
+                        break;
+                    };
+                    part.index.push((ray * s + i) as u32);
+                    part.points.extend_from_slice(&p);
+                    part.ray_index.push(ray as u32);
+                }
+            }
+            part
+        })
+        .collect();
+    Segment::join(parts)
 }
 
 /// Rays marched together by one task.
