@@ -503,8 +503,11 @@ pub fn lego_study(
         let mut overrides: Vec<&str> = dense_overrides.iter().map(|s| s.as_ref()).collect();
         overrides.push(&fine);
         let (frames, seconds) = run(&config_for(half, &overrides)?)?;
-        rows.push(lego_row(COARSE_TO_FINE_ROWS, n, seconds, &frames, &truth)?);
-        rows.last_mut().expect("pushed").psnr_vs_dense = mean_psnr_of_views(&frames, &reference);
+        let row = lego_row(COARSE_TO_FINE_ROWS, n, seconds, &frames, &truth);
+        rows.push(LegoRow {
+            psnr_vs_dense: mean_psnr_of_views(&frames, &reference),
+            ..row
+        });
         progress.inc(1);
     }
     if let Some(ngp) = options.ngp_checkpoint.as_ref().filter(|p| p.is_file()) {
@@ -518,7 +521,7 @@ pub fn lego_study(
             let field = config.load_field(ngp, device)?;
             let (frames, seconds) =
                 timed_frames(&config, &*field, &cameras, sizes.repeats, device)?;
-            rows.push(lego_row(HASH_GRID_ROWS, n, seconds, &frames, &truth)?);
+            rows.push(lego_row(HASH_GRID_ROWS, n, seconds, &frames, &truth));
         }
     }
     Ok(LegoStudy {
@@ -538,20 +541,20 @@ fn lego_row(
     seconds: f64,
     frames: &[RenderedView],
     truth: &[RgbImage],
-) -> Result<LegoRow> {
+) -> LegoRow {
     let counts = frames
         .iter()
         .fold(crate::render::skipping::SampleCounts::default(), |a, f| {
             a + f.samples
         });
-    Ok(LegoRow {
+    LegoRow {
         acceleration: acceleration.to_string(),
         n_pts,
         seconds_per_frame: seconds,
         psnr_vs_truth: mean_psnr_of_views(frames, truth),
         psnr_vs_dense: f64::NAN,
         evaluated: counts.evaluated_fraction(),
-    })
+    }
 }
 
 /// Test PSNR and per-epoch training PSNR of one training log against its wall clock.

@@ -47,7 +47,11 @@ pub fn composite(
     }
     let c = feature.dim(2)?;
     // σ and the features are read through their strides, so a field's output is not copied.
-    let out = density.apply_op3(lengths, feature, Composite)?;
+    split_output(&density.apply_op3(lengths, feature, Composite)?, c)
+}
+
+/// The fused ops' `(N, C + 2)` output as colour `(N, C)`, depth and opacity `(N, 1)`.
+fn split_output(out: &Tensor, c: usize) -> Result<(Tensor, Tensor, Tensor)> {
     Ok((
         out.narrow(1, 0, c)?,
         out.narrow(1, c, 1)?,
@@ -180,11 +184,7 @@ pub fn composite_packed(
     } else {
         density.apply_op2_no_bwd(&feature, &op)?
     };
-    Ok((
-        out.narrow(1, 0, c)?,
-        out.narrow(1, c, 1)?,
-        out.narrow(1, c + 1, 1)?,
-    ))
+    split_output(&out, c)
 }
 
 struct PackedComposite {

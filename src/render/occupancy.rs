@@ -125,9 +125,14 @@ impl OccupancyGrid {
     /// The cell holding point `p`, or `None` outside the bounding box.
     #[inline]
     pub fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
+        Some(self.cell_index(self.cell_coordinates(p)?))
+    }
+
+    /// The index of the cell at integer coordinates `[ix, iy, iz]` (each below `R`).
+    #[inline]
+    pub fn cell_index(&self, [x, y, z]: [usize; 3]) -> usize {
         let r = self.resolution;
-        let [x, y, z] = self.cell_coordinates(p)?;
-        Some((x * r + y) * r + z)
+        (x * r + y) * r + z
     }
 
     /// The integer coordinates `[ix, iy, iz]` of the cell holding `p`, or `None` outside the
@@ -190,17 +195,17 @@ impl OccupancyGrid {
         EmptyBlocks { per_side, empty }
     }
 
-    /// When `p` lies in an empty block of `blocks`, the depths `(enter, exit)` at which the
-    /// ray `origin + t·direction` crosses that block's box (f64); else `None`. Samples strictly
+    /// When the cell at coordinates `cell` ([`OccupancyGrid::cell_coordinates`]) lies in an
+    /// empty block of `blocks`, the depths `(enter, exit)` at which the ray
+    /// `origin + t·direction` crosses that block's box (f64); else `None`. Samples strictly
     /// inside that depth range (with a margin for rounding) are in empty cells.
     pub fn empty_block_crossing(
         &self,
         blocks: &EmptyBlocks,
-        p: [f32; 3],
+        cell: [usize; 3],
         origin: [f32; 3],
         direction: [f32; 3],
     ) -> Option<(f64, f64)> {
-        let cell = self.cell_coordinates(p)?;
         let b = cell.map(|c| c / BLOCK);
         let n = blocks.per_side;
         if !blocks.empty[(b[0] * n + b[1]) * n + b[2]] {

@@ -323,12 +323,16 @@ impl RayMarch {
             let Some(g) = grid else {
                 return Some((i, p));
             };
-            if g.grid.is_occupied(p) {
+            // [`OccupancyGrid::is_occupied`], keeping the cell for the block test.
+            let Some(cell) = g.grid.cell_coordinates(p) else {
+                continue;
+            };
+            if g.grid.occupied[g.grid.cell_index(cell)] {
                 return Some((i, p));
             }
-            let crossing = g
-                .grid
-                .empty_block_crossing(&g.blocks, p, self.origin, self.direction);
+            let crossing =
+                g.grid
+                    .empty_block_crossing(&g.blocks, cell, self.origin, self.direction);
             if let Some((enter, exit)) = crossing {
                 while self.next < self.end {
                     let v = f64::from(t[self.next]);
