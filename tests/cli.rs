@@ -649,20 +649,25 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    // About 0.1 s per epoch, a checkpoint after each: kills land anywhere, writes included.
+    // A checkpoint after each epoch: kills land anywhere, writes included.
     let epochs = 30;
     let straight = dir.path().join("straight");
-    let timer = std::time::Instant::now();
     assert!(common::tiny_train(&straight, &data, epochs, 1)
         .status()
         .unwrap()
         .success());
-    // Kill moments spread over an uninterrupted run's length: on a busy machine loading the
-    // data alone can take over a second, and fixed delays would all land before epoch 1.
-    let span = (timer.elapsed().as_millis() as u64).max(1000);
+    let (_, straight_info) = nerf::io::checkpoint::load(
+        &straight.join("nerf_lego.safetensors"),
+        &candle_core::Device::Cpu,
+    )
+    .unwrap();
+    let steps_per_epoch = straight_info.adam_step / epochs as u64;
     let killed = dir.path().join("killed");
     let ckpt = killed.join("nerf_lego.safetensors");
-    // Kill at varied moments (seeded): while loading data, mid-epoch, mid-write.
+    let log = killed.join("nerf_lego.log.jsonl");
+    // Kills are placed by the run's progress, read from its log, not by wall time: on a busy
+    // machine the same delay covers anything from loading the data to the whole run, and a
+    // run that finishes before its kill ends the test with too few kills (seen in CI).
     let mut state = 12345u64;
     let mut last_epoch = 0;
     let (mut kills, mut mid_write) = (0, 0);
@@ -670,7 +675,6 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
         state = state
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
-        let delay = span / 10 + (state >> 33) % span;
         if round % 3 == 2 {
             // Temporary files of an earlier killed write (the run removes them too, at start).
             for e in std::fs::read_dir(&killed).into_iter().flatten().flatten() {
@@ -679,17 +683,21 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
                 }
             }
         }
+        // The furthest step logged so far (a killed run's steps past its checkpoint included).
+        let logged = last_logged_step(&log);
         // Each write pauses 150 ms before its rename, so many kills land mid-write.
         let mut child = common::tiny_train(&killed, &data, epochs, 1)
             .env("NERF_FAULT_WRITE_DELAY_MS", "150")
             .spawn()
             .unwrap();
-        if round % 3 == 2 {
-            // Wait for a write in progress (its temporary file), so that some kills surely
-            // land mid-write however loaded the machine is.
-            let start = std::time::Instant::now();
-            while start.elapsed() < std::time::Duration::from_secs(20)
+        let start = std::time::Instant::now();
+        let waiting = |child: &mut std::process::Child| {
+            start.elapsed() < std::time::Duration::from_secs(60)
                 && child.try_wait().unwrap().is_none()
+        };
+        if round % 3 == 2 {
+            // Wait for a write in progress (its temporary file): a kill surely lands mid-write.
+            while waiting(&mut child)
                 && !std::fs::read_dir(&killed).is_ok_and(|d| {
                     d.flatten()
                         .any(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
@@ -698,7 +706,13 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
                 std::thread::sleep(std::time::Duration::from_millis(2));
             }
         } else {
-            std::thread::sleep(std::time::Duration::from_millis(delay));
+            // Round 0 kills while the data loads; the others after 1 or 2 more epochs of
+            // steps, then up to 0.2 s more: mid-epoch, mid-write or between.
+            let ahead = if round == 0 { 0 } else { 1 + (state >> 40) % 2 };
+            while waiting(&mut child) && last_logged_step(&log) < logged + ahead * steps_per_epoch {
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+            std::thread::sleep(std::time::Duration::from_millis((state >> 33) % 200));
         }
         let finished = child.try_wait().unwrap().is_some();
         if !finished {
@@ -754,7 +768,7 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
     }
     assert!(worst < 1e-5, "resumed run differs by {worst}");
     // The log has each step once, and no temporary files are left.
-    let log = std::fs::read_to_string(killed.join("nerf_lego.log.jsonl")).unwrap();
+    let log = std::fs::read_to_string(&log).unwrap();
     let steps: Vec<u64> = log
         .lines()
         .map(|l| {
@@ -771,6 +785,18 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
         .filter(|n| n.ends_with(".tmp"))
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+/// The largest `step` in a training log; 0 when there is none yet. A line being written (no
+/// newline yet) is skipped.
+fn last_logged_step(log: &std::path::Path) -> u64 {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    text.split_inclusive('\n')
+        .filter(|l| l.ends_with('\n'))
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter_map(|v| v["step"].as_u64())
+        .max()
+        .unwrap_or(0)
 }
 
 #[test]
