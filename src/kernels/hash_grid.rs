@@ -141,30 +141,55 @@ impl Level {
     /// this level's table and its trilinear weight (corner `k` takes bit `a` of `k` on axis `a`).
     pub fn corners(&self, p: [f32; 3]) -> [(u32, f32); 8] {
         let n = self.resolution;
-        let mut cell = [0u32; 3];
-        let mut frac = [0f32; 3];
+        // Per axis: the cell's two corner coordinates' terms of the row index, and their
+        // weights. Corner `k` sums (dense) or XORs (hashed) one term per axis.
+        let mut terms = [[0u32; 2]; 3];
+        let mut weights = [[0f32; 2]; 3];
+        let stride = [1, n + 1, (n + 1) * (n + 1)];
         for a in 0..3 {
             let x = p[a].clamp(0.0, 1.0) * n as f32;
-            let c = (x.floor() as u32).min(n - 1);
-            cell[a] = c;
-            frac[a] = x - c as f32;
+            // x ≥ 0 (NaN clamps to NaN and casts to 0), so truncation is the floor, without
+            // a call to libm's floorf (not inlined on a baseline x86-64 build).
+            let c = (x as u32).min(n - 1);
+            let frac = x - c as f32;
+            weights[a] = [1.0 - frac, frac];
+            terms[a] = if self.dense {
+                [c * stride[a], (c + 1) * stride[a]]
+            } else {
+                [
+                    c.wrapping_mul(HASH_PRIMES[a]),
+                    (c + 1).wrapping_mul(HASH_PRIMES[a]),
+                ]
+            };
         }
         let mut out = [(0u32, 0f32); 8];
         for (k, o) in out.iter_mut().enumerate() {
-            let mut c = cell;
-            let mut w = 1.0;
-            for a in 0..3 {
-                if k >> a & 1 == 1 {
-                    c[a] += 1;
-                    w *= frac[a];
-                } else {
-                    w *= 1.0 - frac[a];
-                }
-            }
-            *o = (self.index(c), w);
+            let (x, y, z) = (k & 1, k >> 1 & 1, k >> 2 & 1);
+            let row = if self.dense {
+                terms[0][x] + terms[1][y] + terms[2][z]
+            } else {
+                (terms[0][x] ^ terms[1][y] ^ terms[2][z]) & self.table_mask
+            };
+            // The same product order as `index`'s callers always used: x, then y, then z.
+            *o = (row, weights[0][x] * weights[1][y] * weights[2][z]);
         }
         out
     }
+}
+
+/// The trilinear interpolation of a level's rows `table` (`T·F` values) at `corners`, for
+/// `F` features, summed in corner order (as the generic loop does).
+#[inline(always)]
+fn interpolate<const F: usize>(corners: &[(u32, f32); 8], table: &[f32]) -> [f32; F] {
+    let mut sum = [0f32; F];
+    for &(i, w) in corners {
+        let row = i as usize * F;
+        let values: &[f32; F] = table[row..row + F].try_into().expect("a row of F values");
+        for (s, v) in sum.iter_mut().zip(values) {
+            *s += w * v;
+        }
+    }
+    sum
 }
 
 /// Encodes `points` `(M, 3)` (in [0, 1]³) with `table` `(L·T, F)`: `(M, L·F)`, level-major
@@ -354,10 +379,17 @@ impl CustomOp2 for HashEncode {
                 for (o, q) in out.chunks_exact_mut(width).zip(pts.chunks_exact(3)) {
                     for (l, level) in levels.iter().enumerate() {
                         let o = &mut o[l * f..(l + 1) * f];
-                        for (i, w) in level.corners([q[0], q[1], q[2]]) {
-                            let row = (l * t + i as usize) * f;
-                            for (o, v) in o.iter_mut().zip(&table[row..row + f]) {
-                                *o += w * v;
+                        let corners = level.corners([q[0], q[1], q[2]]);
+                        let table = &table[l * t * f..(l + 1) * t * f];
+                        if let Ok(o) = <&mut [f32; 2]>::try_from(&mut *o) {
+                            // F = 2 (the usual choice): the sums in registers.
+                            *o = interpolate::<2>(&corners, table);
+                        } else {
+                            for (i, w) in corners {
+                                let row = i as usize * f;
+                                for (o, v) in o.iter_mut().zip(&table[row..row + f]) {
+                                    *o += w * v;
+                                }
                             }
                         }
                     }
@@ -525,6 +557,37 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn corners_are_the_cells_corners_by_index() {
+        for log2_t in [6, 10] {
+            for level in params(log2_t).levels() {
+                let n = level.resolution;
+                for (j, q) in values(3 * 50, 7, -0.1, 1.1).chunks(3).enumerate() {
+                    let q = [q[0], q[1], q[2]];
+                    let corners = level.corners(q);
+                    let x = q.map(|v| v.clamp(0.0, 1.0) as f64 * n as f64);
+                    let cell = x.map(|v| (v.floor() as u32).min(n - 1));
+                    for (k, (row, w)) in corners.into_iter().enumerate() {
+                        let bit = |a: usize| (k >> a & 1) as u32;
+                        let c = [cell[0] + bit(0), cell[1] + bit(1), cell[2] + bit(2)];
+                        assert_eq!(row, level.index(c), "point {j} corner {k}");
+                        let want: f64 = (0..3)
+                            .map(|a| {
+                                let frac = x[a] - cell[a] as f64;
+                                if bit(a) == 1 {
+                                    frac
+                                } else {
+                                    1.0 - frac
+                                }
+                            })
+                            .product();
+                        assert!((w as f64 - want).abs() < 1e-5, "point {j} corner {k}");
+                    }
+                }
+            }
+        }
     }
 
     #[test]
