@@ -710,7 +710,7 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
             // steps, then up to 0.2 s more: mid-epoch, mid-write or between.
             let ahead = if round == 0 { 0 } else { 1 + (state >> 40) % 2 };
             while waiting(&mut child) && last_logged_step(&log) < logged + ahead * steps_per_epoch {
-                std::thread::sleep(std::time::Duration::from_millis(2));
+                std::thread::sleep(std::time::Duration::from_millis(5));
             }
             std::thread::sleep(std::time::Duration::from_millis((state >> 33) % 200));
         }
@@ -787,15 +787,29 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
     assert!(leftovers.is_empty(), "{leftovers:?}");
 }
 
-/// The largest `step` in a training log; 0 when there is none yet. A line being written (no
-/// newline yet) is skipped.
+/// The `step` of a training log's last whole line (steps only grow along the log); 0 when
+/// there is none yet. Reads only the log's tail, since the test polls it while a run trains.
 fn last_logged_step(log: &std::path::Path) -> u64 {
-    let text = std::fs::read_to_string(log).unwrap_or_default();
-    text.split_inclusive('\n')
-        .filter(|l| l.ends_with('\n'))
-        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-        .filter_map(|v| v["step"].as_u64())
-        .max()
+    use std::io::{Read, Seek, SeekFrom};
+    let Ok(mut file) = std::fs::File::open(log) else {
+        return 0;
+    };
+    let len = file.metadata().map(|m| m.len()).unwrap_or(0);
+    let mut tail = String::new();
+    if file
+        .seek(SeekFrom::Start(len.saturating_sub(1024)))
+        .is_err()
+        || file.read_to_string(&mut tail).is_err()
+    {
+        return 0;
+    }
+    // A line still being written has no newline yet.
+    let whole = &tail[..tail.rfind('\n').unwrap_or(0)];
+    whole
+        .rsplit('\n')
+        .next()
+        .and_then(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .and_then(|v| v["step"].as_u64())
         .unwrap_or(0)
 }
 
