@@ -1,6 +1,6 @@
 //! The `nerf` command line: parses arguments and calls the library.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Result;
@@ -414,8 +414,43 @@ fn cmd_view(a: ViewArgs, device: &Device) -> Result<()> {
 }
 
 /// `nerf export …`.
+/// `nerf export mesh`: runs the export and says what it wrote.
+fn cmd_export_mesh(
+    config: &Config,
+    checkpoint: Option<&Path>,
+    options: &nerf::app::export::MeshOptions,
+    device: &Device,
+) -> Result<()> {
+    let m = nerf::app::export::export_mesh(config, checkpoint, options, device)?;
+    say(&format!(
+        "wrote {} ({} vertices, {} triangles, threshold {}, {:.1} s)",
+        options.out.display(),
+        m.vertices,
+        m.faces,
+        m.threshold,
+        m.seconds
+    ))
+}
+
+/// `nerf export model`: runs the export and says what it wrote.
+fn cmd_export_model(
+    config: &Config,
+    checkpoint: Option<&Path>,
+    out: &Path,
+    device: &Device,
+) -> Result<()> {
+    let e = nerf::app::export_model::export_model(config, checkpoint, out, device)?;
+    say(&format!(
+        "wrote {} ({} tensors, {:.1} MB; largest f16 rounding of the table {:.1e})",
+        out.display(),
+        e.tensors,
+        e.bytes as f64 / 1e6,
+        e.table_rounding
+    ))
+}
+
 fn cmd_export(what: ExportCommand, device: &Device) -> Result<()> {
-    use nerf::app::export::{export_depth, export_mesh, export_points, MeshOptions, ViewSelection};
+    use nerf::app::export::{export_depth, export_points, MeshOptions, ViewSelection};
     let views = |config: &Config, split: SplitArg, data_dir, limit| ViewSelection {
         split: split.into(),
         data_dir: jobs::data_dir_for(config, data_dir),
@@ -436,15 +471,7 @@ fn cmd_export(what: ExportCommand, device: &Device) -> Result<()> {
                 threshold,
                 out,
             };
-            let m = export_mesh(&config, checkpoint.as_deref(), &options, device)?;
-            say(&format!(
-                "wrote {} ({} vertices, {} triangles, threshold {}, {:.1} s)",
-                options.out.display(),
-                m.vertices,
-                m.faces,
-                m.threshold,
-                m.seconds
-            ))?;
+            cmd_export_mesh(&config, checkpoint.as_deref(), &options, device)?;
         }
         ExportCommand::Points {
             config,
@@ -467,19 +494,7 @@ fn cmd_export(what: ExportCommand, device: &Device) -> Result<()> {
             overrides,
         } => {
             let config = Config::load(&config, &overrides)?;
-            let e = nerf::app::export_model::export_model(
-                &config,
-                checkpoint.as_deref(),
-                &out,
-                device,
-            )?;
-            say(&format!(
-                "wrote {} ({} tensors, {:.1} MB; largest f16 rounding of the table {:.1e})",
-                out.display(),
-                e.tensors,
-                e.bytes as f64 / 1e6,
-                e.table_rounding
-            ))?;
+            cmd_export_model(&config, checkpoint.as_deref(), &out, device)?;
         }
         ExportCommand::Depth {
             config,

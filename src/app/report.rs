@@ -481,18 +481,10 @@ pub fn lego_study(
     for (name, overrides) in accelerations() {
         for &n in &sizes.lego_pts {
             let (frames, seconds) = run(&config_for(n, &overrides)?)?;
-            let counts = frames
-                .iter()
-                .fold(crate::render::skipping::SampleCounts::default(), |a, f| {
-                    a + f.samples
-                });
+            let row = lego_row(name, n, seconds, &frames, &truth);
             rows.push(LegoRow {
-                acceleration: name.to_string(),
-                n_pts: n,
-                seconds_per_frame: seconds,
-                psnr_vs_truth: mean_psnr_of_views(&frames, &truth),
                 psnr_vs_dense: mean_psnr_of_views(&frames, &reference),
-                evaluated: counts.evaluated_fraction(),
+                ..row
             });
             progress.inc(1);
         }
@@ -511,18 +503,7 @@ pub fn lego_study(
         progress.inc(1);
     }
     if let Some(ngp) = options.ngp_checkpoint.as_ref().filter(|p| p.is_file()) {
-        for &n in &sizes.lego_pts {
-            let mut overrides = vec![
-                format!("data.image_size=[{size},{size}]"),
-                format!("sampler.n_pts_per_ray={n}"),
-            ];
-            overrides.push(format!("training.checkpoint_path={}", ngp.display()));
-            let config = Config::load("lego_ngp", &overrides)?;
-            let field = config.load_field(ngp, device)?;
-            let (frames, seconds) =
-                timed_frames(&config, &*field, &cameras, sizes.repeats, device)?;
-            rows.push(lego_row(HASH_GRID_ROWS, n, seconds, &frames, &truth));
-        }
+        rows.extend(hash_grid_rows(ngp, sizes, &cameras, &truth, device)?);
     }
     Ok(LegoStudy {
         checkpoint: options.checkpoint.clone(),
@@ -531,6 +512,33 @@ pub fn lego_study(
         reference_pts: sizes.lego_reference_pts,
         rows,
     })
+}
+
+/// The lego study's hash-grid rows: the checkpoint `ngp` with the `lego_ngp` config at each
+/// of the study's sample counts, on `cameras`, scored against `truth`.
+fn hash_grid_rows(
+    ngp: &Path,
+    sizes: &Sizes,
+    cameras: &[PerspectiveCamera],
+    truth: &[RgbImage],
+    device: &Device,
+) -> Result<Vec<LegoRow>> {
+    let size = sizes.lego_size;
+    let mut rows = Vec::new();
+    for &n in &sizes.lego_pts {
+        let config = Config::load(
+            "lego_ngp",
+            &[
+                format!("data.image_size=[{size},{size}]"),
+                format!("sampler.n_pts_per_ray={n}"),
+                format!("training.checkpoint_path={}", ngp.display()),
+            ],
+        )?;
+        let field = config.load_field(ngp, device)?;
+        let (frames, seconds) = timed_frames(&config, &*field, cameras, sizes.repeats, device)?;
+        rows.push(lego_row(HASH_GRID_ROWS, n, seconds, &frames, truth));
+    }
+    Ok(rows)
 }
 
 /// A lego study row of `frames` rendered in `seconds` per frame with `n_pts` samples per

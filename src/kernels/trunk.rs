@@ -250,30 +250,8 @@ impl CustomOp2 for FusedTrunk {
         for i in (0..s.skip.len()).rev() {
             let in_i = s.in_dim(i);
             let off = s.offset(i);
-            // G ⊙ [y_i > 0], and db = Σ_rows of it, in one parallel pass.
-            let partial_sums: Vec<Vec<f32>> = g
-                .par_chunks_mut(ROWS_PER_TASK * h)
-                .zip(outputs[i].par_chunks(ROWS_PER_TASK * h))
-                .map(|(g, y)| {
-                    let mut acc = vec![0f32; h];
-                    for (g, y) in g.chunks_exact_mut(h).zip(y.chunks_exact(h)) {
-                        // Branch-free so that it vectorises (the mask is data-dependent).
-                        for ((g, y), a) in g.iter_mut().zip(y).zip(acc.iter_mut()) {
-                            let masked = if *y > 0.0 { *g } else { 0.0 };
-                            *g = masked;
-                            *a += masked;
-                        }
-                    }
-                    acc
-                })
-                .collect();
             let (dw, rest) = dparams[off..].split_at_mut(h * in_i);
-            let db = &mut rest[..h];
-            for part in &partial_sums {
-                for (d, v) in db.iter_mut().zip(part) {
-                    *d += v;
-                }
-            }
+            relu_backward(&mut g, &outputs[i], &mut rest[..h]);
             let (y, y_dim) = if i == 0 {
                 (xs.as_slice(), s.input_dim)
             } else {
@@ -324,6 +302,34 @@ impl CustomOp2 for FusedTrunk {
         }
         let dparams = Tensor::from_vec(dparams, s.n_parameters(), params.device())?;
         Ok((None, Some(dparams)))
+    }
+}
+
+/// Through a ReLU layer's activation: `g` `(M, H)` becomes `g ⊙ [y > 0]` for the layer's
+/// outputs `y` `(M, H)`, and its column sums (the bias gradient) are added to `db` `(H)`, in
+/// one parallel pass.
+fn relu_backward(g: &mut [f32], y: &[f32], db: &mut [f32]) {
+    let h = db.len();
+    let partial_sums: Vec<Vec<f32>> = g
+        .par_chunks_mut(ROWS_PER_TASK * h)
+        .zip(y.par_chunks(ROWS_PER_TASK * h))
+        .map(|(g, y)| {
+            let mut acc = vec![0f32; h];
+            for (g, y) in g.chunks_exact_mut(h).zip(y.chunks_exact(h)) {
+                // Branch-free so that it vectorises (the mask is data-dependent).
+                for ((g, y), a) in g.iter_mut().zip(y).zip(acc.iter_mut()) {
+                    let masked = if *y > 0.0 { *g } else { 0.0 };
+                    *g = masked;
+                    *a += masked;
+                }
+            }
+            acc
+        })
+        .collect();
+    for part in &partial_sums {
+        for (d, v) in db.iter_mut().zip(part) {
+            *d += v;
+        }
     }
 }
 
