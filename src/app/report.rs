@@ -477,15 +477,14 @@ pub fn lego_study(
     let (reference, _) = run(&config_for(sizes.lego_reference_pts, dense_overrides)?)?;
     let reference: Vec<RgbImage> = reference.into_iter().map(|f| f.color).collect();
     progress.inc(1);
+    let scored = |name: &str, n, seconds, frames: &[RenderedView]| {
+        lego_row(name, n, seconds, frames, &truth, Some(&reference))
+    };
     let mut rows = Vec::new();
     for (name, overrides) in accelerations() {
         for &n in &sizes.lego_pts {
             let (frames, seconds) = run(&config_for(n, &overrides)?)?;
-            let row = lego_row(name, n, seconds, &frames, &truth);
-            rows.push(LegoRow {
-                psnr_vs_dense: mean_psnr_of_views(&frames, &reference),
-                ..row
-            });
+            rows.push(scored(name, n, seconds, &frames));
             progress.inc(1);
         }
     }
@@ -495,11 +494,7 @@ pub fn lego_study(
         let mut overrides: Vec<&str> = dense_overrides.iter().map(|s| s.as_ref()).collect();
         overrides.push(&fine);
         let (frames, seconds) = run(&config_for(half, &overrides)?)?;
-        let row = lego_row(COARSE_TO_FINE_ROWS, n, seconds, &frames, &truth);
-        rows.push(LegoRow {
-            psnr_vs_dense: mean_psnr_of_views(&frames, &reference),
-            ..row
-        });
+        rows.push(scored(COARSE_TO_FINE_ROWS, n, seconds, &frames));
         progress.inc(1);
     }
     if let Some(ngp) = options.ngp_checkpoint.as_ref().filter(|p| p.is_file()) {
@@ -536,19 +531,21 @@ fn hash_grid_rows(
         )?;
         let field = config.load_field(ngp, device)?;
         let (frames, seconds) = timed_frames(&config, &*field, cameras, sizes.repeats, device)?;
-        rows.push(lego_row(HASH_GRID_ROWS, n, seconds, &frames, truth));
+        rows.push(lego_row(HASH_GRID_ROWS, n, seconds, &frames, truth, None));
     }
     Ok(rows)
 }
 
 /// A lego study row of `frames` rendered in `seconds` per frame with `n_pts` samples per
-/// ray, scored against `truth` (no dense reference: `psnr_vs_dense` is NaN).
+/// ray, scored against `truth` and against the dense `reference` frames (without one,
+/// `psnr_vs_dense` is NaN).
 fn lego_row(
     acceleration: &str,
     n_pts: usize,
     seconds: f64,
     frames: &[RenderedView],
     truth: &[RgbImage],
+    reference: Option<&[RgbImage]>,
 ) -> LegoRow {
     let counts = frames
         .iter()
@@ -560,7 +557,7 @@ fn lego_row(
         n_pts,
         seconds_per_frame: seconds,
         psnr_vs_truth: mean_psnr_of_views(frames, truth),
-        psnr_vs_dense: f64::NAN,
+        psnr_vs_dense: reference.map_or(f64::NAN, |r| mean_psnr_of_views(frames, r)),
         evaluated: counts.evaluated_fraction(),
     }
 }
