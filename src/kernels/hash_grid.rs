@@ -170,7 +170,7 @@ impl Level {
             } else {
                 (terms[0][x] ^ terms[1][y] ^ terms[2][z]) & self.table_mask
             };
-            // The same product order as `index`'s callers always used: x, then y, then z.
+            // Multiplied x, then y, then z, as before this form: renders stay bit-identical.
             *o = (row, weights[0][x] * weights[1][y] * weights[2][z]);
         }
         out
