@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # The viewer in a real browser: headless Chromium (Debian's `chromium`, or $CHROMIUM) loads
-# `nerf view --config lego`, drags, zooms, records a camera path and renders it.
+# `nerf view --config lego`, drags, zooms, records a camera path and renders it. A thin wrapper
+# over the Rust integration test tests/browser.rs (which `cargo test --release` also runs).
 #   scripts/browser_test.sh [SCREENSHOT.png]
-# Needs node and npm; installs playwright-core (tests/browser/package-lock.json) on first use.
+# Chromium missing: `.ci/install` installs it (the test prints SKIPPED without it).
 set -euo pipefail
-cd "$(dirname "$0")/.."
-cargo build --release --quiet
-if [ ! -d tests/browser/node_modules/playwright-core ]; then
-  (cd tests/browser && npm ci --no-audit --no-fund --silent)
+if [ -n "${1:-}" ]; then
+  # Resolved before the cd below, so a relative path means one relative to the caller.
+  NERF_BROWSER_SCREENSHOT=$(realpath -m "$1")
+  export NERF_BROWSER_SCREENSHOT
 fi
-node tests/browser/viewer.mjs target/release/nerf "${1:-}" lego
+cd "$(dirname "$0")/.."
+exec cargo test --release --test browser -- --nocapture

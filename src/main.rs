@@ -268,10 +268,13 @@ struct ReportArgs {
     #[arg(long)]
     quick: bool,
     /// Checkpoint of the lego section, rendered with the built-in lego config (default: the
-    /// shipped checkpoints/nerf_lego.safetensors; the section is skipped with a note when it is
-    /// missing).
+    /// shipped checkpoints/nerf_lego.safetensors). A missing checkpoint or dataset is an error
+    /// unless --no-lego is given.
     #[arg(long)]
     checkpoint: Option<PathBuf>,
+    /// Leave out the lego section (no checkpoint or dataset needed).
+    #[arg(long, conflicts_with_all = ["checkpoint", "data_dir", "views"])]
+    no_lego: bool,
     /// Dataset directory (default: data.data_dir of the lego config, else ../shared/data/lego).
     #[arg(long)]
     data_dir: Option<PathBuf>,
@@ -298,9 +301,16 @@ struct ViewArgs {
     /// Port to listen on (0 picks a free one; the address is printed).
     #[arg(long, default_value_t = 7007)]
     port: u16,
-    /// Address to bind; the default serves this machine only.
+    /// Address to bind; the default serves this machine only. Requests are answered only when
+    /// their Host header names the viewer: loopback names when bound to loopback, else the
+    /// bound address and this value.
     #[arg(long, default_value = "127.0.0.1")]
     host: String,
+    /// Milliseconds a connection may take to send a request head, from its opening or its
+    /// previous response (so also the idle keep-alive time); tests shorten it.
+    #[arg(long, hide = true, default_value_t = 10_000,
+          value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
+    header_timeout_ms: u64,
     /// Hydra-style overrides (sampler, renderer, cameras and data.image_size set the
     /// defaults of /render.png).
     overrides: Vec<String>,
@@ -409,6 +419,7 @@ fn cmd_view(a: ViewArgs, device: &Device) -> Result<()> {
     let options = nerf::app::view::ViewOptions {
         host: a.host,
         port: a.port,
+        header_timeout: std::time::Duration::from_millis(a.header_timeout_ms),
     };
     nerf::app::view::serve(&config, &a.config, scene, &options, device)
 }
@@ -833,6 +844,7 @@ fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
         data_dir,
         views,
         logs,
+        no_lego,
     } = args;
     let lego_config = Config::load("lego", &[])?;
     let checkpoint = lego_config.checkpoint(checkpoint.as_deref());
@@ -849,6 +861,7 @@ fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
         views,
         training_logs,
         ngp_checkpoint: Some(nerf::app::runtime::SHIPPED_NGP_CHECKPOINT.into()),
+        lego: !no_lego,
     };
     for p in nerf::app::report::write_report(&options, device)? {
         say(&format!("wrote {}", p.display()))?;

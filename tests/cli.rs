@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::{nerf, read_npy, stderr};
+use common::{nerf, nerf_in, read_npy, stderr};
 
 fn gif_frames(path: &Path) -> Vec<Vec<u8>> {
     let mut options = gif::DecodeOptions::new();
@@ -737,6 +737,18 @@ fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
                 "round {round}: {info:?}"
             );
             last_epoch = info.epoch;
+            // The log never holds a step the checkpoint does not.
+            let logged = last_logged_step(&log);
+            assert!(
+                logged <= info.adam_step,
+                "round {round}: log at {logged}, {info:?}"
+            );
+        } else {
+            assert_eq!(
+                last_logged_step(&log),
+                0,
+                "round {round}: a log without a checkpoint"
+            );
         }
         if finished {
             break;
@@ -857,26 +869,31 @@ fn report_quick_measures_and_writes_markdown_json_and_plots() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("report");
     let missing_log = dir.path().join("no_such.log.jsonl");
-    let o = nerf(&[
+    let checkpoint = root.join("checkpoints/nerf_lego.safetensors");
+    let shipped_log = root.join("checkpoints/nerf_lego.log.jsonl");
+    let mut args = vec![
         "report",
         "--quick",
-        "--views",
-        "1",
         "--out-dir",
         out.to_str().unwrap(),
-        "--data-dir",
-        data.to_str().unwrap(),
-        "--checkpoint",
-        root.join("checkpoints/nerf_lego.safetensors")
-            .to_str()
-            .unwrap(),
         "--log",
-        root.join("checkpoints/nerf_lego.log.jsonl")
-            .to_str()
-            .unwrap(),
+        shipped_log.to_str().unwrap(),
         "--log",
         missing_log.to_str().unwrap(),
-    ]);
+    ];
+    if data.is_dir() {
+        args.extend([
+            "--views",
+            "1",
+            "--data-dir",
+            data.to_str().unwrap(),
+            "--checkpoint",
+            checkpoint.to_str().unwrap(),
+        ]);
+    } else {
+        args.push("--no-lego");
+    }
+    let o = nerf(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
@@ -944,9 +961,12 @@ fn report_quick_measures_and_writes_markdown_json_and_plots() {
         }
         assert!(out.join("lego_psnr_vs_time.png").is_file());
     } else {
-        eprintln!("lego section skipped: no data at {}", data.display());
-        assert!(json["lego"]["Err"].is_string());
+        eprintln!("lego section left out: no data at {}", data.display());
+        assert_eq!(json["lego"]["Err"], "left out (--no-lego)");
     }
+    // The load average is measured and stated, not assumed.
+    assert!(md.contains("load average"), "{md}");
+    assert!(!md.contains("nothing else running"), "{md}");
     // Nothing half-written.
     for entry in std::fs::read_dir(&out).unwrap() {
         let name = entry.unwrap().file_name().to_string_lossy().to_string();
@@ -962,6 +982,7 @@ fn report_rejects_an_unusable_output_directory_in_one_line() {
     let o = nerf(&[
         "report",
         "--quick",
+        "--no-lego",
         "--out-dir",
         file.join("sub").to_str().unwrap(),
     ]);
@@ -970,6 +991,45 @@ fn report_rejects_an_unusable_output_directory_in_one_line() {
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(err.contains("a_file"), "{err}");
     assert!(!err.contains("panicked"));
+}
+
+#[test]
+fn report_without_its_lego_inputs_is_one_line_naming_them_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    // Run from an empty directory, as a user outside the repository would: the default
+    // checkpoint and dataset paths are relative and missing there.
+    let o = nerf_in(
+        dir.path(),
+        &["report", "--quick", "--out-dir", out.to_str().unwrap()],
+    );
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("relative to the working directory"), "{err}");
+    assert!(err.contains("--no-lego"), "{err}");
+    assert!(!out.exists(), "nothing written before the check");
+    // A missing dataset with a present checkpoint names the dataset.
+    let checkpoint =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints/nerf_lego.safetensors");
+    let missing = dir.path().join("no_data");
+    let o = nerf(&[
+        "report",
+        "--quick",
+        "--out-dir",
+        out.to_str().unwrap(),
+        "--checkpoint",
+        checkpoint.to_str().unwrap(),
+        "--data-dir",
+        missing.to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("no_data") && err.contains("transforms_test.json"),
+        "{err}"
+    );
+    assert!(!out.exists());
 }
 
 #[test]
@@ -988,5 +1048,33 @@ fn counts_of_zero_are_usage_errors() {
         let first = err.lines().next().unwrap_or("");
         assert!(first.contains(args[args.len() - 2]), "{err}");
         assert!(first.contains("must be at least 1"), "{err}");
+    }
+}
+
+#[test]
+fn a_render_off_a_terminal_prints_plain_progress_lines() {
+    // stderr is a pipe here, so no bar is drawn: plain lines say how far the render is
+    // (every NERF_PROGRESS_SECONDS; 0 prints one per frame).
+    let dir = tempfile::tempdir().unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .env("NERF_PROGRESS_SECONDS", "0")
+        .args([
+            "render",
+            "--config",
+            "box",
+            "--out-dir",
+            dir.path().to_str().unwrap(),
+            "data.image_size=[16,16]",
+            "cameras.n_poses=3",
+        ])
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    for frame in 1..=3 {
+        assert!(
+            err.contains(&format!("rendering: {frame}/3 after")),
+            "{err}"
+        );
     }
 }

@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{lego_dir, stderr};
+use common::{lego_dir, logged_steps, stderr, temp_files};
 
 /// A small box render (fast) into `out`.
 fn box_render(out: &Path) -> Command {
@@ -87,18 +87,67 @@ fn log_lines(ckpt_dir: &Path) -> usize {
     std::fs::read_to_string(ckpt_dir.join("nerf_lego.log.jsonl")).map_or(0, |t| t.lines().count())
 }
 
-/// Sends `signal` to the child once its log holds at least `lines` lines.
-fn signal_after(child: &std::process::Child, ckpt_dir: &Path, lines: usize, signal: i32) {
-    let start = Instant::now();
-    while log_lines(ckpt_dir) < lines {
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "training made no progress"
-        );
-        std::thread::sleep(Duration::from_millis(5));
+/// A training run whose stderr is read as it comes: its progress lines (one per step) say
+/// how far it is, since its log only grows when a checkpoint is written.
+struct Watched {
+    child: std::process::Child,
+    step: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    stderr: std::thread::JoinHandle<String>,
+}
+
+fn watched(mut command: Command) -> Watched {
+    use std::io::BufRead;
+    let mut child = command
+        .env("NERF_PROGRESS_SECONDS", "0")
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pipe = child.stderr.take().unwrap();
+    let step = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let seen = step.clone();
+    let stderr = std::thread::spawn(move || {
+        let mut text = String::new();
+        for line in std::io::BufReader::new(pipe).lines().map_while(Result::ok) {
+            // `step N (done/total this run): …`
+            if let Some(n) = line
+                .strip_prefix("step ")
+                .and_then(|r| r.split(' ').next())
+                .and_then(|n| n.parse().ok())
+            {
+                seen.store(n, std::sync::atomic::Ordering::SeqCst);
+            }
+            text += &line;
+            text.push('\n');
+        }
+        text
+    });
+    Watched {
+        child,
+        step,
+        stderr,
     }
-    // SAFETY: kill only sends a signal to our own child process.
-    unsafe { libc::kill(child.id() as i32, signal) };
+}
+
+impl Watched {
+    /// Sends `signal` to the run once it has taken `steps` steps.
+    fn signal_after(&self, steps: u64, signal: i32) {
+        let start = Instant::now();
+        while self.step.load(std::sync::atomic::Ordering::SeqCst) < steps {
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "training made no progress"
+            );
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        // SAFETY: kill only sends a signal to our own child process.
+        unsafe { libc::kill(self.child.id() as i32, signal) };
+    }
+
+    /// The exit code and everything the run wrote on stderr.
+    fn finish(mut self) -> (Option<i32>, String) {
+        let status = self.child.wait().unwrap();
+        (status.code(), self.stderr.join().unwrap())
+    }
 }
 
 fn load(
@@ -128,15 +177,11 @@ fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
         .success());
     for (signal, name) in [(libc::SIGINT, "int"), (libc::SIGTERM, "term")] {
         let stopped = dir.path().join(name);
-        let child = tiny_train(&stopped, &data, epochs)
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
+        let run = watched(tiny_train(&stopped, &data, epochs));
         // Mid-epoch 1 (100 steps an epoch).
-        signal_after(&child, &stopped, 150, signal);
-        let out = child.wait_with_output().unwrap();
-        let err = stderr(&out);
-        assert_eq!(out.status.code(), Some(130), "{err}");
+        run.signal_after(150, signal);
+        let (code, err) = run.finish();
+        assert_eq!(code, Some(130), "{err}");
         assert!(err.contains("stopped at epoch 1 step"), "{err}");
         assert!(
             err.contains("resume with: nerf train --config nerf_lego"),
@@ -172,22 +217,29 @@ fn a_second_sigint_exits_at_once_and_leaves_whole_files() {
     };
     let dir = tempfile::tempdir().unwrap();
     let ckpt = dir.path().join("c");
-    let child = tiny_train(&ckpt, &data, 50)
-        .env("NERF_FAULT_WRITE_DELAY_MS", "300")
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    signal_after(&child, &ckpt, 120, libc::SIGINT);
+    let mut command = tiny_train(&ckpt, &data, 50);
+    command.env("NERF_FAULT_WRITE_DELAY_MS", "300");
+    let run = watched(command);
+    run.signal_after(120, libc::SIGINT);
+    // The first interrupt's checkpoint is being written (its rename waits 300 ms).
     std::thread::sleep(Duration::from_millis(20));
     // SAFETY: as above.
-    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    unsafe { libc::kill(run.child.id() as i32, libc::SIGINT) };
     let start = Instant::now();
-    let out = child.wait_with_output().unwrap();
-    assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
+    let (code, err) = run.finish();
+    assert_eq!(code, Some(130), "{err}");
     assert!(start.elapsed() < Duration::from_secs(5));
-    if ckpt.join("nerf_lego.safetensors").exists() {
-        load(&ckpt); // whole, whichever write it was in
-    }
+    // No temporary file is left, and the log holds no step the checkpoint does not.
+    assert!(temp_files(&ckpt).is_empty(), "{:?}", temp_files(&ckpt));
+    let held = if ckpt.join("nerf_lego.safetensors").exists() {
+        load(&ckpt).1.adam_step // whole, whichever write it was in
+    } else {
+        0
+    };
+    assert!(
+        logged_steps(&ckpt).iter().all(|&s| s <= held),
+        "the log runs ahead of the checkpoint (step {held})"
+    );
 }
 
 #[test]

@@ -10,7 +10,8 @@ use candle_core::Device;
 use crate::app::config::{limits, Config};
 use crate::app::scene::load_scene_field;
 use crate::io::camera_path::{read_camera_path, CameraPath};
-use crate::io::images::{prepare_out_dir, remove_stale_temp_files, write_gif, write_png};
+use crate::io::images::{write_gif, write_png};
+use crate::io::output::{prepare_out_dir, remove_stale_temp_files, write_through_path};
 use crate::io::progress::progress_bar;
 use crate::render::view::render_view;
 
@@ -45,39 +46,36 @@ fn ffmpeg() -> Option<PathBuf> {
 }
 
 /// Encodes `frame_%04d.png` in `out_dir` as `camera_path.mp4` (H.264 where ffmpeg has it,
-/// sides padded to even numbers as yuv420p needs), through a temporary file.
+/// sides padded to even numbers as yuv420p needs), by the one writing rule (ffmpeg fills a
+/// temporary file beside the real target, which is then renamed over it).
 fn encode_mp4(ffmpeg: &Path, out_dir: &Path, fps: f64) -> Result<PathBuf> {
     let mp4 = out_dir.join("camera_path.mp4");
-    let tmp = out_dir.join(format!(".camera_path.mp4.{}.tmp", std::process::id()));
-    let status = Command::new(ffmpeg)
-        .args([
-            "-y",
-            "-loglevel",
-            "error",
-            "-framerate",
-            &format!("{fps}"),
-            "-i",
-        ])
-        .arg(out_dir.join("frame_%04d.png"))
-        .args([
-            "-vf",
-            "pad=ceil(iw/2)*2:ceil(ih/2)*2",
-            "-pix_fmt",
-            "yuv420p",
-        ])
-        .args(["-f", "mp4"])
-        .arg(&tmp)
-        .status();
-    match status {
-        Ok(s) if s.success() => {
-            std::fs::rename(&tmp, &mp4)?;
-            Ok(mp4)
+    write_through_path(&mp4, |tmp| {
+        let status = Command::new(ffmpeg)
+            .args([
+                "-y",
+                "-loglevel",
+                "error",
+                "-framerate",
+                &format!("{fps}"),
+                "-i",
+            ])
+            .arg(out_dir.join("frame_%04d.png"))
+            .args([
+                "-vf",
+                "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+                "-pix_fmt",
+                "yuv420p",
+            ])
+            .args(["-f", "mp4"])
+            .arg(tmp)
+            .status();
+        match status {
+            Ok(s) if s.success() => Ok(()),
+            other => bail!("ffmpeg could not encode {}: {other:?}", mp4.display()),
         }
-        other => {
-            let _ = std::fs::remove_file(&tmp);
-            bail!("ffmpeg could not encode {}: {other:?}", mp4.display())
-        }
-    }
+    })?;
+    Ok(mp4)
 }
 
 /// Renders every camera of the path at `path`: `frame_0000.png`, …, `camera_path.gif` and,

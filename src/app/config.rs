@@ -6,10 +6,12 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
 use serde_yaml_ng::{Mapping, Value};
+
+use crate::app::yaml_bounds::{self, MAX_YAML_BYTES};
 
 /// Upper limits on sizes, so that a typo such as an extra zero is a one-line error naming the
 /// key instead of an allocation that exhausts memory. Each is far above what the homework's
@@ -36,9 +38,44 @@ pub mod limits {
     pub const HIDDEN: usize = 4096;
     /// Deepest trunk.
     pub const LAYERS: usize = 64;
-    /// Most marching-cubes cells per side of `nerf export mesh` (513³ density samples, about
-    /// 0.5 GB each for the grid and the mesher's copy).
+    /// Most marching-cubes cells per side of `nerf export mesh`: 513³ density samples, 0.5 GiB
+    /// held as one grid (the field is evaluated into it [`GRID_BATCH`] points at a time, and
+    /// the mesher reads it in place, welding each cube's triangles as it goes).
     pub const MESH_RESOLUTION: usize = 512;
+    /// Most triangles of a mesh (about 1 GiB for the mesh, its welding table and its colours
+    /// at this size); a field noisy enough to need more is refused before the PLY is written,
+    /// asking for a higher threshold or a lower resolution.
+    pub const MESH_FACES: usize = 1 << 24;
+    /// Most rays (views × pixels) of `nerf export points`, checked before anything is rendered:
+    /// the cloud is held until it is written, 24 bytes a point (at most 3 GiB).
+    pub const POINT_CLOUD_RAYS: usize = 1 << 27;
+
+    // Working memory. Whatever the sizes above, every job works through its images, sample
+    // sets and grids in pieces whose intermediate tensors stay within about 1 GiB, so that
+    // what a job holds at once is its outputs (the frames, the grid, the mesh) plus that:
+    // * the renderer evaluates at most `Field::max_samples_per_chunk` samples at once (an SDF
+    //   2^22, about 250 MB; a NeRF 2^15; a hash grid 2^16), and, when it skips samples, draws
+    //   at most [`DRAWN_SAMPLES_PER_CHUNK`];
+    // * an image's rays are made, rendered and turned into pixels [`BAND_RAYS`] at a time (the
+    //   vis images, the depth points and the mesh's colour rays too);
+    // * `point_vis`'s sample points are made and splatted [`POINT_SAMPLES`] at a time;
+    // * a mesh grid is evaluated [`GRID_BATCH`] points at a time.
+    // The environment variable `NERF_WORK_CHUNK=N` lowers every one of these pieces to N items
+    // (rays, points) for tests of chunking; the outputs do not depend on it. Measured at the
+    // largest sizes: a 4096² box render peaks at 1.7 GB resident (its frame, three vis images
+    // and the bands), `export mesh --resolution 512` of the box at 0.7 GB.
+
+    /// Rays per band of an image (rounded to whole renderer chunks where rendered): 2^18 rays
+    /// are about 60 MB of rays, pixels and outputs, on top of the renderer's chunk.
+    pub const BAND_RAYS: usize = crate::render::bands::BAND_RAYS;
+    /// Sample points of `point_vis` made and splatted at once (2^22: about 100 MB).
+    pub const POINT_SAMPLES: usize = 1 << 22;
+    /// Grid points of a mesh grid evaluated at once.
+    pub const GRID_BATCH: usize = 1 << 16;
+    /// Most samples drawn per renderer chunk when samples are skipped (an occupancy grid or
+    /// early termination): each costs its depth and march state, and all of a chunk's may be
+    /// evaluated when nothing terminates.
+    pub const DRAWN_SAMPLES_PER_CHUNK: usize = crate::render::renderer::DRAWN_SAMPLES_PER_CHUNK;
 }
 
 /// An error naming `key` when `v` is not in `1..=max`.
@@ -53,10 +90,14 @@ fn count_in_range(key: &str, v: usize, max: usize) -> Result<()> {
 /// (`override `key=value`: …`), or else the file, with the line of the offending key when it
 /// can be found (`config FILE, line N: …`).
 fn blame(text: &str, origin: &str, overrides: &[String], error: anyhow::Error) -> anyhow::Error {
+    if format!("{error:#}").starts_with("override `") {
+        // An override that could not be applied names itself already.
+        return error;
+    }
     if Config::from_yaml(text, &[]).is_ok() {
         for n in 1..=overrides.len() {
             if Config::from_yaml(text, &overrides[..n]).is_err() {
-                return error.context(format!("override `{}`", overrides[n - 1]));
+                return error.context(format!("override `{}`", quoted(&overrides[n - 1])));
             }
         }
     }
@@ -677,7 +718,11 @@ fn from_value<T: DeserializeOwned>(value: Value, prefix: &str) -> Result<T> {
             (false, true) => prefix.to_string(),
             (false, false) => format!("{prefix}.{path}"),
         };
-        anyhow!("{key}: {}", in_user_words(&e.into_inner().to_string()))
+        anyhow!(
+            "{}: {}",
+            one_line(&key),
+            one_line(&in_user_words(&e.into_inner().to_string()))
+        )
     })
 }
 
@@ -711,19 +756,57 @@ pub fn in_user_words(message: &str) -> String {
     m
 }
 
-/// Applies one `key.sub=value` override; the value is parsed as YAML.
+/// `s` with its control characters escaped, so that a message quoting it stays on one line.
+fn one_line(s: &str) -> String {
+    s.chars()
+        .flat_map(|c| {
+            let escaped: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            escaped
+        })
+        .collect()
+}
+
+/// `s` for quoting in a message: on one line ([`one_line`]) and cut to its first 100
+/// characters (an override can be as long as the command line).
+fn quoted(s: &str) -> String {
+    let mut out = one_line(s);
+    if let Some((i, _)) = out.char_indices().nth(100) {
+        out.truncate(i);
+        out.push('…');
+    }
+    out
+}
+
+/// Applies one `key.sub=value` override; the value is parsed as YAML. An error is one line
+/// that starts with ``override `key=value`:`` and says what is wrong with it.
 pub fn apply_override(root: &mut Value, assignment: &str) -> Result<()> {
+    apply_override_inner(root, assignment)
+        .map_err(|e| anyhow!("override `{}`: {e:#}", quoted(assignment)))
+}
+
+fn apply_override_inner(root: &mut Value, assignment: &str) -> Result<()> {
     let (key, raw) = assignment
         .split_once('=')
-        .ok_or_else(|| anyhow!("override `{assignment}` is not of the form key.sub=value"))?;
+        .ok_or_else(|| anyhow!("not of the form key.sub=value"))?;
     // Hydra's `+key=value` (add a key) and `++key=value` (add or override): keys are added
     // as needed here anyway, so the prefix is accepted and dropped.
     let key = key.trim().trim_start_matches('+');
     if key.is_empty() || key.split('.').any(str::is_empty) {
-        bail!("override `{assignment}` has an empty key");
+        bail!("empty key");
     }
+    if key.split('.').count() > yaml_bounds::MAX_YAML_DEPTH {
+        bail!(
+            "the key has more than {} parts",
+            yaml_bounds::MAX_YAML_DEPTH
+        );
+    }
+    yaml_bounds::check_yaml_bounds(raw, "the value")?;
     let value: Value = serde_yaml_ng::from_str(raw)
-        .with_context(|| format!("override {key}: cannot parse `{raw}`"))?;
+        .map_err(|e| anyhow!("cannot parse the value: {}", one_line(&e.to_string())))?;
     let parts: Vec<&str> = key.split('.').collect();
     let mut node = root;
     for (i, part) in parts.iter().enumerate() {
@@ -736,10 +819,7 @@ pub fn apply_override(root: &mut Value, assignment: &str) -> Result<()> {
                     _ => unreachable!(),
                 }
             }
-            _ => bail!(
-                "override {key}: `{}` is not a section",
-                parts[..i].join(".")
-            ),
+            _ => bail!("`{}` is not a section", parts[..i].join(".")),
         };
         let k = Value::String((*part).to_string());
         if i + 1 == parts.len() {
@@ -751,14 +831,18 @@ pub fn apply_override(root: &mut Value, assignment: &str) -> Result<()> {
     Ok(())
 }
 
+/// The text of the config file `path`: a regular file of at most [`MAX_YAML_BYTES`], UTF-8.
+fn read_config_file(path: &Path) -> Result<String> {
+    let bytes = crate::io::bounded_read::read_regular_file(path, "config", MAX_YAML_BYTES as u64)?;
+    String::from_utf8(bytes).map_err(|_| anyhow!("config {} is not UTF-8 text", path.display()))
+}
+
 /// The YAML text for `--config NAME_OR_PATH`: an existing file path, `configs/NAME.yaml`, or a
 /// built-in config of that name.
 pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
     let path = Path::new(name_or_path);
     if path.is_file() {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("cannot read config {}", path.display()))?;
-        return Ok((text, path.display().to_string()));
+        return Ok((read_config_file(path)?, path.display().to_string()));
     }
     let looks_like_path = name_or_path.contains('/')
         || name_or_path.ends_with(".yaml")
@@ -766,12 +850,14 @@ pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
     if looks_like_path && path.is_dir() {
         bail!("config {name_or_path} is a directory, not a YAML file");
     }
+    if looks_like_path && path.exists() {
+        // A FIFO, a socket or a device: refused before it is opened.
+        crate::io::bounded_read::check_regular_file(path, "config", MAX_YAML_BYTES as u64)?;
+    }
     if !looks_like_path {
         let local = Path::new("configs").join(format!("{name_or_path}.yaml"));
         if local.is_file() {
-            let text = std::fs::read_to_string(&local)
-                .with_context(|| format!("cannot read config {}", local.display()))?;
-            return Ok((text, local.display().to_string()));
+            return Ok((read_config_file(&local)?, local.display().to_string()));
         }
         if let Some((_, text)) = BUILT_IN.iter().find(|(n, _)| *n == name_or_path) {
             return Ok(((*text).to_string(), format!("built-in {name_or_path}")));
@@ -793,8 +879,9 @@ impl Config {
 
     /// Parses YAML text, applies overrides, and validates.
     pub fn from_yaml(text: &str, overrides: &[String]) -> Result<Self> {
-        let mut root: Value =
-            serde_yaml_ng::from_str(text).map_err(|e| anyhow!("malformed YAML: {e}"))?;
+        yaml_bounds::check_yaml_bounds(text, "the config")?;
+        let mut root: Value = serde_yaml_ng::from_str(text)
+            .map_err(|e| anyhow!("malformed YAML: {}", one_line(&e.to_string())))?;
         if !matches!(root, Value::Mapping(_)) {
             bail!("malformed config: the top level must be a mapping of sections");
         }

@@ -9,12 +9,13 @@ use anyhow::{bail, ensure, Context, Result};
 use candle_core::{Device, Tensor};
 
 use crate::app::config::{limits, Config, OccupancyGridConfig};
-use crate::app::scene::{load_scene_field, SceneField};
+use crate::app::scene::{load_scene_field, write_all, SceneField, WorkChunks};
 use crate::core::camera::PerspectiveCamera;
 use crate::core::marching_cubes::{marching_cubes, TriMesh, VolumeGrid};
 use crate::core::sdf::{sdf_at_density, Sdf, SdfVolume};
 use crate::io::dataset::{read_split, Split};
-use crate::io::images::{prepare_out_dir, viridis_image, write_npy, write_png};
+use crate::io::images::{viridis_image, write_npy, write_png};
+use crate::io::output::prepare_out_dir;
 use crate::io::ply::{write_mesh_ply, write_points_ply};
 use crate::io::progress::progress_bar;
 use crate::render::depth_points::{depth_points, ColoredPoints};
@@ -86,7 +87,12 @@ fn sdf_box(volume: &SdfVolume) -> [f32; 6] {
 
 /// The SDF's density sampled on the grid, as `−sdf` with the level where the homework's
 /// density equals `threshold`.
-fn sdf_grid(volume: &SdfVolume, dims: [usize; 3], threshold: f64) -> Result<(VolumeGrid, f32)> {
+fn sdf_grid(
+    volume: &SdfVolume,
+    dims: [usize; 3],
+    threshold: f64,
+    batch: usize,
+) -> Result<(VolumeGrid, f32)> {
     let Some(s) = sdf_at_density(threshold, volume.alpha, volume.beta) else {
         bail!(
             "--threshold {threshold}: an SDF scene's density runs from 0 to alpha = {}, so the \
@@ -100,7 +106,7 @@ fn sdf_grid(volume: &SdfVolume, dims: [usize; 3], threshold: f64) -> Result<(Vol
             .collect())
     };
     // Without an occupancy grid every point is evaluated, so the empty value is never used.
-    let grid = sample_grid(dims, sdf_box(volume), None, f32::MIN, &scalar)?;
+    let grid = sample_grid(dims, sdf_box(volume), None, f32::MIN, batch, &scalar)?;
     Ok((grid, -s as f32))
 }
 
@@ -110,6 +116,7 @@ fn nerf_grid(
     config: &Config,
     field: &dyn Field,
     dims: [usize; 3],
+    batch: usize,
     device: &Device,
 ) -> Result<VolumeGrid> {
     let aabb = config
@@ -122,7 +129,7 @@ fn nerf_grid(
         let points = Tensor::from_slice(p, (p.len() / 3, 3), device)?;
         Ok(field.density(&points)?.flatten_all()?.to_vec1::<f32>()?)
     };
-    sample_grid(dims, aabb, field.occupancy(), 0.0, &scalar)
+    sample_grid(dims, aabb, field.occupancy(), 0.0, batch, &scalar)
 }
 
 /// The largest value of a grid, for the error when no surface is found.
@@ -152,25 +159,27 @@ pub fn export_mesh(
         );
     }
     check_output_file(&options.out)?;
+    let chunks = WorkChunks::from_env()?;
     let scene = load_scene_field(config, checkpoint, device)?;
     let dims = [r + 1; 3];
     let (grid, level, threshold) = match &scene {
         SceneField::Sdf { volume, .. } => {
             let t = options.threshold.unwrap_or(0.5 * volume.alpha);
-            let (grid, level) = sdf_grid(volume, dims, t)?;
+            let (grid, level) = sdf_grid(volume, dims, t, chunks.grid_points)?;
             (grid, level, t)
         }
         SceneField::Nerf(field) => {
             let t = options.threshold.unwrap_or(DEFAULT_NERF_THRESHOLD);
             ensure!(t > 0.0, "--threshold must be a positive density (got {t})");
             (
-                nerf_grid(config, field.as_ref(), dims, device)?,
+                nerf_grid(config, field.as_ref(), dims, chunks.grid_points, device)?,
                 t as f32,
                 t,
             )
         }
     };
-    let mesh = marching_cubes(&grid, level)?;
+    let mesh = marching_cubes(&grid, level, limits::MESH_FACES)
+        .with_context(|| format!("--resolution {r}, threshold {threshold}"))?;
     if mesh.faces.is_empty() {
         bail!(
             "no surface at threshold {threshold}: the density stays on one side of it in the \
@@ -178,7 +187,7 @@ pub fn export_mesh(
             max_value(&grid)
         );
     }
-    let colors = mesh_colors(config, &scene, &mesh, &grid, device)?;
+    let colors = mesh_colors(config, &scene, &mesh, &grid, chunks.rays, device)?;
     write_mesh_ply(&options.out, &mesh, &colors)?;
     Ok(MeshSummary {
         vertices: mesh.vertices.len(),
@@ -195,6 +204,7 @@ fn mesh_colors(
     scene: &SceneField,
     mesh: &TriMesh,
     grid: &VolumeGrid,
+    band: usize,
     device: &Device,
 ) -> Result<Vec<[f32; 3]>> {
     let offset = 2.0 * grid.cell().iter().fold(0.0f32, |a, &b| a.max(b));
@@ -205,6 +215,7 @@ fn mesh_colors(
         &mesh.normals,
         offset,
         COLOR_SAMPLES,
+        band,
         device,
     )
 }
@@ -265,6 +276,19 @@ fn crop(cloud: ColoredPoints, aabb: [f64; 6]) -> ColoredPoints {
 /// accumulated weight exceeds 0.5).
 pub const POINT_MIN_OPACITY: f32 = 0.5;
 
+/// An error naming the limit when `views` views of `(w, h)` pixels have more rays than
+/// [`limits::POINT_CLOUD_RAYS`] (each may give a point, and the cloud is held until written).
+fn check_point_cloud_size(views: usize, (w, h): (usize, usize)) -> Result<()> {
+    let rays = views.saturating_mul(w * h);
+    ensure!(
+        rays <= limits::POINT_CLOUD_RAYS,
+        "{views} views of {w}x{h} pixels are {rays} rays, over the {} a point cloud may have \
+         (fewer views with --limit, or a smaller data.image_size)",
+        limits::POINT_CLOUD_RAYS
+    );
+    Ok(())
+}
+
 /// `nerf export points`: one point per opaque ray of every selected view at the config's
 /// image size (cropped to the occupancy grid's box for a NeRF), written as a binary PLY.
 /// Returns the number of points.
@@ -276,8 +300,10 @@ pub fn export_points(
     device: &Device,
 ) -> Result<usize> {
     check_output_file(out)?;
+    let chunks = WorkChunks::from_env()?;
     let scene = load_scene_field(config, checkpoint, device)?;
     let cameras = export_cameras(config, &scene, views)?;
+    check_point_cloud_size(cameras.len(), config.image_size())?;
     let (sampler, renderer) = (config.sampler()?, config.renderer()?);
     let bar = progress_bar(cameras.len() as u64, "points");
     let mut cloud = ColoredPoints::default();
@@ -290,6 +316,7 @@ pub fn export_points(
             &sampler,
             &renderer,
             POINT_MIN_OPACITY,
+            chunks.rays,
             device,
         )?;
         cloud.points.extend(part.points);
@@ -328,24 +355,28 @@ pub fn export_depth(
     let (sampler, renderer) = (config.sampler()?, config.renderer()?);
     let (w, h) = config.image_size();
     let bar = progress_bar(cameras.len() as u64, "depth");
-    let mut written = Vec::new();
-    for (name, camera) in &cameras {
-        let view = render_view(
-            scene.as_field(),
-            camera,
-            (w, h),
-            &sampler,
-            &renderer,
-            device,
-        )
-        .with_context(|| format!("view {name}"))?;
-        let npy = out_dir.join(format!("{name}.npy"));
-        write_npy(&npy, &[h as u64, w as u64], &view.depth)?;
-        let png = out_dir.join(format!("{name}.png"));
-        write_png(&png, &viridis_image(w, h, &view.depth)?)?;
-        written.extend([npy, png]);
-        bar.inc(1);
-    }
+    // A view that fails takes the views written before it away with it.
+    let written = write_all(|written| {
+        for (name, camera) in &cameras {
+            let view = render_view(
+                scene.as_field(),
+                camera,
+                (w, h),
+                &sampler,
+                &renderer,
+                device,
+            )
+            .with_context(|| format!("view {name}"))?;
+            let npy = out_dir.join(format!("{name}.npy"));
+            write_npy(&npy, &[h as u64, w as u64], &view.depth)?;
+            written.push(npy);
+            let png = out_dir.join(format!("{name}.png"));
+            write_png(&png, &viridis_image(w, h, &view.depth)?)?;
+            written.push(png);
+            bar.inc(1);
+        }
+        Ok(())
+    });
     bar.finish_and_clear();
-    Ok(written)
+    written
 }

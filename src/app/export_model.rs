@@ -38,7 +38,14 @@ pub fn export_model(
     }
     let source = config.checkpoint(checkpoint);
     config.ensure_checkpoint(&source)?;
-    if source == out {
+    // The same file by any name (a link, `dir/../dir/x`): writing it would replace the
+    // training checkpoint with the model alone.
+    let same = source == out
+        || matches!(
+            (std::fs::canonicalize(&source), std::fs::canonicalize(out)),
+            (Ok(a), Ok(b)) if a == b
+        );
+    if same {
         bail!(
             "--out {} is the checkpoint itself; write the model elsewhere",
             out.display()
@@ -63,14 +70,24 @@ pub fn export_model(
         }
     }
     checkpoint::save(out, &kept, info)?;
-    // Loads as the config's field (names, shapes, values checked), or the file is removed.
-    if let Err(e) = config.load_field(out, device) {
-        let _ = std::fs::remove_file(out);
-        return Err(e.context(format!("the exported {} does not load", out.display())));
+    // A regular file (through any links) loads as the config's field (names, shapes, values
+    // checked), or it is removed; what was written to a device or FIFO (`/dev/null`, a pipe)
+    // cannot be read back, and the node itself is never removed.
+    let written = std::fs::canonicalize(out).unwrap_or_else(|_| out.to_path_buf());
+    let regular = std::fs::metadata(&written).is_ok_and(|m| m.is_file());
+    if regular {
+        if let Err(e) = config.load_field(&written, device) {
+            let _ = std::fs::remove_file(&written);
+            return Err(e.context(format!("the exported {} does not load", out.display())));
+        }
     }
     Ok(ModelExport {
         tensors: kept.len(),
-        bytes: std::fs::metadata(out)?.len(),
+        bytes: if regular {
+            std::fs::metadata(&written)?.len()
+        } else {
+            0
+        },
         table_rounding,
     })
 }

@@ -15,4 +15,9 @@ pub mod train;
 pub mod train_box;
 #[cfg(feature = "cli")]
 pub mod view;
+#[cfg(feature = "cli")]
+pub mod view_host;
+#[cfg(feature = "cli")]
+pub mod view_queue;
 pub mod view_request;
+pub mod yaml_bounds;

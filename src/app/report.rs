@@ -44,6 +44,48 @@ pub struct ReportOptions {
     /// A trained hash-grid field (the `lego_ngp` config's) for the lego section's hash-grid
     /// rows; none, or a missing file, leaves them out.
     pub ngp_checkpoint: Option<PathBuf>,
+    /// Whether to measure the lego section. When true, a missing checkpoint or dataset is an
+    /// error before anything is measured (see [`check_lego_inputs`]), not a silent omission.
+    pub lego: bool,
+}
+
+/// An error naming what is missing when the lego section's checkpoint or dataset cannot be
+/// read, with the working directory relative paths were taken from and how to go on.
+pub fn check_lego_inputs(options: &ReportOptions) -> Result<()> {
+    let cwd = std::env::current_dir()
+        .map(|d| d.display().to_string())
+        .unwrap_or_else(|_| "?".into());
+    let relative = |p: &Path| {
+        if p.is_relative() {
+            format!(" (relative to the working directory {cwd})")
+        } else {
+            String::new()
+        }
+    };
+    let to_go_on = "pass --checkpoint FILE and --data-dir DIR, or --no-lego to write the report \
+                    without the lego section";
+    if !options.checkpoint.is_file() {
+        anyhow::bail!(
+            "report: the lego section's checkpoint {} is not a file{}; {to_go_on}",
+            options.checkpoint.display(),
+            relative(&options.checkpoint)
+        );
+    }
+    let transforms = options.data_dir.join("transforms_test.json");
+    if !transforms.is_file() {
+        anyhow::bail!(
+            "report: the lego section's dataset {} has no transforms_test.json{}; {to_go_on}",
+            options.data_dir.display(),
+            relative(&options.data_dir)
+        );
+    }
+    Ok(())
+}
+
+/// The 1-minute load average (`/proc/loadavg`), when the system tells it.
+fn load_average() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
+    text.split_whitespace().next()?.parse().ok()
 }
 
 /// The name of the lego section's hash-grid rows.
@@ -442,7 +484,7 @@ pub fn lego_study(
     device: &Device,
     progress: &crate::io::progress::Progress,
 ) -> Result<LegoStudy> {
-    crate::io::checkpoint::ensure_checkpoint_file(&options.checkpoint)?;
+    crate::io::checkpoint_file::ensure_checkpoint_file(&options.checkpoint)?;
     let size = sizes.lego_size;
     let config_for = |n: usize, extra: &[&str]| -> Result<Config> {
         let mut overrides = vec![
@@ -575,11 +617,17 @@ pub struct TrainingCurve {
     pub train: Vec<(f64, usize, f64)>,
 }
 
+/// The largest training log a report reads (a 45-minute run logs about 2 MB).
+const MAX_LOG_BYTES: u64 = 256 << 20;
+
 /// Reads a training log (`.log.jsonl`, one JSON object per line: steps with `psnr`,
 /// evaluations with `test_psnr`).
 pub fn read_training_log(path: &Path) -> Result<TrainingCurve> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    // A regular file of bounded size: a FIFO or /dev/zero given as --log is refused, not read
+    // forever.
+    let bytes = crate::io::bounded_read::read_regular_file(path, "training log", MAX_LOG_BYTES)?;
+    let text = String::from_utf8(bytes)
+        .map_err(|_| anyhow::anyhow!("training log {} is not UTF-8 text", path.display()))?;
     let mut test = Vec::new();
     let mut test_views = None;
     // epoch -> (last wall_s, psnr sum, count)
@@ -628,6 +676,10 @@ pub struct Report {
     pub sizes: Sizes,
     /// Wall-clock seconds the whole measurement took.
     pub seconds: f64,
+    /// The system's 1-minute load average before and after the measurement (`None` where
+    /// the system does not tell it): how busy the machine was, which the report can only
+    /// state, not control.
+    pub load_average: [Option<f64>; 2],
     /// The homework's box (β = [`HOMEWORK_BETA`]) against many samples.
     pub homework_box: BoxStudy,
     /// The hard box (β = [`HARD_BETA`]) against many samples and the analytic surface.
@@ -656,13 +708,18 @@ pub fn default_training_logs(checkpoint: &Path) -> Vec<PathBuf> {
 /// Runs every measurement.
 pub fn measure(options: &ReportOptions, device: &Device) -> Result<Report> {
     let start = Instant::now();
+    let load_before = load_average();
     let sizes = Sizes::new(options.quick, options.views);
     let box_renders = 2 * (1 + sizes.box_pts.len());
     let lego_renders = 1 + (accelerations().len() + 1) * sizes.lego_pts.len();
     let progress = crate::io::progress::progress_bar((box_renders + lego_renders) as u64, "report");
     let homework_box = box_study(HOMEWORK_BETA, false, &sizes, device, &progress)?;
     let hard_box = box_study(HARD_BETA, true, &sizes, device, &progress)?;
-    let lego = lego_study(options, &sizes, device, &progress).map_err(|e| format!("{e:#}"));
+    let lego = if options.lego {
+        lego_study(options, &sizes, device, &progress).map_err(|e| format!("{e:#}"))
+    } else {
+        Err("left out (--no-lego)".to_string())
+    };
     progress.finish_and_clear();
     let training = options
         .training_logs
@@ -674,6 +731,7 @@ pub fn measure(options: &ReportOptions, device: &Device) -> Result<Report> {
         quick: options.quick,
         sizes,
         seconds: start.elapsed().as_secs_f64(),
+        load_average: [load_before, load_average()],
         homework_box,
         hard_box,
         lego,
@@ -897,10 +955,11 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
     let _ = writeln!(
         out,
         "# nerf report: error against run time\n\nMade by `nerf report{}` in {:.0} s. {m} \
-         Times are wall-clock seconds on this machine with nothing else running; errors are \
-         measured, not estimated.\n",
+         Times are wall-clock seconds on this machine; {} Errors are measured, not \
+         estimated.\n",
         if report.quick { " --quick" } else { "" },
-        report.seconds
+        report.seconds,
+        load_sentence(report.load_average, report.machine.threads)
     );
     let plot = |name: &str| plot_link(plots, name);
 
@@ -908,6 +967,19 @@ pub fn markdown(report: &Report, plots: &[(String, String)]) -> String {
     lego_section(&mut out, report, &plot("lego"), &m);
     training_section(&mut out, report, &plot("training"));
     out
+}
+
+/// What the load average says of the timings: other work on the machine slows them, and the
+/// report cannot know of it otherwise.
+fn load_sentence(load: [Option<f64>; 2], threads: usize) -> String {
+    match load {
+        [Some(before), Some(after)] => format!(
+            "the 1-minute load average was {before:.2} before the run and {after:.2} after it \
+             (the run's own {threads} threads count towards the second; a first figure well \
+             above 0 means other work shared the cores)."
+        ),
+        _ => "the load on the machine during the run is unknown (no /proc/loadavg).".into(),
+    }
 }
 
 /// A Markdown image link to the plot named `name`, or nothing when it was not drawn.
@@ -1107,9 +1179,12 @@ fn training_section(out: &mut String, report: &Report, plot: &str) {
 /// Measures, then writes `report.md`, `report.json` and the plots into `options.out_dir`.
 /// Returns the paths written.
 pub fn write_report(options: &ReportOptions, device: &Device) -> Result<Vec<PathBuf>> {
+    if options.lego {
+        check_lego_inputs(options)?;
+    }
     std::fs::create_dir_all(&options.out_dir)
         .with_context(|| format!("creating {}", options.out_dir.display()))?;
-    crate::io::images::remove_stale_temp_files(&options.out_dir);
+    crate::io::output::remove_stale_temp_files(&options.out_dir);
     let report = measure(options, device)?;
     let mut written = Vec::new();
     let mut plots = Vec::new();
@@ -1137,10 +1212,10 @@ pub fn write_report(options: &ReportOptions, device: &Device) -> Result<Vec<Path
         )?;
     }
     let md = options.out_dir.join("report.md");
-    crate::io::images::write_text(&md, &markdown(&report, &plots))?;
+    crate::io::output::write_text(&md, &markdown(&report, &plots))?;
     written.push(md);
     let json = options.out_dir.join("report.json");
-    crate::io::images::write_text(&json, &serde_json::to_string_pretty(&report)?)?;
+    crate::io::output::write_text(&json, &serde_json::to_string_pretty(&report)?)?;
     written.push(json);
     Ok(written)
 }
@@ -1186,6 +1261,24 @@ mod tests {
             .collect();
         assert!((log_log_slope(&pts).unwrap() + 1.5).abs() < 1e-12);
         assert!(log_log_slope(&pts[..1]).is_none());
+    }
+
+    #[test]
+    fn a_training_log_that_is_no_regular_file_is_refused_without_reading() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("run.log.jsonl");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let err = format!("{:#}", read_training_log(&fifo).unwrap_err());
+        assert!(
+            err.contains("FIFO") && err.contains("training log"),
+            "{err}"
+        );
+        let err = format!(
+            "{:#}",
+            read_training_log(Path::new("/dev/zero")).unwrap_err()
+        );
+        assert!(err.contains("device"), "{err}");
     }
 
     #[test]

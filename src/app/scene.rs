@@ -2,25 +2,79 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use candle_core::{Device, Tensor};
 
-use crate::app::config::{Config, ImplicitFunctionConfig};
+use crate::app::config::{limits, Config, ImplicitFunctionConfig};
 use crate::core::camera::PerspectiveCamera;
-use crate::core::rays::{pixel_grid, Rays};
 use crate::core::sdf::SdfVolume;
 use crate::field::sdf::SdfField;
-use crate::io::images::{
-    prepare_out_dir, viridis_image, write_gif, write_npy, write_png, RgbImage,
-};
+use crate::io::images::{viridis_image, write_gif, write_npy, write_png, RgbImage};
+use crate::io::output::prepare_out_dir;
 use crate::io::progress::progress_bar;
+use crate::render::bands::{band_ndc, band_rays, pixel_bands};
 use crate::render::field::Field;
-use crate::render::pointcloud::{render_points, PointView};
+use crate::render::pointcloud::{PointSplatter, PointView};
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
-use crate::render::view::{render_view, RenderedView};
+use crate::render::view::{render_view_interruptible, RenderedView};
 
-/// Renders every camera with a progress bar.
+/// The sizes of the pieces a job works through (see the working-memory part of
+/// [`limits`]): rays per band of an image, sample points per pass of `point_vis`, grid points
+/// per evaluation of a mesh grid. Outputs do not depend on them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WorkChunks {
+    /// Rays made and rendered at once (rounded to whole renderer chunks where rendered).
+    pub rays: usize,
+    /// Sample points made and splatted at once for `point_vis`.
+    pub points: usize,
+    /// Grid points evaluated at once for a mesh.
+    pub grid_points: usize,
+}
+
+impl Default for WorkChunks {
+    fn default() -> Self {
+        Self {
+            rays: limits::BAND_RAYS,
+            points: limits::POINT_SAMPLES,
+            grid_points: limits::GRID_BATCH,
+        }
+    }
+}
+
+impl WorkChunks {
+    /// The environment variable that lowers every piece (for tests of chunking).
+    pub const ENV: &'static str = "NERF_WORK_CHUNK";
+
+    /// The default pieces, each lowered to at most `n` items (at least 1).
+    pub fn at_most(n: usize) -> Self {
+        let d = Self::default();
+        let n = n.max(1);
+        Self {
+            rays: d.rays.min(n),
+            points: d.points.min(n),
+            grid_points: d.grid_points.min(n),
+        }
+    }
+
+    /// The default pieces, or those of [`WorkChunks::at_most`] `N` when `NERF_WORK_CHUNK=N`
+    /// is set; an error naming the variable when it is not a whole number of at least 1.
+    pub fn from_env() -> Result<Self> {
+        match std::env::var(Self::ENV) {
+            Err(std::env::VarError::NotPresent) => Ok(Self::default()),
+            Ok(v) => match v.trim().parse::<usize>() {
+                Ok(n) if n >= 1 => Ok(Self::at_most(n)),
+                _ => bail!(
+                    "{}: must be a whole number of at least 1 (got `{v}`)",
+                    Self::ENV
+                ),
+            },
+            Err(e) => bail!("{}: {e}", Self::ENV),
+        }
+    }
+}
+
+/// Renders every camera with a progress bar, each image in bands of the default size.
 pub fn render_views(
     field: &dyn Field,
     cameras: &[PerspectiveCamera],
@@ -29,11 +83,37 @@ pub fn render_views(
     renderer: &VolumeRenderer,
     device: &Device,
 ) -> Result<Vec<RenderedView>> {
+    let band = WorkChunks::default().rays;
+    render_views_in_bands(field, cameras, size, sampler, renderer, band, device)
+}
+
+/// [`render_views`] with images rendered about `band` rays at a time (whole renderer chunks,
+/// so the images do not depend on it).
+pub fn render_views_in_bands(
+    field: &dyn Field,
+    cameras: &[PerspectiveCamera],
+    size: (usize, usize),
+    sampler: &StratifiedSampler,
+    renderer: &VolumeRenderer,
+    band: usize,
+    device: &Device,
+) -> Result<Vec<RenderedView>> {
+    let band = renderer.rays_per_band(field, sampler, band);
     let bar = progress_bar(cameras.len() as u64, "rendering");
     let frames = cameras
         .iter()
         .map(|cam| {
-            let f = render_view(field, cam, size, sampler, renderer, device);
+            let f = render_view_interruptible(
+                field,
+                cam,
+                size,
+                sampler,
+                renderer,
+                device,
+                band,
+                &|| false,
+            )?
+            .context("a render nobody stops was stopped");
             bar.inc(1);
             f
         })
@@ -42,44 +122,74 @@ pub fn render_views(
     frames
 }
 
-/// The homework's `vis_grid`: `((xy + 1) / 2.001, 0)` per pixel.
-pub fn grid_image(width: usize, height: usize, device: &Device) -> Result<RgbImage> {
-    let xy = pixel_grid(width, height, device)?;
-    let rg = ((xy + 1.0)? / 2.001)?;
-    let rgb = Tensor::cat(&[&rg, &rg.narrow(1, 0, 1)?.zeros_like()?], 1)?;
-    RgbImage::new(width, height, rgb.flatten_all()?.to_vec1::<f32>()?)
+/// The homework's `vis_grid`: `((xy + 1) / 2.001, 0)` per pixel, `band` pixels at a time.
+pub fn grid_image(width: usize, height: usize, band: usize, device: &Device) -> Result<RgbImage> {
+    let mut data = Vec::with_capacity(3 * width * height);
+    for pixels in pixel_bands(width * height, band) {
+        let n = pixels.len();
+        let flat: Vec<f32> = band_ndc(width, height, pixels)
+            .into_iter()
+            .flat_map(|[x, y]| [x as f32, y as f32])
+            .collect();
+        let xy = Tensor::from_vec(flat, (n, 2), device)?;
+        let rg = ((xy + 1.0)? / 2.001)?;
+        let rgb = Tensor::cat(&[&rg, &rg.narrow(1, 0, 1)?.zeros_like()?], 1)?;
+        data.extend(rgb.flatten_all()?.to_vec1::<f32>()?);
+    }
+    RgbImage::new(width, height, data)
 }
 
-/// The homework's `vis_rays`: `|direction|` per pixel.
+/// The homework's `vis_rays`: `|direction|` per pixel, `band` pixels at a time.
 pub fn ray_image(
     camera: &PerspectiveCamera,
-    width: usize,
-    height: usize,
+    (width, height): (usize, usize),
+    band: usize,
     device: &Device,
 ) -> Result<RgbImage> {
-    let rays = Rays::for_image(camera, width, height, device)?;
-    RgbImage::new(
-        width,
-        height,
-        rays.directions.abs()?.flatten_all()?.to_vec1::<f32>()?,
-    )
+    let mut data = Vec::with_capacity(3 * width * height);
+    for pixels in pixel_bands(width * height, band) {
+        let rays = band_rays(camera, (width, height), pixels, device)?;
+        data.extend(rays.directions.abs()?.flatten_all()?.to_vec1::<f32>()?);
+    }
+    RgbImage::new(width, height, data)
 }
 
-/// Camera 0's sample points splatted as a point cloud (the homework's `point_vis`).
+/// Camera 0's sample points splatted as a `size²` point cloud image (the homework's
+/// `point_vis`), made and splatted about `max_points` points at a time (whole rays, at least
+/// one).
 pub fn point_image(
     camera: &PerspectiveCamera,
     (width, height): (usize, usize),
     sampler: &StratifiedSampler,
     size: usize,
+    max_points: usize,
     device: &Device,
 ) -> Result<RgbImage> {
-    let rays = Rays::for_image(camera, width, height, device)?;
-    let points = sampler
-        .sample(&rays, None)?
-        .points
-        .flatten_all()?
-        .to_vec1::<f32>()?;
-    render_points(&points, size, &PointView::default())
+    let mut splatter = PointSplatter::new(size, &PointView::default())?;
+    let band = (max_points / sampler.n_pts_per_ray).max(1);
+    for pixels in pixel_bands(width * height, band) {
+        let rays = band_rays(camera, (width, height), pixels, device)?;
+        let points = sampler.sample(&rays, None)?.points;
+        splatter.add(&points.flatten_all()?.to_vec1::<f32>()?);
+    }
+    splatter.finish()
+}
+
+/// Writes a job's files all or none: `write` pushes each file it writes; when it fails, the
+/// files it wrote are removed (each write is atomic, so the failed one left nothing).
+pub(crate) fn write_all(
+    write: impl FnOnce(&mut Vec<PathBuf>) -> Result<()>,
+) -> Result<Vec<PathBuf>> {
+    let mut written = Vec::new();
+    match write(&mut written) {
+        Ok(()) => Ok(written),
+        Err(e) => {
+            for p in &written {
+                let _ = std::fs::remove_file(p);
+            }
+            Err(e)
+        }
+    }
 }
 
 /// Removes `color_{i:03}.npy` and `depth_{i:03}.npy` files with `i ≥ n_frames` that an
@@ -107,19 +217,25 @@ fn remove_stale_raw_frames(out_dir: &Path, n_frames: usize) -> Result<()> {
     Ok(())
 }
 
-/// Writes `color_{i:03}.npy` `(H, W, 3)` and `depth_{i:03}.npy` `(H, W)` for every frame.
-pub fn write_raw_frames(out_dir: &Path, frames: &[RenderedView]) -> Result<Vec<PathBuf>> {
-    remove_stale_raw_frames(out_dir, frames.len())?;
-    let mut written = Vec::new();
-    for (i, f) in frames.iter().enumerate() {
-        let (w, h) = (f.color.width as u64, f.color.height as u64);
-        let c = out_dir.join(format!("color_{i:03}.npy"));
-        write_npy(&c, &[h, w, 3], &f.color.data)?;
-        let d = out_dir.join(format!("depth_{i:03}.npy"));
-        write_npy(&d, &[h, w], &f.depth)?;
-        written.extend([c, d]);
+/// Writes `color_{i:03}.npy` `(H, W, 3)` and `depth_{i:03}.npy` `(H, W)` for every frame
+/// (`colors[i]`, `depths[i]`), pushing each file written onto `written`.
+pub fn write_raw_frames(
+    out_dir: &Path,
+    colors: &[RgbImage],
+    depths: &[Vec<f32>],
+    written: &mut Vec<PathBuf>,
+) -> Result<()> {
+    remove_stale_raw_frames(out_dir, colors.len())?;
+    for (i, (c, d)) in colors.iter().zip(depths).enumerate() {
+        let (w, h) = (c.width as u64, c.height as u64);
+        let color = out_dir.join(format!("color_{i:03}.npy"));
+        write_npy(&color, &[h, w, 3], &c.data)?;
+        written.push(color);
+        let depth = out_dir.join(format!("depth_{i:03}.npy"));
+        write_npy(&depth, &[h, w], d)?;
+        written.push(depth);
     }
-    Ok(written)
+    Ok(())
 }
 
 /// The index of the view whose depth is shown: view 2, as the homework, or the last view when
@@ -128,47 +244,60 @@ pub fn depth_view_index(n_views: usize) -> usize {
     2.min(n_views.saturating_sub(1))
 }
 
+/// The frames' colours (for the GIF) and depths, taken apart without copies.
+fn split_frames(frames: Vec<RenderedView>) -> (Vec<RgbImage>, Vec<Vec<f32>>) {
+    frames.into_iter().map(|f| (f.color, f.depth)).unzip()
+}
+
 /// `nerf render` for an SDF scene: grid_vis, ray_vis, point_vis (camera 0), render_cube.gif
-/// (all surround views), depth.png (view 2) and, with `raw`, the float arrays.
+/// (all surround views), depth.png (view 2) and, with `raw`, the float arrays. Everything is
+/// rendered before the first file is written, so a job that fails leaves no outputs.
 pub fn render_sdf_scene(
     config: &Config,
     out_dir: &Path,
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
+    let chunks = WorkChunks::from_env()?;
     let field = config.sdf_field(device)?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
     let (w, h) = config.image_size();
     let cameras = config.surround_cameras();
     prepare_out_dir(out_dir)?;
-    let mut written = Vec::new();
-    let mut save_png = |name: &str, img: &RgbImage| -> Result<()> {
-        let p = out_dir.join(name);
-        write_png(&p, img)?;
-        written.push(p);
+    let grid = grid_image(w, h, chunks.rays, device)?;
+    let rays = ray_image(&cameras[0], (w, h), chunks.rays, device)?;
+    let points = point_image(&cameras[0], (w, h), &sampler, 256, chunks.points, device)?;
+    let frames = render_views_in_bands(
+        &field,
+        &cameras,
+        (w, h),
+        &sampler,
+        &renderer,
+        chunks.rays,
+        device,
+    )?;
+    let (colors, depths) = split_frames(frames);
+    let depth = viridis_image(w, h, &depths[depth_view_index(depths.len())])?;
+    write_all(|written| {
+        for (name, img) in [
+            ("grid_vis.png", &grid),
+            ("ray_vis.png", &rays),
+            ("point_vis.png", &points),
+            ("depth.png", &depth),
+        ] {
+            let p = out_dir.join(name);
+            write_png(&p, img)?;
+            written.push(p);
+        }
+        let gif = out_dir.join("render_cube.gif");
+        write_gif(&gif, &colors, 10)?;
+        written.push(gif);
+        if raw {
+            write_raw_frames(out_dir, &colors, &depths, written)?;
+        }
         Ok(())
-    };
-    save_png("grid_vis.png", &grid_image(w, h, device)?)?;
-    save_png("ray_vis.png", &ray_image(&cameras[0], w, h, device)?)?;
-    save_png(
-        "point_vis.png",
-        &point_image(&cameras[0], (w, h), &sampler, 256, device)?,
-    )?;
-    let frames = render_views(&field, &cameras, (w, h), &sampler, &renderer, device)?;
-    let d = &frames[depth_view_index(frames.len())];
-    save_png("depth.png", &viridis_image(w, h, &d.depth)?)?;
-    let gif = out_dir.join("render_cube.gif");
-    write_gif(
-        &gif,
-        &frames.iter().map(|f| f.color.clone()).collect::<Vec<_>>(),
-        10,
-    )?;
-    written.push(gif);
-    if raw {
-        written.extend(write_raw_frames(out_dir, &frames)?);
-    }
-    Ok(written)
+    })
 }
 
 /// Renders the config's surround views of a NeRF field into an animated GIF at `path`.
@@ -189,16 +318,13 @@ pub fn render_nerf_gif(
         &config.renderer()?,
         device,
     )?;
-    write_gif(
-        path,
-        &frames.iter().map(|f| f.color.clone()).collect::<Vec<_>>(),
-        10,
-    )?;
+    let (colors, _) = split_frames(frames);
+    write_gif(path, &colors, 10)?;
     Ok(path.to_path_buf())
 }
 
 /// `nerf render` for a NeRF config: loads `checkpoint` and writes render_nerf.gif (and, with
-/// `raw`, the float arrays) into `out_dir`.
+/// `raw`, the float arrays) into `out_dir`, all rendered before the first is written.
 pub fn render_nerf_scene(
     config: &Config,
     checkpoint: &Path,
@@ -206,27 +332,28 @@ pub fn render_nerf_scene(
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
+    let chunks = WorkChunks::from_env()?;
     let field = config.load_field(checkpoint, device)?;
     prepare_out_dir(out_dir)?;
-    let frames = render_views(
+    let frames = render_views_in_bands(
         &*field,
         &config.surround_cameras(),
         config.image_size(),
         &config.sampler()?,
         &config.renderer()?,
+        chunks.rays,
         device,
     )?;
-    let gif = out_dir.join("render_nerf.gif");
-    write_gif(
-        &gif,
-        &frames.iter().map(|f| f.color.clone()).collect::<Vec<_>>(),
-        10,
-    )?;
-    let mut written = vec![gif];
-    if raw {
-        written.extend(write_raw_frames(out_dir, &frames)?);
-    }
-    Ok(written)
+    let (colors, depths) = split_frames(frames);
+    write_all(|written| {
+        let gif = out_dir.join("render_nerf.gif");
+        write_gif(&gif, &colors, 10)?;
+        written.push(gif);
+        if raw {
+            write_raw_frames(out_dir, &colors, &depths, written)?;
+        }
+        Ok(())
+    })
 }
 
 /// `nerf render`: the SDF scene's outputs, or the NeRF's GIF from the checkpoint that

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use std::sync::atomic::AtomicBool;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use candle_core::Device;
 
 use crate::app::config::Config;
@@ -29,12 +29,8 @@ pub fn check_fresh_start(config: &Config, paths: &TrainPaths, overwrite: bool) -
         );
     }
     for p in [&paths.checkpoint, &paths.log] {
-        match std::fs::remove_file(p) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                return Err(e).with_context(|| format!("cannot remove {}", p.display()))
-            }
-            _ => {}
-        }
+        // Through a link, its target: the link stays, and the new run writes through it.
+        crate::io::output::remove_output(p)?;
     }
     Ok(())
 }
@@ -42,14 +38,16 @@ pub fn check_fresh_start(config: &Config, paths: &TrainPaths, overwrite: bool) -
 #[cfg(feature = "cli")]
 /// Installs the SIGINT/SIGTERM handler of a training run: the first signal sets the returned
 /// flag (the loop finishes its step and writes a checkpoint); a second one exits at once with
-/// status 130 (every file is written atomically, so nothing is left half-written).
+/// status 130, removing the temporary file of a write under way (every file is written
+/// atomically, so nothing is left half-written, and the log holds no step past the checkpoint).
 pub fn stop_on_signal() -> Result<&'static AtomicBool> {
+    use anyhow::Context as _;
     use std::sync::atomic::Ordering;
     static STOP: AtomicBool = AtomicBool::new(false);
     ctrlc::set_handler(|| {
         if STOP.swap(true, Ordering::SeqCst) {
             crate::core::term::note("second interrupt: exiting now");
-            std::process::exit(130);
+            crate::io::output::exit_removing_temp_files(130);
         }
         crate::core::term::note("interrupt: stopping after this step (again to exit at once)");
     })

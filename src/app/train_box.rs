@@ -19,8 +19,9 @@ use crate::app::scene::render_views;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::field::sdf::SdfField;
-use crate::io::images::{prepare_out_dir, write_gif, write_npy, write_png, write_text};
+use crate::io::images::{write_gif, write_npy, write_png};
 use crate::io::npy::read_npy_image;
+use crate::io::output::{prepare_out_dir, write_text};
 use crate::train::fit_sdf::{fit_sdf, SdfFitReport, SdfView};
 
 /// What a fit produced.

@@ -5,36 +5,53 @@
 //!   — one view as PNG (pytorch3d `look_at_view_transform`, NDC focal, as the surround
 //!   cameras); headers `X-Frame-Seconds`, `X-Evaluated-Fraction`, `X-Samples-Total`,
 //!   `X-Samples-Evaluated`. Left-out parameters take the config's first surround camera and
-//!   image size. A bad query is a 400 with the reason; a request overtaken by a newer one of
-//!   the same `client` is a 409.
+//!   image size. A bad query, degenerate camera included, is a 400 naming the bound it broke
+//!   (`view_request`); a request overtaken by a newer one of the same `client` is a 409; one
+//!   that finds the queue full is a 503 with `Retry-After: 1` (`view_queue`).
 //! * `GET /info.json` — the scene, the default camera, the limits and counters.
 //! * anything else — 404. Nothing is read from disk, so no path can reach a file.
 //!
-//! Rendering runs on one worker thread, one frame at a time. Before each band of rays it asks
-//! whether the frame is still wanted: not when the same page has sent a newer request (its
-//! generation counter moved on), nor when the client hung up (hyper then drops the request's
-//! handler, whose guard raises the frame's cancel flag). Stale work therefore ends within one
-//! band and never holds up the frame the page is waiting for.
+//! Every request must name the viewer in its `Host` (`view_host`: loopback names when bound to
+//! loopback), else 403, so that a page elsewhere cannot read frames through DNS rebinding.
+//! A connection that has not sent a full request head within the header timeout (10 s; counted
+//! from its opening or its previous response, so idle keep-alive connections close too) is
+//! closed.
+//!
+//! Rendering runs on one worker thread, one frame at a time, fed by a bounded queue. Before
+//! each band of rays, the first included, it asks whether the frame is still wanted: not when
+//! the same page has sent a newer request (its generation counter moved on), nor when the
+//! client hung up (hyper then drops the request's handler, whose guard raises the frame's
+//! cancel flag). Stale work therefore ends within one band and never holds up the frame the
+//! page is waiting for. Nothing on this path panics on a stdout or stderr that cannot be
+//! written.
 
-use std::collections::HashMap;
+use std::io::Write;
 use std::net::{SocketAddr, TcpListener, ToSocketAddrs};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc;
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use axum::extract::{Query, State};
+use axum::extract::{Query, Request, State};
 use axum::http::{header, StatusCode};
+use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
-use axum::Router;
+use axum::{Extension, Router};
 use candle_core::Device;
 use glam::DVec3;
+use hyper::body::Incoming;
+use hyper::server::conn::http1;
+use hyper::service::{service_fn, Service};
+use hyper_util::rt::{TokioIo, TokioTimer};
+use hyper_util::service::TowerToHyperService;
 
 use crate::app::config::{limits, Config};
 use crate::app::scene::SceneField;
-use crate::app::view_request::{parse_view_query, ViewDefaults, ViewRequest};
+use crate::app::view_host::{AllowedHosts, HostRefusal};
+use crate::app::view_queue::{Frame, Job, Outcome, Peer, Queue, QUEUE_CAPACITY};
+use crate::app::view_request::{parse_view_query, ViewDefaults};
+use crate::core::term::note;
 use crate::io::images::png_bytes;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
@@ -43,77 +60,9 @@ use crate::render::view::render_view_interruptible;
 /// The page, built into the binary.
 const PAGE: &str = include_str!("viewer.html");
 
-/// Most pages whose newest generation is remembered.
-const MAX_CLIENTS: usize = 1024;
-
 /// Rays rendered between two checks whether a frame is still wanted (the NeRF renderer's own
 /// chunk: 2^15 samples at 4 per ray).
 const BAND: usize = 8192;
-
-/// Counters shown in `/info.json`.
-#[derive(Debug, Default)]
-struct Stats {
-    rendered: AtomicU64,
-    superseded: AtomicU64,
-    cancelled: AtomicU64,
-    failed: AtomicU64,
-}
-
-/// What the handlers and the render worker share.
-#[derive(Debug, Default)]
-struct Clients {
-    /// The newest generation each page has asked for.
-    latest: Mutex<HashMap<String, u64>>,
-    stats: Stats,
-}
-
-impl Clients {
-    /// Records a request's generation; a lower one than already seen changes nothing.
-    fn register(&self, request: &ViewRequest) {
-        if let Some(c) = &request.client {
-            let mut latest = self.latest.lock().unwrap_or_else(|e| e.into_inner());
-            // Bounded: a script inventing client ids cannot grow the map without end (the
-            // pages forgotten here merely lose the dropping of their stale frames).
-            if latest.len() >= MAX_CLIENTS && !latest.contains_key(c) {
-                latest.clear();
-            }
-            let g = latest.entry(c.clone()).or_insert(request.generation);
-            *g = (*g).max(request.generation);
-        }
-    }
-
-    /// Whether a newer request of the same page has arrived.
-    fn is_stale(&self, request: &ViewRequest) -> bool {
-        let Some(c) = &request.client else {
-            return false;
-        };
-        let latest = self.latest.lock().unwrap_or_else(|e| e.into_inner());
-        latest.get(c).is_some_and(|&g| g > request.generation)
-    }
-}
-
-/// A rendered frame, ready to send.
-struct Frame {
-    png: Vec<u8>,
-    seconds: f64,
-    total: usize,
-    evaluated: usize,
-}
-
-/// How a job ended.
-enum Outcome {
-    Done(Frame),
-    Superseded,
-    Cancelled,
-    Failed(String),
-}
-
-/// One frame to render, and where to send it.
-struct Job {
-    request: ViewRequest,
-    cancel: Arc<AtomicBool>,
-    reply: tokio::sync::oneshot::Sender<Outcome>,
-}
 
 /// Raises a job's cancel flag when the request's handler is dropped (the reply was sent, or the
 /// client hung up and hyper abandoned the request).
@@ -131,13 +80,13 @@ struct Worker {
     sampler: StratifiedSampler,
     renderer: VolumeRenderer,
     device: Device,
-    clients: Arc<Clients>,
+    queue: Arc<Queue>,
 }
 
 impl Worker {
-    /// Renders one job unless it is no longer wanted.
+    /// Renders one job unless it is no longer wanted (asked before each band, the first
+    /// included).
     fn run(&self, job: &Job) -> Outcome {
-        let wanted = || !job.cancel.load(Ordering::Relaxed) && !self.clients.is_stale(&job.request);
         let r = &job.request;
         let start = Instant::now();
         let view = render_view_interruptible(
@@ -148,7 +97,7 @@ impl Worker {
             &self.renderer,
             &self.device,
             BAND,
-            &|| !wanted(),
+            &|| self.queue.unwanted(job),
         );
         match view {
             Ok(Some(view)) => match png_bytes(&view.color) {
@@ -160,35 +109,28 @@ impl Worker {
                 }),
                 Err(e) => Outcome::Failed(format!("{e:#}")),
             },
-            Ok(None) if job.cancel.load(Ordering::Relaxed) => Outcome::Cancelled,
+            Ok(None) if job.cancelled() => Outcome::Cancelled,
             Ok(None) => Outcome::Superseded,
             Err(e) => Outcome::Failed(format!("{e:#}")),
         }
     }
 
-    /// Serves jobs until every sender is gone.
-    fn serve(self, jobs: mpsc::Receiver<Job>) {
-        for job in jobs {
+    /// Serves jobs for as long as the process runs.
+    fn serve(self) {
+        loop {
+            let job = self.queue.pop();
             let outcome = self.run(&job);
-            let counter = match &outcome {
-                Outcome::Done(_) => &self.clients.stats.rendered,
-                Outcome::Superseded => &self.clients.stats.superseded,
-                Outcome::Cancelled => &self.clients.stats.cancelled,
-                Outcome::Failed(_) => &self.clients.stats.failed,
-            };
-            counter.fetch_add(1, Ordering::Relaxed);
-            // The handler may be gone (client hung up): nothing to send to.
-            let _ = job.reply.send(outcome);
+            self.queue.answer(job, outcome);
         }
     }
 }
 
 /// The handlers' state.
 struct AppState {
-    jobs: Mutex<mpsc::Sender<Job>>,
-    clients: Arc<Clients>,
+    queue: Arc<Queue>,
     defaults: ViewDefaults,
     info: serde_json::Value,
+    hosts: AllowedHosts,
 }
 
 fn text(status: StatusCode, message: impl Into<String>) -> Response {
@@ -200,6 +142,24 @@ fn text(status: StatusCode, message: impl Into<String>) -> Response {
         body,
     )
         .into_response()
+}
+
+/// Answers only requests whose `Host` (and absolute-form target, if any) names this viewer.
+async fn check_host(State(state): State<Arc<AppState>>, request: Request, next: Next) -> Response {
+    let host = request.headers().get(header::HOST).map(|v| v.as_bytes());
+    let target = request.uri().authority().map(|a| a.as_str().as_bytes());
+    let checked = state
+        .hosts
+        .check(host)
+        .and_then(|()| target.map_or(Ok(()), |t| state.hosts.check(Some(t))));
+    match checked {
+        Ok(()) => next.run(request).await,
+        Err(HostRefusal::Missing) => text(
+            StatusCode::BAD_REQUEST,
+            "a Host header is required (HTTP/1.1)",
+        ),
+        Err(HostRefusal::Foreign(reason)) => text(StatusCode::FORBIDDEN, reason),
+    }
 }
 
 async fn page() -> Response {
@@ -214,13 +174,15 @@ async fn not_found() -> Response {
 }
 
 async fn info_json(State(state): State<Arc<AppState>>) -> Response {
-    let s = &state.clients.stats;
+    let s = &state.queue.stats;
     let mut info = state.info.clone();
     info["stats"] = serde_json::json!({
         "rendered": s.rendered.load(Ordering::Relaxed),
         "superseded": s.superseded.load(Ordering::Relaxed),
         "cancelled": s.cancelled.load(Ordering::Relaxed),
         "failed": s.failed.load(Ordering::Relaxed),
+        "refused": s.refused.load(Ordering::Relaxed),
+        "waiting": state.queue.waiting(),
     });
     (
         [
@@ -234,31 +196,31 @@ async fn info_json(State(state): State<Arc<AppState>>) -> Response {
 
 async fn render(
     State(state): State<Arc<AppState>>,
+    peer: Option<Extension<Peer>>,
     Query(pairs): Query<Vec<(String, String)>>,
 ) -> Response {
     let request = match parse_view_query(&pairs, &state.defaults) {
         Ok(r) => r,
         Err(message) => return text(StatusCode::BAD_REQUEST, message),
     };
-    state.clients.register(&request);
     let cancel = Arc::new(AtomicBool::new(false));
     let _guard = CancelOnDrop(cancel.clone());
     let (reply, outcome) = tokio::sync::oneshot::channel();
     let job = Job {
         request,
         cancel,
+        peer: peer.map(|Extension(p)| p),
         reply,
     };
-    let sent = state
-        .jobs
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .send(job);
-    if sent.is_err() {
-        return text(
-            StatusCode::INTERNAL_SERVER_ERROR,
-            "the render worker has stopped",
+    if state.queue.push(job).is_err() {
+        let mut response = text(
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("busy: {QUEUE_CAPACITY} frames are already waiting; retry in a second"),
         );
+        response
+            .headers_mut()
+            .insert(header::RETRY_AFTER, header::HeaderValue::from_static("1"));
+        return response;
     }
     match outcome.await {
         Ok(Outcome::Done(frame)) => frame_response(frame),
@@ -310,6 +272,10 @@ pub struct ViewOptions {
     pub host: String,
     /// Port (0 picks a free one; the address is printed).
     pub port: u16,
+    /// How long a connection may take to send a request's head, counted from its opening or
+    /// from its previous response (so also how long an idle keep-alive connection stays open;
+    /// `nerf view` uses 10 s).
+    pub header_timeout: Duration,
 }
 
 /// The config's first surround camera and image size, the view a bare `/render.png` gets.
@@ -343,6 +309,59 @@ fn bind(options: &ViewOptions) -> Result<TcpListener> {
     Ok(listener)
 }
 
+/// Prints the address line on stdout. A stdout that cannot be written (a closed pipe, a full
+/// disk) does not stop a server that is otherwise fine: the address goes to stderr instead.
+fn announce(name: &str, addr: SocketAddr) {
+    let url = format!("http://{addr}/");
+    let mut out = std::io::stdout().lock();
+    let printed =
+        writeln!(out, "nerf view: {name} at {url} (Ctrl-C to stop)").and_then(|()| out.flush());
+    if let Err(e) = printed {
+        note(&format!(
+            "warning: cannot write to stdout ({e}); nerf view: {name} at {url} (Ctrl-C to stop)"
+        ));
+    }
+}
+
+/// Accepts connections for ever, each served by hyper's HTTP/1.1 connection with a header
+/// (and idle) timeout. A failed accept (too many open files) is reported and retried after a
+/// pause rather than ending the server.
+async fn accept_loop(listener: tokio::net::TcpListener, app: Router, header_timeout: Duration) {
+    loop {
+        let stream = match listener.accept().await {
+            Ok((stream, _)) => stream,
+            Err(e) => {
+                note(&format!("warning: cannot accept a connection: {e}"));
+                tokio::time::sleep(Duration::from_secs(1)).await;
+                continue;
+            }
+        };
+        let _ = stream.set_nodelay(true);
+        // A second handle on the socket for the jobs to watch (see `Peer`).
+        let Ok((stream, peer)) = stream.into_std().and_then(|s| {
+            let peer = Peer::new(s.try_clone()?);
+            Ok((tokio::net::TcpStream::from_std(s)?, peer))
+        }) else {
+            continue;
+        };
+        let router = TowerToHyperService::new(app.clone());
+        let service = service_fn(move |mut request: hyper::Request<Incoming>| {
+            request.extensions_mut().insert(peer.clone());
+            router.call(request)
+        });
+        tokio::spawn(async move {
+            let mut builder = http1::Builder::new();
+            builder
+                .timer(TokioTimer::new())
+                .header_read_timeout(header_timeout);
+            // A client that times out, hangs up or sends garbage ends its connection only.
+            let _ = builder
+                .serve_connection(TokioIo::new(stream), service)
+                .await;
+        });
+    }
+}
+
 /// `nerf view`: serves the page and the API for `scene` (named `name`) until killed. Prints
 /// `nerf view: <name> at http://<address>/` once listening.
 pub fn serve(
@@ -355,13 +374,13 @@ pub fn serve(
     let listener = bind(options)?;
     let addr = listener.local_addr()?;
     let defaults = view_defaults(config);
-    let clients = Arc::new(Clients::default());
+    let queue = Arc::new(Queue::default());
     let worker = Worker {
         scene,
         sampler: config.sampler()?,
         renderer: config.renderer()?,
         device: device.clone(),
-        clients: clients.clone(),
+        queue: queue.clone(),
     };
     let kind = match worker.scene {
         SceneField::Sdf { .. } => "sdf",
@@ -374,17 +393,16 @@ pub fn serve(
         "scene": name, "field": kind,
         "eye": defaults.eye.to_array(), "at": defaults.at.to_array(), "up": defaults.up.to_array(),
         "focal": defaults.focal, "width": defaults.width, "height": defaults.height,
-        "max_side": limits::IMAGE_SIDE,
+        "max_side": limits::IMAGE_SIDE, "queue": QUEUE_CAPACITY,
     });
-    let (jobs, queue) = mpsc::channel();
     std::thread::Builder::new()
         .name("render".into())
-        .spawn(move || worker.serve(queue))?;
+        .spawn(move || worker.serve())?;
     let state = Arc::new(AppState {
-        jobs: Mutex::new(jobs),
-        clients,
+        queue,
         defaults,
         info,
+        hosts: AllowedHosts::new(&options.host, addr.ip()),
     });
     let app = Router::new()
         .route("/", get(page))
@@ -392,19 +410,21 @@ pub fn serve(
         .route("/render.png", get(render))
         .route("/info.json", get(info_json))
         .fallback(not_found)
+        .layer(middleware::from_fn_with_state(state.clone(), check_host))
         .with_state(state);
     if !addr.ip().is_loopback() {
-        eprintln!("warning: listening on {addr}: anyone who can reach it can use the viewer");
+        note(&format!(
+            "warning: listening on {addr}: anyone who can reach it can use the viewer"
+        ));
     }
-    println!("nerf view: {name} at http://{addr}/ (Ctrl-C to stop)");
-    use std::io::Write;
-    std::io::stdout().flush()?;
+    announce(name, addr);
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     runtime.block_on(async move {
         let listener = tokio::net::TcpListener::from_std(listener)?;
-        axum::serve(listener, app).await
+        accept_loop(listener, app, options.header_timeout).await;
+        anyhow::Ok(())
     })?;
     Ok(())
 }

@@ -1,6 +1,18 @@
 //! The viewer's `/render.png` query, `eye=x,y,z&at=x,y,z&up=x,y,z&focal=F&width=W&height=H`
 //! (plus the page's `client` and `gen`), checked and turned into a camera. Every problem is a
-//! message for a 400 reply.
+//! message for a 400 reply that names the bound it broke.
+//!
+//! The bounds, so that every accepted camera renders a meaningful picture in f32:
+//! * every coordinate of `eye`, `at` and `up` finite and at most [`MAX_COORDINATE`] (1e4) in
+//!   size — ray origins are f32, whose spacing at 1e4 is already 1e-3 of a scene unit;
+//! * `|eye − at|` at least [`MIN_DISTANCE`] (1e-6): the camera must look somewhere;
+//! * `up` not parallel to the view direction: the sine of the angle between them at least
+//!   [`MIN_UP_SINE`] (1e-3, about 0.06°), else the camera's roll is undefined;
+//! * `focal` (NDC) from [`MIN_FOCAL`] to [`MAX_FOCAL`] (1e-3 to 1e3: a field of view from
+//!   179.9° down to 0.11°; outside it the rays of neighbouring pixels are no longer distinct in
+//!   f32, or all leave at the image plane's edge);
+//! * `width` and `height` whole numbers from 1 to `limits::IMAGE_SIDE` (4096);
+//! * `client` 1 to 64 characters, `gen` a whole number.
 
 use glam::DVec3;
 
@@ -40,26 +52,68 @@ pub struct ViewRequest {
     pub generation: u64,
 }
 
-/// Largest coordinate or focal length accepted: rays are rendered in f32, where much larger
-/// positions lose all precision (and past 3.4e38 become infinite).
-const MAX_MAGNITUDE: f64 = 1e6;
+/// Largest coordinate accepted in `eye`, `at` and `up`: ray origins are f32, whose spacing at
+/// 1e4 is 1e-3 (a thousandth of the unit-sized scenes).
+pub const MAX_COORDINATE: f64 = 1e4;
 
-/// Whether `v` is finite and at most [`MAX_MAGNITUDE`] in size.
-fn usable(v: f64) -> bool {
-    v.is_finite() && v.abs() <= MAX_MAGNITUDE
-}
+/// Smallest distance between `eye` and `at`.
+pub const MIN_DISTANCE: f64 = 1e-6;
 
-/// Parses `x,y,z` into a vector of three finite numbers.
+/// Smallest sine of the angle between `up` and the view direction `at − eye`.
+pub const MIN_UP_SINE: f64 = 1e-3;
+
+/// Smallest NDC focal length (a field of view of 179.9°).
+pub const MIN_FOCAL: f64 = 1e-3;
+
+/// Largest NDC focal length (a field of view of 0.11°; the rays of neighbouring pixels of a
+/// 4096-pixel image then still differ in f32).
+pub const MAX_FOCAL: f64 = 1e3;
+
+/// Parses `x,y,z` into a vector of three finite numbers of size at most [`MAX_COORDINATE`].
 fn vec3(key: &str, text: &str) -> Result<DVec3, String> {
+    let usable = |v: f64| v.is_finite() && v.abs() <= MAX_COORDINATE;
     let parts: Vec<Result<f64, _>> = text.split(',').map(|p| p.trim().parse::<f64>()).collect();
     match parts.as_slice() {
         [Ok(x), Ok(y), Ok(z)] if usable(*x) && usable(*y) && usable(*z) => {
             Ok(DVec3::new(*x, *y, *z))
         }
         _ => Err(format!(
-            "{key}: expected three finite numbers x,y,z of magnitude at most {MAX_MAGNITUDE:e} (got {text:?})"
+            "{key}: expected three finite numbers x,y,z of magnitude at most {MAX_COORDINATE:e} (got {text:?})"
         )),
     }
+}
+
+/// Parses an NDC focal length in `MIN_FOCAL..=MAX_FOCAL`.
+fn focal(text: &str) -> Result<f64, String> {
+    text.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|f| (MIN_FOCAL..=MAX_FOCAL).contains(f))
+        .ok_or_else(|| {
+            format!("focal: must be a number from {MIN_FOCAL:e} to {MAX_FOCAL:e} (got {text:?})")
+        })
+}
+
+/// Checks that `eye`, `at` and `up` make a camera with a defined view direction and roll.
+fn check_pose(eye: DVec3, at: DVec3, up: DVec3) -> Result<(), String> {
+    let distance = (at - eye).length();
+    if distance < MIN_DISTANCE {
+        return Err(format!(
+            "eye and at must differ by at least {MIN_DISTANCE:e} (the camera would look nowhere; they are {distance:e} apart)"
+        ));
+    }
+    if up.length() < MIN_DISTANCE {
+        return Err(format!(
+            "up must be a non-zero vector (length at least {MIN_DISTANCE:e})"
+        ));
+    }
+    let sine = (at - eye).normalize().cross(up.normalize()).length();
+    if sine < MIN_UP_SINE {
+        return Err(format!(
+            "up must not be parallel to the view direction at - eye (the sine of their angle is {sine:.1e}, at least {MIN_UP_SINE:e} needed)"
+        ));
+    }
+    Ok(())
 }
 
 /// Parses an image side in `1..=limits::IMAGE_SIDE`.
@@ -91,16 +145,7 @@ pub fn parse_view_query(
             "eye" => d.eye = vec3(key, value)?,
             "at" => d.at = vec3(key, value)?,
             "up" => d.up = vec3(key, value)?,
-            "focal" => {
-                d.focal = value
-                    .trim()
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|f| usable(*f) && *f > 0.0)
-                    .ok_or_else(|| {
-                        format!("focal: must be a number > 0 and at most {MAX_MAGNITUDE:e} (got {value:?})")
-                    })?
-            }
+            "focal" => d.focal = focal(value)?,
             "width" => d.width = side(key, value)?,
             "height" => d.height = side(key, value)?,
             "client" if value.len() <= 64 && !value.is_empty() => client = Some(value.clone()),
@@ -113,15 +158,19 @@ pub fn parse_view_query(
             _ => return Err(format!("unknown parameter {key:?} (expected eye, at, up, focal, width, height, client, gen)")),
         }
     }
-    if (d.eye - d.at).length() < 1e-9 {
-        return Err("eye and at must differ (the camera would look nowhere)".into());
-    }
-    if d.up.length() < 1e-9 {
-        return Err("up must be a non-zero vector".into());
+    check_pose(d.eye, d.at, d.up)?;
+    // A focal left out comes from the config, which has its own, wider bounds.
+    if !(MIN_FOCAL..=MAX_FOCAL).contains(&d.focal) {
+        return Err(format!(
+            "focal: must be from {MIN_FOCAL:e} to {MAX_FOCAL:e} (the config's cameras.focal_length is {:e})",
+            d.focal
+        ));
     }
     let (r, t) = look_at_view_transform(d.eye, d.at, d.up);
+    let camera = PerspectiveCamera::new(r, t, d.focal);
+    camera.validate().map_err(|e| e.to_string())?;
     Ok(ViewRequest {
-        camera: PerspectiveCamera::new(r, t, d.focal),
+        camera,
         width: d.width,
         height: d.height,
         client,
@@ -181,14 +230,27 @@ mod tests {
             (vec![("eye", "nan,0,0")], "eye"),
             (vec![("at", "0,inf,0")], "at"),
             (vec![("eye", "1e300,0,0")], "magnitude"),
+            (vec![("eye", "0,0,-10001")], "at most 1e4"),
+            (vec![("at", "0,-inf,0")], "at"),
+            (vec![("up", "0,NaN,0")], "up"),
+            (vec![("up", "0,1e400,0")], "up"),
             (vec![("focal", "1e9")], "focal"),
+            (vec![("focal", "1e300")], "from 1e-3 to 1e3"),
+            (vec![("focal", "1e-300")], "from 1e-3 to 1e3"),
             (vec![("focal", "0")], "focal"),
             (vec![("focal", "-1")], "focal"),
+            (vec![("focal", "nan")], "focal"),
+            (vec![("focal", "inf")], "focal"),
             (vec![("width", "0")], "width"),
             (vec![("height", "4097")], "height"),
             (vec![("width", "1e3")], "width"),
             (vec![("eye", "0,0,0")], "eye and at"),
+            (vec![("eye", "0,0,1e-7")], "eye and at"),
             (vec![("up", "0,0,0")], "up"),
+            // The default eye is on the z axis: an up along z is the view direction.
+            (vec![("up", "0,0,1")], "parallel"),
+            (vec![("up", "0,0,-5")], "parallel"),
+            (vec![("up", "1e-5,0,1")], "parallel"),
             (vec![("zoom", "2")], "unknown parameter"),
             (vec![("eye", "0,0,3"), ("eye", "0,0,4")], "more than once"),
             (vec![("gen", "-1")], "gen"),
@@ -196,5 +258,28 @@ mod tests {
             let err = parse(&query).unwrap_err();
             assert!(err.contains(key), "{query:?}: {err}");
         }
+    }
+
+    #[test]
+    fn the_bounds_themselves_are_accepted() {
+        for query in [
+            vec![("focal", "1e-3")],
+            vec![("focal", "1e3")],
+            vec![("eye", "0,0,-1e4"), ("at", "1e4,1e4,1e4")],
+            vec![("eye", "0,0,1e-6")],
+            // sin ≈ 2e-3: nearly along the view direction, but the roll is still defined.
+            vec![("up", "2e-3,0,1")],
+        ] {
+            let req = parse(&query).unwrap_or_else(|e| panic!("{query:?}: {e}"));
+            assert!(req.camera.validate().is_ok(), "{query:?}");
+        }
+    }
+
+    #[test]
+    fn defaults_outside_the_bounds_are_refused_too() {
+        let mut d = defaults();
+        d.focal = 1e-300;
+        let err = parse_view_query(&[], &d).unwrap_err();
+        assert!(err.contains("focal"), "{err}");
     }
 }

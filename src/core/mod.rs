@@ -5,6 +5,7 @@ pub mod compare;
 pub mod fastexp;
 pub mod image;
 pub mod marching_cubes;
+pub mod marching_tables;
 pub mod metrics;
 pub mod rays;
 pub mod sdf;

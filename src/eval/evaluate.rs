@@ -8,7 +8,8 @@ use serde::Serialize;
 
 use crate::core::metrics::{mean, psnr, ssim, SSIM_WINDOW};
 use crate::io::dataset::{Dataset, Split};
-use crate::io::images::{prepare_out_dir, write_png};
+use crate::io::images::write_png;
+use crate::io::output::prepare_out_dir;
 use crate::io::progress::progress_bar;
 use crate::render::field::Field;
 use crate::render::renderer::VolumeRenderer;

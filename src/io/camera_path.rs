@@ -20,6 +20,7 @@ use anyhow::{anyhow, bail, ensure, Result};
 use serde::Deserialize;
 
 use crate::core::camera::PerspectiveCamera;
+use crate::io::bounded_read::read_regular_file;
 use crate::io::dataset::{blender_to_pytorch3d, check_rigid};
 
 #[derive(Debug, Deserialize)]
@@ -79,10 +80,13 @@ pub fn camera_from_opengl(
     Ok(camera)
 }
 
+/// Largest camera path file read (a 3600-frame path is about 1 MB).
+pub const MAX_CAMERA_PATH_BYTES: u64 = 64 << 20;
+
 /// Reads a `camera_path.json` file; errors name the file and, for a malformed one, the key.
+/// The file must be a regular file of at most [`MAX_CAMERA_PATH_BYTES`].
 pub fn read_camera_path(path: &Path) -> Result<CameraPath> {
-    let bytes = std::fs::read(path)
-        .map_err(|e| anyhow!("cannot read camera path {}: {e}", path.display()))?;
+    let bytes = read_regular_file(path, "camera path", MAX_CAMERA_PATH_BYTES)?;
     parse_camera_path(&bytes).map_err(|e| anyhow!("camera path {}: {e}", path.display()))
 }
 
@@ -207,6 +211,12 @@ mod tests {
         assert!(err(&with("180", pose, "")).contains("fov"));
         assert!(err(&with("50", "[1,0,0]", "")).contains("16"));
         assert!(err(&with("50", "[2,0,0,0, 0,1,0,0, 0,0,1,4, 0,0,0,1]", "")).contains("rotation"));
+        // A camera 1e300 away sees nothing: refused, naming the entry.
+        let far = err(&with("50", "[1,0,0,0, 0,1,0,0, 0,0,1,1e300, 0,0,0,1]", ""));
+        assert!(
+            far.contains("camera_path[0]") && far.contains("farther"),
+            "{far}"
+        );
         assert!(err(&with("50", pose, r#", "camera_type": "fisheye""#)).contains("perspective"));
         assert!(
             err(r#"{"render_width": 8, "render_height": 8, "fps": 1, "camera_path": []}"#)

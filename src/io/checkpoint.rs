@@ -14,7 +14,7 @@ use candle_nn::VarMap;
 
 use crate::field::nerf::parameter_shapes;
 use crate::field::nerf::NerfParams;
-use crate::io::images::write_atomically;
+use crate::io::output::write_atomically;
 
 /// What a checkpoint holds besides tensors.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -34,6 +34,53 @@ pub struct CheckpointInfo {
     /// Rays of the next step when training adapts them (`training.samples_per_step`; 0 when
     /// it does not).
     pub rays_per_step: usize,
+}
+
+/// The largest counts a checkpoint's metadata may hold: far past any real run, and small
+/// enough that nothing sized or looped by them can exhaust memory or time. A file past one is
+/// refused with an error naming the key, before anything is allocated.
+pub mod metadata_limits {
+    /// Epochs completed (`epoch`): a million, at a second each, is 11 days.
+    pub const EPOCHS: u64 = 1 << 20;
+    /// Adam steps taken (`adam_step`).
+    pub const ADAM_STEPS: u64 = 1 << 40;
+    /// Steps of an epoch already taken (`step_in_epoch`): one per training image.
+    pub const STEP_IN_EPOCH: u64 = 1 << 20;
+    /// Rays of the next step (`rays_per_step`): the most an adapted step may take
+    /// (`app::config::limits::DRAWN_SAMPLES` at one sample per ray).
+    pub const RAYS_PER_STEP: u64 = 1 << 23;
+}
+
+impl CheckpointInfo {
+    /// An error naming the key when a count is past [`metadata_limits`] or the training wall
+    /// time is negative or not finite. (`rng_word_pos` needs no limit: the stream cycles, and
+    /// setting it reads only its low 68 bits.)
+    pub fn validate(&self, origin: &Path) -> Result<()> {
+        use metadata_limits as l;
+        let counts = [
+            ("epoch", self.epoch as u64, l::EPOCHS),
+            ("adam_step", self.adam_step, l::ADAM_STEPS),
+            ("step_in_epoch", self.step_in_epoch as u64, l::STEP_IN_EPOCH),
+            ("rays_per_step", self.rays_per_step as u64, l::RAYS_PER_STEP),
+        ];
+        for (key, value, max) in counts {
+            if value > max {
+                bail!(
+                    "checkpoint {}: metadata {key} = {value} is past the most a run can have \
+                     ({max}); the file is corrupt or crafted",
+                    origin.display()
+                );
+            }
+        }
+        if !(self.wall_seconds.is_finite() && self.wall_seconds >= 0.0) {
+            bail!(
+                "checkpoint {}: metadata wall_seconds = {} is not a time",
+                origin.display(),
+                self.wall_seconds
+            );
+        }
+        Ok(())
+    }
 }
 
 /// Writes `tensors` (any shapes; f16 ones stored as f16, every other float dtype as f32) and
@@ -87,20 +134,6 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     })
 }
 
-/// An error unless `path` is a file: "not found" (with how to make one) or "is a directory".
-pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
-    if path.is_dir() {
-        bail!("checkpoint {} is a directory, not a file", path.display());
-    }
-    if !path.is_file() {
-        bail!(
-            "checkpoint {} not found (train one with `nerf train --config nerf_lego_fast`)",
-            path.display()
-        );
-    }
-    Ok(())
-}
-
 /// Reads every tensor (f32, its stored shape, on `device`) and the metadata of a checkpoint;
 /// an error names a non-finite tensor.
 pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
@@ -141,7 +174,9 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
     };
     let wall_seconds = meta
         .get("wall_seconds")
-        .and_then(|v| v.parse::<f64>().ok())
+        .map(|v| v.parse::<f64>())
+        .transpose()
+        .with_context(|| format!("checkpoint {}: bad metadata wall_seconds", path.display()))?
         .unwrap_or(0.0);
     let rng_word_pos = meta
         .get("rng_word_pos")
@@ -157,6 +192,7 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
         rng_word_pos,
         rays_per_step: num("rays_per_step")? as usize,
     };
+    info.validate(path)?;
     let mut tensors = HashMap::new();
     for (name, view) in st.tensors() {
         let values: Vec<f32> = match view.dtype() {

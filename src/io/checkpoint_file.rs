@@ -6,9 +6,14 @@
 //! * a file is the checkpoint, in either format (the homework's `checkpoint_path` is such a
 //!   file: `torch.save({"model", "optimizer", "epoch"}, checkpoint_path)`);
 //! * a directory holds it: `<dir>/<stem>.safetensors` (`nerf_<dataset_name>`, where
-//!   `nerf train` writes), or else its only checkpoint file of either format;
-//! * a path that does not exist is, for training, a directory to create (a new run writes
-//!   `<dir>/<stem>.safetensors`), and for rendering an error.
+//!   `nerf train` writes), or else its only checkpoint file of either format; several are an
+//!   error naming them (for every command, training included); none is an error for reading
+//!   and a fresh run writing `<dir>/<stem>.safetensors` for training;
+//! * a path that does not exist is, for training, the file (a name with an extension) or the
+//!   directory a new run writes, and for reading an error (a relative path's says the absolute
+//!   path it was tried at).
+//!
+//! [`resolve_for`] is the one function that applies it.
 
 use std::collections::HashMap;
 use std::io::Read;
@@ -76,57 +81,138 @@ pub fn load(
                 .chain(torch.adam)
                 .map(|(n, t)| Ok((n, t.to_device(device)?)))
                 .collect::<Result<_>>()?;
+            torch.info.validate(path)?;
             Ok((tensors, torch.info))
         }
     }
 }
 
-/// The checkpoint file `path` names for reading (see the module's rule); an error says what
-/// is missing or ambiguous.
-pub fn resolve(path: &Path, stem: &str) -> Result<PathBuf> {
-    if path.is_file() {
-        return Ok(path.to_path_buf());
+/// What a checkpoint path is resolved for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Purpose {
+    /// render, eval, view, export, report: the checkpoint must exist.
+    Read,
+    /// train: a checkpoint to resume from, or the file a fresh run writes.
+    Train,
+}
+
+/// For an error about a missing `path`: where a relative path was looked for
+/// (`; relative to the working directory: /abs/path`, to close a parenthesis), or nothing for
+/// an absolute path.
+pub fn relative_note(path: &Path) -> String {
+    if path.is_absolute() {
+        return String::new();
     }
-    if !path.is_dir() {
-        bail!("checkpoint {} not found", path.display());
-    }
-    let ours = path.join(format!("{stem}.safetensors"));
-    if ours.is_file() {
-        return Ok(ours);
-    }
-    let mut found: Vec<PathBuf> = std::fs::read_dir(path)
-        .with_context(|| format!("cannot read checkpoint directory {}", path.display()))?
+    let relative: PathBuf = path
+        .components()
+        .filter(|c| *c != std::path::Component::CurDir)
+        .collect();
+    let tried = std::env::current_dir().unwrap_or_default().join(relative);
+    format!("; relative to the working directory: {}", tried.display())
+}
+
+/// The checkpoints in directory `dir` (files of either format, by content), sorted.
+pub fn checkpoints_in(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot read checkpoint directory {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.is_file() && detect_format(p).is_ok())
         .collect();
     found.sort();
-    match found.len() {
-        1 => Ok(found.remove(0)),
-        0 => bail!(
-            "checkpoint directory {} holds no checkpoint (expected {})",
+    Ok(found)
+}
+
+/// The one rule for a checkpoint path, for every command (see the module's rule): a file is
+/// the checkpoint; a directory holds `<stem>.safetensors` (where `nerf train` writes) or else
+/// its only checkpoint (several: an error naming them; none: for reading an error naming the
+/// directory, for training `<dir>/<stem>.safetensors`, a fresh run); a missing path is an
+/// error for reading (a relative one says where it was tried) and for training the file (a
+/// name with an extension) or directory a fresh run writes.
+pub fn resolve_for(path: &Path, stem: &str, purpose: Purpose) -> Result<PathBuf> {
+    let ours = path.join(format!("{stem}.safetensors"));
+    if path.is_file() {
+        return Ok(path.to_path_buf());
+    }
+    if path.is_dir() {
+        if ours.is_file() {
+            return Ok(ours);
+        }
+        let mut found = checkpoints_in(path)?;
+        return match (found.len(), purpose) {
+            (1, _) => Ok(found.remove(0)),
+            (0, Purpose::Train) => Ok(ours),
+            (0, Purpose::Read) => bail!(
+                "checkpoint directory {} holds no checkpoint (expected {} or one checkpoint \
+                 file{})",
+                path.display(),
+                ours.display(),
+                relative_note(path)
+            ),
+            (_, purpose) => bail!(
+                "checkpoint directory {} holds several checkpoints ({}); name one with {}",
+                path.display(),
+                found
+                    .iter()
+                    .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                match purpose {
+                    Purpose::Read => "--checkpoint",
+                    Purpose::Train => "training.checkpoint_path=FILE",
+                }
+            ),
+        };
+    }
+    if let Ok(m) = std::fs::metadata(path) {
+        bail!(
+            "checkpoint {} is {}, neither a file nor a directory",
             path.display(),
-            ours.display()
-        ),
-        _ => bail!(
-            "checkpoint directory {} holds several checkpoints ({}); name one with --checkpoint",
+            crate::io::bounded_read::kind(&m)
+        );
+    }
+    match purpose {
+        Purpose::Read => bail!(
+            "checkpoint {} not found (name a checkpoint file, or a directory holding one{})",
             path.display(),
-            found
-                .iter()
-                .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
-                .collect::<Vec<_>>()
-                .join(", ")
+            relative_note(path)
         ),
+        Purpose::Train if path.extension().is_some() => Ok(path.to_path_buf()),
+        Purpose::Train => Ok(ours),
     }
 }
 
-/// The checkpoint file training reads and writes for `training.checkpoint_path`: the path
-/// itself when it is a file, else `<path>/<stem>.safetensors`.
-pub fn training_checkpoint(path: &Path, stem: &str) -> PathBuf {
-    if path.is_file() {
-        path.to_path_buf()
-    } else {
-        path.join(format!("{stem}.safetensors"))
+/// The checkpoint file `path` names for reading ([`resolve_for`] with [`Purpose::Read`]).
+pub fn resolve(path: &Path, stem: &str) -> Result<PathBuf> {
+    resolve_for(path, stem, Purpose::Read)
+}
+
+/// An error unless `path` is a file: "not found" (with how to make one; a relative path also
+/// as the absolute path tried) or, for a directory that [`crate::io::checkpoint_file::resolve`]
+/// could not turn into its one checkpoint, what it holds.
+pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
+    if path.is_dir() {
+        let found = checkpoints_in(path)?;
+        bail!(
+            "checkpoint {} is a directory holding {} checkpoint files (a directory is taken \
+             when it holds exactly one; else name the file)",
+            path.display(),
+            found.len()
+        );
     }
+    if path.exists() && !path.is_file() {
+        bail!(
+            "checkpoint {} is not a regular file (a device, FIFO or socket); name a checkpoint file",
+            path.display()
+        );
+    }
+    if !path.is_file() {
+        bail!(
+            "checkpoint {} not found (train one with `nerf train --config nerf_lego_fast`{})",
+            path.display(),
+            relative_note(path)
+        );
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -167,22 +253,48 @@ mod tests {
     fn directories_hold_one_checkpoint() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        assert!(resolve(d, "nerf_lego")
-            .unwrap_err()
-            .to_string()
-            .contains("holds no checkpoint"));
+        let train = |p: &Path| resolve_for(p, "nerf_lego", Purpose::Train);
+        let err = resolve(d, "nerf_lego").unwrap_err().to_string();
+        assert!(err.contains("holds no checkpoint"), "{err}");
+        // Training starts fresh in an empty directory, writing ours.
+        assert_eq!(train(d).unwrap(), d.join("nerf_lego.safetensors"));
         std::fs::write(d.join("a.pth"), b"PK\x03\x04").unwrap();
         std::fs::write(d.join("notes.txt"), b"not a checkpoint").unwrap();
         assert_eq!(resolve(d, "nerf_lego").unwrap(), d.join("a.pth"));
+        assert_eq!(train(d).unwrap(), d.join("a.pth"));
         std::fs::write(d.join("b.ckpt"), b"PK\x03\x04").unwrap();
-        let err = resolve(d, "nerf_lego").unwrap_err().to_string();
-        assert!(err.contains("a.pth, b.ckpt"), "{err}");
+        for err in [resolve(d, "nerf_lego"), train(d)] {
+            let err = err.unwrap_err().to_string();
+            assert!(err.contains("several checkpoints (a.pth, b.ckpt)"), "{err}");
+        }
         // Ours by name wins.
         let ours = d.join("nerf_lego.safetensors");
         std::fs::write(&ours, b"").unwrap();
         assert_eq!(resolve(d, "nerf_lego").unwrap(), ours);
-        assert_eq!(training_checkpoint(d, "nerf_lego"), ours);
-        assert_eq!(training_checkpoint(&d.join("a.pth"), "x"), d.join("a.pth"));
+        assert_eq!(train(d).unwrap(), ours);
+        assert_eq!(train(&d.join("a.pth")).unwrap(), d.join("a.pth"));
+        // Missing: an error to read, the place a fresh run writes to train.
         assert!(resolve(&d.join("none"), "x").is_err());
+        assert_eq!(
+            train(&d.join("new")).unwrap(),
+            d.join("new/nerf_lego.safetensors")
+        );
+        assert_eq!(train(&d.join("m.pth")).unwrap(), d.join("m.pth"));
+    }
+
+    #[test]
+    fn a_missing_relative_path_says_where_it_was_tried() {
+        let err = resolve(Path::new("no/such.safetensors"), "x")
+            .unwrap_err()
+            .to_string();
+        let cwd = std::env::current_dir().unwrap();
+        let tried = cwd.join("no/such.safetensors");
+        assert!(
+            err.contains("relative to the working directory")
+                && err.contains(&tried.display().to_string()),
+            "{err}"
+        );
+        let err = resolve(&tried, "x").unwrap_err().to_string();
+        assert!(!err.contains("relative"), "{err}");
     }
 }

@@ -24,6 +24,7 @@ use serde::Deserialize;
 
 use crate::core::camera::PerspectiveCamera;
 use crate::core::image::RgbImage;
+use crate::io::bounded_read::read_regular_file;
 
 /// Where to get the data, appended to errors about a missing scene directory or transforms file.
 pub const DOWNLOAD_HINT: &str = "download the NeRF-synthetic lego scene (nerf_synthetic.zip \
@@ -149,11 +150,33 @@ struct TransformsFrame {
     transform_matrix: [[f64; 4]; 4],
 }
 
+/// Farthest a camera may be from the origin, in scene units (the NeRF-synthetic cameras are
+/// 4 away; a camera 1e300 away would see nothing and be scored as a black view).
+pub const MAX_CAMERA_DISTANCE: f64 = 1e4;
+
+/// Largest `transforms_*.json` read (the lego scene's are 60 KB).
+pub const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
+
+/// Largest image file read (an 800×800 RGBA PNG is about 0.5 MB; 16-bit 4096² is 128 MB).
+pub const MAX_IMAGE_FILE_BYTES: u64 = 256 << 20;
+
+/// Widest and tallest image file decoded (the NeRF-synthetic renders are 800×800; the f32
+/// RGBA copy of an 8192² image is 1 GiB).
+pub const MAX_SOURCE_IMAGE_SIDE: u32 = 8192;
+
 /// Checks that the upper 3×3 block of a camera-to-world matrix is a rotation (orthonormal,
-/// determinant +1, to 1e-3) and the bottom row is `(0, 0, 0, 1)`.
+/// determinant +1, to 1e-3), the bottom row is `(0, 0, 0, 1)` and the camera centre is within
+/// [`MAX_CAMERA_DISTANCE`] of the origin.
 pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
     if c2w.iter().flatten().any(|v| !v.is_finite()) {
         bail!("transform_matrix has a non-finite entry");
+    }
+    let centre = [c2w[0][3], c2w[1][3], c2w[2][3]];
+    let distance = centre.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if distance > MAX_CAMERA_DISTANCE {
+        bail!(
+            "transform_matrix puts the camera {distance:.3e} from the origin, farther than {MAX_CAMERA_DISTANCE:e} scene units"
+        );
     }
     let bottom = c2w[3];
     if bottom
@@ -213,8 +236,13 @@ pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
         );
     }
     let path = split.transforms_path(data_dir);
-    let bytes = std::fs::read(&path)
-        .map_err(|e| anyhow!("cannot read {}: {e}; {DOWNLOAD_HINT}", path.display()))?;
+    if !path.exists() {
+        bail!(
+            "cannot read {}: it does not exist; {DOWNLOAD_HINT}",
+            path.display()
+        );
+    }
+    let bytes = read_regular_file(&path, "dataset file", MAX_TRANSFORMS_BYTES)?;
     parse_split(&bytes, data_dir, &path)
 }
 
@@ -225,9 +253,16 @@ pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Fra
     let file: TransformsFile = serde_path_to_error::deserialize(&mut de)
         .map_err(|e| anyhow!("cannot parse {}: {e}", path.display()))?;
     let fov = file.camera_angle_x;
-    if !(fov.is_finite() && fov > 0.0 && fov < std::f64::consts::PI) {
+    // The NDC focal length 1/tan(fov/2) within the viewer's bounds, 1e-3 to 1e3: a field of
+    // view of 1e-300 rad would otherwise score a black view instead of being refused.
+    let focal = 1.0 / (fov / 2.0).tan();
+    if !(fov.is_finite()
+        && fov > 0.0
+        && fov < std::f64::consts::PI
+        && (1e-3..=1e3).contains(&focal))
+    {
         bail!(
-            "{}: camera_angle_x = {fov} is not a field of view in (0, π) radians",
+            "{}: camera_angle_x = {fov} is not a usable field of view (between 0.002 and 3.139 radians: an NDC focal length from 1e-3 to 1e3)",
             path.display()
         );
     }
@@ -315,10 +350,21 @@ pub fn load_frame_image(
             path.display()
         ),
     };
-    let bytes =
-        std::fs::read(path).map_err(|e| anyhow!("cannot read image {}: {e}", path.display()))?;
-    let decoded = image::load_from_memory_with_format(&bytes, ImageFormat::Png)
-        .map_err(|e| anyhow!("cannot decode PNG {}: {e}", path.display()))?;
+    let bytes = read_regular_file(path, "image", MAX_IMAGE_FILE_BYTES)?;
+    // The decoder's sizes come from the file: bounded before it allocates.
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_SOURCE_IMAGE_SIDE);
+    limits.max_image_height = Some(MAX_SOURCE_IMAGE_SIDE);
+    let mut reader =
+        image::ImageReader::with_format(std::io::Cursor::new(&bytes), ImageFormat::Png);
+    reader.limits(limits);
+    let decoded = reader.decode().map_err(|e| {
+        anyhow!(
+            "cannot decode PNG {}: {}",
+            path.display(),
+            e.to_string().replace('\n', " ")
+        )
+    })?;
     let has_alpha = decoded.color().has_alpha();
     // (H0, W0, 4) RGBA in [0, 1].
     let rgba = decoded.to_rgba32f();
@@ -744,6 +790,24 @@ mod tests {
             err.contains("transforms_train.json") && err.contains("r_7"),
             "{err}"
         );
+        // A field of view so narrow (or so wide) that the focal length is absurd is refused.
+        for fov in ["1e-300", "1e-4", "3.1415"] {
+            std::fs::write(
+                &path,
+                format!(
+                    r#"{{"camera_angle_x": {fov}, "frames": [{{"file_path": "./train/r_7",
+                    "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}}]}}"#
+                ),
+            )
+            .unwrap();
+            let err = read_split(dir.path(), Split::Train)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("camera_angle_x") && err.contains("focal"),
+                "{fov}: {err}"
+            );
+        }
         // A valid file gives frames with joined paths and converted cameras.
         std::fs::write(
             &path,

@@ -1,97 +1,17 @@
-//! Writing what people look at: PNG, GIF and NPY files, always atomically (temp file, then
-//! rename), so an interrupted or failed write never leaves a half-written file behind.
+//! Writing what people look at: PNG, GIF and NPY files, by the one writing rule of
+//! [`crate::io::output`] (temp file beside the real target, then rename; links followed,
+//! devices written directly), so an interrupted or failed write never leaves a half-written
+//! file behind.
 
-use std::fs::File;
-use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::io::Write;
+use std::path::Path;
 
 pub use crate::core::image::{to_byte, RgbImage};
 use anyhow::{bail, Context, Result};
 use image::{ImageBuffer, Rgb};
 use npyz::WriterBuilder;
 
-/// Fault injection for the interrupted-training test: with `NERF_FAULT_WRITE_DELAY_MS` set,
-/// every atomic write waits that long between writing its temporary file and renaming it,
-/// so that a kill is likely to land mid-write.
-fn fault_injection_pause() {
-    if let Some(ms) = std::env::var("NERF_FAULT_WRITE_DELAY_MS")
-        .ok()
-        .and_then(|v| v.parse::<u64>().ok())
-    {
-        std::thread::sleep(std::time::Duration::from_millis(ms));
-    }
-}
-
-/// Removes temporary files that [`write_atomically`] left beside `path` when a process was
-/// killed mid-write (`.<name>.<pid>.tmp`, any pid but this process's). The file at `path`
-/// itself is never touched: it is always a complete old or new version.
-pub fn remove_stale_temp_files(path: &Path) {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let Some(name) = path.file_name().map(|n| n.to_string_lossy().to_string()) else {
-        return;
-    };
-    let prefix = format!(".{name}.");
-    let own = format!(".{name}.{}.tmp", std::process::id());
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let file = entry.file_name().to_string_lossy().to_string();
-        if file.starts_with(&prefix) && file.ends_with(".tmp") && file != own {
-            let pid = &file[prefix.len()..file.len() - 4];
-            if pid.chars().all(|c| c.is_ascii_digit()) {
-                let _ = std::fs::remove_file(entry.path());
-            }
-        }
-    }
-}
-
-/// Writes `text` to `path` atomically.
-pub fn write_text(path: &Path, text: &str) -> Result<()> {
-    write_atomically(path, |w| {
-        use std::io::Write;
-        w.write_all(text.as_bytes())?;
-        Ok(())
-    })
-}
-
-/// Runs `write` on a temp file beside `path`, then renames it over `path`. On error the temp
-/// file is removed and `path` is untouched.
-pub fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
-) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .with_context(|| format!("{} is not a file path", path.display()))?;
-    let tmp: PathBuf = dir.join(format!(
-        ".{}.{}.tmp",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| -> Result<()> {
-        let file =
-            File::create(&tmp).with_context(|| format!("cannot write {}", path.display()))?;
-        let mut w = BufWriter::new(file);
-        write(&mut w)?;
-        w.flush()?;
-        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        fault_injection_pause();
-        std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
-}
+use crate::io::output::write_atomically;
 
 /// An 8-bit RGB PNG file's bytes.
 pub fn png_bytes(image: &RgbImage) -> Result<Vec<u8>> {
@@ -214,17 +134,6 @@ pub fn viridis_image(width: usize, height: usize, values: &[f32]) -> Result<RgbI
     RgbImage::new(width, height, data)
 }
 
-/// Creates `dir` (and parents), with an error that names it.
-pub fn prepare_out_dir(dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("cannot create output directory {}", dir.display()))?;
-    let probe = dir.join(format!(".nerf-write-test.{}", std::process::id()));
-    std::fs::write(&probe, b"")
-        .with_context(|| format!("output directory {} is not writable", dir.display()))?;
-    let _ = std::fs::remove_file(probe);
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -235,15 +144,6 @@ mod tests {
         assert_eq!(to_byte(0.9995), 254);
         assert_eq!(to_byte(-0.5), 0);
         assert_eq!(to_byte(2.0), 255);
-    }
-
-    #[test]
-    fn atomic_write_leaves_nothing_on_error() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("x.png");
-        let r = write_atomically(&path, |_| anyhow::bail!("boom"));
-        assert!(r.is_err());
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
     }
 
     #[test]

@@ -1,11 +1,15 @@
-//! Files: images, plots, datasets, checkpoints and PyTorch import.
+//! Files: images, plots, datasets, checkpoints and PyTorch import; every output written by
+//! the one rule of [`output`].
 
+pub mod bounded_read;
 pub mod camera_path;
 pub mod checkpoint;
 pub mod checkpoint_file;
 pub mod dataset;
 pub mod images;
 pub mod npy;
+pub mod output;
+pub mod pickle;
 #[cfg(feature = "cli")]
 pub mod plot;
 pub mod ply;

@@ -196,7 +196,7 @@ pub fn write_line_plot(path: &Path, plot: &LinePlot) -> Result<()> {
     let (w, h) = PLOT_SIZE;
     let image: image::RgbImage =
         image::ImageBuffer::from_raw(w, h, bytes).ok_or_else(|| anyhow!("plot buffer size"))?;
-    crate::io::images::write_atomically(path, |out| {
+    crate::io::output::write_atomically(path, |out| {
         image.write_to(out, image::ImageFormat::Png)?;
         Ok(())
     })

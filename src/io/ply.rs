@@ -12,7 +12,7 @@ use anyhow::{ensure, Result};
 
 use crate::core::image::to_byte;
 use crate::core::marching_cubes::TriMesh;
-use crate::io::images::write_atomically;
+use crate::io::output::write_atomically;
 
 /// The header of a binary PLY with `vertices` vertices (x, y, z; nx, ny, nz when `normals`;
 /// red, green, blue) and `faces` triangles (none when 0).

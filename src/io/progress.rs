@@ -1,5 +1,29 @@
 //! Progress on stderr: an indicatif bar on a terminal (with the `cli` feature); without the
 //! feature, or off a terminal, no bar is drawn and [`Progress::println`] writes plain lines.
+//! A [`progress_bar`] off a terminal also prints a plain `what: done/len after T s` line every
+//! [`plain_line_seconds`], so a long render in the background shows that it is moving.
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// Seconds between plain progress lines when stderr is not a terminal (`NERF_PROGRESS_SECONDS`
+/// overrides it; 0 prints a line per step).
+pub fn plain_line_seconds() -> f64 {
+    std::env::var("NERF_PROGRESS_SECONDS")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s >= 0.0)
+        .unwrap_or(10.0)
+}
+
+/// Plain progress lines of a hidden bar: its label, start and the time of the last line.
+#[derive(Debug)]
+struct PlainLines {
+    what: String,
+    every: f64,
+    start: Instant,
+    last: Mutex<f64>,
+}
 
 /// A progress count with a message, drawn as a bar where that is possible.
 #[derive(Clone)]
@@ -10,6 +34,8 @@ pub struct Progress {
     counts: std::sync::Arc<std::sync::atomic::AtomicU64>,
     #[cfg(not(feature = "cli"))]
     len: u64,
+    /// Plain lines when no bar is drawn (only for [`progress_bar`]).
+    plain: Option<Arc<PlainLines>>,
 }
 
 impl Progress {
@@ -26,7 +52,7 @@ impl Progress {
                 .progress_chars("=> "),
             );
             bar.set_message(what.to_string());
-            Self { bar }
+            Self { bar, plain: None }
         }
         #[cfg(not(feature = "cli"))]
         {
@@ -34,6 +60,7 @@ impl Progress {
             Self {
                 counts: Default::default(),
                 len,
+                plain: None,
             }
         }
     }
@@ -44,6 +71,7 @@ impl Progress {
         {
             Self {
                 bar: indicatif::ProgressBar::hidden(),
+                plain: None,
             }
         }
         #[cfg(not(feature = "cli"))]
@@ -64,13 +92,27 @@ impl Progress {
         }
     }
 
-    /// Advances by `n` steps.
+    /// Advances by `n` steps (and prints a plain line when one is due).
     pub fn inc(&self, n: u64) {
         #[cfg(feature = "cli")]
         self.bar.inc(n);
         #[cfg(not(feature = "cli"))]
         self.counts
             .fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+        if let Some(plain) = &self.plain {
+            let now = plain.start.elapsed().as_secs_f64();
+            let mut last = plain.last.lock().unwrap_or_else(|e| e.into_inner());
+            if now - *last >= plain.every {
+                *last = now;
+                crate::core::term::note(&format!(
+                    "{}: {}/{} after {:.0} s",
+                    plain.what,
+                    self.position(),
+                    self.length(),
+                    now
+                ));
+            }
+        }
     }
 
     /// Steps done so far.
@@ -123,7 +165,17 @@ impl Progress {
     }
 }
 
-/// A progress bar on stderr (drawn only on a terminal).
+/// A progress bar on stderr, drawn on a terminal; elsewhere a plain line every
+/// [`plain_line_seconds`].
 pub fn progress_bar(len: u64, what: &str) -> Progress {
-    Progress::new(len, what)
+    let mut progress = Progress::new(len, what);
+    if progress.is_hidden() {
+        progress.plain = Some(Arc::new(PlainLines {
+            what: what.to_string(),
+            every: plain_line_seconds(),
+            start: Instant::now(),
+            last: Mutex::new(0.0),
+        }));
+    }
+    progress
 }

@@ -11,13 +11,13 @@
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Result};
-use candle_core::pickle::Object;
 use candle_core::Tensor;
 
 use crate::field::nerf::parameter_shapes;
 use crate::field::nerf::NerfParams;
 use crate::io::checkpoint::{self, CheckpointInfo};
-use crate::io::torch_archive::{as_int, dict_get, storage_key, TorchArchive};
+use crate::io::pickle::Value;
+use crate::io::torch_archive::{tensor_ref, TorchArchive};
 
 /// Keys under which training scripts commonly nest the state dict (`model` is the
 /// homework's).
@@ -38,47 +38,34 @@ pub struct TorchCheckpoint {
 
 /// The state dict's entries, in order: the root when it holds the model's tensors, else the
 /// dict nested under one of [`NESTED_KEYS`].
-fn state_dict<'a>(
-    root: &'a Object,
-    expected: &[(String, Vec<usize>)],
-) -> Option<&'a [(Object, Object)]> {
-    let holds_model = |obj: &Object| match obj {
-        Object::Dict(entries) => {
-            let names: Vec<&str> = entries.iter().filter_map(|(k, _)| unicode(k)).collect();
+fn state_dict(root: &Value, expected: &[(String, Vec<usize>)]) -> Option<Vec<(Value, Value)>> {
+    let holds_model = |obj: &Value| match obj.dict() {
+        Some(entries) => {
+            let names: Vec<&str> = entries.iter().filter_map(|(k, _)| k.as_str()).collect();
             expected.iter().any(|(n, _)| lookup(&names, n).is_some())
         }
-        _ => false,
+        None => false,
     };
     let dict = if holds_model(root) {
-        root
+        root.clone()
     } else {
         NESTED_KEYS
             .iter()
-            .filter_map(|k| dict_get(root, k))
+            .filter_map(|k| root.get(k))
             .find(|d| holds_model(d))?
     };
-    match dict {
-        Object::Dict(entries) => Some(entries),
-        _ => None,
-    }
-}
-
-fn unicode(obj: &Object) -> Option<&str> {
-    match obj {
-        Object::Unicode(s) => Some(s),
-        _ => None,
-    }
+    dict.dict()
 }
 
 /// Reads the NeRF (and, when present, Adam's state and the epoch) from a PyTorch file, by our
 /// names, as f32 on the CPU. Every parameter must be present with the config's shape
 /// ([`parameter_shapes`]); an error names a missing, misshapen or non-finite tensor.
 pub fn read_torch_checkpoint(path: &Path, config: &NerfParams) -> Result<TorchCheckpoint> {
-    if !path.is_file() {
+    if !path.exists() {
         bail!("PyTorch file {} not found", path.display());
     }
-    verify_archive(path)?;
     let mut archive = TorchArchive::open(path)?;
+    archive.verify()?;
     let root = archive.root.clone();
     let expected = parameter_shapes(config);
     let entries = state_dict(&root, &expected).ok_or_else(|| {
@@ -90,18 +77,17 @@ pub fn read_torch_checkpoint(path: &Path, config: &NerfParams) -> Result<TorchCh
         )
     })?;
     // The tensors in the state dict's order (Adam's state refers to parameters by their
-    // position), which their storage keys give.
+    // position), which their storage keys give; only the ones the config needs are read.
     let mut found = Vec::new();
     for (k, v) in entries {
-        if let (Some(name), Some(t)) = (unicode(k), archive.tensor(v)?) {
-            let key = storage_key(v).and_then(|k| k.parse::<usize>().ok());
-            found.push((key, name.to_string(), t));
+        if let Some(name) = k.as_str() {
+            if let Some(t) = tensor_ref(&v).map_err(|e| anyhow!("{}: {e}", path.display()))? {
+                found.push((t.key.parse::<usize>().ok(), name.to_string(), t.shape, v));
+            }
         }
     }
-    found.sort_by_key(|(key, _, _)| *key);
-    let (names, tensors): (Vec<String>, Vec<Tensor>) =
-        found.into_iter().map(|(_, n, t)| (n, t)).unzip();
-    let name_refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    found.sort_by_key(|(key, _, _, _)| *key);
+    let name_refs: Vec<&str> = found.iter().map(|(_, n, _, _)| n.as_str()).collect();
     let mut model = Vec::with_capacity(expected.len());
     let mut positions = Vec::with_capacity(expected.len());
     for (name, shape) in &expected {
@@ -111,25 +97,27 @@ pub fn read_torch_checkpoint(path: &Path, config: &NerfParams) -> Result<TorchCh
                 path.display()
             )
         })?;
-        let t = &tensors[i];
-        if t.dims() != &shape[..] {
+        let (_, _, dims, value) = &found[i];
+        if dims != shape {
             bail!(
                 "{}: tensor {name} has shape {:?} but the config needs {:?}",
                 path.display(),
-                t.dims(),
+                dims,
                 shape
             );
         }
+        let t = archive.tensor(value)?.expect("a tensor reference");
         checkpoint::ensure_finite_values(path, name, &t.flatten_all()?.to_vec1::<f32>()?)?;
-        model.push((name.clone(), t.clone()));
+        model.push((name.clone(), t));
         positions.push(i);
     }
-    let (adam, adam_step) = match dict_get(&root, "optimizer") {
-        Some(opt) => read_adam(&mut archive, opt, &model, &positions)?,
+    let (adam, adam_step) = match root.get("optimizer") {
+        Some(opt) => read_adam(&mut archive, &opt, &model, &positions)?,
         None => (Vec::new(), 0),
     };
-    let epoch = dict_get(&root, "epoch")
-        .and_then(as_int)
+    let epoch = root
+        .get("epoch")
+        .and_then(|e| e.as_int())
         .unwrap_or(0)
         .max(0) as usize;
     Ok(TorchCheckpoint {
@@ -146,31 +134,10 @@ pub fn read_torch_checkpoint(path: &Path, config: &NerfParams) -> Result<TorchCh
 
 /// Reads every member of the `.pth` zip archive through to its end, so that one whose stored
 /// CRC-32 does not match its bytes is an error naming it (PyTorch loads such files without a
-/// word).
+/// word). The archive's members and their sizes are checked against the file first
+/// ([`TorchArchive::open`]).
 pub fn verify_archive(path: &Path) -> Result<()> {
-    let file =
-        std::fs::File::open(path).map_err(|e| anyhow!("cannot read {}: {e}", path.display()))?;
-    let mut archive = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| {
-        anyhow!(
-            "{} is not a PyTorch file (zip archive): {e}",
-            path.display()
-        )
-    })?;
-    for i in 0..archive.len() {
-        let mut member = archive
-            .by_index(i)
-            .map_err(|e| anyhow!("{}: member {i}: {e}", path.display()))?;
-        let name = member
-            .name()
-            .map_or_else(|_| format!("#{i}"), |n| n.to_string());
-        std::io::copy(&mut member, &mut std::io::sink()).map_err(|e| {
-            anyhow!(
-                "{}: member {name} is corrupt ({e}); the file is damaged",
-                path.display()
-            )
-        })?;
-    }
-    Ok(())
+    TorchArchive::open(path)?.verify()
 }
 
 /// Adam's moments from `torch.optim.Adam.state_dict()` (`{"state": {id: {"step",
@@ -180,26 +147,29 @@ pub fn verify_archive(path: &Path) -> Result<()> {
 /// step count (empty and 0 when Adam has not stepped).
 fn read_adam(
     archive: &mut TorchArchive,
-    opt: &Object,
+    opt: &Value,
     model: &[(String, Tensor)],
     positions: &[usize],
 ) -> Result<(Vec<(String, Tensor)>, u64)> {
     let path = archive.path().to_path_buf();
     let bad = |what: &str| anyhow!("{}: optimizer state {what}", path.display());
-    let ids: Vec<i64> = match dict_get(opt, "param_groups") {
-        Some(Object::List(groups)) => groups
-            .iter()
-            .filter_map(|g| match dict_get(g, "params") {
-                Some(Object::List(ids)) => Some(ids.iter().filter_map(as_int).collect::<Vec<_>>()),
-                _ => None,
-            })
-            .flatten()
-            .collect(),
-        _ => return Err(bad("has no param_groups")),
-    };
-    let Some(Object::Dict(state)) = dict_get(opt, "state") else {
-        return Err(bad("has no state"));
-    };
+    let groups = opt
+        .get("param_groups")
+        .ok_or_else(|| bad("has no param_groups"))?;
+    let groups = groups.list().ok_or_else(|| bad("has no param_groups"))?;
+    let ids: Vec<i64> = groups
+        .iter()
+        .filter_map(|g| g.get("params"))
+        .filter_map(|ids| {
+            ids.list()
+                .map(|l| l.iter().filter_map(Value::as_int).collect::<Vec<_>>())
+        })
+        .flatten()
+        .collect();
+    let state = opt
+        .get("state")
+        .and_then(|s| s.dict())
+        .ok_or_else(|| bad("has no state"))?;
     if state.is_empty() {
         return Ok((Vec::new(), 0));
     }
@@ -211,32 +181,40 @@ fn read_adam(
             .ok_or_else(|| bad(&format!("lists no parameter for {name}")))?;
         let entry = state
             .iter()
-            .find(|(k, _)| as_int(k) == Some(id))
+            .find(|(k, _)| k.as_int() == Some(id))
             .map(|(_, v)| v)
             .ok_or_else(|| bad(&format!("has no entry for {name} (parameter {id})")))?;
         for key in ["exp_avg", "exp_avg_sq"] {
-            let obj = dict_get(entry, key).ok_or_else(|| bad(&format!("lacks {key} of {name}")))?;
-            let t = archive
-                .tensor(obj)?
-                .ok_or_else(|| bad(&format!("{key} of {name} is not a tensor")))?;
-            if t.dims() != param.dims() {
+            let obj = entry
+                .get(key)
+                .ok_or_else(|| bad(&format!("lacks {key} of {name}")))?;
+            let shape = tensor_ref(&obj)
+                .map_err(|e| anyhow!("{}: {e}", path.display()))?
+                .ok_or_else(|| bad(&format!("{key} of {name} is not a tensor")))?
+                .shape;
+            if shape != param.dims() {
                 return Err(bad(&format!(
                     "{key} of {name} has shape {:?}, the parameter {:?} (the optimizer's parameter order does not match the state dict's)",
-                    t.dims(),
+                    shape,
                     param.dims()
                 )));
             }
+            let t = archive.tensor(&obj)?.expect("a tensor reference");
             moments.push((format!("adam.{key}.{name}"), t));
         }
-        if let Some(s) = dict_get(entry, "step") {
-            step = match archive.tensor(s)? {
-                Some(t) => t.flatten_all()?.to_vec1::<f32>()?[0] as u64,
-                None => as_int(s)
-                    .or(match s {
-                        Object::Float(f) => Some(*f as i64),
-                        _ => None,
-                    })
-                    .unwrap_or(0) as u64,
+        if let Some(s) = entry.get("step") {
+            step = match archive.tensor(&s)? {
+                Some(t) => {
+                    let v = t.flatten_all()?.to_vec1::<f32>()?;
+                    let v = *v
+                        .first()
+                        .ok_or_else(|| bad(&format!("step of {name} is empty")))?;
+                    if !(v.is_finite() && v >= 0.0) {
+                        return Err(bad(&format!("step of {name} is {v}")));
+                    }
+                    v as u64
+                }
+                None => s.as_f64().unwrap_or(0.0).max(0.0) as u64,
             };
         }
     }

@@ -7,8 +7,9 @@ use candle_core::Device;
 
 use crate::core::camera::PerspectiveCamera;
 use crate::core::rays::Rays;
+use crate::render::bands::{band_rays, pixel_bands};
 use crate::render::field::Field;
-use crate::render::renderer::VolumeRenderer;
+use crate::render::renderer::{RenderOutput, VolumeRenderer};
 use crate::render::sampler::StratifiedSampler;
 
 /// Coloured points in world space.
@@ -22,30 +23,48 @@ pub struct ColoredPoints {
 
 /// The points one view sees: for each pixel's ray whose opacity `Σ wᵢ` exceeds
 /// `min_opacity`, the point `origin + direction · Σ wᵢtᵢ / Σ wᵢ` (nerfstudio's expected depth,
-/// normalised by the accumulated weight) with the colour `Σ wᵢcᵢ / Σ wᵢ`.
+/// normalised by the accumulated weight) with the colour `Σ wᵢcᵢ / Σ wᵢ`. The rays are made and
+/// rendered about `band` at a time (whole renderer chunks, so the points do not depend on it).
+#[allow(clippy::too_many_arguments)]
 pub fn depth_points(
     field: &dyn Field,
     camera: &PerspectiveCamera,
-    (width, height): (usize, usize),
+    size: (usize, usize),
     sampler: &StratifiedSampler,
     renderer: &VolumeRenderer,
     min_opacity: f32,
+    band: usize,
     device: &Device,
 ) -> Result<ColoredPoints> {
     camera.validate()?;
-    let rays = Rays::for_image(camera, width, height, device)?;
     // On black, so that dividing by the opacity recovers the colour.
     let black = VolumeRenderer {
         white_background: false,
         ..*renderer
     };
-    let out = black.render(field, sampler, &rays, None)?;
+    let band = black.rays_per_band(field, sampler, band);
+    let mut cloud = ColoredPoints::default();
+    for pixels in pixel_bands(size.0 * size.1, band) {
+        let rays = band_rays(camera, size, pixels, device)?;
+        let out = black.render(field, sampler, &rays, None)?;
+        add_opaque_points(&mut cloud, &rays, &out, min_opacity)?;
+    }
+    Ok(cloud)
+}
+
+/// Adds to `cloud` the point and colour of every ray of `rays` whose opacity in `out` exceeds
+/// `min_opacity`.
+fn add_opaque_points(
+    cloud: &mut ColoredPoints,
+    rays: &Rays,
+    out: &RenderOutput,
+    min_opacity: f32,
+) -> Result<()> {
     let origins = rays.origins.flatten_all()?.to_vec1::<f32>()?;
     let directions = rays.directions.flatten_all()?.to_vec1::<f32>()?;
     let color = out.color.flatten_all()?.to_vec1::<f32>()?;
     let depth = out.depth.flatten_all()?.to_vec1::<f32>()?;
     let opacity = out.opacity.flatten_all()?.to_vec1::<f32>()?;
-    let mut cloud = ColoredPoints::default();
     for (i, &a) in opacity.iter().enumerate() {
         // Also skips a NaN opacity (the renderer refuses NaN colour and depth already).
         if a.is_nan() || a <= min_opacity.max(0.0) {
@@ -59,5 +78,5 @@ pub fn depth_points(
             .colors
             .push([0, 1, 2].map(|k| (color[3 * i + k] / a).clamp(0.0, 1.0)));
     }
-    Ok(cloud)
+    Ok(())
 }

@@ -1,5 +1,6 @@
 //! Sampling, the volume-rendering maths, the renderer, occupancy grid and skipping.
 
+pub mod bands;
 pub mod depth_points;
 pub mod field;
 pub mod hierarchical;

@@ -133,60 +133,97 @@ impl Band {
 /// Points projected at a time (then splatted, each band of rows on its own thread).
 const POINTS_PER_PASS: usize = 1 << 18;
 
-/// Splats points (`P × 3` world positions, flattened) into a `size × size` image. Points are
-/// projected in parallel, and the image's row bands are splatted in parallel, each taking the
-/// points in their order, so every pixel sees its points in input order (as one thread
-/// would).
+/// Splats points (`P × 3` world positions, flattened) into a `size × size` image: a
+/// [`PointSplatter`] given all of them at once.
 pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<RgbImage> {
-    anyhow::ensure!(
-        view.points_per_pixel >= 1,
-        "points_per_pixel must be at least 1"
-    );
-    anyhow::ensure!(
-        view.points_per_pixel <= u8::MAX as usize,
-        "points_per_pixel must be at most 255"
-    );
-    let k = view.points_per_pixel;
-    let centres: Vec<f64> = (0..size)
-        .map(|i| 1.0 - (2 * i + 1) as f64 / size as f64)
-        .collect();
-    let rows_per_band = size
-        .div_ceil(2 * rayon::current_num_threads().max(1))
-        .max(1);
-    let mut bands: Vec<Band> = (0..size)
-        .step_by(rows_per_band)
-        .map(|first| {
-            let rows = rows_per_band.min(size - first);
-            Band {
-                first,
-                kept: vec![(0.0, 0.0); rows * size * k],
-                n_kept: vec![0; rows * size],
-                far: vec![0; rows * size],
-            }
-        })
-        .collect();
-    for chunk in points.chunks(3 * POINTS_PER_PASS) {
-        let splats: Vec<Splat> = chunk
-            .par_chunks_exact(3)
-            .filter_map(|p| project(p, size, view))
+    let mut splatter = PointSplatter::new(size, view)?;
+    splatter.add(points);
+    splatter.finish()
+}
+
+/// A `size × size` point image built from points given a piece at a time, so that they need
+/// not all exist at once. Points are projected in parallel, and the image's row bands are
+/// splatted in parallel, each taking the points in their order, so every pixel sees its points
+/// in input order (as one thread would): the image depends on the points and their order, not
+/// on how they were cut into pieces.
+pub struct PointSplatter {
+    size: usize,
+    view: PointView,
+    centres: Vec<f64>,
+    bands: Vec<Band>,
+}
+
+impl PointSplatter {
+    /// An empty image; an error when `view.points_per_pixel` is not 1 to 255.
+    pub fn new(size: usize, view: &PointView) -> Result<Self> {
+        anyhow::ensure!(
+            view.points_per_pixel >= 1,
+            "points_per_pixel must be at least 1"
+        );
+        anyhow::ensure!(
+            view.points_per_pixel <= u8::MAX as usize,
+            "points_per_pixel must be at most 255"
+        );
+        let k = view.points_per_pixel;
+        let centres: Vec<f64> = (0..size)
+            .map(|i| 1.0 - (2 * i + 1) as f64 / size as f64)
             .collect();
-        bands.par_iter_mut().for_each(|band| {
-            for s in &splats {
-                band.splat(s, size, k, view.radius, &centres);
-            }
-        });
+        let rows_per_band = size
+            .div_ceil(2 * rayon::current_num_threads().max(1))
+            .max(1);
+        let bands: Vec<Band> = (0..size)
+            .step_by(rows_per_band)
+            .map(|first| {
+                let rows = rows_per_band.min(size - first);
+                Band {
+                    first,
+                    kept: vec![(0.0, 0.0); rows * size * k],
+                    n_kept: vec![0; rows * size],
+                    far: vec![0; rows * size],
+                }
+            })
+            .collect();
+        Ok(Self {
+            size,
+            view: *view,
+            centres,
+            bands,
+        })
     }
-    let mut data = Vec::with_capacity(size * size * 3);
-    for band in &bands {
-        for (pixel, &n) in band.n_kept.iter().enumerate() {
-            let clear: f64 = band.kept[pixel * k..pixel * k + n as usize]
-                .iter()
-                .map(|&(_, alpha)| 1.0 - alpha)
-                .product();
-            data.extend(view.color.map(|c| c * (1.0 - clear) as f32));
+
+    /// Splats the next points (`P × 3` world positions, flattened), after those already given.
+    pub fn add(&mut self, points: &[f32]) {
+        let (size, view) = (self.size, &self.view);
+        let k = view.points_per_pixel;
+        for chunk in points.chunks(3 * POINTS_PER_PASS) {
+            let splats: Vec<Splat> = chunk
+                .par_chunks_exact(3)
+                .filter_map(|p| project(p, size, view))
+                .collect();
+            let centres = &self.centres;
+            self.bands.par_iter_mut().for_each(|band| {
+                for s in &splats {
+                    band.splat(s, size, k, view.radius, centres);
+                }
+            });
         }
     }
-    RgbImage::new(size, size, data)
+
+    /// The image of every point given.
+    pub fn finish(self) -> Result<RgbImage> {
+        let (size, k) = (self.size, self.view.points_per_pixel);
+        let mut data = Vec::with_capacity(size * size * 3);
+        for band in &self.bands {
+            for (pixel, &n) in band.n_kept.iter().enumerate() {
+                let clear: f64 = band.kept[pixel * k..pixel * k + n as usize]
+                    .iter()
+                    .map(|&(_, alpha)| 1.0 - alpha)
+                    .product();
+                data.extend(self.view.color.map(|c| c * (1.0 - clear) as f32));
+            }
+        }
+        RgbImage::new(size, size, data)
+    }
 }
 
 /// Adds `point` (depth, α) to the `*n` points in `kept`, keeping the `kept.len()` nearest:
@@ -290,5 +327,33 @@ mod tests {
             keep_nearest(&mut kept, &mut n, &mut far, p);
         }
         assert_eq!((n, kept), (2, [(2.0, 0.3), (1.0, 0.2)]));
+    }
+
+    #[test]
+    fn points_given_in_pieces_make_the_image_given_at_once() {
+        // Points on a spiral through the view's centre, many covering the same pixels.
+        let points: Vec<f32> = (0..3000)
+            .flat_map(|i| {
+                let t = i as f32 * 0.01;
+                [
+                    t.cos() * t * 0.05,
+                    (i % 7) as f32 * 0.1 - 0.3,
+                    t.sin() * t * 0.05,
+                ]
+            })
+            .collect();
+        let view = PointView {
+            radius: 0.05,
+            ..Default::default()
+        };
+        let whole = render_points(&points, 48, &view).unwrap();
+        assert!(whole.data.iter().filter(|&&v| v > 0.0).count() > 100);
+        for piece in [3, 3 * 7, 3 * 1000] {
+            let mut splatter = PointSplatter::new(48, &view).unwrap();
+            for p in points.chunks(piece) {
+                splatter.add(p);
+            }
+            assert_eq!(splatter.finish().unwrap().data, whole.data, "piece {piece}");
+        }
     }
 }

@@ -16,6 +16,12 @@ use crate::render::field::Field;
 use crate::render::sampler::{RaySamples, StratifiedSampler};
 use crate::render::skipping::SampleCounts;
 
+/// Most samples drawn per chunk of rays when samples are skipped (an occupancy grid or early
+/// termination): the chunk's rays are sized by the samples evaluated per segment, and this
+/// bounds what a chunk holds when none of its rays terminates (2^23 samples: their depths,
+/// march state and, at worst, evaluated values, well under 1 GiB).
+pub const DRAWN_SAMPLES_PER_CHUNK: usize = 1 << 23;
+
 /// What the renderer produces for a batch of N rays.
 #[derive(Debug, Clone)]
 pub struct RenderOutput {
@@ -189,8 +195,43 @@ impl VolumeRenderer {
         })
     }
 
-    /// Renders all rays, `chunk_size` at a time (fewer where the field's
-    /// [`Field::max_samples_per_chunk`] requires), and checks the result is finite.
+    /// Rays [`VolumeRenderer::render`] renders at once: `chunk_size`, fewer where the field's
+    /// [`Field::max_samples_per_chunk`] requires, and, when samples are skipped, no more than
+    /// [`DRAWN_SAMPLES_PER_CHUNK`] drawn samples (at least 1 ray).
+    pub fn rays_per_chunk(&self, field: &dyn Field, sampler: &StratifiedSampler) -> usize {
+        // Samples evaluated at once per ray: a segment when skipping, else all of them.
+        let skips = self.skips_samples(field);
+        let per_ray = if skips {
+            crate::render::skipping::segment_length(sampler.n_pts_per_ray, self.early_termination)
+        } else {
+            sampler.n_pts_per_ray + sampler.n_pts_per_ray_fine
+        };
+        let mut rays = self
+            .chunk_size
+            .min((field.max_samples_per_chunk() / per_ray).max(1));
+        if skips {
+            // A chunk's rays may all stay live to their last sample.
+            rays = rays.min((DRAWN_SAMPLES_PER_CHUNK / sampler.n_pts_per_ray).max(1));
+        }
+        rays
+    }
+
+    /// Rays per band when an image of many rays is rendered band by band, at most about
+    /// `max_rays` of them: a whole number of [`VolumeRenderer::rays_per_chunk`] chunks (at
+    /// least one), so that the renderer sees the same chunks as with the whole image at once
+    /// and the pixels are the same bit for bit.
+    pub fn rays_per_band(
+        &self,
+        field: &dyn Field,
+        sampler: &StratifiedSampler,
+        max_rays: usize,
+    ) -> usize {
+        let chunk = self.rays_per_chunk(field, sampler);
+        chunk * (max_rays / chunk).max(1)
+    }
+
+    /// Renders all rays, [`VolumeRenderer::rays_per_chunk`] at a time, and checks the result
+    /// is finite.
     ///
     /// `rays`: N rays; returns colour `(N, 3)`, depth and opacity `(N, 1)`.
     pub fn render(
@@ -201,15 +242,7 @@ impl VolumeRenderer {
         mut jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
         let n = rays.len();
-        // Samples evaluated at once per ray: a segment when skipping, else all of them.
-        let per_ray = if self.skips_samples(field) {
-            crate::render::skipping::segment_length(sampler.n_pts_per_ray, self.early_termination)
-        } else {
-            sampler.n_pts_per_ray + sampler.n_pts_per_ray_fine
-        };
-        let chunk_size = self
-            .chunk_size
-            .min((field.max_samples_per_chunk() / per_ray).max(1));
+        let chunk_size = self.rays_per_chunk(field, sampler);
         let mut parts = Vec::with_capacity(n.div_ceil(chunk_size));
         let mut start = 0;
         while start < n {

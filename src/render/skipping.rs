@@ -507,6 +507,28 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_chunk_of_skipping_rays_draws_a_bounded_number_of_samples() {
+        let m = model(0.0);
+        let f = field(&m, None);
+        let renderer = VolumeRenderer::new(1 << 20, false)
+            .unwrap()
+            .with_early_termination(1e-3)
+            .unwrap();
+        let per_segment = f.max_samples_per_chunk() / SEGMENT;
+        for s in [16, 128, 4096, 16384] {
+            let sampler = StratifiedSampler::new(s, 0.1, 6.0).unwrap();
+            let rays = renderer.rays_per_chunk(&f, &sampler);
+            assert!(
+                rays * s <= crate::render::renderer::DRAWN_SAMPLES_PER_CHUNK,
+                "S = {s}"
+            );
+            assert!(rays <= per_segment, "S = {s}");
+            // Normal sizes keep the chunk the evaluated samples allow; only long rays shrink it.
+            assert_eq!(rays == per_segment, s <= 4096, "S = {s}: {rays} rays");
+        }
+    }
+
     /// A 4³ grid over ±1 with cell `c` empty where `c % every == empty`.
     fn striped_grid(every: usize, empty: usize) -> OccupancyGrid {
         let config = OccupancyGridParams {

@@ -6,49 +6,54 @@ use candle_core::{Device, Tensor};
 
 use crate::core::marching_cubes::VolumeGrid;
 use crate::core::rays::Rays;
+use crate::render::bands::pixel_bands;
 use crate::render::field::Field;
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 
-/// Grid points evaluated per call of the scalar function.
-const BATCH: usize = 1 << 16;
-
 /// Samples `scalar` at the `dims` grid points spanning `aabb` (`[min_x, min_y, min_z, max_x,
-/// max_y, max_z]`; x fastest, as [`VolumeGrid`]).
+/// max_y, max_z]`; x fastest, as [`VolumeGrid`]), `batch` points per call (at least 1).
 ///
 /// `scalar` takes `(M, 3)` points as a flat row-major slice and returns their M values. With an
 /// `occupancy` grid, points outside its occupied cells (and outside its box) are not evaluated
-/// and get `empty`: the renderer never evaluates the field there either.
+/// and get `empty`: the renderer never evaluates the field there either. The points evaluated
+/// are gathered as the grid is walked, so besides the grid only one batch is held.
 pub fn sample_grid(
     dims: [usize; 3],
     aabb: [f32; 6],
     occupancy: Option<&OccupancyGrid>,
     empty: f32,
+    batch: usize,
     scalar: &dyn Fn(&[f32]) -> Result<Vec<f32>>,
 ) -> Result<VolumeGrid> {
+    let batch = batch.max(1);
     let mut grid = VolumeGrid {
         dims,
         aabb,
         values: vec![empty; dims.iter().product()],
     };
     let [nx, ny, _] = dims;
-    let occupied = |idx: usize| {
+    let (mut index, mut flat) = (Vec::with_capacity(batch), Vec::with_capacity(3 * batch));
+    for idx in 0..grid.values.len() {
         let p = grid.point(idx % nx, (idx / nx) % ny, idx / (nx * ny));
-        (occupancy.is_none_or(|o| o.is_occupied(p))).then_some((idx, p))
-    };
-    let wanted: Vec<(usize, [f32; 3])> = (0..grid.values.len()).filter_map(occupied).collect();
-    for batch in wanted.chunks(BATCH) {
-        let flat: Vec<f32> = batch.iter().flat_map(|(_, p)| *p).collect();
-        let values = scalar(&flat)?;
-        ensure!(
-            values.len() == batch.len(),
-            "the field gave {} values for {} points",
-            values.len(),
-            batch.len()
-        );
-        for ((idx, _), v) in batch.iter().zip(values) {
-            grid.values[*idx] = v;
+        if occupancy.is_none_or(|o| o.is_occupied(p)) {
+            index.push(idx);
+            flat.extend(p);
+        }
+        if index.len() == batch || (idx + 1 == grid.values.len() && !index.is_empty()) {
+            let values = scalar(&flat)?;
+            ensure!(
+                values.len() == index.len(),
+                "the field gave {} values for {} points",
+                values.len(),
+                index.len()
+            );
+            for (&i, v) in index.iter().zip(values) {
+                grid.values[i] = v;
+            }
+            index.clear();
+            flat.clear();
         }
     }
     Ok(grid)
@@ -59,7 +64,10 @@ pub fn sample_grid(
 /// volume-rendered and divided by its opacity (so a surface that is not quite opaque over that
 /// short ray keeps its colour instead of fading to the background).
 ///
-/// `vertices`, `normals`: N points and unit normals; returns N colours in `[0, 1]`.
+/// `vertices`, `normals`: N points and unit normals; returns N colours in `[0, 1]`. The rays
+/// are made and rendered about `band` at a time (whole renderer chunks, so the colours do not
+/// depend on it).
+#[allow(clippy::too_many_arguments)]
 pub fn surface_colors(
     field: &dyn Field,
     renderer: &VolumeRenderer,
@@ -67,6 +75,7 @@ pub fn surface_colors(
     normals: &[[f32; 3]],
     offset: f32,
     n_samples: usize,
+    band: usize,
     device: &Device,
 ) -> Result<Vec<[f32; 3]>> {
     ensure!(vertices.len() == normals.len(), "one normal per vertex");
@@ -78,31 +87,33 @@ pub fn surface_colors(
         return Ok(Vec::new());
     }
     let sampler = StratifiedSampler::new(n_samples, 0.0, 2.0 * offset as f64)?;
-    let n = vertices.len();
-    let origins: Vec<f32> = vertices
-        .iter()
-        .zip(normals)
-        .flat_map(|(v, nrm)| [0, 1, 2].map(|a| v[a] + offset * nrm[a]))
-        .collect();
-    let directions: Vec<f32> = normals.iter().flat_map(|nrm| nrm.map(|c| -c)).collect();
-    let rays = Rays {
-        origins: Tensor::from_vec(origins, (n, 3), device)?,
-        directions: Tensor::from_vec(directions, (n, 3), device)?,
-    };
     // On black, so that dividing by the opacity recovers the surface colour.
     let black = VolumeRenderer {
         white_background: false,
         ..*renderer
     };
-    let out = black.render(field, &sampler, &rays, None)?;
-    let color = out.color.flatten_all()?.to_vec1::<f32>()?;
-    let opacity = out.opacity.flatten_all()?.to_vec1::<f32>()?;
-    Ok(color
-        .chunks_exact(3)
-        .zip(opacity)
-        .map(|(c, a)| {
+    let band = black.rays_per_band(field, &sampler, band);
+    let mut colors = Vec::with_capacity(vertices.len());
+    for pixels in pixel_bands(vertices.len(), band) {
+        let (v, nrm) = (&vertices[pixels.clone()], &normals[pixels]);
+        let n = v.len();
+        let origins: Vec<f32> = v
+            .iter()
+            .zip(nrm)
+            .flat_map(|(v, nrm)| [0, 1, 2].map(|a| v[a] + offset * nrm[a]))
+            .collect();
+        let directions: Vec<f32> = nrm.iter().flat_map(|nrm| nrm.map(|c| -c)).collect();
+        let rays = Rays {
+            origins: Tensor::from_vec(origins, (n, 3), device)?,
+            directions: Tensor::from_vec(directions, (n, 3), device)?,
+        };
+        let out = black.render(field, &sampler, &rays, None)?;
+        let color = out.color.flatten_all()?.to_vec1::<f32>()?;
+        let opacity = out.opacity.flatten_all()?.to_vec1::<f32>()?;
+        colors.extend(color.chunks_exact(3).zip(opacity).map(|(c, a)| {
             let scale = if a > 1e-3 { 1.0 / a } else { 1.0 };
             [0, 1, 2].map(|k| (c[k] * scale).clamp(0.0, 1.0))
-        })
-        .collect())
+        }));
+    }
+    Ok(colors)
 }

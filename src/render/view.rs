@@ -1,11 +1,11 @@
 //! One camera's full image through the renderer.
 
 use anyhow::Result;
-use candle_core::{Device, Tensor};
+use candle_core::Device;
 
 use crate::core::camera::PerspectiveCamera;
 use crate::core::image::RgbImage;
-use crate::core::rays::Rays;
+use crate::render::bands::{band_rays, pixel_bands};
 use crate::render::field::Field;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
@@ -38,16 +38,18 @@ pub fn render_view(
         sampler,
         renderer,
         device,
-        usize::MAX,
+        renderer.rays_per_band(field, sampler, crate::render::bands::BAND_RAYS),
         &|| false,
     )?;
     Ok(view.expect("never interrupted"))
 }
 
-/// [`render_view`] in bands of `band` rays (row-major pixels), asking `stop` before each band:
-/// `None` once it says yes, so that work nobody wants any more (a stale viewer frame, a client
-/// that hung up) ends within one band. Each ray is rendered alone, so the image does not depend
-/// on `band`.
+/// [`render_view`] in bands of `band` rays (row-major pixels), asking `stop` before each band,
+/// before any of its rays is made: `None` once it says yes, so that work nobody wants any more
+/// (a stale viewer frame, a client that hung up) ends within one band and costs nothing when
+/// it is stopped before it starts. Only one band's rays exist at a time; the image is written
+/// into its final buffers as the bands come. Each ray is rendered alone, so the image does not
+/// depend on `band`.
 #[allow(clippy::too_many_arguments)]
 pub fn render_view_interruptible(
     field: &dyn Field,
@@ -60,29 +62,132 @@ pub fn render_view_interruptible(
     stop: &dyn Fn() -> bool,
 ) -> Result<Option<RenderedView>> {
     camera.validate()?;
-    let rays = Rays::for_image(camera, width, height, device)?;
-    let n = rays.len();
-    let band = band.max(1);
-    let (mut colors, mut depths) = (Vec::new(), Vec::new());
+    let n = width * height;
+    let mut color = Vec::new();
+    let mut depth = Vec::new();
     let mut samples = SampleCounts::default();
-    let mut start = 0;
-    while start < n {
+    for pixels in pixel_bands(n, band) {
         if stop() {
             return Ok(None);
         }
-        let len = band.min(n - start);
-        let out = renderer.render(field, sampler, &rays.narrow(start, len)?, None)?;
-        colors.push(out.color);
-        depths.push(out.depth);
+        let rays = band_rays(camera, (width, height), pixels, device)?;
+        let out = renderer.render(field, sampler, &rays, None)?;
+        if color.is_empty() {
+            color.reserve_exact(3 * n);
+            depth.reserve_exact(n);
+        }
+        color.extend(out.color.flatten_all()?.to_vec1::<f32>()?);
+        depth.extend(out.depth.flatten_all()?.to_vec1::<f32>()?);
         samples = samples + out.samples;
-        start += len;
     }
-    let flat = |parts: &[Tensor]| -> Result<Vec<f32>> {
-        Ok(Tensor::cat(parts, 0)?.flatten_all()?.to_vec1::<f32>()?)
-    };
     Ok(Some(RenderedView {
-        color: RgbImage::new(width, height, flat(&colors)?)?,
-        depth: flat(&depths)?,
+        color: RgbImage::new(width, height, color)?,
+        depth,
         samples,
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::camera::surround_cameras;
+    use crate::core::rays::Rays;
+    use crate::core::sdf::{Sdf, SdfVolume};
+    use crate::field::sdf::SdfField;
+    use glam::DVec3;
+    use std::cell::Cell;
+
+    fn scene() -> (
+        SdfField,
+        StratifiedSampler,
+        VolumeRenderer,
+        PerspectiveCamera,
+    ) {
+        let volume = SdfVolume {
+            sdf: Sdf::Sphere {
+                center: [0.0; 3],
+                radius: 1.0,
+            },
+            alpha: 1.0,
+            beta: 0.05,
+            rainbow: true,
+            feature: [1.0, 1.0, 1.0],
+        };
+        let field = SdfField::fixed(&volume, &Device::Cpu).unwrap();
+        let sampler = StratifiedSampler::new(16, 0.1, 6.0).unwrap();
+        let renderer = VolumeRenderer::new(64, false).unwrap();
+        let camera = surround_cameras(3.0, 1, DVec3::Y, 1.0)[0];
+        (field, sampler, renderer, camera)
+    }
+
+    #[test]
+    fn bands_give_the_whole_image_rays_give() {
+        let (field, sampler, renderer, camera) = scene();
+        let size = (13, 7);
+        let whole = Rays::for_image(&camera, size.0, size.1, &Device::Cpu).unwrap();
+        let reference = renderer.render(&field, &sampler, &whole, None).unwrap();
+        let reference = reference
+            .color
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        for band in [1, 5, 13, 64, 91, usize::MAX] {
+            let view = render_view_interruptible(
+                &field,
+                &camera,
+                size,
+                &sampler,
+                &renderer,
+                &Device::Cpu,
+                band,
+                &|| false,
+            )
+            .unwrap()
+            .unwrap();
+            assert_eq!(view.color.data, reference, "band {band}");
+            assert_eq!(view.depth.len(), 13 * 7);
+        }
+    }
+
+    #[test]
+    fn stop_is_asked_before_every_band_and_first_before_any_work() {
+        let (field, sampler, renderer, camera) = scene();
+        let asked = Cell::new(0);
+        // Stopped at once: asked once, nothing rendered (a 4096² image would take seconds).
+        let view = render_view_interruptible(
+            &field,
+            &camera,
+            (4096, 4096),
+            &sampler,
+            &renderer,
+            &Device::Cpu,
+            8192,
+            &|| {
+                asked.set(asked.get() + 1);
+                true
+            },
+        )
+        .unwrap();
+        assert!(view.is_none());
+        assert_eq!(asked.get(), 1);
+        // Stopped before the third band of 10 rays: asked three times.
+        asked.set(0);
+        let view = render_view_interruptible(
+            &field,
+            &camera,
+            (10, 10),
+            &sampler,
+            &renderer,
+            &Device::Cpu,
+            10,
+            &|| {
+                asked.set(asked.get() + 1);
+                asked.get() == 3
+            },
+        )
+        .unwrap();
+        assert!(view.is_none());
+        assert_eq!(asked.get(), 3);
+    }
 }

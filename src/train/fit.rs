@@ -8,6 +8,12 @@
 //! time leaves out both).
 //! Randomness is seeded per epoch from `seed`, so a run resumed from epoch k continues exactly
 //! as an uninterrupted run would.
+//!
+//! The log never holds a step the checkpoint does not: each step's line is kept in memory
+//! and appended only after the checkpoint holding that step has been renamed into place. A
+//! run killed (SIGKILL, a second Ctrl-C) or failing (a full disk) between checkpoints leaves
+//! a log that ends at or before the checkpoint's step, and a failed checkpoint write ends the
+//! run with one line, its temporary file removed.
 
 use std::fs::File;
 use std::io::Write;
@@ -25,8 +31,8 @@ use crate::core::term::note;
 use crate::io::checkpoint::{self, CheckpointInfo};
 use crate::io::checkpoint_file::{self, CheckpointFormat};
 use crate::io::dataset::Dataset;
-use crate::io::images::{remove_stale_temp_files, write_atomically};
-use crate::io::progress::{progress_bar, Progress};
+use crate::io::output::{open_append, remove_stale_temp_files, write_atomically};
+use crate::io::progress::Progress;
 use crate::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
 use crate::render::field::Field;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
@@ -92,7 +98,8 @@ pub fn next_rays(rays: usize, evaluated: usize, target: usize, max_rays: usize) 
 pub struct TrainPaths {
     /// The safetensors checkpoint (model, Adam state, occupancy grid).
     pub checkpoint: PathBuf,
-    /// The JSON-lines training log, one line per step.
+    /// The JSON-lines training log, one line per step, appended once the checkpoint holding
+    /// the step is written.
     pub log: PathBuf,
     /// Where previews are written.
     pub images: PathBuf,
@@ -147,16 +154,52 @@ pub fn rewind_log(log: &Path, last_step: u64) -> Result<()> {
     })
 }
 
+/// An error naming the key when the progress a checkpoint records does not fit this run:
+/// more rays per step than a step may take, or a position in an epoch past its `n_images`
+/// steps (the file's own limits are checked when it is read).
+fn check_resumable(
+    info: &CheckpointInfo,
+    settings: &TrainSettings,
+    n_images: usize,
+    path: &Path,
+) -> Result<()> {
+    let max_rays = settings.max_rays.max(64);
+    if info.rays_per_step > max_rays {
+        bail!(
+            "checkpoint {}: metadata rays_per_step = {} is more than a step of this config may \
+             take ({max_rays})",
+            path.display(),
+            info.rays_per_step
+        );
+    }
+    if info.step_in_epoch >= n_images.max(1) {
+        bail!(
+            "checkpoint {}: metadata step_in_epoch = {} is past the {n_images} steps of an epoch \
+             on this dataset",
+            path.display(),
+            info.step_in_epoch
+        );
+    }
+    Ok(())
+}
+
 /// The model, optimiser and progress of a run: resumed from `paths.checkpoint` when
-/// `settings.resume` and it exists, else freshly seeded.
+/// `settings.resume` and it exists, else freshly seeded (which is said on stderr).
 fn start_or_resume(
     settings: &TrainSettings,
     paths: &TrainPaths,
+    n_images: usize,
     device: &Device,
 ) -> Result<(TrainModel, Optimizer, CheckpointInfo)> {
     let (mut state, tensors, info) = if settings.resume && paths.checkpoint.is_file() {
-        TrainModel::from_checkpoint(&settings.model, &paths.checkpoint, device)?
+        let resumed = TrainModel::from_checkpoint(&settings.model, &paths.checkpoint, device)?;
+        check_resumable(&resumed.2, settings, n_images, &paths.checkpoint)?;
+        resumed
     } else {
+        note(&format!(
+            "starting a fresh run (no checkpoint to resume at {}); writing it there",
+            paths.checkpoint.display()
+        ));
         (
             TrainModel::seeded(&settings.model, settings.seed, device)?,
             Default::default(),
@@ -188,7 +231,8 @@ fn start_or_resume(
 }
 
 /// Makes the run's directories and opens its log for appending, after dropping what a killed
-/// run left behind (temporary files, log lines past the checkpoint).
+/// run left behind (temporary files, log lines past the checkpoint). An error for a log path
+/// that is a directory or device.
 fn prepare_outputs(settings: &TrainSettings, paths: &TrainPaths, step: u64) -> Result<File> {
     if let Some(dir) = paths.log.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
@@ -202,12 +246,11 @@ fn prepare_outputs(settings: &TrainSettings, paths: &TrainPaths, step: u64) -> R
     }
     remove_stale_temp_files(&paths.checkpoint);
     remove_stale_temp_files(&paths.log);
+    // Refused before it is read: a directory, device or FIFO is not a log.
+    drop(open_append(&paths.log).context("training log")?);
     rewind_log(&paths.log, step)?;
-    std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&paths.log)
-        .with_context(|| format!("cannot open training log {}", paths.log.display()))
+    // Opened again: the rewind may have replaced the file.
+    open_append(&paths.log).context("training log")
 }
 
 /// Writes the model, optimiser state and occupancy grid atomically, in the format of the
@@ -240,7 +283,7 @@ fn save(
 
 /// One step's log line (`rays`: the step's rays).
 fn log_step(
-    log: &mut File,
+    log: &mut Vec<u8>,
     step: u64,
     epoch: usize,
     wall: f64,
@@ -266,6 +309,9 @@ struct Run<'a> {
     adam: Optimizer,
     info: CheckpointInfo,
     log: File,
+    /// Log lines of the steps since the last checkpoint: they reach the log only once a
+    /// checkpoint holding those steps is in place, so the log never runs ahead of it.
+    pending: Vec<u8>,
     bar: Progress,
     start: Instant,
     /// Seconds spent in hooks, left out of the logged training time.
@@ -279,15 +325,6 @@ struct Run<'a> {
     rays: usize,
 }
 
-/// Seconds between progress lines when stderr is not a terminal (`NERF_PROGRESS_SECONDS`
-/// overrides it; 0 prints a line per step).
-fn plain_progress_seconds() -> f64 {
-    std::env::var("NERF_PROGRESS_SECONDS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(10.0)
-}
-
 /// `1 h 02 min`, `3 min 05 s`, `12 s`.
 fn format_duration(seconds: f64) -> String {
     let s = seconds.max(0.0).round() as u64;
@@ -299,6 +336,32 @@ fn format_duration(seconds: f64) -> String {
 }
 
 impl Run<'_> {
+    /// Writes the checkpoint of `self.info` (the model, optimiser and grid as they are now),
+    /// then appends the log lines of the steps it holds.
+    fn checkpoint(&mut self) -> Result<()> {
+        save(
+            self.settings,
+            self.paths,
+            &self.state,
+            &self.info,
+            &self.adam,
+            self.device,
+        )
+        .with_context(|| {
+            format!(
+                "cannot write checkpoint {} (the run ends here; the last checkpoint and its log \
+                 are intact)",
+                self.paths.checkpoint.display()
+            )
+        })?;
+        self.log
+            .write_all(&self.pending)
+            .and_then(|()| self.log.flush())
+            .with_context(|| format!("cannot append to {}", self.paths.log.display()))?;
+        self.pending.clear();
+        Ok(())
+    }
+
     fn wall(&self) -> f64 {
         self.wall_offset + self.start.elapsed().as_secs_f64() - self.excluded
     }
@@ -396,7 +459,7 @@ impl Run<'_> {
             self.rays = next_rays(self.rays, samples.evaluated, target, self.settings.max_rays);
         }
         let step = self.adam.step_count();
-        log_step(&mut self.log, step, epoch, wall, loss, (samples, rays))?;
+        log_step(&mut self.pending, step, epoch, wall, loss, (samples, rays))?;
         self.progress(epoch, loss);
         Ok(loss)
     }
@@ -418,7 +481,7 @@ impl Run<'_> {
             return;
         }
         let now = self.start.elapsed().as_secs_f64();
-        if now - self.last_plain_line >= plain_progress_seconds() {
+        if now - self.last_plain_line >= crate::io::progress::plain_line_seconds() {
             self.last_plain_line = now;
             let (done, total) = (self.bar.position(), self.bar.length());
             let mut eta = now / done.max(1) as f64 * total.saturating_sub(done) as f64;
@@ -449,7 +512,7 @@ impl Run<'_> {
                 let t = Instant::now();
                 let score = evaluate(&*self.state.field())?;
                 writeln!(
-                    self.log,
+                    self.pending,
                     "{{\"step\":{},\"epoch\":{},\"wall_s\":{:.3},\"test_psnr\":{:.3},\"test_views\":{}}}",
                     self.adam.step_count(),
                     epoch + 1,
@@ -465,14 +528,7 @@ impl Run<'_> {
                 ));
                 self.excluded += t.elapsed().as_secs_f64();
             }
-            save(
-                s,
-                self.paths,
-                &self.state,
-                &self.info,
-                &self.adam,
-                self.device,
-            )?;
+            self.checkpoint()?;
         }
         if (epoch + 1).is_multiple_of(s.render_interval) {
             if let Some(preview) = hooks.preview.as_mut() {
@@ -531,7 +587,7 @@ pub fn fit(
     mut hooks: Hooks,
     device: &Device,
 ) -> Result<FitOutcome> {
-    let (state, adam, info) = start_or_resume(settings, paths, device)?;
+    let (state, adam, info) = start_or_resume(settings, paths, dataset.images.len(), device)?;
     if info.epoch >= settings.num_epochs {
         // A run killed while rewriting its final checkpoint leaves a temporary file; nothing
         // else will clean it up here.
@@ -553,7 +609,12 @@ pub fn fit(
         adam,
         info,
         log,
-        bar: progress_bar((planned * n_images - info.step_in_epoch) as u64, "training"),
+        pending: Vec::new(),
+        // Its own plain lines (step, loss, time left), not the bar's.
+        bar: crate::io::progress::Progress::new(
+            (planned * n_images - info.step_in_epoch) as u64,
+            "training",
+        ),
         start: Instant::now(),
         excluded: 0.0,
         wall_offset: info.wall_seconds,
@@ -583,18 +644,18 @@ pub fn fit(
                 rng_word_pos,
                 rays_per_step: run.rays_to_save(),
             };
-            save(settings, paths, &run.state, &run.info, &run.adam, device)?;
+            run.checkpoint()?;
             run.bar.finish_and_clear();
             return Ok(ended(run.info));
         }
         run.after_epoch(epoch, mean_loss, &mut hooks)?;
         if (signalled || run.out_of_time()) && epoch + 1 < first + planned {
-            save(settings, paths, &run.state, &run.info, &run.adam, device)?;
+            run.checkpoint()?;
             run.bar.finish_and_clear();
             return Ok(ended(run.info));
         }
     }
-    save(settings, paths, &run.state, &run.info, &run.adam, device)?;
+    run.checkpoint()?;
     run.bar.finish_and_clear();
     Ok(FitOutcome::Finished(run.info))
 }

@@ -151,3 +151,51 @@ pub fn tiny_train(
         .stderr(std::process::Stdio::null());
     c
 }
+
+/// The Chromium executable for the browser test: `$CHROMIUM`, else `/usr/bin/chromium`
+/// (Debian's package, which `.ci/install` installs), or a visible skip — a failure under
+/// `CI=true`, like the shared data.
+pub fn chromium(test: &str) -> Option<PathBuf> {
+    let path = std::env::var_os("CHROMIUM")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
+    if path.is_file() {
+        return Some(path);
+    }
+    if std::env::var("CI").is_ok_and(|v| v == "true") {
+        panic!(
+            "{test}: Chromium not found at {} (set $CHROMIUM or run .ci/install), and CI must have it",
+            path.display()
+        );
+    }
+    let _ = writeln!(
+        std::io::stderr(),
+        "SKIPPED {test}: Chromium not found at {} (set $CHROMIUM or run .ci/install)",
+        path.display()
+    );
+    None
+}
+
+/// The steps of a training log in `ckpt_dir`, in order.
+pub fn logged_steps(ckpt_dir: &Path) -> Vec<u64> {
+    std::fs::read_to_string(ckpt_dir.join("nerf_lego.log.jsonl"))
+        .unwrap_or_default()
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["step"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect()
+}
+
+/// The names of the temporary files in `dir`.
+pub fn temp_files(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect()
+}
