@@ -1,5 +1,6 @@
 //! Core: cameras, rays and the pixel grid, and small shared maths. Imports nothing else of the crate.
 
+pub mod allocator;
 pub mod camera;
 pub mod compare;
 pub mod fastexp;

@@ -157,7 +157,8 @@ fn packed_forward(rays: &PackedRays, density: &[f32], feature: &[f32], c: usize)
 /// This is what [`composite`] gives on the dense tensors with zeros at the skipped samples,
 /// bit for bit (a zero optical depth leaves the transmittance and the sums unchanged), but
 /// only the listed samples are visited, forward and backward. Differentiable in `density`
-/// and `feature`; its twin is the dense scatter + [`composite`].
+/// and `feature`. The fused kernel where [`use_fused`] allows, else its twin
+/// [`composite_packed_tensor_ops`].
 pub fn composite_packed(
     index: Vec<u32>,
     n_rays: usize,
@@ -170,6 +171,9 @@ pub fn composite_packed(
         rows == n_rays || rows == 1,
         "composite_packed: lengths have {rows} rows for {n_rays} rays"
     );
+    if !use_fused(density) {
+        return composite_packed_tensor_ops(index, n_rays, density, feature, lengths);
+    }
     let n = n_rays;
     let c = feature.dim(1)?;
     let lengths_v = lengths
@@ -185,6 +189,37 @@ pub fn composite_packed(
         density.apply_op2_no_bwd(&feature, &op)?
     };
     split_output(&out, c)
+}
+
+/// The twin of [`composite_packed`] (any device and dtype): the packed values scattered into
+/// dense `(N, S, ·)` tensors, zeros at the samples not listed (`index_add`, differentiable),
+/// then [`composite_tensor_ops`].
+pub fn composite_packed_tensor_ops(
+    index: Vec<u32>,
+    n_rays: usize,
+    density: &Tensor,
+    feature: &Tensor,
+    lengths: &Tensor,
+) -> Result<(Tensor, Tensor, Tensor)> {
+    let s = lengths.dim(1)?;
+    let (c, device, dtype) = (feature.dim(1)?, density.device(), density.dtype());
+    let mut dense_density = Tensor::zeros((n_rays * s, 1), dtype, device)?;
+    let mut dense_feature = Tensor::zeros((n_rays * s, c), dtype, device)?;
+    if !index.is_empty() {
+        let m = index.len();
+        let index = Tensor::from_vec(index, m, device)?;
+        dense_density = dense_density.index_add(&index, &density.contiguous()?, 0)?;
+        dense_feature = dense_feature.index_add(&index, &feature.contiguous()?, 0)?;
+    }
+    let lengths = lengths
+        .to_dtype(dtype)?
+        .broadcast_as((n_rays, s, 1))?
+        .contiguous()?;
+    composite_tensor_ops(
+        &dense_density.reshape((n_rays, s, 1))?,
+        &dense_feature.reshape((n_rays, s, c))?,
+        &lengths,
+    )
 }
 
 struct PackedComposite {
@@ -603,6 +638,45 @@ mod tests {
                 diff <= 1e-4 * scale,
                 "gradient differs by {diff} (scale {scale})"
             );
+        }
+    }
+
+    #[test]
+    fn packed_kernel_matches_its_tensor_op_twin_values_and_gradients() {
+        let (n, s_len, c) = (40, 10, 3);
+        let (_, l, _) = inputs(n, s_len, c, 3, 0.0);
+        // Every third sample listed, in a shuffled order.
+        let mut index: Vec<u32> = (0..(n * s_len) as u32).filter(|i| i % 3 != 1).collect();
+        index.reverse();
+        let m = index.len();
+        let dev = &Device::Cpu;
+        let sigma = Var::from_tensor(&Tensor::rand(0f32, 3.0, (m, 1), dev).unwrap()).unwrap();
+        let feature = Var::from_tensor(&Tensor::rand(0f32, 1.0, (m, c), dev).unwrap()).unwrap();
+        let mix = Tensor::new(&[[0.3f32, -1.2, 0.7]], dev).unwrap();
+        let loss = |(colour, depth, opacity): (Tensor, Tensor, Tensor)| {
+            let parts = [
+                colour.broadcast_mul(&mix).unwrap().sum_all().unwrap(),
+                depth.sum_all().unwrap().affine(0.4, 0.0).unwrap(),
+                opacity.sum_all().unwrap().affine(2.0, 0.0).unwrap(),
+            ];
+            ((&parts[0] + &parts[1]).unwrap() + &parts[2]).unwrap()
+        };
+        let (s_t, f_t) = (sigma.as_tensor(), feature.as_tensor());
+        let fused = loss(composite_packed(index.clone(), n, s_t, f_t, &l).unwrap());
+        let twin = loss(composite_packed_tensor_ops(index, n, s_t, f_t, &l).unwrap());
+        let (a, b) = (
+            fused.to_scalar::<f32>().unwrap(),
+            twin.to_scalar::<f32>().unwrap(),
+        );
+        assert!((a - b).abs() <= 1e-4 * b.abs().max(1.0), "{a} vs {b}");
+        let (gf, gt) = (fused.backward().unwrap(), twin.backward().unwrap());
+        for var in [&sigma, &feature] {
+            let d = crate::core::compare::max_abs_difference(
+                gf.get(var.as_tensor()).unwrap(),
+                gt.get(var.as_tensor()).unwrap(),
+            )
+            .unwrap();
+            assert!(d < 1e-4, "gradient differs by {d}");
         }
     }
 }

@@ -147,6 +147,29 @@ pub fn ngp_mlp(
     }
 }
 
+/// The NGP MLPs on `enc` `(M, E)` and `per_ray` `(N, H)`: the fused [`ngp_mlp`] where
+/// [`crate::kernels::use_fused`] allows (f32 on the CPU, fused kernels chosen), else its twin
+/// [`ngp_mlp_tensor_ops`]. `ray_index`: each sample's ray, as a `(M,)` u32 tensor on the
+/// inputs' device and as the same values on the host. Returns `(M, 4)`.
+pub fn mlp_forward(
+    enc: &Tensor,
+    per_ray: &Tensor,
+    (ray_index, rays): (&Tensor, &[u32]),
+    layers: &MlpLayers,
+) -> candle_core::Result<Tensor> {
+    if crate::kernels::use_fused(enc) {
+        let l = layers;
+        let packed = pack_parameters(l.w0, l.b0, l.w1, l.b1, l.wg, [l.w2, l.b2, l.w3, l.b3])?;
+        let shape = MlpShape {
+            enc: enc.dim(1)?,
+            hidden: l.w0.dim(0)?,
+            geo: l.wg.dim(1)?,
+        };
+        return ngp_mlp(enc, per_ray, rays, &packed, shape);
+    }
+    ngp_mlp_tensor_ops(enc, per_ray, ray_index, layers)
+}
+
 /// The tensor-op twin of [`ngp_mlp`] (any device and dtype): the same layers through Candle
 /// ops, `ray_index` `(M,)` u32 on the tensors' device.
 pub fn ngp_mlp_tensor_ops(

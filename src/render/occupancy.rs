@@ -64,6 +64,20 @@ pub struct OccupancyGridParams {
     pub density_threshold: f64,
 }
 
+impl Default for OccupancyGridParams {
+    /// The configs' defaults: 64³ cells over `[-1.5, 1.5]³` (the NeRF-synthetic scenes), a
+    /// cell occupied where one cell-wide step would reach 1% opacity.
+    fn default() -> Self {
+        let aabb = [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5];
+        let resolution = 64;
+        Self {
+            resolution,
+            aabb,
+            density_threshold: density_threshold(0.01, (aabb[3] - aabb[0]) / resolution as f64),
+        }
+    }
+}
+
 /// A field's density at points: `(M, 3)` → `(M, 1)`.
 pub type DensityFn<'a> = &'a dyn Fn(&Tensor) -> Result<Tensor>;
 

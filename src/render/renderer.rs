@@ -11,7 +11,6 @@ use crate::core::rays::Rays;
 use crate::core::volume::deltas;
 use crate::kernels::composite::composite;
 use crate::kernels::sample_points::sample_points;
-use crate::kernels::use_fused;
 use crate::render::field::Field;
 use crate::render::sampler::{RaySamples, StratifiedSampler};
 use crate::render::skipping::SampleCounts;
@@ -103,15 +102,9 @@ impl VolumeRenderer {
         let packed =
             crate::render::skipping::evaluate_packed(field, self.early_termination, rays, lengths)?;
         let counts = packed.counts;
-        // The fused kernels composite the packed values directly (rendering and training);
-        // the generic ones scatter them into dense tensors first.
-        if use_fused(lengths) && lengths.device().is_cpu() {
-            let (color, depth, opacity) = packed.composite(lengths)?;
-            return self.finish(color, depth, opacity, counts);
-        }
-        let out = packed.scatter(lengths.device())?;
-        let lengths = lengths.broadcast_as(out.density.shape())?.contiguous()?;
-        let (color, depth, opacity) = composite(&out.density, &out.feature, &lengths)?;
+        // Composited straight from the packed values (the kernel scatters them into dense
+        // tensors itself where it runs as tensor ops).
+        let (color, depth, opacity) = packed.composite(lengths)?;
         self.finish(color, depth, opacity, counts)
     }
 

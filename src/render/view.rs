@@ -31,6 +31,7 @@ pub fn render_view(
     renderer: &VolumeRenderer,
     device: &Device,
 ) -> Result<RenderedView> {
+    crate::core::allocator::ensure_allocator_tuned();
     let view = render_view_interruptible(
         field,
         camera,
