@@ -41,6 +41,13 @@
 
 #![warn(missing_docs)]
 
+/// The Candle crates this library is built on, at the versions it uses: a library user
+/// writes `nerf::candle_core::Tensor` and needs no matching dependency of their own.
+pub use candle_core;
+pub use candle_nn;
+/// The vector maths of the camera API (`glam::DVec3` for eye, target and up).
+pub use glam;
+
 pub mod app;
 pub mod core;
 pub mod eval;
@@ -50,6 +57,7 @@ pub mod kernels;
 pub mod render;
 pub mod train;
 
+pub use crate::core::allocator::{ensure_allocator_tuned, tune_allocator};
 pub use crate::core::camera::{
     camera_position_from_spherical_angles, look_at_view_transform, surround_cameras,
     PerspectiveCamera,
@@ -57,7 +65,8 @@ pub use crate::core::camera::{
 pub use crate::core::image::RgbImage;
 pub use crate::core::rays::{pixel_grid, random_pixel_indices, Rays};
 pub use crate::core::sdf::{Sdf, SdfVolume};
-pub use crate::field::nerf::{Nerf, NerfField, NerfParams};
+pub use crate::field::nerf::{Nerf, NerfField, NerfParams, NerfState};
+pub use crate::field::trainable::{named_vars, FieldSpec, TrainableField};
 pub use crate::field::sdf::{SdfField, SdfTrainable};
 pub use crate::io::checkpoint::CheckpointInfo;
 pub use crate::io::dataset::{Dataset, Split};
@@ -70,19 +79,5 @@ pub use crate::render::sampler::{RaySamples, StratifiedSampler};
 pub use crate::render::view::{render_view, RenderedView};
 pub use crate::train::adam::Adam;
 pub use crate::train::fit::{fit, Hooks, RunLimits, TrainPaths, TrainSettings};
-pub use crate::train::state::{named_vars, NerfState};
+pub use crate::train::model::{Optimizer, TrainModel};
 
-/// For programs that use this library on the system allocator (the `nerf` binary uses mimalloc
-/// instead, and its test binaries use glibc): tunes glibc's allocator for tensor work: tensors of many megabytes are allocated and freed
-/// for every op, and by default glibc hands each back to the OS, so the next op pays page
-/// faults to get it again (measured: about 40% of the box render's time). Raising the mmap and
-/// trim thresholds keeps freed buffers for reuse. A no-op on other platforms.
-pub fn tune_allocator() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only changes allocator parameters; it is called before any threads start.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
-        libc::mallopt(libc::M_TOP_PAD, 64 << 20);
-    }
-}

@@ -801,7 +801,7 @@ fn cmd_import_torch(args: ImportTorchArgs, _device: &Device) -> Result<()> {
         overrides,
     } = args;
     let config = Config::load(&config, &overrides)?;
-    let n = nerf::io::torch::import_torch(&pth, &config.nerf_params()?, &out)?;
+    let n = nerf::io::torch::import_torch(&pth, &config.field_spec()?.parameter_shapes()?, &out)?;
     nerf::core::term::note(&format!(
         "wrote {} ({n} parameters from {})",
         out.display(),

@@ -343,7 +343,8 @@ fn load_checkpoint(bytes: &[u8], params: &nerf::field::nerf::NerfParams) -> anyh
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("checkpoint");
     std::fs::write(&path, bytes)?;
-    nerf::io::checkpoint_file::load(&path, params, &candle_core::Device::Cpu).map(|_| ())
+    let shapes = nerf::field::nerf::parameter_shapes(params);
+    nerf::io::checkpoint_file::load(&path, &shapes, &candle_core::Device::Cpu).map(|_| ())
 }
 
 proptest! {

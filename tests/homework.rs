@@ -13,7 +13,8 @@ use candle_core::Device;
 use nerf::app::config::Config;
 use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
-use nerf::train::state::NerfState;
+use nerf::field::nerf::parameter_shapes;
+use nerf::NerfState;
 
 /// The box the fit tests recover (not the homework's).
 const TRUE_CENTER: &str = "implicit_function.sdf.center.val=[0.1,-0.15,0.05]";
@@ -296,7 +297,13 @@ fn nerf_lego_render_reads_a_pytorch_checkpoint_where_the_config_points() {
         lr: 5e-4,
         initial_lr: 5e-4,
     };
-    write_torch_checkpoint(&d.join("nerf_checkpoints"), &params, &map, info, optimizer).unwrap();
+    write_torch_checkpoint(
+        &d.join("nerf_checkpoints"),
+        &parameter_shapes(&params),
+        &map,
+        info,
+        optimizer,
+    ).unwrap();
     checkpoint::save(&d.join("same.safetensors"), &tensors, info).unwrap();
     let small = [
         "data.image_size=[16,16]",
@@ -401,7 +408,12 @@ fn pytorch_made_checkpoint_renders_as_its_safetensors_twin() {
         .nerf_params()
         .unwrap();
     let load = |name: &str| {
-        nerf::io::checkpoint_file::load(&fixtures().join(name), &params, &Device::Cpu).unwrap()
+        nerf::io::checkpoint_file::load(
+            &fixtures().join(name),
+            &parameter_shapes(&params),
+            &Device::Cpu,
+        )
+        .unwrap()
     };
     let ((t1, i1), (t2, i2)) = (
         load("tiny_nerf_homework.pth"),
@@ -462,12 +474,12 @@ fn training_resumes_from_a_pytorch_checkpoint_and_keeps_its_format() {
         .unwrap()
         .nerf_params()
         .unwrap();
-    let torch = nerf::io::torch::read_torch_checkpoint(&ckpt, &params).unwrap();
+    let torch = nerf::io::torch::read_torch_checkpoint(&ckpt, &parameter_shapes(&params)).unwrap();
     assert_eq!((torch.info.epoch, torch.info.adam_step), (4, 103));
     assert_eq!(torch.adam.len(), 2 * torch.model.len());
     let (before, _) = nerf::io::checkpoint_file::load(
         &fixtures().join("tiny_nerf_homework.pth"),
-        &params,
+        &parameter_shapes(&params),
         &Device::Cpu,
     )
     .unwrap();

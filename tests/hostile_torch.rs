@@ -172,7 +172,8 @@ fn a_memo_referenced_again_and_again_is_shared_not_copied() {
     )
     .unwrap();
     let start = Instant::now();
-    let err = nerf::io::torch::read_torch_checkpoint(&path, &cfg.nerf_params().unwrap())
+    let shapes = nerf::field::nerf::parameter_shapes(&cfg.nerf_params().unwrap());
+    let err = nerf::io::torch::read_torch_checkpoint(&path, &shapes)
         .err()
         .unwrap()
         .to_string();

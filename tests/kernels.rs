@@ -7,8 +7,7 @@ use candle_core::{Device, Tensor};
 use common::{max_abs_diff, nerf, read_npy, stderr};
 use nerf::app::config::Config;
 use nerf::core::rays::Rays;
-use nerf::train::state::named_vars;
-use nerf::{with_kernel_choice, KernelChoice, NerfField, NerfState};
+use nerf::{named_vars, with_kernel_choice, KernelChoice, NerfField, NerfState};
 
 /// `d(Σ colour + Σ depth)/d(weight)` for every NeRF parameter, with `choice` in force.
 fn nerf_gradients(config: &Config, choice: KernelChoice) -> Vec<(String, Vec<f32>)> {

@@ -13,7 +13,8 @@ use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::dataset::{Dataset, Frame};
 use nerf::train::model::{Optimizer, TrainModel};
 use nerf::train::step::train_step;
-use nerf::{render_view, NerfField, NerfState};
+use nerf::field::nerf::parameter_shapes;
+use nerf::{render_view, NerfField, NerfParams, NerfState};
 use rand::SeedableRng;
 
 /// A small NeRF config (the homework's architecture, smaller sizes) with overrides.
@@ -60,6 +61,13 @@ fn box_dataset(config: &Config) -> Dataset {
     }
 }
 
+/// A NeRF of `params` from the checkpoint at `path` (either format), and its progress.
+fn load_nerf(params: &NerfParams, path: &Path) -> anyhow::Result<(NerfState, CheckpointInfo)> {
+    let shapes = parameter_shapes(params);
+    let (tensors, info) = nerf::io::checkpoint_file::load(path, &shapes, &Device::Cpu)?;
+    Ok((NerfState::from_tensors(params, &tensors, path)?, info))
+}
+
 fn named_vars(state: &NerfState) -> Vec<(String, candle_core::Var)> {
     let data = state.varmap.data().lock().unwrap();
     let mut v: Vec<_> = data.iter().map(|(k, v)| (k.clone(), v.clone())).collect();
@@ -72,7 +80,7 @@ fn a_few_steps_lower_the_loss() {
     let config = tiny_config(&["training.lr=0.005"]);
     let dataset = box_dataset(&config);
     let nerf_cfg = config.nerf_params().unwrap();
-    let state = TrainModel::Nerf(NerfState::new(&nerf_cfg, &Device::Cpu).unwrap());
+    let state = TrainModel::seeded(&nerf_cfg, 0, &Device::Cpu).unwrap();
     let mut adam = Optimizer::new(&state, 0.005).unwrap();
     let mut rng = nerf::train::step::TrainRng::seed_from_u64(5);
     let mut losses = Vec::new();
@@ -169,9 +177,9 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
     ]);
     let dataset = box_dataset(&config);
     let nerf_cfg = config.nerf_params().unwrap();
-    let mut state = TrainModel::Nerf(NerfState::new(&nerf_cfg, &Device::Cpu).unwrap());
+    let mut state = TrainModel::seeded(&nerf_cfg, 0, &Device::Cpu).unwrap();
     let settings = config.occupancy_grid().unwrap();
-    *state.occupancy_mut() = Some(nerf::OccupancyGrid::new(&settings).unwrap());
+    state.occupancy = Some(nerf::OccupancyGrid::new(&settings).unwrap());
     let mut adam = Optimizer::new(&state, 0.005).unwrap();
     let mut rng = nerf::train::step::TrainRng::seed_from_u64(5);
     let mut losses = Vec::new();
@@ -196,7 +204,7 @@ fn fast_training_lowers_the_loss_and_keeps_the_grid_current() {
     }
     let first: f64 = losses[..10].iter().sum::<f64>() / 10.0;
     let last: f64 = losses[50..].iter().sum::<f64>() / 10.0;
-    let grid = state.occupancy().unwrap();
+    let grid = state.occupancy.as_ref().unwrap();
     eprintln!(
         "loss {first:.4} -> {last:.4}; {:.1}% of cells occupied",
         100.0 * grid.occupied_fraction()
@@ -280,7 +288,7 @@ fn checkpoint_round_trips_bit_exactly() {
         rays_per_step: 3000,
     };
     checkpoint::save(&path, &checkpoint::model_tensors(&state.varmap), info).unwrap();
-    let (loaded, back) = NerfState::from_checkpoint(&nerf_cfg, &path, &Device::Cpu).unwrap();
+    let (loaded, back) = load_nerf(&nerf_cfg, &path).unwrap();
     assert_eq!(back, info);
     let a: HashMap<String, Tensor> = checkpoint::model_tensors(&state.varmap)
         .into_iter()
@@ -295,7 +303,7 @@ fn checkpoint_round_trips_bit_exactly() {
     }
     // A model of another width is refused with the tensor and both shapes named.
     let wide = tiny_config(&["implicit_function.n_hidden_neurons_xyz=48"]);
-    let err = NerfState::from_checkpoint(&wide.nerf_params().unwrap(), &path, &Device::Cpu)
+    let err = load_nerf(&wide.nerf_params().unwrap(), &path)
         .err()
         .unwrap();
     let msg = format!("{err:#}");
@@ -390,7 +398,7 @@ fn nerf_render_does_not_depend_on_chunking() {
     let render = |chunk: usize| {
         let renderer = nerf::render::renderer::VolumeRenderer::new(chunk, false).unwrap();
         render_view(
-            &state.field(),
+            &state.field(None),
             &cam,
             (10, 9),
             &sampler,
@@ -429,8 +437,8 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
     let dir = tempfile::tempdir().unwrap();
     for pth in ["tiny_nerf.pth", "tiny_nerf_nested.pth"] {
         let out = dir.path().join(format!("{pth}.safetensors"));
-        nerf::io::torch::import_torch(&fixtures().join(pth), &nerf_cfg, &out).unwrap();
-        let (state, info) = NerfState::from_checkpoint(&nerf_cfg, &out, &Device::Cpu).unwrap();
+        nerf::io::torch::import_torch(&fixtures().join(pth), &parameter_shapes(&nerf_cfg), &out).unwrap();
+        let (state, info) = load_nerf(&nerf_cfg, &out).unwrap();
         assert_eq!(info.epoch, 0);
         let points = expected["points"].unsqueeze(1).unwrap();
         let out = state
@@ -464,7 +472,11 @@ fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
     let nerf_cfg = config.nerf_params().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.safetensors");
-    let err = nerf::io::torch::import_torch(&fixtures().join("tiny_nerf.pth"), &nerf_cfg, &out)
+    let err = nerf::io::torch::import_torch(
+        &fixtures().join("tiny_nerf.pth"),
+        &parameter_shapes(&nerf_cfg),
+        &out,
+    )
         .unwrap_err()
         .to_string();
     assert!(
@@ -472,7 +484,11 @@ fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
         "{err}"
     );
     assert!(!out.exists());
-    let missing = nerf::io::torch::import_torch(&dir.path().join("none.pth"), &nerf_cfg, &out)
+    let missing = nerf::io::torch::import_torch(
+        &dir.path().join("none.pth"),
+        &parameter_shapes(&nerf_cfg),
+        &out,
+    )
         .unwrap_err()
         .to_string();
     assert!(missing.contains("not found"), "{missing}");

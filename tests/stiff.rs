@@ -303,7 +303,7 @@ fn nerf_gradients_and_adam_stay_finite_at_extremes() {
                 .set(&Tensor::new(&[colour_bias; 3], &Device::Cpu).unwrap())
                 .unwrap();
         }
-        let vars = nerf::train::state::named_vars(&varmap);
+        let vars = nerf::named_vars(&varmap);
         let mut adam = nerf::train::adam::Adam::new(vars.clone(), 5e-4).unwrap();
         let cam = config.surround_cameras()[0];
         let rays = Rays::for_image(&cam, 8, 8, &Device::Cpu).unwrap();

@@ -12,10 +12,8 @@ use crate::app::scene::render_views;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::image::RgbImage;
 use crate::core::metrics::{fastest, mean, mean_psnr, time_runs};
-use crate::field::nerf::NerfField;
 use crate::render::view::{render_view, RenderedView};
-use crate::train::adam::Adam;
-use crate::train::state::{named_vars, NerfState};
+use crate::train::model::{Optimizer, TrainModel};
 
 /// One benchmark result.
 #[derive(Debug, Clone, Serialize)]
@@ -289,34 +287,30 @@ pub fn run_benchmarks(
 /// rendered frame at the config's size. Errors are not measured here (`nerf eval` does that).
 pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Vec<BenchResult>> {
     use rand::SeedableRng;
-    let nerf = config.nerf_params()?;
+    let spec = config.field_spec()?;
     let training = config.training()?;
     let job = "time a NeRF training step";
     let batch_size = TrainingConfig::required(training.batch_size, "batch_size", job)?;
     let lr = TrainingConfig::required(training.lr, "lr", job)?;
-    let state = NerfState::seeded(&nerf, 0, device)?;
+    let state = TrainModel::seeded(&*spec, 0, device)?;
     let sampler = config.sampler()?;
     let renderer = config.renderer()?;
     let (w, h) = config.image_size();
     let camera = crate::core::camera::surround_cameras(4.0, 20, glam::DVec3::Z, 2.0)[0];
     let mut rng = rand::rngs::StdRng::seed_from_u64(0);
-    let mut adam = Adam::new(named_vars(&state.varmap), lr)?;
+    let mut adam = Optimizer::new(&state, lr)?;
     let (step_runs, ()) = time_runs(repeats, || {
         let pixels = crate::core::rays::random_pixel_indices(w, h, batch_size, &mut rng);
         let rays = crate::core::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
         let target = candle_core::Tensor::full(0.5f32, (pixels.len(), 3), device)?;
-        let field = NerfField {
-            model: state.model.clone(),
-            density_noise: 0.0,
-            occupancy: None,
-        };
-        let out = renderer.render(&field, &sampler, &rays, Some(&mut rng))?;
+        let field = state.training_field(0.0);
+        let out = renderer.render(&*field, &sampler, &rays, Some(&mut rng))?;
         let loss = out.color.sub(&target)?.sqr()?.mean_all()?;
         adam.step(&loss.backward()?)?;
         Ok(())
     })?;
     let (frame_runs, _) = time_runs(repeats.clamp(1, 2), || {
-        render_view(&state.field(), &camera, (w, h), &sampler, &renderer, device)
+        render_view(&*state.render_field(), &camera, (w, h), &sampler, &renderer, device)
     })?;
     Ok(vec![
         BenchResult {

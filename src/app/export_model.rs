@@ -11,7 +11,6 @@ use candle_core::{DType, Device, Tensor};
 
 use crate::app::config::{Config, ImplicitFunctionConfig};
 use crate::io::checkpoint;
-use crate::train::model::TABLE;
 
 /// What [`export_model`] wrote.
 #[derive(Debug, Clone, Copy)]
@@ -57,9 +56,19 @@ pub fn export_model(
         .filter(|(name, _)| !name.starts_with("adam."))
         .collect();
     kept.sort_by(|a, b| a.0.cmp(&b.0));
+    // The sparsely updated tables (the hash grid's) are most of the model: kept in half
+    // precision.
+    let tables: Vec<String> = config
+        .field_spec()?
+        .seeded(0, device)?
+        .param_groups()
+        .sparse_rows
+        .into_iter()
+        .map(|g| g.name)
+        .collect();
     let mut table_rounding = 0f32;
     for (name, t) in kept.iter_mut() {
-        if name == TABLE {
+        if tables.contains(name) {
             let half = t.to_dtype(DType::F16)?;
             table_rounding = (half.to_dtype(DType::F32)? - &*t)?
                 .abs()?

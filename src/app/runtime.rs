@@ -19,8 +19,8 @@ use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 use crate::train::fit::{GridSchedule, TrainPaths, TrainSettings};
 use crate::train::fit_sdf::SdfFitSettings;
-use crate::train::model::ModelParams;
-use crate::train::state::NerfState;
+use crate::field::trainable::FieldSpec;
+use crate::train::model::TrainModel;
 use crate::train::step::StepSettings;
 
 /// The NeRF shipped with the project, the default of every command that loads a model when
@@ -84,6 +84,18 @@ impl Config {
     pub fn surround_cameras(&self) -> Vec<PerspectiveCamera> {
         let c = &self.cameras;
         surround_cameras(c.radius, c.n_poses, DVec3::from_array(c.up), c.focal_length)
+    }
+
+    /// The trainable field the config describes (its kind and sizes), or an error naming the
+    /// key when it describes an SDF volume.
+    pub fn field_spec(&self) -> Result<std::sync::Arc<dyn FieldSpec>> {
+        Ok(match &self.implicit_function {
+            ImplicitFunctionConfig::Nerf(n) => std::sync::Arc::new(n.params()),
+            ImplicitFunctionConfig::Ngp(n) => std::sync::Arc::new(n.params()?),
+            ImplicitFunctionConfig::SdfVolume(_) => {
+                bail!("implicit_function.type: this command needs nerf or ngp")
+            }
+        })
     }
 
     /// The NeRF's sizes, or an error naming the key when the config describes another field.
@@ -246,14 +258,10 @@ impl Config {
     /// `training` key.
     pub fn train_settings(&self) -> Result<TrainSettings> {
         let t = self.training()?;
-        let (model, density_noise) = match &self.implicit_function {
-            ImplicitFunctionConfig::Nerf(nerf) => {
-                (ModelParams::Nerf(nerf.params()), nerf.density_noise_std)
-            }
-            ImplicitFunctionConfig::Ngp(ngp) => (ModelParams::Ngp(ngp.params()?), 0.0),
-            ImplicitFunctionConfig::SdfVolume(_) => {
-                bail!("implicit_function.type: this command needs nerf or ngp")
-            }
+        let model = self.field_spec()?;
+        let density_noise = match &self.implicit_function {
+            ImplicitFunctionConfig::Nerf(nerf) => nerf.density_noise_std,
+            _ => 0.0,
         };
         let job = "train a NeRF";
         let req = |v: Option<usize>, key: &str| TrainingConfig::required(v, key, job);
@@ -386,64 +394,24 @@ impl Config {
         )
     }
 
-    /// A trained field for rendering or evaluating with this config, whatever its kind (`nerf`
-    /// or `ngp`): weights from the checkpoint at `path` and the occupancy grid the config asks
-    /// for.
+    /// A trained field for rendering or evaluating with this config, whatever its kind:
+    /// weights from the checkpoint at `path` and the occupancy grid the config asks for.
     pub fn load_field(
         &self,
         path: &Path,
         device: &Device,
     ) -> Result<Box<dyn crate::render::field::Field + Send + Sync>> {
-        match &self.implicit_function {
-            ImplicitFunctionConfig::Ngp(n) => {
-                Ok(Box::new(self.load_ngp(&n.params()?, path, device)?))
-            }
-            _ => Ok(Box::new(self.load_nerf(path, device)?.0.field())),
-        }
+        Ok(self.load_model(path, device)?.0.render_field())
     }
 
-    /// A trained NGP field: parameters from the checkpoint at `path` (names and shapes checked,
-    /// any float dtype, e.g. an f16 table), with the config's occupancy grid (the checkpoint's,
-    /// or one built from the model).
-    pub fn load_ngp(
-        &self,
-        params: &crate::field::ngp::NgpParams,
-        path: &Path,
-        device: &Device,
-    ) -> Result<crate::field::ngp::NgpField> {
-        use crate::field::ngp::{Ngp, NgpField};
+    /// A trained model for rendering with this config, whatever its kind: weights from the
+    /// checkpoint at `path` (names and shapes checked, any float dtype), and the occupancy grid
+    /// the config asks for (the checkpoint's, or one built from the model). Says on stderr
+    /// which file it loaded and at which epoch.
+    pub fn load_model(&self, path: &Path, device: &Device) -> Result<(TrainModel, CheckpointInfo)> {
         self.ensure_checkpoint(path)?;
-        let (tensors, info) = crate::io::checkpoint::load(path, device)?;
-        let vb =
-            candle_nn::VarBuilder::from_tensors(tensors.clone(), candle_core::DType::F32, device);
-        let model = Ngp::new(params, vb)
-            .with_context(|| {
-                format!(
-                    "{}: not an ngp checkpoint of this config's sizes",
-                    path.display()
-                )
-            })?
-            .detached();
-        let occupancy = match self.occupancy_grid() {
-            Some(g) => {
-                let density = |p: &candle_core::Tensor| model.density(p);
-                Some(std::sync::Arc::new(
-                    crate::render::occupancy::grid_for_checkpoint(&g, &tensors, &density, device)?,
-                ))
-            }
-            None => None,
-        };
-        crate::core::term::note(&format!("loaded {} (epoch {})", path.display(), info.epoch));
-        Ok(NgpField { model, occupancy })
-    }
-
-    /// A trained NeRF for rendering with this config: weights from the checkpoint at `path`,
-    /// and the occupancy grid the config asks for. Says on stderr which file it loaded and at
-    /// which epoch.
-    pub fn load_nerf(&self, path: &Path, device: &Device) -> Result<(NerfState, CheckpointInfo)> {
-        self.ensure_checkpoint(path)?;
-        let (state, info) = NerfState::load(
-            &self.nerf_params()?,
+        let (state, info) = TrainModel::load(
+            &*self.field_spec()?,
             self.occupancy_grid().as_ref(),
             path,
             device,

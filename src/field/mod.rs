@@ -2,4 +2,6 @@
 
 pub mod nerf;
 pub mod ngp;
+
 pub mod sdf;
+pub mod trainable;

@@ -19,9 +19,12 @@
 use std::sync::Arc;
 
 use anyhow::{ensure, Result};
-use candle_core::Tensor;
-use candle_nn::{Init, Linear, VarBuilder};
+use candle_core::{DType, Device, Tensor};
+use candle_nn::{Init, Linear, VarBuilder, VarMap};
 
+use crate::field::trainable::{
+    linear_init_bound, load_parameters, seed_uniform, BoxedField, FieldSpec, ParameterShapes, TrainableField,
+};
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
@@ -381,6 +384,111 @@ pub fn parameter_shapes(config: &NerfParams) -> Vec<(String, Vec<usize>)> {
     );
     linear("color_layer.2".into(), config.n_hidden_neurons_dir, 3);
     out
+}
+
+/// A NeRF with its parameters: the homework's model being trained or rendered.
+pub struct NerfState {
+    /// The model's variables by PyTorch name.
+    pub varmap: VarMap,
+    /// The model, built on `varmap`.
+    pub model: Nerf,
+}
+
+impl NerfState {
+    /// A freshly initialised model: PyTorch's default `nn.Linear` init, U(−1/√fan_in,
+    /// 1/√fan_in) for weights and biases, drawn from a generator seeded with `seed` (parameters
+    /// in name order), so runs are reproducible.
+    pub fn seeded(params: &NerfParams, seed: u64, device: &Device) -> Result<Self> {
+        let varmap = VarMap::new();
+        let model = Nerf::new(params, VarBuilder::from_varmap(&varmap, DType::F32, device))?;
+        seed_uniform(&varmap, seed, linear_init_bound, device)?;
+        Ok(Self { varmap, model })
+    }
+
+    /// The model of `params` with the parameters in `tensors` (a checkpoint's, by PyTorch
+    /// name; names and shapes checked, the error naming `origin`).
+    pub fn from_tensors(
+        params: &NerfParams,
+        tensors: &std::collections::HashMap<String, Tensor>,
+        origin: &std::path::Path,
+    ) -> Result<Self> {
+        let state = Self::new(params, &Device::Cpu)?;
+        load_parameters(&state.varmap, &parameter_shapes(params), tensors, "nerf", origin)?;
+        Ok(state)
+    }
+
+    /// [`NerfState::seeded`] with seed 0.
+    pub fn new(params: &NerfParams, device: &Device) -> Result<Self> {
+        Self::seeded(params, 0, device)
+    }
+
+    /// The field for training: the model's weights as variables (gradients reach them) with
+    /// `density_noise`, and `occupancy` if given.
+    pub fn training_field(
+        &self,
+        occupancy: Option<Arc<OccupancyGrid>>,
+        density_noise: f64,
+    ) -> NerfField {
+        NerfField {
+            model: self.model.clone(),
+            density_noise,
+            occupancy,
+        }
+    }
+
+    /// The field for rendering: detached weights (no gradient graph), no density noise.
+    pub fn field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> NerfField {
+        NerfField {
+            model: self.model.detached(),
+            density_noise: 0.0,
+            occupancy,
+        }
+    }
+}
+
+impl FieldSpec for NerfParams {
+    fn kind(&self) -> &'static str {
+        "nerf"
+    }
+
+    fn seeded(&self, seed: u64, device: &Device) -> Result<Box<dyn TrainableField>> {
+        Ok(Box::new(NerfState::seeded(self, seed, device)?))
+    }
+
+    fn parameter_shapes(&self) -> Result<ParameterShapes> {
+        Ok(parameter_shapes(self))
+    }
+}
+
+impl TrainableField for NerfState {
+    fn kind(&self) -> &'static str {
+        "nerf"
+    }
+
+    fn varmap(&self) -> &VarMap {
+        &self.varmap
+    }
+
+    /// PyTorch's module order, which the homework's checkpoints index their optimiser by.
+    fn parameter_shapes(&self) -> ParameterShapes {
+        parameter_shapes(&self.model.config)
+    }
+
+    fn training_field(
+        &self,
+        occupancy: Option<Arc<OccupancyGrid>>,
+        density_noise: f64,
+    ) -> BoxedField {
+        Box::new(NerfState::training_field(self, occupancy, density_noise))
+    }
+
+    fn render_field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> BoxedField {
+        Box::new(self.field(occupancy))
+    }
+
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        self.model.detached().density(points)
+    }
 }
 
 #[cfg(test)]

@@ -17,13 +17,16 @@
 use std::sync::Arc;
 
 use anyhow::{ensure, Result};
-use candle_core::{DType, Tensor};
-use candle_nn::{Init, Linear, VarBuilder};
+use candle_core::{DType, Device, Tensor};
+use candle_nn::{Init, Linear, VarBuilder, VarMap};
 
 use crate::field::nerf::linear;
+use crate::field::trainable::{
+    linear_init_bound, named_vars, seed_uniform, BoxedField, DenseGroup, FieldSpec, ParamGroups,
+    SparseRowsGroup, TrainableField,
+};
 use crate::kernels::hash_grid::{hash_encode, HashGridParams, TableGradient};
-use crate::kernels::ngp_mlp::{ngp_mlp, ngp_mlp_tensor_ops, pack_parameters, MlpLayers, MlpShape};
-use crate::kernels::use_fused;
+use crate::kernels::ngp_mlp::{mlp_forward, MlpLayers};
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
@@ -229,7 +232,7 @@ impl Ngp {
     /// Both MLPs on the encoding `enc` `(M, L·F)` of samples on rays `ray_index` `(M,)` u32
     /// (the same indices as `rays`) whose [`Ngp::per_ray`] part is `per_ray` `(N, 64)`:
     /// `(M, 4)`, the raw density and RGB.
-    /// The fused kernel where [`use_fused`] allows, else its tensor-op twin.
+    /// The fused kernel or its tensor-op twin, as [`mlp_forward`] chooses.
     fn mlps(
         &self,
         enc: &Tensor,
@@ -246,15 +249,6 @@ impl Ngp {
         let wg = self.color[0].weight().narrow(1, 0, GEO_FEATURES)?;
         let (w0, w1) = (self.density[0].weight(), self.density[1].weight());
         let (w2, w3) = (self.color[1].weight(), self.color[2].weight());
-        if use_fused(enc) && enc.device().is_cpu() {
-            let shape = MlpShape {
-                enc: self.params.grid.output_dim(),
-                hidden: HIDDEN,
-                geo: GEO_FEATURES,
-            };
-            let packed = pack_parameters(w0, &b0, w1, &b1, &wg, [w2, &b2, w3, &b3])?;
-            return Ok(ngp_mlp(enc, per_ray, rays, &packed, shape)?);
-        }
         let layers = MlpLayers {
             w0,
             b0: &b0,
@@ -266,7 +260,7 @@ impl Ngp {
             w3,
             b3: &b3,
         };
-        Ok(ngp_mlp_tensor_ops(enc, per_ray, ray_index, &layers)?)
+        Ok(mlp_forward(enc, per_ray, (ray_index, rays), &layers)?)
     }
 
     /// σ from the raw density (the configured activation), 0 where `inside` is 0.
@@ -390,6 +384,110 @@ impl Field for NgpField {
 
     fn density(&self, points: &Tensor) -> Result<Tensor> {
         self.model.density(points)
+    }
+}
+
+/// The name of the hash table among an NGP model's parameters.
+pub const TABLE: &str = "encoding.table";
+
+/// An NGP model with its parameters, being trained or rendered.
+pub struct NgpState {
+    /// The model's variables by name (`encoding.table`, `density_mlp.*`, `color_mlp.*`).
+    pub varmap: VarMap,
+    /// The model, built on `varmap`.
+    pub model: Ngp,
+    /// The table gradient the fused encoding leaves for the sparse optimiser.
+    pub gradient: Arc<TableGradient>,
+}
+
+impl NgpState {
+    /// A freshly initialised model, reproducible from `seed`: the table U(−1e‑4, 1e‑4)
+    /// (instant-ngp), every linear layer's weight and bias U(−1/√fan_in, 1/√fan_in)
+    /// (PyTorch's default), drawn in name order.
+    pub fn seeded(params: &NgpParams, seed: u64, device: &Device) -> Result<Self> {
+        let varmap = VarMap::new();
+        let gradient = Arc::new(TableGradient::new(&params.grid));
+        let model = Ngp::new(params, VarBuilder::from_varmap(&varmap, DType::F32, device))?
+            .with_table_gradient(gradient.clone());
+        let bound = |name: &str, shapes: &_| match name {
+            TABLE => 1e-4,
+            _ => linear_init_bound(name, shapes),
+        };
+        seed_uniform(&varmap, seed, bound, device)?;
+        Ok(Self {
+            varmap,
+            model,
+            gradient,
+        })
+    }
+}
+
+impl FieldSpec for NgpParams {
+    fn kind(&self) -> &'static str {
+        "ngp"
+    }
+
+    fn seeded(&self, seed: u64, device: &Device) -> Result<Box<dyn TrainableField>> {
+        Ok(Box::new(NgpState::seeded(self, seed, device)?))
+    }
+}
+
+impl TrainableField for NgpState {
+    fn kind(&self) -> &'static str {
+        "ngp"
+    }
+
+    fn varmap(&self) -> &VarMap {
+        &self.varmap
+    }
+
+    fn training_field(
+        &self,
+        occupancy: Option<Arc<OccupancyGrid>>,
+        _density_noise: f64,
+    ) -> BoxedField {
+        Box::new(NgpField {
+            model: self.model.clone(),
+            occupancy,
+        })
+    }
+
+    fn render_field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> BoxedField {
+        Box::new(NgpField {
+            model: self.model.detached(),
+            occupancy,
+        })
+    }
+
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        self.model.detached().density(points)
+    }
+
+    /// Dense Adam on the MLPs and sparse Adam on the hash table, both with instant-ngp's
+    /// β₂ = 0.99 and ε = 1e‑15 (rows whose gradient is exactly zero are left alone, values
+    /// and moments, as tiny-cuda-nn's Adam leaves zero-gradient parameters).
+    fn param_groups(&self) -> ParamGroups {
+        let (table, dense): (Vec<_>, Vec<_>) = named_vars(&self.varmap)
+            .into_iter()
+            .partition(|(n, _)| n == TABLE);
+        let sparse_rows = table
+            .into_iter()
+            .map(|(name, var)| SparseRowsGroup {
+                name,
+                var,
+                beta2: 0.99,
+                eps: 1e-15,
+                sink: Some((self.gradient.clone(), self.model.params.grid)),
+            })
+            .collect();
+        ParamGroups {
+            dense: DenseGroup {
+                vars: dense,
+                beta2: 0.99,
+                eps: 1e-15,
+            },
+            sparse_rows,
+        }
     }
 }
 

@@ -12,8 +12,6 @@ use anyhow::{bail, Context, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
-use crate::field::nerf::parameter_shapes;
-use crate::field::nerf::NerfParams;
 use crate::io::output::write_atomically;
 
 /// What a checkpoint holds besides tensors.
@@ -232,37 +230,7 @@ pub fn ensure_finite_values(origin: &Path, name: &str, values: &[f32]) -> Result
     Ok(())
 }
 
-/// Copies the model parameters of a checkpoint into `varmap`, checking every name and shape
-/// against the config (the error names the tensor and both shapes).
-pub fn load_model_into(
-    varmap: &VarMap,
-    tensors: &HashMap<String, Tensor>,
-    config: &NerfParams,
-    origin: &Path,
-) -> Result<()> {
-    let data = varmap.data().lock().expect("varmap lock");
-    for (name, shape) in parameter_shapes(config) {
-        let t = tensors
-            .get(&name)
-            .with_context(|| format!("checkpoint {} lacks tensor {name}", origin.display()))?;
-        if t.dims() != &shape[..] {
-            bail!(
-                "checkpoint {}: tensor {name} has shape {:?} but the config needs {:?}",
-                origin.display(),
-                t.dims(),
-                shape
-            );
-        }
-        let var = data
-            .get(&name)
-            .with_context(|| format!("model has no parameter {name}"))?;
-        var.set(t)?;
-    }
-    Ok(())
-}
-
-/// The model parameters of `varmap`, by name, sorted (shapes as
-/// [`crate::field::nerf::parameter_shapes`]).
+/// The model parameters of `varmap`, by name, sorted.
 pub fn model_tensors(varmap: &VarMap) -> Vec<(String, Tensor)> {
     let data = varmap.data().lock().expect("varmap lock");
     let mut v: Vec<(String, Tensor)> = data

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use candle_core::{Device, Tensor};
 
-use crate::field::nerf::NerfParams;
+use crate::field::trainable::ParameterShapes;
 use crate::io::checkpoint::{self, CheckpointInfo};
 use crate::io::torch::read_torch_checkpoint;
 use crate::io::torch_archive::looks_like_torch;
@@ -65,16 +65,16 @@ pub fn detect_format(path: &Path) -> Result<CheckpointFormat> {
 /// Every tensor of a checkpoint of either format, by our names (the model's parameters and,
 /// when saved, `adam.exp_avg.*` / `adam.exp_avg_sq.*`; a safetensors checkpoint may also hold
 /// an occupancy grid), on `device`, and what it says about training progress. A PyTorch file
-/// is read for the NeRF of `config` (names and shapes checked).
+/// is read for the parameters `expected` (names and shapes checked).
 pub fn load(
     path: &Path,
-    config: &NerfParams,
+    expected: &ParameterShapes,
     device: &Device,
 ) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
     match detect_format(path)? {
         CheckpointFormat::Safetensors => checkpoint::load(path, device),
         CheckpointFormat::Torch => {
-            let torch = read_torch_checkpoint(path, config)?;
+            let torch = read_torch_checkpoint(path, expected)?;
             let tensors = torch
                 .model
                 .into_iter()

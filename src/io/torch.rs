@@ -13,8 +13,7 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Result};
 use candle_core::Tensor;
 
-use crate::field::nerf::parameter_shapes;
-use crate::field::nerf::NerfParams;
+use crate::field::trainable::ParameterShapes;
 use crate::io::checkpoint::{self, CheckpointInfo};
 use crate::io::pickle::Value;
 use crate::io::torch_archive::{tensor_ref, TorchArchive};
@@ -59,16 +58,15 @@ fn state_dict(root: &Value, expected: &[(String, Vec<usize>)]) -> Option<Vec<(Va
 
 /// Reads the NeRF (and, when present, Adam's state and the epoch) from a PyTorch file, by our
 /// names, as f32 on the CPU. Every parameter must be present with the config's shape
-/// ([`parameter_shapes`]); an error names a missing, misshapen or non-finite tensor.
-pub fn read_torch_checkpoint(path: &Path, config: &NerfParams) -> Result<TorchCheckpoint> {
+/// (`expected`, in the module's order); an error names a missing, misshapen or non-finite tensor.
+pub fn read_torch_checkpoint(path: &Path, expected: &ParameterShapes) -> Result<TorchCheckpoint> {
     if !path.exists() {
         bail!("PyTorch file {} not found", path.display());
     }
     let mut archive = TorchArchive::open(path)?;
     archive.verify()?;
     let root = archive.root.clone();
-    let expected = parameter_shapes(config);
-    let entries = state_dict(&root, &expected).ok_or_else(|| {
+    let entries = state_dict(&root, expected).ok_or_else(|| {
         anyhow!(
             "{} holds no state dict of the homework's NeuralRadianceField (no tensor {}); if it \
              was saved with torch.save(model), a whole module, save model.state_dict() instead",
@@ -90,7 +88,7 @@ pub fn read_torch_checkpoint(path: &Path, config: &NerfParams) -> Result<TorchCh
     let name_refs: Vec<&str> = found.iter().map(|(_, n, _, _)| n.as_str()).collect();
     let mut model = Vec::with_capacity(expected.len());
     let mut positions = Vec::with_capacity(expected.len());
-    for (name, shape) in &expected {
+    for (name, shape) in expected {
         let i = lookup(&name_refs, name).ok_or_else(|| {
             anyhow!(
                 "{} has no tensor {name} (a state dict of the homework's NeuralRadianceField is expected)",
@@ -222,10 +220,13 @@ fn read_adam(
 }
 
 /// Reads the NeRF parameters from a PyTorch `.pth` file, by our names, as f32 on the CPU, each
-/// of the shape [`parameter_shapes`] gives for `config` (checked); an error names a missing,
+/// of the shape `expected` gives (checked); an error names a missing,
 /// misshapen or non-finite tensor.
-pub fn read_torch_state_dict(path: &Path, config: &NerfParams) -> Result<Vec<(String, Tensor)>> {
-    Ok(read_torch_checkpoint(path, config)?.model)
+pub fn read_torch_state_dict(
+    path: &Path,
+    expected: &ParameterShapes,
+) -> Result<Vec<(String, Tensor)>> {
+    Ok(read_torch_checkpoint(path, expected)?.model)
 }
 
 /// The index of the name `name`, or of the only one ending in `.name` (a prefix such as the
@@ -247,7 +248,7 @@ fn lookup(names: &[&str], name: &str) -> Option<usize> {
 
 /// Converts `pth` into a checkpoint at `out` (weights only; epoch 0, so training started from
 /// it begins a fresh optimiser). Returns the number of parameters written.
-pub fn import_torch(pth: &Path, config: &NerfParams, out: &Path) -> Result<usize> {
+pub fn import_torch(pth: &Path, expected: &ParameterShapes, out: &Path) -> Result<usize> {
     if out
         .canonicalize()
         .ok()
@@ -258,7 +259,7 @@ pub fn import_torch(pth: &Path, config: &NerfParams, out: &Path) -> Result<usize
             out.display()
         );
     }
-    let tensors = read_torch_state_dict(pth, config)?;
+    let tensors = read_torch_state_dict(pth, expected)?;
     let n = tensors.iter().map(|(_, t)| t.elem_count()).sum();
     checkpoint::save(out, &tensors, CheckpointInfo::default())?;
     Ok(n)
@@ -280,21 +281,18 @@ pub struct TorchOptimizerInfo {
 
 /// Writes the homework's training checkpoint, `torch.save({"model": state_dict, "optimizer":
 /// Adam's state_dict, "epoch": E}, path)`: parameters named `implicit_fn.<name>` in the
-/// module's order ([`parameter_shapes`]), Adam's moments `adam.exp_avg.<name>` /
+/// module's order (`expected`), Adam's moments `adam.exp_avg.<name>` /
 /// `adam.exp_avg_sq.<name>` from `tensors` as its per-parameter state (with `step`) when
 /// present, and `epoch` = epochs completed (the epoch a resumed run starts at).
 pub fn write_torch_checkpoint(
     path: &Path,
-    config: &NerfParams,
+    expected: &ParameterShapes,
     tensors: &std::collections::HashMap<String, Tensor>,
     info: CheckpointInfo,
     optimizer: TorchOptimizerInfo,
 ) -> Result<()> {
     use crate::io::torch_save::{torch_save, PyValue};
-    let names: Vec<String> = parameter_shapes(config)
-        .into_iter()
-        .map(|(n, _)| n)
-        .collect();
+    let names: Vec<String> = expected.iter().map(|(n, _)| n.clone()).collect();
     let mut model = Vec::with_capacity(names.len());
     let mut state = Vec::new();
     for (i, name) in names.iter().enumerate() {

@@ -475,7 +475,7 @@ mod tests {
             append_xyz: vec![2],
         };
         // Seeded, so every run tests the same weights.
-        let state = crate::train::state::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
+        let state = crate::field::nerf::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
         state.varmap.data().lock().unwrap()["density_layer.0.bias"]
             .set(&Tensor::new(&[density_bias], &Device::Cpu).unwrap())
             .unwrap();
@@ -747,7 +747,7 @@ mod tests {
                 n_layers_xyz: 2,
                 append_xyz: vec![1],
             };
-            crate::train::state::NerfState::seeded(&cfg, 5, &Device::Cpu).unwrap()
+            crate::field::nerf::NerfState::seeded(&cfg, 5, &Device::Cpu).unwrap()
         };
         let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
         let grid = striped_grid(4, 1);
@@ -766,7 +766,7 @@ mod tests {
             (l + o.sum_all().unwrap()).unwrap().backward().unwrap()
         };
         let (ga, gb) = (loss(&color, &depth, &opacity), loss(&c2, &d2, &o2));
-        for (name, var) in crate::train::state::named_vars(&state.varmap) {
+        for (name, var) in crate::field::trainable::named_vars(&state.varmap) {
             let (a, b) = (ga.get(&var).unwrap(), gb.get(&var).unwrap());
             let scale = b
                 .abs()

@@ -19,6 +19,7 @@ use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -37,7 +38,8 @@ use crate::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
 use crate::render::field::Field;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
-use crate::train::model::{ModelParams, Optimizer, TrainModel};
+use crate::field::trainable::FieldSpec;
+use crate::train::model::{Optimizer, TrainModel};
 use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings, TrainRng};
 
 /// How training keeps an occupancy grid up to date (nerfacc's schedule).
@@ -57,8 +59,8 @@ pub struct GridSchedule {
 /// per-step settings.
 #[derive(Debug, Clone)]
 pub struct TrainSettings {
-    /// The model's kind and sizes.
-    pub model: ModelParams,
+    /// The model's kind and sizes (any field kind; see [`FieldSpec`]).
+    pub model: Arc<dyn FieldSpec>,
     /// What each step does (batch, rays, background, sampler, renderer).
     pub step: StepSettings,
     /// Seeds the initial weights and each epoch's random numbers.
@@ -192,7 +194,7 @@ fn start_or_resume(
     device: &Device,
 ) -> Result<(TrainModel, Optimizer, CheckpointInfo)> {
     let (mut state, tensors, info) = if settings.resume && paths.checkpoint.is_file() {
-        let resumed = TrainModel::from_checkpoint(&settings.model, &paths.checkpoint, device)?;
+        let resumed = TrainModel::from_checkpoint(&*settings.model, &paths.checkpoint, device)?;
         check_resumable(&resumed.2, settings, n_images, &paths.checkpoint)?;
         resumed
     } else {
@@ -201,20 +203,20 @@ fn start_or_resume(
             paths.checkpoint.display()
         ));
         (
-            TrainModel::seeded(&settings.model, settings.seed, device)?,
+            TrainModel::seeded(&*settings.model, settings.seed, device)?,
             Default::default(),
             CheckpointInfo::default(),
         )
     };
     if let Some(schedule) = &settings.grid {
         // Every cell occupied until the first update probes them.
-        *state.occupancy_mut() = Some(OccupancyGrid::new(&schedule.grid)?);
+        state.occupancy = Some(OccupancyGrid::new(&schedule.grid)?);
     }
     let mut adam = Optimizer::new(&state, settings.lr)?;
     if info.adam_step > 0 {
         adam.load_state(&tensors, info.adam_step)?;
         if let (Some(schedule), Some(saved)) = (&settings.grid, tensors.get(CHECKPOINT_KEY)) {
-            *state.occupancy_mut() = Some(OccupancyGrid::from_tensor(&schedule.grid, saved)?);
+            state.occupancy = Some(OccupancyGrid::from_tensor(&schedule.grid, saved)?);
         }
         note(&format!(
             "resuming from {} at epoch {}{}",
@@ -266,7 +268,7 @@ fn save(
 ) -> Result<()> {
     let torch = paths.checkpoint.is_file()
         && checkpoint_file::detect_format(&paths.checkpoint).ok() == Some(CheckpointFormat::Torch);
-    if let (true, ModelParams::Nerf(params)) = (torch, &settings.model) {
+    if torch {
         let mut tensors = checkpoint::model_tensors(state.varmap());
         tensors.extend(adam.state_tensors()?);
         let optimizer = TorchOptimizerInfo {
@@ -274,7 +276,8 @@ fn save(
             initial_lr: settings.lr,
         };
         let tensors = tensors.into_iter().collect();
-        return write_torch_checkpoint(&paths.checkpoint, params, &tensors, *info, optimizer);
+        let expected = state.field.parameter_shapes();
+        return write_torch_checkpoint(&paths.checkpoint, &expected, &tensors, *info, optimizer);
     }
     let mut tensors = state.tensors(device)?;
     tensors.extend(adam.state_tensors()?);
@@ -468,7 +471,8 @@ impl Run<'_> {
     fn progress(&mut self, epoch: usize, loss: f64) {
         let occupied = self
             .state
-            .occupancy()
+            .occupancy
+            .as_ref()
             .map(|g| format!(" occupied {:.1}%", 100.0 * g.occupied_fraction()))
             .unwrap_or_default();
         let message = format!(
@@ -510,7 +514,7 @@ impl Run<'_> {
         if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
             if let Some(evaluate) = hooks.evaluate.as_mut() {
                 let t = Instant::now();
-                let score = evaluate(&*self.state.field())?;
+                let score = evaluate(&*self.state.render_field())?;
                 writeln!(
                     self.pending,
                     "{{\"step\":{},\"epoch\":{},\"wall_s\":{:.3},\"test_psnr\":{:.3},\"test_views\":{}}}",
@@ -533,7 +537,7 @@ impl Run<'_> {
         if (epoch + 1).is_multiple_of(s.render_interval) {
             if let Some(preview) = hooks.preview.as_mut() {
                 let t = Instant::now();
-                let written = preview(&*self.state.field())?;
+                let written = preview(&*self.state.render_field())?;
                 self.bar.println(&format!(
                     "epoch {}: mean train loss {mean_loss:.5}, wrote {}",
                     epoch + 1,
@@ -587,6 +591,7 @@ pub fn fit(
     mut hooks: Hooks,
     device: &Device,
 ) -> Result<FitOutcome> {
+    crate::core::allocator::ensure_allocator_tuned();
     let (state, adam, info) = start_or_resume(settings, paths, dataset.images.len(), device)?;
     if info.epoch >= settings.num_epochs {
         // A run killed while rewriting its final checkpoint leaves a temporary file; nothing

@@ -6,5 +6,4 @@ pub mod fit;
 pub mod fit_sdf;
 pub mod model;
 pub mod sparse_adam;
-pub mod state;
 pub mod step;

@@ -1,197 +1,105 @@
-//! The model a training run optimises, of either kind — the homework's NeRF MLP or the
-//! hash-grid field — and its optimiser: dense Adam for the MLP weights and, for the hash
-//! table, the sparse Adam that updates only the rows a step touched.
+//! The model a training run optimises, of any field kind (a [`TrainableField`]), with its
+//! occupancy grid, and its optimiser: Adam on the dense parameters and sparse Adam on the
+//! tables whose rows each step touches ([`ParamGroups`]).
 
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use candle_core::backprop::GradStore;
-use candle_core::{DType, Device, Tensor};
-use candle_nn::{VarBuilder, VarMap};
-use rand::SeedableRng;
+use candle_core::{Device, Tensor};
+use candle_nn::VarMap;
 
-use crate::field::nerf::NerfParams;
-use crate::field::ngp::{Ngp, NgpField, NgpParams};
+use crate::field::trainable::{
+    BoxedField, FieldSpec, ParamGroups, SparseRowsGroup, TrainableField,
+};
 use crate::io::checkpoint::{self, CheckpointInfo};
-use crate::kernels::hash_grid::TableGradient;
-use crate::render::field::Field;
-use crate::render::occupancy::{OccupancyGrid, CHECKPOINT_KEY};
+use crate::io::checkpoint_file;
+use crate::kernels::hash_grid::{HashGridParams, TableGradient};
+use crate::render::occupancy::{
+    grid_for_checkpoint, OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY,
+};
 use crate::train::adam::Adam;
 use crate::train::sparse_adam::SparseAdam;
-use crate::train::state::{named_vars, NerfState};
 
-/// The sizes of the model to train.
-#[derive(Debug, Clone, PartialEq)]
-pub enum ModelParams {
-    /// The homework's NeRF MLP.
-    Nerf(NerfParams),
-    /// The hash-grid field.
-    Ngp(NgpParams),
-}
-
-/// The name of the hash table among an NGP model's parameters.
-pub const TABLE: &str = "encoding.table";
-
-/// An NGP model with its parameters and occupancy grid.
-pub struct NgpState {
-    /// The model's variables by name (`encoding.table`, `density_mlp.*`, `color_mlp.*`).
-    pub varmap: VarMap,
-    /// The model, built on `varmap`.
-    pub model: Ngp,
+/// The model being trained or rendered: a field of any kind and, when the config uses one, the
+/// occupancy grid that marks where it can have density.
+pub struct TrainModel {
+    /// The model's parameters and fields.
+    pub field: Box<dyn TrainableField>,
     /// Where the model can have density, when the config uses an occupancy grid.
     pub occupancy: Option<OccupancyGrid>,
-    /// The table gradient the fused encoding leaves for the sparse optimiser.
-    pub gradient: Arc<TableGradient>,
-}
-
-impl NgpState {
-    /// A freshly initialised model, reproducible from `seed`: the table U(−1e‑4, 1e‑4)
-    /// (instant-ngp), every linear layer's weight and bias U(−1/√fan_in, 1/√fan_in)
-    /// (PyTorch's default), drawn in name order.
-    pub fn seeded(params: &NgpParams, seed: u64, device: &Device) -> Result<Self> {
-        use rand::Rng;
-        let varmap = VarMap::new();
-        let gradient = Arc::new(TableGradient::new(&params.grid));
-        let model = Ngp::new(params, VarBuilder::from_varmap(&varmap, DType::F32, device))?
-            .with_table_gradient(gradient.clone());
-        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        let shapes: HashMap<String, Vec<usize>> = named_vars(&varmap)
-            .into_iter()
-            .map(|(n, v)| (n, v.dims().to_vec()))
-            .collect();
-        for (name, var) in named_vars(&varmap) {
-            let bound = if name == TABLE {
-                1e-4
-            } else {
-                let weight = name
-                    .strip_suffix(".bias")
-                    .map(|p| format!("{p}.weight"))
-                    .unwrap_or(name.clone());
-                1.0 / (shapes[&weight][1] as f64).sqrt()
-            };
-            let values: Vec<f32> = (0..var.elem_count())
-                .map(|_| rng.random_range(-bound..bound) as f32)
-                .collect();
-            var.set(&Tensor::from_vec(values, var.shape(), device)?)?;
-        }
-        Ok(Self {
-            varmap,
-            model,
-            occupancy: None,
-            gradient,
-        })
-    }
-
-    /// The model's parameters from `tensors` (names and shapes checked; any float dtype).
-    fn load_weights(&self, tensors: &HashMap<String, Tensor>, origin: &Path) -> Result<()> {
-        for (name, var) in named_vars(&self.varmap) {
-            let Some(t) = tensors.get(&name) else {
-                bail!(
-                    "checkpoint {} lacks tensor {name} (is it an ngp checkpoint of this config's sizes?)",
-                    origin.display()
-                );
-            };
-            if t.dims() != var.dims() {
-                bail!(
-                    "checkpoint {} has {name} of shape {:?}, the config's ngp needs {:?}",
-                    origin.display(),
-                    t.dims(),
-                    var.dims()
-                );
-            }
-            var.set(&t.to_dtype(DType::F32)?.to_device(var.device())?)?;
-        }
-        Ok(())
-    }
-}
-
-/// The model being trained.
-pub enum TrainModel {
-    /// The homework's NeRF MLP.
-    Nerf(NerfState),
-    /// The hash-grid field.
-    Ngp(NgpState),
 }
 
 impl TrainModel {
-    /// A freshly initialised model of `params`, reproducible from `seed`.
-    pub fn seeded(params: &ModelParams, seed: u64, device: &Device) -> Result<Self> {
-        Ok(match params {
-            ModelParams::Nerf(p) => Self::Nerf(NerfState::seeded(p, seed, device)?),
-            ModelParams::Ngp(p) => Self::Ngp(NgpState::seeded(p, seed, device)?),
-        })
+    /// A model without an occupancy grid.
+    pub fn new(field: Box<dyn TrainableField>) -> Self {
+        Self {
+            field,
+            occupancy: None,
+        }
     }
 
-    /// The model of `params` with the weights of the checkpoint at `path`, the checkpoint's
-    /// tensors (optimizer state, grid) and what it says of progress.
+    /// A freshly initialised model of `spec`, reproducible from `seed`.
+    pub fn seeded(spec: &dyn FieldSpec, seed: u64, device: &Device) -> Result<Self> {
+        Ok(Self::new(spec.seeded(seed, device)?))
+    }
+
+    /// The model of `spec` with the weights of the checkpoint at `path` (ours or a PyTorch
+    /// file, told apart by content; names and shapes checked), the checkpoint's tensors
+    /// (optimiser state, grid) and what it says of progress.
     pub fn from_checkpoint(
-        params: &ModelParams,
+        spec: &dyn FieldSpec,
         path: &Path,
         device: &Device,
     ) -> Result<(Self, HashMap<String, Tensor>, CheckpointInfo)> {
-        match params {
-            ModelParams::Nerf(p) => {
-                let (tensors, info) = crate::io::checkpoint_file::load(path, p, device)?;
-                let state = NerfState::new(p, device)?;
-                checkpoint::load_model_into(&state.varmap, &tensors, p, path)?;
-                Ok((Self::Nerf(state), tensors, info))
-            }
-            ModelParams::Ngp(p) => {
-                let (tensors, info) = checkpoint::load(path, device)?;
-                let state = NgpState::seeded(p, 0, device)?;
-                state.load_weights(&tensors, path)?;
-                Ok((Self::Ngp(state), tensors, info))
-            }
+        let field = spec.seeded(0, device)?;
+        let expected = field.parameter_shapes();
+        let (tensors, info) = checkpoint_file::load(path, &expected, device)?;
+        crate::field::trainable::load_parameters(
+            field.varmap(),
+            &expected,
+            &tensors,
+            field.kind(),
+            path,
+        )?;
+        Ok((Self::new(field), tensors, info))
+    }
+
+    /// A trained model for rendering: weights from the checkpoint at `path` and, with `grid`,
+    /// an occupancy grid (the one saved in the checkpoint, or one built from the model).
+    pub fn load(
+        spec: &dyn FieldSpec,
+        grid: Option<&OccupancyGridParams>,
+        path: &Path,
+        device: &Device,
+    ) -> Result<(Self, CheckpointInfo)> {
+        let (mut model, tensors, info) = Self::from_checkpoint(spec, path, device)?;
+        if let Some(grid) = grid {
+            let field = &model.field;
+            let density = |p: &Tensor| field.density(p);
+            model.occupancy = Some(grid_for_checkpoint(grid, &tensors, &density, device)?);
         }
+        Ok((model, info))
     }
 
     /// The model's variables.
     pub fn varmap(&self) -> &VarMap {
-        match self {
-            Self::Nerf(s) => &s.varmap,
-            Self::Ngp(s) => &s.varmap,
-        }
-    }
-
-    /// The occupancy grid, if training keeps one.
-    pub fn occupancy(&self) -> Option<&OccupancyGrid> {
-        match self {
-            Self::Nerf(s) => s.occupancy.as_ref(),
-            Self::Ngp(s) => s.occupancy.as_ref(),
-        }
-    }
-
-    /// The occupancy grid, to set or update.
-    pub fn occupancy_mut(&mut self) -> &mut Option<OccupancyGrid> {
-        match self {
-            Self::Nerf(s) => &mut s.occupancy,
-            Self::Ngp(s) => &mut s.occupancy,
-        }
+        self.field.varmap()
     }
 
     /// The field to train: parameters as variables (gradients reach them); `density_noise`
-    /// applies to the NeRF MLP only.
-    pub fn training_field(&self, density_noise: f64) -> Box<dyn Field> {
-        match self {
-            Self::Nerf(s) => Box::new(s.training_field(density_noise)),
-            Self::Ngp(s) => Box::new(NgpField {
-                model: s.model.clone(),
-                occupancy: s.occupancy.clone().map(Arc::new),
-            }),
-        }
+    /// for the kinds that add noise to their raw density.
+    pub fn training_field(&self, density_noise: f64) -> BoxedField {
+        let occupancy = self.occupancy.clone().map(Arc::new);
+        self.field.training_field(occupancy, density_noise)
     }
 
     /// The field to render or score: detached parameters, no density noise.
-    pub fn field(&self) -> Box<dyn Field> {
-        match self {
-            Self::Nerf(s) => Box::new(s.field()),
-            Self::Ngp(s) => Box::new(NgpField {
-                model: s.model.detached(),
-                occupancy: s.occupancy.clone().map(Arc::new),
-            }),
-        }
+    pub fn render_field(&self) -> BoxedField {
+        self.field
+            .render_field(self.occupancy.clone().map(Arc::new))
     }
 
     /// Updates the occupancy grid (if any) from the current model's density; see
@@ -203,19 +111,9 @@ impl TrainModel {
         rng: &mut impl rand::Rng,
         device: &Device,
     ) -> Result<()> {
-        match self {
-            Self::Nerf(s) => {
-                let model = s.model.detached();
-                if let Some(grid) = &mut s.occupancy {
-                    grid.update(&|p| model.density(p), warmup, decay, rng, device)?;
-                }
-            }
-            Self::Ngp(s) => {
-                let model = s.model.detached();
-                if let Some(grid) = &mut s.occupancy {
-                    grid.update(&|p| model.density(p), warmup, decay, rng, device)?;
-                }
-            }
+        let field = &self.field;
+        if let Some(grid) = &mut self.occupancy {
+            grid.update(&|p| field.density(p), warmup, decay, rng, device)?;
         }
         Ok(())
     }
@@ -223,56 +121,51 @@ impl TrainModel {
     /// Every parameter by name, and the occupancy grid under [`CHECKPOINT_KEY`].
     pub fn tensors(&self, device: &Device) -> Result<Vec<(String, Tensor)>> {
         let mut tensors = checkpoint::model_tensors(self.varmap());
-        if let Some(grid) = self.occupancy() {
+        if let Some(grid) = &self.occupancy {
             tensors.push((CHECKPOINT_KEY.to_string(), grid.to_tensor(device)?));
         }
         Ok(tensors)
     }
 }
 
-/// The optimiser of a [`TrainModel`]: PyTorch's Adam on every dense parameter and, for an
-/// NGP model, [`SparseAdam`] on the hash table (rows whose gradient is exactly zero are left
-/// alone, values and moments, as tiny-cuda-nn's Adam leaves zero-gradient parameters; both
-/// use instant-ngp's β₂ = 0.99 and ε = 1e‑15 there).
+/// A sparse table's optimiser and, when a fused op leaves its gradient outside autograd,
+/// where to take it from.
+struct SparseTable {
+    adam: SparseAdam,
+    sink: Option<(Arc<TableGradient>, HashGridParams)>,
+}
+
+/// The optimiser of a [`TrainModel`], as its [`ParamGroups`] say: PyTorch's Adam on the dense
+/// parameters and [`SparseAdam`] on each sparsely updated table.
 pub struct Optimizer {
     /// Adam on the dense parameters; its step count is the run's.
     pub dense: Adam,
-    /// Sparse Adam on the hash table (NGP only).
-    pub table: Option<SparseAdam>,
-    /// Where the fused encoding leaves the table gradient (NGP only), and the grid's shape.
-    table_gradient: Option<(
-        Arc<TableGradient>,
-        crate::kernels::hash_grid::HashGridParams,
-    )>,
+    tables: Vec<SparseTable>,
 }
 
 impl Optimizer {
     /// The optimiser for `model` at learning rate `lr`.
     pub fn new(model: &TrainModel, lr: f64) -> Result<Self> {
-        let vars = named_vars(model.varmap());
-        match model {
-            TrainModel::Nerf(_) => Ok(Self {
-                dense: Adam::new(vars, lr)?,
-                table: None,
-                table_gradient: None,
-            }),
-            TrainModel::Ngp(state) => {
-                let (table, dense): (Vec<_>, Vec<_>) =
-                    vars.into_iter().partition(|(n, _)| n == TABLE);
-                let mut dense = Adam::new(dense, lr)?;
-                dense.beta2 = 0.99;
-                dense.eps = 1e-15;
-                let (name, var) = table.into_iter().next().expect("an NGP model has a table");
-                let mut sparse = SparseAdam::new(&name, var, lr)?;
-                sparse.beta2 = 0.99;
-                sparse.eps = 1e-15;
-                Ok(Self {
-                    dense,
-                    table: Some(sparse),
-                    table_gradient: Some((state.gradient.clone(), state.model.params.grid)),
+        let ParamGroups { dense, sparse_rows } = model.field.param_groups();
+        let mut adam = Adam::new(dense.vars, lr)?;
+        adam.beta2 = dense.beta2;
+        adam.eps = dense.eps;
+        let tables = sparse_rows
+            .into_iter()
+            .map(|group: SparseRowsGroup| {
+                let mut sparse = SparseAdam::new(&group.name, group.var, lr)?;
+                sparse.beta2 = group.beta2;
+                sparse.eps = group.eps;
+                Ok(SparseTable {
+                    adam: sparse,
+                    sink: group.sink,
                 })
-            }
-        }
+            })
+            .collect::<Result<_>>()?;
+        Ok(Self {
+            dense: adam,
+            tables,
+        })
     }
 
     /// Steps taken.
@@ -288,24 +181,23 @@ impl Optimizer {
     /// Sets the learning rate of every parameter.
     pub fn set_lr(&mut self, lr: f64) {
         self.dense.lr = lr;
-        if let Some(t) = &mut self.table {
-            t.lr = lr;
+        for t in &mut self.tables {
+            t.adam.lr = lr;
         }
     }
 
     /// One update from `grads`.
     pub fn step(&mut self, grads: &GradStore) -> Result<()> {
         self.dense.step(grads)?;
-        let Some(table) = &self.table else {
-            return Ok(());
-        };
-        // The generic encoding's gradient comes through autograd, the fused one's through the
-        // sink.
-        if let Some(g) = grads.get(table.var().as_tensor()) {
-            table.step_nonzero(g)?;
-        }
-        if let Some((sink, grid)) = &self.table_gradient {
-            sink.take(grid, |rows, values| table.step_rows(values, rows))?;
+        for SparseTable { adam, sink } in &self.tables {
+            // A generic encoding's gradient comes through autograd, a fused one's through
+            // the sink.
+            if let Some(g) = grads.get(adam.var().as_tensor()) {
+                adam.step_nonzero(g)?;
+            }
+            if let Some((sink, grid)) = sink {
+                sink.take(grid, |rows, values| adam.step_rows(values, rows))?;
+            }
         }
         Ok(())
     }
@@ -314,8 +206,8 @@ impl Optimizer {
     /// [`SparseAdam::state_tensors`]).
     pub fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
         let mut out = self.dense.state_tensors();
-        if let Some(t) = &self.table {
-            out.extend(t.state_tensors()?);
+        for t in &self.tables {
+            out.extend(t.adam.state_tensors()?);
         }
         Ok(out)
     }
@@ -323,8 +215,8 @@ impl Optimizer {
     /// Restores the state of [`Optimizer::state_tensors`] after `step` steps.
     pub fn load_state(&mut self, tensors: &HashMap<String, Tensor>, step: u64) -> Result<()> {
         self.dense.load_state(tensors, step)?;
-        if let Some(t) = &self.table {
-            t.load_state(tensors)?;
+        for t in &self.tables {
+            t.adam.load_state(tensors)?;
         }
         Ok(())
     }
