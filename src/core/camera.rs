@@ -102,6 +102,20 @@ impl PerspectiveCamera {
     }
 }
 
+impl crate::core::camera_model::CameraModel for PerspectiveCamera {
+    fn center(&self) -> DVec3 {
+        PerspectiveCamera::center(self)
+    }
+
+    fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3 {
+        PerspectiveCamera::unproject_ndc(self, x, y, depth)
+    }
+
+    fn validate(&self) -> Result<()> {
+        PerspectiveCamera::validate(self)
+    }
+}
+
 /// pytorch3d `look_at_rotation`: the rotation `R` (indexed `[row][col]`) whose columns are the
 /// camera's x, y and z axes in world space.
 pub fn look_at_rotation(eye: DVec3, at: DVec3, up: DVec3) -> [[f64; 3]; 3] {

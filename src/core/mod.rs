@@ -2,6 +2,7 @@
 
 pub mod allocator;
 pub mod camera;
+pub mod camera_model;
 pub mod compare;
 pub mod fastexp;
 pub mod image;

@@ -10,7 +10,7 @@ use glam::DVec3;
 use rand::seq::index::sample;
 use rand::Rng;
 
-use crate::core::camera::PerspectiveCamera;
+use crate::core::camera_model::CameraModel;
 
 /// `linspace(start, end, n)` computed in f64 (torch's values up to one f32 rounding).
 pub fn linspace(start: f64, end: f64, n: usize) -> Vec<f64> {
@@ -69,11 +69,10 @@ pub fn random_pixel_indices(
     sample(rng, total, n.min(total)).into_vec()
 }
 
-/// Origin and unit direction of the ray through NDC point `(x, y)`.
-pub fn ray_through_ndc(camera: &PerspectiveCamera, x: f64, y: f64) -> (DVec3, DVec3) {
-    let origin = camera.center();
-    let target = camera.unproject_ndc(x, y, 1.0);
-    (origin, (target - origin).normalize())
+/// Origin and unit direction of the ray through NDC point `(x, y)` of any camera kind
+/// ([`CameraModel::ray_through_ndc`]).
+pub fn ray_through_ndc(camera: &dyn CameraModel, x: f64, y: f64) -> (DVec3, DVec3) {
+    camera.ray_through_ndc(x, y)
 }
 
 /// A batch of rays.
@@ -90,7 +89,7 @@ impl Rays {
     ///
     /// `ndc_points`: N points `(x, y)`; returns origins and directions of shape `(N, 3)`.
     pub fn from_ndc_points(
-        camera: &PerspectiveCamera,
+        camera: &dyn CameraModel,
         ndc_points: &[[f64; 2]],
         device: &Device,
     ) -> Result<Self> {
@@ -110,7 +109,7 @@ impl Rays {
 
     /// One ray per pixel of a `width × height` image, row-major: `(W·H, 3)` origins and directions.
     pub fn for_image(
-        camera: &PerspectiveCamera,
+        camera: &dyn CameraModel,
         width: usize,
         height: usize,
         device: &Device,
@@ -120,7 +119,7 @@ impl Rays {
 
     /// Rays through the pixels with the given row-major indices: `(len(indices), 3)`.
     pub fn for_pixels(
-        camera: &PerspectiveCamera,
+        camera: &dyn CameraModel,
         width: usize,
         height: usize,
         indices: &[usize],

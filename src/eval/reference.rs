@@ -5,7 +5,7 @@
 
 use glam::DVec3;
 
-use crate::core::camera::PerspectiveCamera;
+use crate::core::camera_model::CameraModel;
 use crate::core::rays::{pixel_grid_values, ray_through_ndc};
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::render::sampler::StratifiedSampler;
@@ -150,7 +150,7 @@ pub fn render_ray(
 /// Every pixel of a `width × height` image: `(H·W·3)` colours and `(H·W)` depths, row-major.
 pub fn render_image(
     volume: &SdfVolume,
-    camera: &PerspectiveCamera,
+    camera: &dyn CameraModel,
     (width, height): (usize, usize),
     sampler: &StratifiedSampler,
 ) -> (Vec<f64>, Vec<f64>) {

@@ -3,7 +3,7 @@
 use anyhow::Result;
 use candle_core::Device;
 
-use crate::core::camera::PerspectiveCamera;
+use crate::core::camera_model::CameraModel;
 use crate::core::image::RgbImage;
 use crate::render::bands::{band_rays, pixel_bands};
 use crate::render::field::Field;
@@ -25,7 +25,7 @@ pub struct RenderedView {
 /// Renders one camera's full image (no jitter, no gradients needed).
 pub fn render_view(
     field: &dyn Field,
-    camera: &PerspectiveCamera,
+    camera: &dyn CameraModel,
     size: (usize, usize),
     sampler: &StratifiedSampler,
     renderer: &VolumeRenderer,
@@ -54,7 +54,7 @@ pub fn render_view(
 #[allow(clippy::too_many_arguments)]
 pub fn render_view_interruptible(
     field: &dyn Field,
-    camera: &PerspectiveCamera,
+    camera: &dyn CameraModel,
     (width, height): (usize, usize),
     sampler: &StratifiedSampler,
     renderer: &VolumeRenderer,
@@ -92,6 +92,7 @@ pub fn render_view_interruptible(
 mod tests {
     use super::*;
     use crate::core::camera::surround_cameras;
+    use crate::core::camera::PerspectiveCamera;
     use crate::core::rays::Rays;
     use crate::core::sdf::{Sdf, SdfVolume};
     use crate::field::sdf::SdfField;
