@@ -66,8 +66,8 @@ pub use crate::core::image::RgbImage;
 pub use crate::core::rays::{pixel_grid, random_pixel_indices, Rays};
 pub use crate::core::sdf::{Sdf, SdfVolume};
 pub use crate::field::nerf::{Nerf, NerfField, NerfParams, NerfState};
-pub use crate::field::trainable::{named_vars, FieldSpec, TrainableField};
 pub use crate::field::sdf::{SdfField, SdfTrainable};
+pub use crate::field::trainable::{named_vars, FieldSpec, TrainableField};
 pub use crate::io::checkpoint::CheckpointInfo;
 pub use crate::io::dataset::{Dataset, Split};
 pub use crate::kernels::sdf_volume::{density_to_sigma, sdf_to_density};
@@ -80,4 +80,3 @@ pub use crate::render::view::{render_view, RenderedView};
 pub use crate::train::adam::Adam;
 pub use crate::train::fit::{fit, Hooks, RunLimits, TrainPaths, TrainSettings};
 pub use crate::train::model::{Optimizer, TrainModel};
-

@@ -870,6 +870,7 @@ fn cmd_report(args: ReportArgs, device: &Device) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    nerf::app::messages::print_library_messages();
     // Keep freed mimalloc segments instead of returning them to the OS after 10 ms: training
     // allocates and frees large activations every op (measured when they were 64 MB: 3.8 →
     // 1.9 s per step).

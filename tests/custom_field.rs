@@ -65,7 +65,11 @@ fn a_field_kind_from_outside_the_crate_trains_and_resumes_with_the_library_train
     let losses: Vec<f64> = std::fs::read_to_string(&paths.log)
         .unwrap()
         .lines()
-        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["loss"].as_f64().unwrap())
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["loss"]
+                .as_f64()
+                .unwrap()
+        })
         .collect();
     assert_eq!(losses.len() as u64, steps);
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
@@ -81,7 +85,9 @@ fn a_field_kind_from_outside_the_crate_trains_and_resumes_with_the_library_train
     assert_eq!(model.field.kind(), spec.kind());
     let grid = &tensors[voxels::VOXELS];
     assert_eq!(grid.dims(), &[12 * 12 * 12, 4]);
-    assert!(tensors.keys().any(|k| k.contains("exp_avg") && k.contains(voxels::VOXELS)));
+    assert!(tensors
+        .keys()
+        .any(|k| k.contains("exp_avg") && k.contains(voxels::VOXELS)));
 
     // A second call with a longer schedule resumes where the first stopped.
     settings.num_epochs = 2;

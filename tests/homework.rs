@@ -11,9 +11,9 @@ use common::{homework_config, nerf_in, read_npy, stderr};
 
 use candle_core::Device;
 use nerf::app::config::Config;
+use nerf::field::nerf::parameter_shapes;
 use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
-use nerf::field::nerf::parameter_shapes;
 use nerf::NerfState;
 
 /// The box the fit tests recover (not the homework's).
@@ -303,7 +303,8 @@ fn nerf_lego_render_reads_a_pytorch_checkpoint_where_the_config_points() {
         &map,
         info,
         optimizer,
-    ).unwrap();
+    )
+    .unwrap();
     checkpoint::save(&d.join("same.safetensors"), &tensors, info).unwrap();
     let small = [
         "data.image_size=[16,16]",

@@ -9,11 +9,11 @@ mod common;
 
 use nerf::app::config::Config;
 use nerf::app::train::train_nerf;
+use nerf::field::nerf::parameter_shapes;
 use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::dataset::{Dataset, Frame};
 use nerf::train::model::{Optimizer, TrainModel};
 use nerf::train::step::train_step;
-use nerf::field::nerf::parameter_shapes;
 use nerf::{render_view, NerfField, NerfParams, NerfState};
 use rand::SeedableRng;
 
@@ -437,7 +437,8 @@ fn pytorch_state_dicts_import_and_match_pytorch_outputs() {
     let dir = tempfile::tempdir().unwrap();
     for pth in ["tiny_nerf.pth", "tiny_nerf_nested.pth"] {
         let out = dir.path().join(format!("{pth}.safetensors"));
-        nerf::io::torch::import_torch(&fixtures().join(pth), &parameter_shapes(&nerf_cfg), &out).unwrap();
+        nerf::io::torch::import_torch(&fixtures().join(pth), &parameter_shapes(&nerf_cfg), &out)
+            .unwrap();
         let (state, info) = load_nerf(&nerf_cfg, &out).unwrap();
         assert_eq!(info.epoch, 0);
         let points = expected["points"].unsqueeze(1).unwrap();
@@ -477,8 +478,8 @@ fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
         &parameter_shapes(&nerf_cfg),
         &out,
     )
-        .unwrap_err()
-        .to_string();
+    .unwrap_err()
+    .to_string();
     assert!(
         err.contains("mlp_xyz.mlp.0.0.weight") && err.contains("[128, 39]"),
         "{err}"
@@ -489,8 +490,8 @@ fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
         &parameter_shapes(&nerf_cfg),
         &out,
     )
-        .unwrap_err()
-        .to_string();
+    .unwrap_err()
+    .to_string();
     assert!(missing.contains("not found"), "{missing}");
 }
 

@@ -21,7 +21,8 @@ use nerf::io::dataset::{Dataset, Split};
 use nerf::{fit, render_view, Hooks, RunLimits, TrainModel, TrainPaths};
 
 fn main() -> Result<()> {
-    nerf::tune_allocator();
+    // The library's progress notes (fresh run, resume, step lines) on stderr.
+    nerf::app::messages::print_library_messages();
     let mut args = std::env::args().skip(1);
     let out = PathBuf::from(args.next().unwrap_or_else(|| "images".into()));
     let lego = PathBuf::from(args.next().unwrap_or_else(|| "../shared/data/lego".into()));
@@ -30,7 +31,10 @@ fn main() -> Result<()> {
 
     let config = Config::load(
         "nerf_lego_fast",
-        &["data.image_size=[32,32]".into(), "training.batch_size=256".into()],
+        &[
+            "data.image_size=[32,32]".into(),
+            "training.batch_size=256".into(),
+        ],
     )?;
     let spec = voxels::VoxelSpec {
         resolution: 24,
@@ -56,7 +60,15 @@ fn main() -> Result<()> {
     let _ = std::fs::remove_file(&paths.checkpoint);
     let _ = std::fs::remove_file(&paths.log);
     let limits = RunLimits::default();
-    let outcome = fit(&settings, &dataset, &paths, limits, None, Hooks::default(), &device)?;
+    let outcome = fit(
+        &settings,
+        &dataset,
+        &paths,
+        limits,
+        None,
+        Hooks::default(),
+        &device,
+    )?;
     let losses: Vec<f64> = std::fs::read_to_string(&paths.log)?
         .lines()
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()?["loss"].as_f64())

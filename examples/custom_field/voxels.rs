@@ -33,7 +33,10 @@ impl FieldSpec for VoxelSpec {
     }
 
     fn seeded(&self, seed: u64, device: &Device) -> Result<Box<dyn TrainableField>> {
-        anyhow::ensure!(self.resolution >= 2, "a voxel grid needs at least 2 voxels a side");
+        anyhow::ensure!(
+            self.resolution >= 2,
+            "a voxel grid needs at least 2 voxels a side"
+        );
         let varmap = VarMap::new();
         varmap.get(
             (self.resolution.pow(3), 4),
@@ -44,7 +47,10 @@ impl FieldSpec for VoxelSpec {
         )?;
         // Raw values U(-0.1, 0.1): faint density, grey colour.
         seed_uniform(&varmap, seed, |_, _| 0.1, device)?;
-        Ok(Box::new(VoxelModel { spec: *self, varmap }))
+        Ok(Box::new(VoxelModel {
+            spec: *self,
+            varmap,
+        }))
     }
 }
 
@@ -142,12 +148,18 @@ impl VoxelField {
                 .squeeze(1)?
                 .to_dtype(DType::U32)?;
             // Weight: frac along the axes where the corner is the upper one, 1 − frac elsewhere.
-            let per_axis = frac
-                .broadcast_mul(&offset)?
-                .add(&frac.ones_like()?.sub(&frac)?.broadcast_mul(&(1.0 - &offset)?)?)?;
+            let per_axis = frac.broadcast_mul(&offset)?.add(
+                &frac
+                    .ones_like()?
+                    .sub(&frac)?
+                    .broadcast_mul(&(1.0 - &offset)?)?,
+            )?;
             let weight = (per_axis.narrow(1, 0, 1)? * per_axis.narrow(1, 1, 1)?)?
                 .mul(&per_axis.narrow(1, 2, 1)?)?;
-            let value = self.voxels.index_select(&index, 0)?.broadcast_mul(&weight)?;
+            let value = self
+                .voxels
+                .index_select(&index, 0)?
+                .broadcast_mul(&weight)?;
             sum = Some(match sum {
                 Some(s) => (s + value)?,
                 None => value,

@@ -310,7 +310,14 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
         Ok(())
     })?;
     let (frame_runs, _) = time_runs(repeats.clamp(1, 2), || {
-        render_view(&*state.render_field(), &camera, (w, h), &sampler, &renderer, device)
+        render_view(
+            &*state.render_field(),
+            &camera,
+            (w, h),
+            &sampler,
+            &renderer,
+            device,
+        )
     })?;
     Ok(vec![
         BenchResult {

@@ -7,6 +7,7 @@ pub mod evaluate;
 pub mod export;
 pub mod export_model;
 pub mod jobs;
+pub mod messages;
 #[cfg(feature = "cli")]
 pub mod report;
 pub mod runtime;

@@ -513,7 +513,13 @@ pub fn lego_study(
     let truth: Vec<RgbImage> = dataset.images.iter().take(views).cloned().collect();
     let run = |config: &Config| -> Result<(Vec<RenderedView>, f64)> {
         let (state, _) = config.load_model(&options.checkpoint, device)?;
-        timed_frames(config, &*state.render_field(), &cameras, sizes.repeats, device)
+        timed_frames(
+            config,
+            &*state.render_field(),
+            &cameras,
+            sizes.repeats,
+            device,
+        )
     };
     let dense_overrides = &accelerations()[0].1;
     let (reference, _) = run(&config_for(sizes.lego_reference_pts, dense_overrides)?)?;

@@ -13,13 +13,13 @@ use crate::core::camera::{look_at_view_transform, surround_cameras, PerspectiveC
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::field::nerf::NerfParams;
 use crate::field::sdf::{SdfField, SdfTrainable};
+use crate::field::trainable::FieldSpec;
 use crate::io::checkpoint::CheckpointInfo;
 use crate::render::occupancy::{density_threshold, OccupancyGridParams};
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 use crate::train::fit::{GridSchedule, TrainPaths, TrainSettings};
 use crate::train::fit_sdf::SdfFitSettings;
-use crate::field::trainable::FieldSpec;
 use crate::train::model::TrainModel;
 use crate::train::step::StepSettings;
 

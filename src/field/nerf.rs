@@ -23,7 +23,8 @@ use candle_core::{DType, Device, Tensor};
 use candle_nn::{Init, Linear, VarBuilder, VarMap};
 
 use crate::field::trainable::{
-    linear_init_bound, load_parameters, seed_uniform, BoxedField, FieldSpec, ParameterShapes, TrainableField,
+    linear_init_bound, load_parameters, seed_uniform, BoxedField, FieldSpec, ParameterShapes,
+    TrainableField,
 };
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
@@ -352,13 +353,6 @@ pub fn linear(layer: &Linear, x: &Tensor) -> Result<Tensor> {
     })
 }
 
-/// `relu(layer(x))`.
-///
-/// `x`: `(M, in)`; returns `(M, out)`.
-pub fn linear_relu(layer: &Linear, x: &Tensor) -> Result<Tensor> {
-    Ok(linear(layer, x)?.relu()?)
-}
-
 /// Shapes of every parameter, by PyTorch name, for a config (used to check checkpoints).
 pub fn parameter_shapes(config: &NerfParams) -> Vec<(String, Vec<usize>)> {
     let hidden = config.n_hidden_neurons_xyz;
@@ -413,7 +407,13 @@ impl NerfState {
         origin: &std::path::Path,
     ) -> Result<Self> {
         let state = Self::new(params, &Device::Cpu)?;
-        load_parameters(&state.varmap, &parameter_shapes(params), tensors, "nerf", origin)?;
+        load_parameters(
+            &state.varmap,
+            &parameter_shapes(params),
+            tensors,
+            "nerf",
+            origin,
+        )?;
         Ok(state)
     }
 

@@ -130,14 +130,6 @@ pub fn read_torch_checkpoint(path: &Path, expected: &ParameterShapes) -> Result<
     })
 }
 
-/// Reads every member of the `.pth` zip archive through to its end, so that one whose stored
-/// CRC-32 does not match its bytes is an error naming it (PyTorch loads such files without a
-/// word). The archive's members and their sizes are checked against the file first
-/// ([`TorchArchive::open`]).
-pub fn verify_archive(path: &Path) -> Result<()> {
-    TorchArchive::open(path)?.verify()
-}
-
 /// Adam's moments from `torch.optim.Adam.state_dict()` (`{"state": {id: {"step",
 /// "exp_avg", "exp_avg_sq"}}, "param_groups": [{"params": [id, ...]}]}`): the i-th id of the
 /// groups is the model's i-th parameter, the i-th tensor of its state dict. `positions`

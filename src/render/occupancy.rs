@@ -100,11 +100,11 @@ pub fn grid_for_checkpoint(
     }
     let start = std::time::Instant::now();
     let grid = OccupancyGrid::build(params, density, device)?;
-    crate::core::term::note(&format!(
+    log::info!(
         "built a {r}^3 occupancy grid from the model in {:.1} s: {:.1}% of cells occupied",
         start.elapsed().as_secs_f64(),
         100.0 * grid.occupied_fraction()
-    ));
+    );
     Ok(grid)
 }
 

@@ -407,24 +407,6 @@ impl PackedSamples {
     }
 }
 
-/// The field at the samples that matter; zeros elsewhere. The field must support packed
-/// evaluation ([`Field::supports_packed`]); its occupancy grid, if any, decides which samples
-/// lie in occupied cells.
-///
-/// `rays`: N rays; `lengths`: sample depths `(N, S, 1)`. Returns density `(N, S, 1)` and
-/// colour `(N, S, 3)`, and the sample counts. Without a grid every sample is kept (early
-/// termination only); `early_termination = 0` keeps every live sample (skipping only).
-pub fn evaluate_skipping(
-    field: &dyn Field,
-    early_termination: f64,
-    rays: &Rays,
-    lengths: &Tensor,
-) -> Result<(FieldOutput, SampleCounts)> {
-    let packed = evaluate_packed(field, early_termination, rays, lengths)?;
-    let counts = packed.counts;
-    Ok((packed.scatter(lengths.device())?, counts))
-}
-
 /// Scatters packed densities `(M, 1)` and colours `(M, 3)` (in the order of `index`, flat
 /// sample indices `ray · S + i`) into dense `(N, S, 1)` and `(N, S, 3)` tensors, zeros
 /// elsewhere; differentiable (`index_add`).

@@ -27,8 +27,7 @@ use candle_core::Device;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 
-use crate::core::term::note;
-
+use crate::field::trainable::FieldSpec;
 use crate::io::checkpoint::{self, CheckpointInfo};
 use crate::io::checkpoint_file::{self, CheckpointFormat};
 use crate::io::dataset::Dataset;
@@ -38,7 +37,6 @@ use crate::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
 use crate::render::field::Field;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
-use crate::field::trainable::FieldSpec;
 use crate::train::model::{Optimizer, TrainModel};
 use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings, TrainRng};
 
@@ -198,10 +196,10 @@ fn start_or_resume(
         check_resumable(&resumed.2, settings, n_images, &paths.checkpoint)?;
         resumed
     } else {
-        note(&format!(
+        log::info!(
             "starting a fresh run (no checkpoint to resume at {}); writing it there",
             paths.checkpoint.display()
-        ));
+        );
         (
             TrainModel::seeded(&*settings.model, settings.seed, device)?,
             Default::default(),
@@ -218,7 +216,7 @@ fn start_or_resume(
         if let (Some(schedule), Some(saved)) = (&settings.grid, tensors.get(CHECKPOINT_KEY)) {
             state.occupancy = Some(OccupancyGrid::from_tensor(&schedule.grid, saved)?);
         }
-        note(&format!(
+        log::info!(
             "resuming from {} at epoch {}{}",
             paths.checkpoint.display(),
             info.epoch,
@@ -227,7 +225,7 @@ fn start_or_resume(
             } else {
                 String::new()
             }
-        ));
+        );
     }
     Ok((state, adam, info))
 }
@@ -493,11 +491,11 @@ impl Run<'_> {
                 // `--minutes` ends the run first.
                 eta = eta.min(limit - (self.wall() - self.wall_offset));
             }
-            note(&format!(
+            log::info!(
                 "step {} ({done}/{total} this run): {message}; eta {}",
                 self.adam.step_count(),
                 format_duration(eta)
-            ));
+            );
         }
     }
 
@@ -598,7 +596,7 @@ pub fn fit(
         // else will clean it up here.
         remove_stale_temp_files(&paths.checkpoint);
         remove_stale_temp_files(&paths.log);
-        note(&format!("already trained for {} epochs", info.epoch));
+        log::info!("already trained for {} epochs", info.epoch);
         return Ok(FitOutcome::Finished(info));
     }
     let log = prepare_outputs(settings, paths, info.adam_step)?;
