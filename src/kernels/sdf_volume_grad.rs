@@ -385,7 +385,9 @@ mod tests {
         use rand::{Rng, SeedableRng};
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
         let mut uniform = |len: usize, lo: f32, hi: f32| -> Vec<f32> {
-            (0..len).map(|_| lo + (hi - lo) * rng.random::<f32>()).collect()
+            (0..len)
+                .map(|_| lo + (hi - lo) * rng.random::<f32>())
+                .collect()
         };
         let dev = &Device::Cpu;
         [
