@@ -9,10 +9,11 @@ use anyhow::Result;
 use candle_core::Device;
 
 use crate::app::cli::{
-    BenchArgs, EvalArgs, ExportCommand, ImportTorchArgs, RenderArgs, ReportArgs, RunArgs,
-    TargetsArgs, TrainArgs, TrainingArgs, ViewArgs,
+    BenchArgs, EvalArgs, ExportCommand, ExportViewsArgs, ImportTorchArgs, RenderArgs, ReportArgs,
+    RunArgs, SplitArg, TargetsArgs, TrainArgs, TrainingArgs, ViewArgs,
 };
 use crate::app::config::Config;
+use crate::app::export::ViewSelection;
 use crate::app::jobs::{self, NerfTrainOptions, RunJob, TrainJob, TrainOutcome};
 
 /// Writing to stdout failed (a closed pipe, a full disk).
@@ -272,18 +273,19 @@ pub fn view(args: ViewArgs, device: &Device) -> Result<()> {
     crate::app::view::serve(&config, &args.config.config, scene, &options, device)
 }
 
+/// The views an export renders: `split` of the dataset that `--data-dir` (or the config)
+/// names, the first `--limit` of them.
+fn export_views(config: &Config, split: SplitArg, views: ExportViewsArgs) -> ViewSelection {
+    ViewSelection {
+        split: split.into(),
+        data_dir: jobs::data_dir_for(config, views.data.data_dir),
+        limit: views.limit,
+    }
+}
+
 /// `nerf export …`: runs the export and says what it wrote.
 pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
-    use crate::app::export::ViewSelection;
     use crate::app::export::{export_depth, export_mesh, export_points, MeshOptions};
-    let views =
-        |config: &Config, split: crate::app::cli::SplitArg, v: crate::app::cli::ExportViewsArgs| {
-            ViewSelection {
-                split: split.into(),
-                data_dir: jobs::data_dir_for(config, v.data.data_dir),
-                limit: v.limit,
-            }
-        };
     match what {
         ExportCommand::Mesh(a) => {
             let config = Config::load(&a.config.config, &a.config.overrides)?;
@@ -309,7 +311,7 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
         }
         ExportCommand::Points(a) => {
             let config = Config::load(&a.config.config, &a.config.overrides)?;
-            let views = views(&config, a.split, a.views);
+            let views = export_views(&config, a.split, a.views);
             let checkpoint = a.checkpoint.checkpoint.as_deref();
             let n = export_points(&config, checkpoint, &views, &a.out, device)?;
             say(&format!("wrote {} ({n} points)", a.out.display()))
@@ -328,7 +330,7 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
         }
         ExportCommand::Depth(a) => {
             let config = Config::load(&a.config.config, &a.config.overrides)?;
-            let views = views(&config, a.split, a.views);
+            let views = export_views(&config, a.split, a.views);
             let checkpoint = a.checkpoint.checkpoint.as_deref();
             let written = export_depth(&config, checkpoint, &views, &a.out, device)?;
             say(&format!(

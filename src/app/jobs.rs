@@ -282,3 +282,40 @@ pub fn fit_summary(v: &crate::core::sdf::SdfVolume) -> Vec<String> {
         ],
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_checkpoint_flag_becomes_the_configured_path_verbatim() {
+        for path in ["ck", "123", "null", "a b: #1", "x/[1,2]", "'q'\"", "yes"] {
+            let o = checkpoint_path_override(Path::new(path)).unwrap();
+            let config = Config::load("nerf_lego", &[o]).unwrap();
+            assert_eq!(
+                config.training.as_ref().and_then(|t| t.checkpoint()),
+                Some(Path::new(path))
+            );
+        }
+    }
+
+    #[test]
+    fn nerf_only_flags_are_named_for_an_sdf_fit() {
+        let options = NerfTrainOptions {
+            epochs: Some(2),
+            overwrite: true,
+            ..Default::default()
+        };
+        let config = Config::load("train_box", &[]).unwrap();
+        let err = prepare_training(config, "train_box", &[], TrainJob::Sdf, None, &options)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("--epochs, --overwrite are for NeRF training"),
+            "{err}"
+        );
+        let config = Config::load("train_box", &[]).unwrap();
+        let plain = NerfTrainOptions::default();
+        assert!(prepare_training(config, "train_box", &[], TrainJob::Sdf, None, &plain).is_ok());
+    }
+}
