@@ -1078,3 +1078,254 @@ fn a_render_off_a_terminal_prints_plain_progress_lines() {
         );
     }
 }
+
+/// Every option that several subcommands take (`--config`, `--checkpoint`, `--data-dir`,
+/// `--out-dir`, `--epochs`, …) has one help text wherever it appears.
+#[test]
+fn shared_options_read_the_same_in_every_subcommand() {
+    use clap::CommandFactory;
+    fn collect(
+        cmd: &clap::Command,
+        path: &str,
+        seen: &mut std::collections::BTreeMap<String, Vec<(String, String)>>,
+    ) {
+        for arg in cmd.get_arguments() {
+            let id = arg.get_id().to_string();
+            let help = arg
+                .get_long_help()
+                .or(arg.get_help())
+                .map(|h| h.to_string());
+            seen.entry(id)
+                .or_default()
+                .push((path.to_string(), help.unwrap_or_default()));
+        }
+        for sub in cmd.get_subcommands() {
+            collect(sub, &format!("{path} {}", sub.get_name()), seen);
+        }
+    }
+    let mut seen = Default::default();
+    collect(&nerf::app::cli::Cli::command(), "nerf", &mut seen);
+    for id in [
+        "config",
+        "overrides",
+        "checkpoint",
+        "data_dir",
+        "epochs",
+        "minutes",
+        "overwrite",
+    ] {
+        let uses = &seen[id];
+        assert!(uses.len() >= 2, "{id}: {uses:?}");
+        assert!(
+            uses.iter().all(|(_, help)| help == &uses[0].1),
+            "{id} reads differently: {uses:#?}"
+        );
+    }
+    // Every subcommand that reads a config or a checkpoint takes the shared option.
+    let subcommands = |id: &str| seen[id].iter().map(|(p, _)| p.clone()).collect::<Vec<_>>();
+    assert_eq!(
+        subcommands("config"),
+        [
+            "nerf run",
+            "nerf render",
+            "nerf train",
+            "nerf targets",
+            "nerf eval",
+            "nerf import-torch",
+            "nerf bench",
+            "nerf view",
+            "nerf export mesh",
+            "nerf export points",
+            "nerf export model",
+            "nerf export depth"
+        ]
+    );
+    let checkpoint = subcommands("checkpoint");
+    for cmd in [
+        "nerf run",
+        "nerf render",
+        "nerf train",
+        "nerf eval",
+        "nerf bench",
+    ] {
+        assert!(checkpoint.iter().any(|c| c == cmd), "{cmd}: {checkpoint:?}");
+    }
+    for cmd in ["nerf run", "nerf train"] {
+        assert!(subcommands("epochs").iter().any(|c| c == cmd), "{cmd}");
+    }
+}
+
+#[test]
+fn config_name_is_shown_in_help_and_means_config() {
+    for cmd in [&["render"][..], &["train"], &["run"], &["export", "mesh"]] {
+        let o = nerf(&[cmd, &["--help"]].concat());
+        let help = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{cmd:?}");
+        assert!(help.contains("--config-name"), "{cmd:?}: {help}");
+    }
+    use clap::Parser;
+    let parsed = nerf::app::cli::Cli::try_parse_from(["nerf", "render", "--config-name", "box"]);
+    match parsed.map(|c| c.command) {
+        Ok(nerf::app::cli::Command::Render(args)) => assert_eq!(args.config.config, "box"),
+        other => panic!("{other:?}"),
+    }
+}
+
+/// `nerf run` takes the training options `nerf train` takes; for a config that renders, each
+/// given is named in a one-line error, and nothing is written.
+#[test]
+fn run_takes_training_options_and_refuses_them_for_render_configs() {
+    use clap::Parser;
+    let parsed = nerf::app::cli::Cli::try_parse_from([
+        "nerf",
+        "run",
+        "--config",
+        "nerf_lego",
+        "--epochs",
+        "1",
+    ]);
+    assert!(parsed.is_ok(), "{:?}", parsed.err());
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    for (config, flags, named) in [
+        (
+            "box",
+            &["--epochs", "1"][..],
+            "--epochs is for NeRF training",
+        ),
+        (
+            "nerf_lego_render",
+            &["--minutes", "1", "--data-dir", "x"][..],
+            "--data-dir, --minutes are for NeRF training",
+        ),
+    ] {
+        let mut args = vec![
+            "run",
+            "--config",
+            config,
+            "--out-dir",
+            out.to_str().unwrap(),
+        ];
+        args.extend(flags);
+        let o = nerf(&args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains(named) && err.contains("renders"), "{err}");
+        assert!(!out.exists());
+    }
+    // An SDF fit has no checkpoint and runs training.num_epochs: the NeRF options are refused.
+    for cmd in ["run", "train"] {
+        let o = nerf(&[
+            cmd,
+            "--config",
+            "train_box",
+            "--checkpoint",
+            "x",
+            "--epochs",
+            "2",
+        ]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(
+            err.contains("--checkpoint, --epochs are for NeRF training")
+                && err.contains("training.num_epochs"),
+            "{err}"
+        );
+    }
+}
+
+/// The tiny NeRF of these tests: `nerf_lego` at 8×8 with a 16-wide trunk and 8 samples per
+/// ray (about 0.1 s per epoch).
+const TINY_NERF: [&str; 9] = [
+    "training.render_interval=1000",
+    "training.batch_size=32",
+    "training.lr=0.002",
+    "implicit_function.n_hidden_neurons_xyz=16",
+    "implicit_function.n_hidden_neurons_dir=8",
+    "implicit_function.n_layers_xyz=3",
+    "implicit_function.append_xyz=[2]",
+    "sampler.n_pts_per_ray=8",
+    "data.image_size=[8,8]",
+];
+
+/// `nerf train --checkpoint P` is `training.checkpoint_path=P`: the same checkpoint, at the
+/// same place; `nerf run --epochs` of a train_nerf config stops as `nerf train --epochs`
+/// does; and `--checkpoint DIR` reads back what training wrote there.
+#[test]
+fn train_checkpoint_is_the_config_checkpoint_path() {
+    let Some(data) = common::lego_dir("train_checkpoint_is_the_config_checkpoint_path") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let train = |cmd: &str, place: &[&str]| {
+        let images = dir.path().join("images");
+        let mut args = vec![
+            cmd,
+            "--config",
+            "nerf_lego",
+            "--data-dir",
+            data.to_str().unwrap(),
+            "--out-dir",
+            images.to_str().unwrap(),
+            "--epochs",
+            "1",
+        ];
+        args.extend(place);
+        args.extend(TINY_NERF);
+        let o = nerf(&args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        String::from_utf8_lossy(&o.stdout).to_string()
+    };
+    let by_flag = dir.path().join("by_flag");
+    let by_override = dir.path().join("by_override");
+    let file = dir.path().join("model.safetensors");
+    let out = train("train", &["--checkpoint", by_flag.to_str().unwrap()]);
+    assert!(out.contains("trained to epoch 1 "), "{out}");
+    let key = format!("training.checkpoint_path={}", by_override.display());
+    train("train", &[&key]);
+    // The flag wins over an override given with it, as a later override would.
+    let elsewhere = dir.path().join("elsewhere");
+    let key_elsewhere = format!("training.checkpoint_path={}", elsewhere.display());
+    train(
+        "run",
+        &["--checkpoint", file.to_str().unwrap(), &key_elsewhere],
+    );
+    assert!(!elsewhere.exists());
+    let load = |p: &Path| nerf::io::checkpoint::load(p, &candle_core::Device::Cpu).unwrap();
+    let (a, info_a) = load(&by_flag.join("nerf_lego.safetensors"));
+    let (b, info_b) = load(&by_override.join("nerf_lego.safetensors"));
+    let (c, info_c) = load(&file);
+    assert!(
+        by_flag.join("nerf_lego.log.jsonl").is_file() && file.with_extension("log.jsonl").is_file()
+    );
+    for (name, t) in &a {
+        for other in [&b, &c] {
+            let d = nerf::core::compare::max_abs_difference(t, &other[name]).unwrap();
+            assert_eq!(d, 0.0, "{name}");
+        }
+    }
+    for info in [&info_a, &info_b, &info_c] {
+        assert_eq!((info.epoch, info.adam_step), (1, 100));
+    }
+    // Run again with the flag: it resumes from that checkpoint (resume: True in nerf_lego).
+    let out = train("run", &["--checkpoint", by_flag.to_str().unwrap()]);
+    assert!(out.contains("trained to epoch 2 "), "{out}");
+    // A directory holding the checkpoint is what --checkpoint reads, too.
+    let render = dir.path().join("render");
+    let mut args = vec![
+        "render",
+        "--config",
+        "nerf_lego",
+        "--checkpoint",
+        by_flag.to_str().unwrap(),
+        "--out-dir",
+        render.to_str().unwrap(),
+        "cameras.n_poses=2",
+    ];
+    args.extend(TINY_NERF);
+    let o = nerf(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("epoch 2"), "{}", stderr(&o));
+}

@@ -92,6 +92,94 @@ pub struct NerfTrainOptions {
     pub overwrite: bool,
 }
 
+impl NerfTrainOptions {
+    /// The command-line flags these options were given by (`--data-dir`, `--epochs`,
+    /// `--minutes`, `--overwrite`), for an error where they mean nothing.
+    pub fn flags_given(&self) -> Vec<&'static str> {
+        [
+            (self.data_dir.is_some(), "--data-dir"),
+            (self.epochs.is_some(), "--epochs"),
+            (self.minutes.is_some(), "--minutes"),
+            (self.overwrite, "--overwrite"),
+        ]
+        .into_iter()
+        .filter_map(|(given, flag)| given.then_some(flag))
+        .collect()
+    }
+}
+
+/// An error naming `flags` when there are any: they are for NeRF training, and config `name`
+/// `does` something else (e.g. "has `type: render`, which renders").
+pub fn refuse_nerf_training_flags(flags: &[&str], name: &str, does: &str) -> Result<()> {
+    if flags.is_empty() {
+        return Ok(());
+    }
+    bail!(
+        "{} {} for NeRF training, and config {name} {does}",
+        flags.join(", "),
+        if flags.len() == 1 { "is" } else { "are" }
+    )
+}
+
+/// The override that sets `training.checkpoint_path` to `path` (what `--checkpoint` means to
+/// a training run), its value quoted so that YAML reads it as the string it is.
+pub fn checkpoint_path_override(path: &Path) -> Result<String> {
+    let text = path
+        .to_str()
+        .ok_or_else(|| anyhow::anyhow!("--checkpoint {}: not UTF-8", path.display()))?;
+    Ok(format!(
+        "training.checkpoint_path={}",
+        serde_json::to_string(text)?
+    ))
+}
+
+/// A training run's config and job: config `name` loaded with `overrides`, checked by
+/// [`train_job`], with `checkpoint` (`--checkpoint`) applied as the override
+/// `training.checkpoint_path=PATH` after the others. An SDF fit given `checkpoint` or any of
+/// `options` (all NeRF training's) is an error naming them.
+pub fn load_training(
+    name: &str,
+    overrides: &[String],
+    checkpoint: Option<&Path>,
+    options: &NerfTrainOptions,
+) -> Result<(Config, TrainJob)> {
+    let config = Config::load(name, overrides)?;
+    let job = train_job(&config, name)?;
+    prepare_training(config, name, overrides, job, checkpoint, options)
+}
+
+/// [`load_training`] for a config already loaded from `name` with `overrides` whose job is
+/// `job`.
+pub fn prepare_training(
+    config: Config,
+    name: &str,
+    overrides: &[String],
+    job: TrainJob,
+    checkpoint: Option<&Path>,
+    options: &NerfTrainOptions,
+) -> Result<(Config, TrainJob)> {
+    match (job, checkpoint) {
+        (TrainJob::Sdf, _) => {
+            let mut flags = options.flags_given();
+            if checkpoint.is_some() {
+                flags.insert(0, "--checkpoint");
+            }
+            refuse_nerf_training_flags(
+                &flags,
+                name,
+                "fits an SDF volume (its length is training.num_epochs)",
+            )?;
+            Ok((config, job))
+        }
+        (TrainJob::Nerf, None) => Ok((config, job)),
+        (TrainJob::Nerf, Some(path)) => {
+            let mut with_checkpoint = overrides.to_vec();
+            with_checkpoint.push(checkpoint_path_override(path)?);
+            Ok((Config::load(name, &with_checkpoint)?, job))
+        }
+    }
+}
+
 /// How a training job ended.
 #[derive(Debug, Clone)]
 pub enum TrainOutcome {
@@ -192,5 +280,42 @@ pub fn fit_summary(v: &crate::core::sdf::SdfVolume) -> Vec<String> {
             format!("Sphere center: {}", t(center)),
             format!("Sphere radius: {radius}"),
         ],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_checkpoint_flag_becomes_the_configured_path_verbatim() {
+        for path in ["ck", "123", "null", "a b: #1", "x/[1,2]", "'q'\"", "yes"] {
+            let o = checkpoint_path_override(Path::new(path)).unwrap();
+            let config = Config::load("nerf_lego", &[o]).unwrap();
+            assert_eq!(
+                config.training.as_ref().and_then(|t| t.checkpoint()),
+                Some(Path::new(path))
+            );
+        }
+    }
+
+    #[test]
+    fn nerf_only_flags_are_named_for_an_sdf_fit() {
+        let options = NerfTrainOptions {
+            epochs: Some(2),
+            overwrite: true,
+            ..Default::default()
+        };
+        let config = Config::load("train_box", &[]).unwrap();
+        let err = prepare_training(config, "train_box", &[], TrainJob::Sdf, None, &options)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("--epochs, --overwrite are for NeRF training"),
+            "{err}"
+        );
+        let config = Config::load("train_box", &[]).unwrap();
+        let plain = NerfTrainOptions::default();
+        assert!(prepare_training(config, "train_box", &[], TrainJob::Sdf, None, &plain).is_ok());
     }
 }

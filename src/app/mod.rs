@@ -2,6 +2,10 @@
 
 pub mod bench;
 pub mod camera_path;
+#[cfg(feature = "cli")]
+pub mod cli;
+#[cfg(feature = "cli")]
+pub mod cli_commands;
 pub mod config;
 pub mod evaluate;
 pub mod export;
