@@ -62,6 +62,7 @@ pub use crate::core::camera::{
     camera_position_from_spherical_angles, look_at_view_transform, surround_cameras,
     PerspectiveCamera,
 };
+pub use crate::core::camera_model::CameraModel;
 pub use crate::core::image::RgbImage;
 pub use crate::core::rays::{pixel_grid, random_pixel_indices, Rays};
 pub use crate::core::sdf::{Sdf, SdfVolume};
@@ -73,7 +74,9 @@ pub use crate::io::dataset::{Dataset, Split};
 pub use crate::kernels::sdf_volume::{density_to_sigma, sdf_to_density};
 pub use crate::kernels::{set_kernel_choice, with_kernel_choice, KernelChoice};
 pub use crate::render::field::{Field, FieldOutput};
+pub use crate::render::hierarchical::CoarseToFineSampler;
 pub use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams};
+pub use crate::render::ray_sampler::RaySampler;
 pub use crate::render::renderer::{RenderOutput, VolumeRenderer};
 pub use crate::render::sampler::{RaySamples, StratifiedSampler};
 pub use crate::render::view::{render_view, RenderedView};

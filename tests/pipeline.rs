@@ -63,7 +63,7 @@ fn hard_box_depth_matches_analytic_intersection() {
         "implicit_function.feature.rainbow=False",
     ]);
     let field = config.sdf_field(&Device::Cpu).unwrap();
-    let sampler = config.sampler().unwrap();
+    let sampler = config.stratified_sampler().unwrap();
     let step = (sampler.max_depth - sampler.min_depth) / (sampler.n_pts_per_ray - 1) as f64;
     let (w, h) = (48, 40);
     let half = DVec3::splat(1.75 / 2.0);
@@ -106,7 +106,7 @@ fn box_render_agrees_with_float64_recomputation() {
     let config = box_config(&[]);
     let field = config.sdf_field(&Device::Cpu).unwrap();
     let volume = &config.sdf_volume().unwrap();
-    let sampler = config.sampler().unwrap();
+    let sampler = config.stratified_sampler().unwrap();
     let (w, h) = (40, 30);
     let mut max_color: f64 = 0.0;
     let mut max_depth: f64 = 0.0;
@@ -130,7 +130,7 @@ fn box_render_agrees_with_float64_recomputation() {
 fn chunk_size_does_not_change_the_image() {
     let config = box_config(&[]);
     let field = config.sdf_field(&Device::Cpu).unwrap();
-    let sampler = config.sampler().unwrap();
+    let sampler = config.stratified_sampler().unwrap();
     let cam = config.surround_cameras()[2];
     let (w, h) = (64, 48);
     let big = render(&field, &cam, w, h, &sampler, 32768);
@@ -179,7 +179,7 @@ fn sphere_and_non_square_images_work_through_config() {
         "sampler.n_pts_per_ray=32",
     ]);
     let field = config.sdf_field(&Device::Cpu).unwrap();
-    let sampler = config.sampler().unwrap();
+    let sampler = config.stratified_sampler().unwrap();
     let cam = config.surround_cameras()[0];
     let (_, depth) = render(&field, &cam, 20, 15, &sampler, 100);
     // The central ray hits the unit sphere at distance 3 − 1 = 2 from a camera at radius 3.

@@ -129,7 +129,7 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
         .unwrap();
         let field = config.sdf_field(&Device::Cpu).unwrap();
         let volume = &config.sdf_volume().unwrap();
-        let sampler = config.sampler().unwrap();
+        let sampler = config.stratified_sampler().unwrap();
         let renderer = config.renderer().unwrap();
         let cam = config.surround_cameras()[3];
         let frame = render_view(&field, &cam, (24, 18), &sampler, &renderer, &Device::Cpu).unwrap();
@@ -207,7 +207,7 @@ fn rays_along_each_axis_with_signed_zeros_hit_the_box_where_expected() {
     )
     .unwrap();
     let field = config.sdf_field(&Device::Cpu).unwrap();
-    let sampler = config.sampler().unwrap();
+    let sampler = config.stratified_sampler().unwrap();
     let step = (sampler.max_depth - sampler.min_depth) / (sampler.n_pts_per_ray - 1) as f64;
     let mut origins = Vec::new();
     let mut directions = Vec::new();
@@ -258,7 +258,7 @@ fn float32_against_float64_at_64_and_1024_samples() {
         .unwrap();
         let field = config.sdf_field(&Device::Cpu).unwrap();
         let volume = &config.sdf_volume().unwrap();
-        let sampler = config.sampler().unwrap();
+        let sampler = config.stratified_sampler().unwrap();
         let cam = config.surround_cameras()[1];
         let frame = render_view(
             &field,

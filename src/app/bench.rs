@@ -116,7 +116,7 @@ pub fn bench_sdf_render(
         cameras.len(),
         w,
         h,
-        sampler.n_pts_per_ray
+        sampler.samples_per_ray()
     );
     Ok((
         BenchResult {
@@ -128,7 +128,7 @@ pub fn bench_sdf_render(
                 cameras.len(),
                 w,
                 h,
-                sampler.n_pts_per_ray,
+                sampler.samples_per_ray(),
             )),
             error: None,
         },
@@ -208,13 +208,14 @@ pub fn bench_train_box(repeats: usize, device: &Device) -> Result<BenchResult> {
         name: "train_box step".into(),
         work: format!(
             "{} rays x {} points of {w}x{h}, fwd+bwd+Adam (mean of {BOX_FIT_STEPS} steps)",
-            settings.batch_size, sampler.n_pts_per_ray
+            settings.batch_size,
+            sampler.samples_per_ray()
         ),
         seconds: fastest(&runs),
         runs,
         pytorch_seconds: pytorch_seconds(ReferenceWork::BoxStep(
             settings.batch_size,
-            sampler.n_pts_per_ray,
+            sampler.samples_per_ray(),
         )),
         error: None,
     })
@@ -245,7 +246,7 @@ pub fn run_benchmarks(
         &volume,
         &cam,
         config.image_size(),
-        &config.sampler()?,
+        &config.stratified_sampler()?,
     );
     let max_abs = |a: &[f32], b: &[f64]| {
         a.iter()
@@ -324,13 +325,14 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             name: "NeRF training step".into(),
             work: format!(
                 "{} rays x {} points, fwd+bwd+Adam",
-                batch_size, sampler.n_pts_per_ray
+                batch_size,
+                sampler.samples_per_ray()
             ),
             seconds: fastest(&step_runs),
             runs: step_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Step(
                 batch_size,
-                sampler.n_pts_per_ray,
+                sampler.samples_per_ray(),
             )),
             error: None,
         },
@@ -338,11 +340,11 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             name: "NeRF render".into(),
             work: format!(
                 "1 frame {w}x{h} x {} points, dense, untrained",
-                sampler.n_pts_per_ray
+                sampler.samples_per_ray()
             ),
             seconds: fastest(&frame_runs),
             runs: frame_runs,
-            pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, sampler.n_pts_per_ray)),
+            pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, sampler.samples_per_ray())),
             error: None,
         },
     ])

@@ -212,7 +212,11 @@ pub fn eval(args: EvalArgs, device: &Device) -> Result<()> {
 /// `nerf import-torch`: converts a PyTorch state dict; the note goes to stderr.
 pub fn import_torch(args: ImportTorchArgs) -> Result<()> {
     let config = Config::load(&args.config.config, &args.config.overrides)?;
-    let n = crate::io::torch::import_torch(&args.pth, &config.field_spec()?.parameter_shapes()?, &args.out)?;
+    let n = crate::io::torch::import_torch(
+        &args.pth,
+        &config.field_spec()?.parameter_shapes()?,
+        &args.out,
+    )?;
     crate::core::term::note(&format!(
         "wrote {} ({n} parameters from {})",
         args.out.display(),

@@ -15,7 +15,9 @@ use crate::field::nerf::NerfParams;
 use crate::field::sdf::{SdfField, SdfTrainable};
 use crate::field::trainable::FieldSpec;
 use crate::io::checkpoint::CheckpointInfo;
+use crate::render::hierarchical::CoarseToFineSampler;
 use crate::render::occupancy::{density_threshold, OccupancyGridParams};
+use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 use crate::train::fit::{GridSchedule, TrainPaths, TrainSettings};
@@ -63,14 +65,27 @@ impl Config {
         (self.data.image_size[0], self.data.image_size[1])
     }
 
-    /// The `sampler` section as a sampler.
-    pub fn sampler(&self) -> Result<StratifiedSampler> {
-        Ok(StratifiedSampler::new(
+    /// The `sampler` section as a sampler: stratified, or coarse-to-fine when
+    /// `n_pts_per_ray_fine` > 0.
+    pub fn sampler(&self) -> Result<std::sync::Arc<dyn RaySampler>> {
+        let stratified = self.stratified_sampler()?;
+        Ok(match self.sampler.n_pts_per_ray_fine {
+            0 => std::sync::Arc::new(stratified),
+            n_fine => std::sync::Arc::new(CoarseToFineSampler {
+                coarse: stratified,
+                n_fine,
+            }),
+        })
+    }
+
+    /// The `sampler` section's stratified depths alone (the SDF fit and the float64 reference
+    /// sample only these).
+    pub fn stratified_sampler(&self) -> Result<StratifiedSampler> {
+        StratifiedSampler::new(
             self.sampler.n_pts_per_ray,
             self.sampler.min_depth,
             self.sampler.max_depth,
-        )?
-        .with_fine(self.sampler.n_pts_per_ray_fine))
+        )
     }
 
     /// The `renderer` section as a renderer: chunk size, background, early termination (the
@@ -213,7 +228,7 @@ impl Config {
             batch_size: TrainingConfig::required(t.batch_size, "batch_size", job)?,
             lr: TrainingConfig::required(t.lr, "lr", job)?,
             seed: self.seed,
-            sampler: self.sampler()?,
+            sampler: self.stratified_sampler()?,
             renderer: self.renderer()?,
         })
     }

@@ -15,8 +15,8 @@ use crate::io::progress::progress_bar;
 use crate::render::bands::{band_ndc, band_rays, pixel_bands};
 use crate::render::field::Field;
 use crate::render::pointcloud::{PointSplatter, PointView};
+use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
-use crate::render::sampler::StratifiedSampler;
 use crate::render::view::{render_view_interruptible, RenderedView};
 
 /// The sizes of the pieces a job works through (see the working-memory part of
@@ -79,7 +79,7 @@ pub fn render_views(
     field: &dyn Field,
     cameras: &[PerspectiveCamera],
     size: (usize, usize),
-    sampler: &StratifiedSampler,
+    sampler: &dyn RaySampler,
     renderer: &VolumeRenderer,
     device: &Device,
 ) -> Result<Vec<RenderedView>> {
@@ -93,7 +93,7 @@ pub fn render_views_in_bands(
     field: &dyn Field,
     cameras: &[PerspectiveCamera],
     size: (usize, usize),
-    sampler: &StratifiedSampler,
+    sampler: &dyn RaySampler,
     renderer: &VolumeRenderer,
     band: usize,
     device: &Device,
@@ -160,12 +160,14 @@ pub fn ray_image(
 pub fn point_image(
     camera: &PerspectiveCamera,
     (width, height): (usize, usize),
-    sampler: &StratifiedSampler,
+    sampler: &dyn RaySampler,
     size: usize,
     max_points: usize,
     device: &Device,
 ) -> Result<RgbImage> {
     let mut splatter = PointSplatter::new(size, &PointView::default())?;
+    // The points every sampler starts from.
+    let sampler = sampler.stratified();
     let band = (max_points / sampler.n_pts_per_ray).max(1);
     for pixels in pixel_bands(width * height, band) {
         let rays = band_rays(camera, (width, height), pixels, device)?;

@@ -53,8 +53,8 @@ use crate::app::view_queue::{Frame, Job, Outcome, Peer, Queue, QUEUE_CAPACITY};
 use crate::app::view_request::{parse_view_query, ViewDefaults};
 use crate::core::term::note;
 use crate::io::images::png_bytes;
+use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
-use crate::render::sampler::StratifiedSampler;
 use crate::render::view::render_view_interruptible;
 
 /// The page, built into the binary.
@@ -77,7 +77,7 @@ impl Drop for CancelOnDrop {
 /// The render worker's fixed parts.
 struct Worker {
     scene: SceneField,
-    sampler: StratifiedSampler,
+    sampler: std::sync::Arc<dyn RaySampler>,
     renderer: VolumeRenderer,
     device: Device,
     queue: Arc<Queue>,

@@ -12,8 +12,8 @@ use crate::io::images::write_png;
 use crate::io::output::prepare_out_dir;
 use crate::io::progress::progress_bar;
 use crate::render::field::Field;
+use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
-use crate::render::sampler::StratifiedSampler;
 use crate::render::skipping::SampleCounts;
 use crate::render::view::render_view;
 
@@ -93,7 +93,7 @@ fn ssim_fits(size: (usize, usize)) -> bool {
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate(
     field: &dyn Field,
-    sampler: &StratifiedSampler,
+    sampler: &dyn RaySampler,
     renderer: &VolumeRenderer,
     dataset: &Dataset,
     split: Split,
@@ -137,7 +137,7 @@ pub fn evaluate(
         split: split.name().to_string(),
         width: size.0,
         height: size.1,
-        n_pts_per_ray: sampler.n_pts_per_ray,
+        n_pts_per_ray: sampler.samples_per_ray(),
         white_background: renderer.white_background,
         seconds_per_view: render_seconds / n.max(1) as f64,
         evaluated_fraction: counts.evaluated_fraction(),

@@ -9,8 +9,8 @@ use crate::core::camera::PerspectiveCamera;
 use crate::core::rays::Rays;
 use crate::render::bands::{band_rays, pixel_bands};
 use crate::render::field::Field;
+use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::{RenderOutput, VolumeRenderer};
-use crate::render::sampler::StratifiedSampler;
 
 /// Coloured points in world space.
 #[derive(Debug, Clone, Default)]
@@ -30,7 +30,7 @@ pub fn depth_points(
     field: &dyn Field,
     camera: &PerspectiveCamera,
     size: (usize, usize),
-    sampler: &StratifiedSampler,
+    sampler: &dyn RaySampler,
     renderer: &VolumeRenderer,
     min_opacity: f32,
     band: usize,

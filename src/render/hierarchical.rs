@@ -13,6 +13,67 @@ use anyhow::Result;
 use candle_core::{DType, Tensor};
 use rand::Rng;
 
+use crate::core::rays::Rays;
+use crate::core::volume::{deltas, weights};
+use crate::kernels::sample_points::sample_points;
+use crate::render::field::Field;
+use crate::render::ray_sampler::RaySampler;
+use crate::render::sampler::{RaySamples, StratifiedSampler};
+
+/// Coarse-to-fine sampling (`sampler.n_pts_per_ray_fine` > 0): the field at the stratified
+/// depths gives weights (no gradient), `n_fine` more depths are drawn from them, and the
+/// renderer composites coarse and fine depths together.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoarseToFineSampler {
+    /// The coarse pass's stratified depths.
+    pub coarse: StratifiedSampler,
+    /// Depths per ray added from the coarse weights (at least 1).
+    pub n_fine: usize,
+}
+
+impl RaySampler for CoarseToFineSampler {
+    fn stratified(&self) -> &StratifiedSampler {
+        &self.coarse
+    }
+
+    fn samples_per_ray(&self) -> usize {
+        self.coarse.n_pts_per_ray + self.n_fine
+    }
+
+    /// The coarse pass, then the coarse and fine depths together.
+    fn evaluations_per_ray(&self) -> usize {
+        2 * self.coarse.n_pts_per_ray + self.n_fine
+    }
+
+    fn refines(&self) -> bool {
+        true
+    }
+
+    fn refine(
+        &self,
+        field: &dyn Field,
+        rays: &Rays,
+        coarse: Tensor,
+        jitter: Option<&mut dyn rand::RngCore>,
+    ) -> Result<Tensor> {
+        let deltas = deltas(&coarse)?;
+        let points = sample_points(&rays.origins, &rays.directions, &coarse)?;
+        let samples = RaySamples {
+            points,
+            lengths: coarse,
+        };
+        let density = field
+            .evaluate(&samples, &deltas, &rays.directions)?
+            .density
+            .detach();
+        let weights = weights(&density, &deltas)?;
+        Ok(
+            fine_lengths(&samples.lengths, &weights, self.n_fine, jitter)?
+                .to_dtype(rays.origins.dtype())?,
+        )
+    }
+}
+
 /// Added to every coarse weight before normalising, so that a ray with zero weight everywhere
 /// samples its bins uniformly (pytorch3d's `sample_pdf` eps).
 pub const WEIGHT_EPS: f32 = 1e-5;

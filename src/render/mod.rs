@@ -6,6 +6,7 @@ pub mod field;
 pub mod hierarchical;
 pub mod occupancy;
 pub mod pointcloud;
+pub mod ray_sampler;
 pub mod renderer;
 pub mod sampler;
 pub mod skipping;

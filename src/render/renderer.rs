@@ -12,7 +12,8 @@ use crate::core::volume::deltas;
 use crate::kernels::composite::composite;
 use crate::kernels::sample_points::sample_points;
 use crate::render::field::Field;
-use crate::render::sampler::{RaySamples, StratifiedSampler};
+use crate::render::ray_sampler::RaySampler;
+use crate::render::sampler::RaySamples;
 use crate::render::skipping::SampleCounts;
 
 /// Most samples drawn per chunk of rays when samples are skipped (an occupancy grid or early
@@ -82,13 +83,14 @@ impl VolumeRenderer {
     pub fn render_chunk(
         &self,
         field: &dyn Field,
-        sampler: &StratifiedSampler,
+        sampler: &dyn RaySampler,
         rays: &Rays,
         jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
-        if sampler.n_pts_per_ray_fine > 0 {
-            return self.render_coarse_to_fine(field, sampler, rays, jitter);
+        if sampler.refines() {
+            return self.render_refined(field, sampler, rays, jitter);
         }
+        let sampler = sampler.stratified();
         if !self.skips_samples(field) {
             let lengths = sampler.lengths(rays, jitter)?;
             if let Some((color, depth, opacity)) = field.render_fused(rays, &lengths)? {
@@ -108,43 +110,24 @@ impl VolumeRenderer {
         self.finish(color, depth, opacity, counts)
     }
 
-    /// Coarse-to-fine rendering ([`crate::render::hierarchical`]): the field at the stratified
-    /// depths gives weights (no gradient), `n_pts_per_ray_fine` depths are drawn from them, and
-    /// the output is the dense render of coarse and fine depths together.
+    /// Rendering at depths a sampler refines by looking at the field (coarse-to-fine): the
+    /// stratified depths, refined ([`RaySampler::refine`]), rendered densely.
     ///
     /// `rays`: N rays; returns colour `(N, 3)`, depth and opacity `(N, 1)`.
-    fn render_coarse_to_fine(
+    fn render_refined(
         &self,
         field: &dyn Field,
-        sampler: &StratifiedSampler,
+        sampler: &dyn RaySampler,
         rays: &Rays,
         mut jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
         let rng = jitter.as_mut().map(|r| &mut **r as &mut dyn rand::RngCore);
-        let coarse = sampler.lengths(rays, rng)?;
-        let deltas = deltas(&coarse)?;
-        let points = sample_points(&rays.origins, &rays.directions, &coarse)?;
-        let samples = RaySamples {
-            points,
-            lengths: coarse,
-        };
-        let density = field
-            .evaluate(&samples, &deltas, &rays.directions)?
-            .density
-            .detach();
-        let weights = crate::core::volume::weights(&density, &deltas)?;
-        let lengths = crate::render::hierarchical::fine_lengths(
-            &samples.lengths,
-            &weights,
-            sampler.n_pts_per_ray_fine,
-            jitter,
-        )?
-        .to_dtype(rays.origins.dtype())?;
+        let stratified = sampler.stratified().lengths(rays, rng)?;
+        let lengths = sampler.refine(field, rays, stratified, jitter)?;
         let mut out = self.composite_samples(field, rays, lengths)?;
-        // Samples kept: coarse and fine; evaluations: the coarse ones twice.
         out.samples = SampleCounts {
             evaluated: rays.len() * sampler.evaluations_per_ray(),
-            ..SampleCounts::dense(rays.len() * (sampler.n_pts_per_ray + sampler.n_pts_per_ray_fine))
+            ..SampleCounts::dense(rays.len() * sampler.samples_per_ray())
         };
         Ok(out)
     }
@@ -191,20 +174,21 @@ impl VolumeRenderer {
     /// Rays [`VolumeRenderer::render`] renders at once: `chunk_size`, fewer where the field's
     /// [`Field::max_samples_per_chunk`] requires, and, when samples are skipped, no more than
     /// [`DRAWN_SAMPLES_PER_CHUNK`] drawn samples (at least 1 ray).
-    pub fn rays_per_chunk(&self, field: &dyn Field, sampler: &StratifiedSampler) -> usize {
+    pub fn rays_per_chunk(&self, field: &dyn Field, sampler: &dyn RaySampler) -> usize {
         // Samples evaluated at once per ray: a segment when skipping, else all of them.
         let skips = self.skips_samples(field);
+        let stratified = sampler.stratified().n_pts_per_ray;
         let per_ray = if skips {
-            crate::render::skipping::segment_length(sampler.n_pts_per_ray, self.early_termination)
+            crate::render::skipping::segment_length(stratified, self.early_termination)
         } else {
-            sampler.n_pts_per_ray + sampler.n_pts_per_ray_fine
+            sampler.samples_per_ray()
         };
         let mut rays = self
             .chunk_size
             .min((field.max_samples_per_chunk() / per_ray).max(1));
         if skips {
             // A chunk's rays may all stay live to their last sample.
-            rays = rays.min((DRAWN_SAMPLES_PER_CHUNK / sampler.n_pts_per_ray).max(1));
+            rays = rays.min((DRAWN_SAMPLES_PER_CHUNK / stratified).max(1));
         }
         rays
     }
@@ -216,7 +200,7 @@ impl VolumeRenderer {
     pub fn rays_per_band(
         &self,
         field: &dyn Field,
-        sampler: &StratifiedSampler,
+        sampler: &dyn RaySampler,
         max_rays: usize,
     ) -> usize {
         let chunk = self.rays_per_chunk(field, sampler);
@@ -230,7 +214,7 @@ impl VolumeRenderer {
     pub fn render(
         &self,
         field: &dyn Field,
-        sampler: &StratifiedSampler,
+        sampler: &dyn RaySampler,
         rays: &Rays,
         mut jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
@@ -294,6 +278,8 @@ mod coarse_to_fine_tests {
     use super::*;
     use crate::core::sdf::{Sdf, SdfVolume};
     use crate::field::sdf::SdfField;
+    use crate::render::hierarchical::CoarseToFineSampler;
+    use crate::render::sampler::StratifiedSampler;
     use candle_core::Device;
 
     /// A unit sphere with a soft surface, and 64 rays from (0, 0, −4) spread over it.
@@ -324,12 +310,17 @@ mod coarse_to_fine_tests {
     }
 
     fn render(field: &SdfField, rays: &Rays, coarse: usize, fine: usize) -> RenderOutput {
-        let sampler = StratifiedSampler::new(coarse, 2.0, 6.0)
-            .unwrap()
-            .with_fine(fine);
+        let stratified = StratifiedSampler::new(coarse, 2.0, 6.0).unwrap();
+        let sampler: Box<dyn RaySampler> = match fine {
+            0 => Box::new(stratified),
+            n_fine => Box::new(CoarseToFineSampler {
+                coarse: stratified,
+                n_fine,
+            }),
+        };
         VolumeRenderer::new(1024, false)
             .unwrap()
-            .render(field, &sampler, rays, None)
+            .render(field, &*sampler, rays, None)
             .unwrap()
     }
 
@@ -379,7 +370,10 @@ mod coarse_to_fine_tests {
             ..Default::default()
         };
         let field = SdfField::new(&field.values().unwrap(), trainable, &Device::Cpu).unwrap();
-        let sampler = StratifiedSampler::new(8, 2.0, 6.0).unwrap().with_fine(8);
+        let sampler = CoarseToFineSampler {
+            coarse: StratifiedSampler::new(8, 2.0, 6.0).unwrap(),
+            n_fine: 8,
+        };
         let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(4);
         let out = VolumeRenderer::new(1024, false)
             .unwrap()

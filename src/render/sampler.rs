@@ -6,6 +6,7 @@ use rand::Rng;
 
 use crate::core::rays::{linspace, Rays};
 use crate::kernels::sample_points::sample_points;
+use crate::render::ray_sampler::RaySampler;
 
 /// Sample points along a batch of rays.
 #[derive(Debug, Clone)]
@@ -26,10 +27,6 @@ pub struct StratifiedSampler {
     pub min_depth: f64,
     /// Depth of the last sample along each ray (`sampler.max_depth`, ≥ `min_depth`).
     pub max_depth: f64,
-    /// Depths per ray added by coarse-to-fine sampling (`sampler.n_pts_per_ray_fine`, 0 =
-    /// off): drawn from the weights of a coarse pass over the stratified ones
-    /// ([`crate::render::hierarchical`]).
-    pub n_pts_per_ray_fine: usize,
 }
 
 impl StratifiedSampler {
@@ -53,23 +50,7 @@ impl StratifiedSampler {
             n_pts_per_ray,
             min_depth,
             max_depth,
-            n_pts_per_ray_fine: 0,
         })
-    }
-
-    /// The same sampler with `n_fine` coarse-to-fine depths per ray (0 = off).
-    pub fn with_fine(mut self, n_fine: usize) -> Self {
-        self.n_pts_per_ray_fine = n_fine;
-        self
-    }
-
-    /// Field evaluations per ray: the stratified samples, plus the coarse and fine ones
-    /// again in the fine pass when coarse-to-fine sampling is on.
-    pub fn evaluations_per_ray(&self) -> usize {
-        match self.n_pts_per_ray_fine {
-            0 => self.n_pts_per_ray,
-            fine => 2 * self.n_pts_per_ray + fine,
-        }
     }
 
     /// The unjittered depths, `linspace(min_depth, max_depth, n_pts_per_ray)`.
@@ -156,6 +137,12 @@ impl StratifiedSampler {
                     .to_dtype(dtype)?
             }
         })
+    }
+}
+
+impl RaySampler for StratifiedSampler {
+    fn stratified(&self) -> &StratifiedSampler {
+        self
     }
 }
 

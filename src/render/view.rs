@@ -7,8 +7,8 @@ use crate::core::camera_model::CameraModel;
 use crate::core::image::RgbImage;
 use crate::render::bands::{band_rays, pixel_bands};
 use crate::render::field::Field;
+use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
-use crate::render::sampler::StratifiedSampler;
 use crate::render::skipping::SampleCounts;
 
 /// One rendered view.
@@ -27,7 +27,7 @@ pub fn render_view(
     field: &dyn Field,
     camera: &dyn CameraModel,
     size: (usize, usize),
-    sampler: &StratifiedSampler,
+    sampler: &dyn RaySampler,
     renderer: &VolumeRenderer,
     device: &Device,
 ) -> Result<RenderedView> {
@@ -56,7 +56,7 @@ pub fn render_view_interruptible(
     field: &dyn Field,
     camera: &dyn CameraModel,
     (width, height): (usize, usize),
-    sampler: &StratifiedSampler,
+    sampler: &dyn RaySampler,
     renderer: &VolumeRenderer,
     device: &Device,
     band: usize,
@@ -96,6 +96,7 @@ mod tests {
     use crate::core::rays::Rays;
     use crate::core::sdf::{Sdf, SdfVolume};
     use crate::field::sdf::SdfField;
+    use crate::render::sampler::StratifiedSampler;
     use glam::DVec3;
     use std::cell::Cell;
 

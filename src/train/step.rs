@@ -7,8 +7,8 @@ use candle_core::{Device, Tensor};
 use crate::core::metrics::psnr_from_mse;
 use crate::core::rays::{random_pixel_indices, Rays};
 use crate::io::dataset::Dataset;
+use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
-use crate::render::sampler::StratifiedSampler;
 use crate::render::skipping::SampleCounts;
 use crate::train::model::{Optimizer, TrainModel};
 
@@ -110,7 +110,7 @@ pub struct StepSettings {
     /// Standard deviation of the density noise added before the density ReLU (0 = off).
     pub density_noise: f64,
     /// Draws each ray's samples (jittered in training).
-    pub sampler: StratifiedSampler,
+    pub sampler: std::sync::Arc<dyn RaySampler>,
     /// Renders the batch; its background is the dataset's unless `random_background`.
     pub renderer: VolumeRenderer,
 }
