@@ -25,6 +25,7 @@ pub mod sdf_ray;
 pub mod sdf_render;
 pub mod sdf_volume;
 pub mod sdf_volume_grad;
+pub mod sparse_adam;
 pub mod storage;
 pub mod trunk;
 
