@@ -539,7 +539,7 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
         "shipped checkpoint, 3 test views at 128x128: {psnr:.2} dB, field at {:.1}% of samples",
         100.0 * evaluated
     );
-    // A regression guard, not the score (the README reports all 200 views: these three score
+    // A regression guard, not the score (docs/nerf-lego.md reports all 200 views: these three score
     // 27.2 dB with the shipped model); the grid must skip most samples.
     assert!(psnr > 24.0, "{psnr}");
     assert!(evaluated < 0.1, "{evaluated}");

@@ -491,7 +491,7 @@ fn training_resumes_from_a_pytorch_checkpoint_and_keeps_its_format() {
 
 /// Every config in `../shared/homework/configs`, read from there as it is. Overrides only
 /// shrink the work (image size, epochs, samples) so that the test stays fast; the full-size
-/// runs are in README.
+/// runs are in docs/homework.md.
 #[test]
 fn every_homework_config_runs_as_it_is() {
     let name = "every_homework_config_runs_as_it_is";

@@ -246,7 +246,7 @@ fn rays_along_each_axis_with_signed_zeros_hit_the_box_where_expected() {
 
 #[test]
 fn float32_against_float64_at_64_and_1024_samples() {
-    // Reported in the README: the f32 pipeline against the float64 recomputation.
+    // Reported in docs/conventions.md: the f32 pipeline against the float64 recomputation.
     for n in [64, 1024] {
         let config = Config::load(
             "box",

@@ -54,7 +54,7 @@ pub fn load_training_views(config: &Config) -> Result<Vec<SdfView>> {
                 let hint = if path.exists() {
                     String::new()
                 } else {
-                    " (make the targets with `nerf targets --config <this config>` and overrides giving the box to recover; see README)".to_string()
+                    " (make the targets with `nerf targets --config <this config>` and overrides giving the box to recover; see docs/homework.md)".to_string()
                 };
                 anyhow::anyhow!("data.cameras.{name}.image: {e:#}{hint}")
             })?;
