@@ -73,7 +73,7 @@ pub use crate::io::checkpoint::CheckpointInfo;
 pub use crate::io::dataset::{Dataset, Split};
 pub use crate::kernels::sdf_volume::{density_to_sigma, sdf_to_density};
 pub use crate::kernels::{set_kernel_choice, with_kernel_choice, KernelChoice};
-pub use crate::render::field::{Field, FieldOutput};
+pub use crate::render::field::{Composited, Field, FieldOutput};
 pub use crate::render::hierarchical::CoarseToFineSampler;
 pub use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams};
 pub use crate::render::ray_sampler::RaySampler;

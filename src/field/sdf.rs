@@ -8,7 +8,7 @@ use candle_core::{Device, Tensor, Var};
 use crate::core::rays::Rays;
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::kernels::sdf_volume::{sdf_volume, SdfTensors, ShapeTensors};
-use crate::render::field::{Field, FieldOutput};
+use crate::render::field::{Composited, Field, FieldOutput};
 use crate::render::sampler::RaySamples;
 
 /// Which parameters of an SDF volume are trained (the homework's `opt` flags). `side_lengths`
@@ -129,8 +129,13 @@ impl Field for SdfField {
         &self,
         rays: &Rays,
         lengths: &Tensor,
-    ) -> Result<Option<(Tensor, Tensor, Tensor)>> {
-        crate::kernels::sdf_render::sdf_render(rays, lengths, &self.params)
+    ) -> Result<Option<Composited>> {
+        let rendered = crate::kernels::sdf_render::sdf_render(rays, lengths, &self.params)?;
+        Ok(rendered.map(|(color, depth, opacity)| Composited {
+            color,
+            depth,
+            opacity,
+        }))
     }
 
     fn evaluate(

@@ -18,6 +18,17 @@ pub struct FieldOutput {
     pub feature: Tensor,
 }
 
+/// What compositing a ray's samples gives.
+#[derive(Debug, Clone)]
+pub struct Composited {
+    /// `(N, C)` colour: the weighted sum of the samples' features.
+    pub color: Tensor,
+    /// `(N, 1)` expected depth `Σ w t`.
+    pub depth: Tensor,
+    /// `(N, 1)` opacity `Σ w`.
+    pub opacity: Tensor,
+}
+
 /// A radiance field.
 pub trait Field {
     /// Evaluates the field at the samples of N rays.
@@ -41,7 +52,7 @@ pub trait Field {
         &self,
         _rays: &Rays,
         _lengths: &Tensor,
-    ) -> Result<Option<(Tensor, Tensor, Tensor)>> {
+    ) -> Result<Option<Composited>> {
         Ok(None)
     }
 

@@ -11,7 +11,7 @@ use crate::core::rays::Rays;
 use crate::core::volume::deltas;
 use crate::kernels::composite::composite;
 use crate::kernels::sample_points::sample_points;
-use crate::render::field::Field;
+use crate::render::field::{Composited, Field};
 use crate::render::ray_sampler::RaySampler;
 use crate::render::sampler::RaySamples;
 use crate::render::skipping::SampleCounts;
@@ -93,7 +93,12 @@ impl VolumeRenderer {
         let sampler = sampler.stratified();
         if !self.skips_samples(field) {
             let lengths = sampler.lengths(rays, jitter)?;
-            if let Some((color, depth, opacity)) = field.render_fused(rays, &lengths)? {
+            if let Some(Composited {
+                color,
+                depth,
+                opacity,
+            }) = field.render_fused(rays, &lengths)?
+            {
                 let counts = SampleCounts::dense(lengths.elem_count());
                 return self.finish(color, depth, opacity, counts);
             }
