@@ -28,6 +28,16 @@ pub trait CameraModel: std::fmt::Debug + Send + Sync {
         let target = self.unproject_ndc(x, y, 1.0);
         (origin, (target - origin).normalize())
     }
+
+    /// Origin and unit direction of the ray through pixel `(column, row)` of a
+    /// `width × height` image (row 0 the top). The default is the homework's pixel grid
+    /// ([`crate::core::rays::homework_ndc`]: pixel centres reach the image's edges); a camera
+    /// with pixel intrinsics overrides it with its own convention (COLMAP's: the centre of
+    /// pixel `i` at `i + 0.5`).
+    fn pixel_ray(&self, column: usize, row: usize, size: (usize, usize)) -> (DVec3, DVec3) {
+        let [x, y] = crate::core::rays::homework_ndc(column, row, size);
+        self.ray_through_ndc(x, y)
+    }
 }
 
 #[cfg(test)]

@@ -14,23 +14,30 @@ use crate::core::camera_model::CameraModel;
 
 /// `linspace(start, end, n)` computed in f64 (torch's values up to one f32 rounding).
 pub fn linspace(start: f64, end: f64, n: usize) -> Vec<f64> {
-    match n {
-        0 => vec![],
-        1 => vec![start],
-        _ => {
-            let step = (end - start) / (n - 1) as f64;
-            (0..n)
-                .map(|i| {
-                    // Symmetric evaluation as torch does, so the last value is exactly `end`.
-                    if i < n / 2 {
-                        start + step * i as f64
-                    } else {
-                        end - step * (n - 1 - i) as f64
-                    }
-                })
-                .collect()
-        }
+    (0..n).map(|i| linspace_value(start, end, n, i)).collect()
+}
+
+/// Value `i` of [`linspace`]`(start, end, n)`, alone.
+pub fn linspace_value(start: f64, end: f64, n: usize, i: usize) -> f64 {
+    if n < 2 {
+        return start;
     }
+    let step = (end - start) / (n - 1) as f64;
+    // Symmetric evaluation as torch does, so the last value is exactly `end`.
+    if i < n / 2 {
+        start + step * i as f64
+    } else {
+        end - step * (n - 1 - i) as f64
+    }
+}
+
+/// The homework's NDC point of pixel `(column, row)` of a `width × height` image:
+/// `(−linspace(−1, 1, W)[column], −linspace(−1, 1, H)[row])`, the first row the top.
+pub fn homework_ndc(column: usize, row: usize, (width, height): (usize, usize)) -> [f64; 2] {
+    [
+        -linspace_value(-1.0, 1.0, width, column),
+        -linspace_value(-1.0, 1.0, height, row),
+    ]
 }
 
 /// NDC coordinates of every pixel of a `width × height` image, row-major, as `(x, y)` pairs.
@@ -114,10 +121,11 @@ impl Rays {
         height: usize,
         device: &Device,
     ) -> Result<Self> {
-        Self::from_ndc_points(camera, &pixel_grid_values(width, height), device)
+        Self::for_pixel_range(camera, (width, height), 0..width * height, device)
     }
 
-    /// Rays through the pixels with the given row-major indices: `(len(indices), 3)`.
+    /// Rays through the pixels with the given row-major indices: `(len(indices), 3)`, each
+    /// [`CameraModel::pixel_ray`].
     pub fn for_pixels(
         camera: &dyn CameraModel,
         width: usize,
@@ -125,13 +133,38 @@ impl Rays {
         indices: &[usize],
         device: &Device,
     ) -> Result<Self> {
-        let xs = linspace(-1.0, 1.0, width);
-        let ys = linspace(-1.0, 1.0, height);
-        let points: Vec<[f64; 2]> = indices
-            .iter()
-            .map(|&i| [-xs[i % width], -ys[i / width]])
-            .collect();
-        Self::from_ndc_points(camera, &points, device)
+        Self::from_pixels(camera, (width, height), indices.iter().copied(), device)
+    }
+
+    /// Rays through the row-major pixels `pixels` of a `width × height` image:
+    /// `(len, 3)` rows of [`Rays::for_image`].
+    pub fn for_pixel_range(
+        camera: &dyn CameraModel,
+        size: (usize, usize),
+        pixels: std::ops::Range<usize>,
+        device: &Device,
+    ) -> Result<Self> {
+        Self::from_pixels(camera, size, pixels, device)
+    }
+
+    fn from_pixels(
+        camera: &dyn CameraModel,
+        (width, height): (usize, usize),
+        pixels: impl ExactSizeIterator<Item = usize>,
+        device: &Device,
+    ) -> Result<Self> {
+        let n = pixels.len();
+        let mut origins = Vec::with_capacity(3 * n);
+        let mut directions = Vec::with_capacity(3 * n);
+        for i in pixels {
+            let (o, d) = camera.pixel_ray(i % width, i / width, (width, height));
+            origins.extend(o.to_array().map(|v| v as f32));
+            directions.extend(d.to_array().map(|v| v as f32));
+        }
+        Ok(Self {
+            origins: Tensor::from_vec(origins, (n, 3), device)?,
+            directions: Tensor::from_vec(directions, (n, 3), device)?,
+        })
     }
 
     /// The same rays in `dtype` (float64 for gradient checks: the renderer then works in

@@ -6,7 +6,6 @@
 use glam::DVec3;
 
 use crate::core::camera_model::CameraModel;
-use crate::core::rays::{pixel_grid_values, ray_through_ndc};
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::render::sampler::StratifiedSampler;
 
@@ -156,8 +155,8 @@ pub fn render_image(
 ) -> (Vec<f64>, Vec<f64>) {
     let mut colors = Vec::with_capacity(width * height * 3);
     let mut depths = Vec::with_capacity(width * height);
-    for [x, y] in pixel_grid_values(width, height) {
-        let (o, d) = ray_through_ndc(camera, x, y);
+    for i in 0..width * height {
+        let (o, d) = camera.pixel_ray(i % width, i / width, (width, height));
         let (c, z) = render_ray(volume, o, d, sampler);
         colors.extend(c);
         depths.push(z);

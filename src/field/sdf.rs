@@ -125,11 +125,7 @@ impl Field for SdfField {
         1 << 22
     }
 
-    fn render_fused(
-        &self,
-        rays: &Rays,
-        lengths: &Tensor,
-    ) -> Result<Option<Composited>> {
+    fn render_fused(&self, rays: &Rays, lengths: &Tensor) -> Result<Option<Composited>> {
         let rendered = crate::kernels::sdf_render::sdf_render(rays, lengths, &self.params)?;
         Ok(rendered.map(|(color, depth, opacity)| Composited {
             color,

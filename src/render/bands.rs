@@ -39,7 +39,7 @@ pub fn band_rays(
     pixels: Range<usize>,
     device: &Device,
 ) -> Result<Rays> {
-    Rays::from_ndc_points(camera, &band_ndc(width, height, pixels), device)
+    Rays::for_pixel_range(camera, (width, height), pixels, device)
 }
 
 #[cfg(test)]

@@ -48,11 +48,7 @@ pub trait Field {
     /// [`Field::evaluate`] followed by the renderer's compositing give, and differentiable
     /// the same way. `None` (the default) when the field has no such kernel for these inputs;
     /// the renderer then samples, evaluates and composites.
-    fn render_fused(
-        &self,
-        _rays: &Rays,
-        _lengths: &Tensor,
-    ) -> Result<Option<Composited>> {
+    fn render_fused(&self, _rays: &Rays, _lengths: &Tensor) -> Result<Option<Composited>> {
         Ok(None)
     }
 
