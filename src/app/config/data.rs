@@ -1,0 +1,138 @@
+//! The `data` section: image size, dataset name and directory, and the training cameras of
+//! an SDF fit, with what they become at run time.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use glam::DVec3;
+use serde::Deserialize;
+
+use super::Config;
+use crate::core::camera::{look_at_view_transform, PerspectiveCamera};
+
+/// The `data` section.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    /// `[width, height]` in pixels.
+    pub image_size: [usize; 2],
+    /// `data.dataset_name`, e.g. `lego`: names the default data directory and the checkpoint file.
+    #[serde(default)]
+    pub dataset_name: Option<String>,
+    /// Directory holding the dataset (extension; default `../shared/data/<dataset_name>`).
+    #[serde(default)]
+    pub data_dir: Option<PathBuf>,
+    /// `data.cameras`: the training cameras of an SDF fit (`type: train`), in order.
+    #[serde(default)]
+    pub cameras: Option<DataCameras>,
+}
+
+impl DataConfig {
+    /// Image width and height (`data.image_size`).
+    pub fn image_size(&self) -> (usize, usize) {
+        (self.image_size[0], self.image_size[1])
+    }
+
+    /// `nerf_<data.dataset_name>` (`nerf_scene` without one): the file name, less its
+    /// extension, of the checkpoint in a `training.checkpoint_path` directory.
+    pub fn dataset_stem(&self) -> String {
+        format!("nerf_{}", self.dataset_name.as_deref().unwrap_or("scene"))
+    }
+}
+
+/// One camera of `data.cameras` (the homework's `train_box.yaml`): pytorch3d's
+/// `look_at_view_transform(eye, scene_center, up)` with an NDC focal length and principal
+/// point, and the image it sees.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DataCameraConfig {
+    /// NDC focal length (both axes).
+    pub focal: f64,
+    /// Camera position in world units.
+    pub eye: [f64; 3],
+    /// NDC principal point `(p_x, p_y)`.
+    pub principal_point: [f64; 2],
+    /// The point the camera looks at.
+    pub scene_center: [f64; 3],
+    /// Up direction.
+    pub up: [f64; 3],
+    /// The target image: a `.npy` float array `(H, W, 3)`, relative to the working directory
+    /// (needed to train).
+    #[serde(default)]
+    pub image: Option<PathBuf>,
+}
+
+impl DataCameraConfig {
+    /// The camera: pytorch3d's `look_at_view_transform(eye, scene_center, up)` with the NDC
+    /// focal length and principal point.
+    pub fn camera(&self) -> PerspectiveCamera {
+        let (r, t) = look_at_view_transform(
+            DVec3::from_array(self.eye),
+            DVec3::from_array(self.scene_center),
+            DVec3::from_array(self.up),
+        );
+        PerspectiveCamera {
+            r,
+            t,
+            focal: [self.focal, self.focal],
+            principal_point: self.principal_point,
+        }
+    }
+}
+
+/// `data.cameras`: named cameras in the order written.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DataCameras(pub Vec<(String, DataCameraConfig)>);
+
+impl<'de> Deserialize<'de> for DataCameras {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct Ordered;
+        impl<'de> serde::de::Visitor<'de> for Ordered {
+            type Value = DataCameras;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a mapping of camera names to cameras")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> std::result::Result<DataCameras, A::Error> {
+                let mut cameras = Vec::new();
+                while let Some((name, camera)) = map.next_entry::<String, DataCameraConfig>()? {
+                    cameras.push((name, camera));
+                }
+                Ok(DataCameras(cameras))
+            }
+        }
+        d.deserialize_map(Ordered)
+    }
+}
+
+impl Config {
+    /// Image width and height (`data.image_size`).
+    pub fn image_size(&self) -> (usize, usize) {
+        self.data.image_size()
+    }
+
+    /// The cameras of `data.cameras`, in order, with their names and target image paths (see
+    /// [`DataCameraConfig::camera`]). An error when the config has none.
+    pub fn data_cameras(&self) -> Result<Vec<(String, PerspectiveCamera, Option<PathBuf>)>> {
+        let cameras = self
+            .data
+            .cameras
+            .as_ref()
+            .filter(|c| !c.0.is_empty())
+            .context(
+                "data.cameras: missing (a `type: train` config lists its training cameras there)",
+            )?;
+        Ok(cameras
+            .0
+            .iter()
+            .map(|(name, c)| (name.clone(), c.camera(), c.image.clone()))
+            .collect())
+    }
+
+    /// [`DataConfig::dataset_stem`].
+    pub fn dataset_stem(&self) -> String {
+        self.data.dataset_stem()
+    }
+}

@@ -1,0 +1,149 @@
+//! The `renderer` section: the volume renderer and its accelerations (early termination, the
+//! occupancy grid), with what they become at run time.
+
+use anyhow::Result;
+use serde::Deserialize;
+
+use super::sampler::SamplerConfig;
+use super::Config;
+use crate::render::occupancy::{density_threshold, OccupancyGridParams};
+use crate::render::renderer::VolumeRenderer;
+use crate::train::fit::GridSchedule;
+
+/// The `renderer` section (the homework's keys plus the acceleration extensions).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RendererConfig {
+    /// `renderer.type`: only `volume` (the default).
+    #[serde(rename = "type", default)]
+    pub kind: RendererKind,
+    /// Rays rendered per chunk (`renderer.chunk_size`, at least 1).
+    pub chunk_size: usize,
+    /// Composite onto white instead of black (`renderer.white_background`, default false).
+    #[serde(default)]
+    pub white_background: bool,
+    /// Extension: stop marching a ray once its transmittance falls below this (0 = off, the
+    /// homework's dense rendering). Needs a NeRF field.
+    #[serde(default)]
+    pub early_termination: f64,
+    /// Extension: skip samples in empty cells of an occupancy grid (NeRF fields).
+    #[serde(default)]
+    pub occupancy_grid: Option<OccupancyGridConfig>,
+}
+
+/// `renderer.type`: the homework's one renderer.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum RendererKind {
+    /// `volume`: the homework's `VolumeRenderer`.
+    #[default]
+    Volume,
+}
+
+/// `renderer.occupancy_grid` (extension): the empty-space skipping grid, and how training
+/// keeps it up to date (nerfacc's defaults).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OccupancyGridConfig {
+    /// Cells per side.
+    #[serde(default = "d64")]
+    pub resolution: usize,
+    /// `[min_x, min_y, min_z, max_x, max_y, max_z]`; outside it the field is taken as empty.
+    #[serde(default = "default_aabb")]
+    pub aabb: [f64; 6],
+    /// A cell is occupied while one sample step through it would have at least this opacity.
+    #[serde(default = "default_alpha_threshold")]
+    pub alpha_threshold: f64,
+    /// Training: update the grid every this many steps.
+    #[serde(default = "d16")]
+    pub update_interval: usize,
+    /// Training: probe every cell at each update for the first this many steps.
+    #[serde(default = "d256")]
+    pub warmup_steps: usize,
+    /// Training: decay of each cell's running density maximum per update.
+    #[serde(default = "default_decay")]
+    pub decay: f64,
+}
+
+impl Default for OccupancyGridConfig {
+    fn default() -> Self {
+        Self {
+            resolution: d64(),
+            aabb: default_aabb(),
+            alpha_threshold: default_alpha_threshold(),
+            update_interval: d16(),
+            warmup_steps: d256(),
+            decay: default_decay(),
+        }
+    }
+}
+
+fn default_aabb() -> [f64; 6] {
+    [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5]
+}
+fn default_alpha_threshold() -> f64 {
+    0.01
+}
+fn default_decay() -> f64 {
+    0.95
+}
+fn d16() -> usize {
+    16
+}
+fn d256() -> usize {
+    256
+}
+fn d64() -> usize {
+    64
+}
+
+impl RendererConfig {
+    /// The renderer: chunk size, background, early termination (the occupancy grid belongs to
+    /// the field; see [`OccupancyGridConfig::params`]).
+    pub fn renderer(&self) -> Result<VolumeRenderer> {
+        VolumeRenderer::new(self.chunk_size, self.white_background)?
+            .with_early_termination(self.early_termination)
+    }
+}
+
+impl OccupancyGridConfig {
+    /// The grid, with its density threshold: `alpha_threshold` opacity over one sample step
+    /// of `sampler` ([`SamplerConfig::step`]).
+    pub fn params(&self, sampler: &SamplerConfig) -> OccupancyGridParams {
+        OccupancyGridParams {
+            resolution: self.resolution,
+            aabb: self.aabb,
+            density_threshold: density_threshold(self.alpha_threshold, sampler.step()),
+        }
+    }
+
+    /// How training keeps the grid ([`OccupancyGridConfig::params`]) up to date.
+    pub fn schedule(&self, sampler: &SamplerConfig) -> GridSchedule {
+        GridSchedule {
+            grid: self.params(sampler),
+            update_interval: self.update_interval,
+            warmup_steps: self.warmup_steps,
+            decay: self.decay,
+        }
+    }
+}
+
+impl Config {
+    /// The `renderer` section as a renderer ([`RendererConfig::renderer`]).
+    pub fn renderer(&self) -> Result<VolumeRenderer> {
+        self.renderer.renderer()
+    }
+
+    /// The occupancy grid the renderer uses, with its density threshold
+    /// ([`OccupancyGridConfig::params`]), or `None` when the config has no grid.
+    pub fn occupancy_grid(&self) -> Option<OccupancyGridParams> {
+        let g = self.renderer.occupancy_grid.as_ref()?;
+        Some(g.params(&self.sampler))
+    }
+
+    /// How training keeps the occupancy grid up to date, when the config has one.
+    pub fn grid_schedule(&self) -> Option<GridSchedule> {
+        let g = self.renderer.occupancy_grid.as_ref()?;
+        Some(g.schedule(&self.sampler))
+    }
+}

@@ -1,0 +1,80 @@
+//! The `sampler` section and the sampler it describes (stratified, or coarse-to-fine).
+
+use std::sync::Arc;
+
+use anyhow::Result;
+use serde::Deserialize;
+
+use super::Config;
+use crate::render::hierarchical::CoarseToFineSampler;
+use crate::render::ray_sampler::RaySampler;
+use crate::render::sampler::StratifiedSampler;
+
+/// `sampler.type`: the homework's one sampler.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum SamplerKind {
+    /// `stratified`: the homework's `StratifiedRaysampler`.
+    #[default]
+    Stratified,
+}
+
+/// The `sampler` section.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SamplerConfig {
+    /// `sampler.type`: only `stratified` (the default).
+    #[serde(rename = "type", default)]
+    pub kind: SamplerKind,
+    /// Samples per ray (`sampler.n_pts_per_ray`, 1 to [`limits::PTS_PER_RAY`]).
+    pub n_pts_per_ray: usize,
+    /// Depth of the first sample along each ray, in world units (`sampler.min_depth`, ≥ 0).
+    pub min_depth: f64,
+    /// Depth of the last sample along each ray (`sampler.max_depth`, ≥ `min_depth`).
+    pub max_depth: f64,
+    /// Coarse-to-fine sampling (`sampler.n_pts_per_ray_fine`, default 0 = off): this many
+    /// more depths per ray drawn from the weights of a coarse pass over the `n_pts_per_ray`
+    /// stratified ones ([`crate::render::hierarchical`]); not with an occupancy grid or early
+    /// termination.
+    #[serde(default)]
+    pub n_pts_per_ray_fine: usize,
+}
+
+impl SamplerConfig {
+    /// The sampler: `n_pts_per_ray` stratified depths on `[min_depth, max_depth]`, and, with
+    /// `n_pts_per_ray_fine` > 0, that many more drawn from a coarse pass's weights.
+    pub fn sampler(&self) -> Result<Arc<dyn RaySampler>> {
+        let stratified = self.stratified()?;
+        Ok(match self.n_pts_per_ray_fine {
+            0 => Arc::new(stratified),
+            n_fine => Arc::new(CoarseToFineSampler {
+                coarse: stratified,
+                n_fine,
+            }),
+        })
+    }
+
+    /// The stratified depths alone (the SDF fit and the float64 reference sample only these).
+    pub fn stratified(&self) -> Result<StratifiedSampler> {
+        StratifiedSampler::new(self.n_pts_per_ray, self.min_depth, self.max_depth)
+    }
+
+    /// One sample step: the spacing of `n_pts_per_ray` depths over `[min_depth, max_depth]`
+    /// (at least 1e-6).
+    pub fn step(&self) -> f64 {
+        let n = self.n_pts_per_ray.max(2) - 1;
+        ((self.max_depth - self.min_depth) / n as f64).max(1e-6)
+    }
+}
+
+impl Config {
+    /// The `sampler` section as a sampler ([`SamplerConfig::sampler`]).
+    pub fn sampler(&self) -> Result<Arc<dyn RaySampler>> {
+        self.sampler.sampler()
+    }
+
+    /// The `sampler` section's stratified depths alone ([`SamplerConfig::stratified`]).
+    pub fn stratified_sampler(&self) -> Result<StratifiedSampler> {
+        self.sampler.stratified()
+    }
+}

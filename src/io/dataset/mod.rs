@@ -1,0 +1,196 @@
+//! The NeRF-synthetic ("Blender") dataset reader: `transforms_{train,val,test}.json` cameras
+//! converted to pytorch3d cameras ([`transforms`]), and RGBA PNGs composited onto a background
+//! colour ([`frame_image`]); [`Dataset`] loads a split's frames and images together.
+//!
+//! Layout of a scene directory (e.g. `lego/`):
+//!
+//! * `transforms_{split}.json`: `camera_angle_x` (horizontal field of view, radians) and
+//!   `frames`, each with `file_path` (relative, without the `.png` extension) and
+//!   `transform_matrix`, the 4×4 Blender camera-to-world matrix (`[row][col]`).
+//! * `{split}/r_{i}.png`: 8-bit RGBA renders, transparent where there is no object.
+//!
+//! Blender / OpenGL cameras look along their −Z axis with +Y up and +X right; pytorch3d cameras
+//! look along +Z with +Y up and +X left (see [`crate::core::camera`]).
+
+pub mod frame_image;
+pub mod transforms;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+use rayon::prelude::*;
+
+use crate::core::image::RgbImage;
+
+pub use frame_image::*;
+pub use transforms::*;
+
+/// Where to get the data, appended to errors about a missing scene directory or transforms file.
+pub const DOWNLOAD_HINT: &str = "download the NeRF-synthetic lego scene (nerf_synthetic.zip \
+    from the original NeRF project's data release) and pass --data-dir or set data.data_dir, \
+    or run scripts/download_lego.sh (the default, ../shared/data/lego, is relative to the \
+    working directory)";
+
+/// A loaded split: frames and their images, all resized to `width × height`.
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    /// Cameras and image paths, in the order of `transforms_{split}.json`.
+    pub frames: Vec<Frame>,
+    /// `frames.len()` images, each `width × height × 3` floats in [0, 1].
+    pub images: Vec<RgbImage>,
+    /// Per image, `width × height` transparencies `1 − a` (see
+    /// [`load_image_and_transparency`]); empty when unknown.
+    pub transparency: Vec<Vec<f32>>,
+    /// Width of every image, in pixels.
+    pub width: usize,
+    /// Height of every image, in pixels.
+    pub height: usize,
+}
+
+impl Dataset {
+    /// Reads a split's cameras ([`read_split`]) and loads every image ([`load_image`]) in
+    /// parallel. The first failure is returned, naming its file.
+    pub fn load(
+        data_dir: &Path,
+        split: Split,
+        width: usize,
+        height: usize,
+        white_background: bool,
+    ) -> Result<Self> {
+        Self::load_first(data_dir, split, width, height, white_background, None)
+    }
+
+    /// [`Dataset::load`] of the first `limit` frames only (all with `None`): the other images
+    /// are not opened. Every image must have the size of the split's first; an image without
+    /// an alpha channel is taken as opaque (a note on stderr says how many).
+    pub fn load_first(
+        data_dir: &Path,
+        split: Split,
+        width: usize,
+        height: usize,
+        white_background: bool,
+        limit: Option<usize>,
+    ) -> Result<Self> {
+        let mut frames = read_split(data_dir, split)?;
+        frames.truncate(limit.unwrap_or(frames.len()));
+        let loaded = frames
+            .par_iter()
+            .map(|frame| load_frame_image(&frame.file_path, width, height, white_background))
+            .collect::<Result<Vec<_>>>()?;
+        check_sizes_agree(&frames, &loaded)?;
+        let opaque = loaded.iter().filter(|l| !l.has_alpha).count();
+        if opaque > 0 {
+            crate::core::term::note(&format!(
+                "note: {opaque} of the {} images of {} have no alpha channel and are taken as \
+                 opaque (no background compositing applies to them)",
+                loaded.len(),
+                split.transforms_path(data_dir).display()
+            ));
+        }
+        let (images, transparency) = loaded
+            .into_iter()
+            .map(|l| (l.image, l.transparency))
+            .unzip();
+        Ok(Self {
+            frames,
+            images,
+            transparency,
+            width,
+            height,
+        })
+    }
+}
+
+/// An error naming the first image whose file size differs from the first frame's: a split's
+/// images share one camera model, so a frame of another size cannot be scored against it.
+fn check_sizes_agree(frames: &[Frame], loaded: &[LoadedImage]) -> Result<()> {
+    let Some(first) = loaded.first() else {
+        return Ok(());
+    };
+    for (frame, image) in frames.iter().zip(loaded) {
+        if image.source_size != first.source_size {
+            bail!(
+                "{} is {}x{}, but the split's images are {}x{} ({}): every image of a split must \
+                 have the same size",
+                frame.file_path.display(),
+                image.source_size.0,
+                image.source_size.1,
+                first.source_size.0,
+                first.source_size.1,
+                frames[0].file_path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The default scene directory `../shared/data/<dataset_name>`, relative to the working
+/// directory (used when the config has no `data.data_dir`).
+pub fn default_data_dir(dataset_name: &str) -> PathBuf {
+    Path::new("..")
+        .join("shared")
+        .join("data")
+        .join(dataset_name)
+}
+
+/// The shared lego scene for tests, or `None` (with a message) when it is not on this machine.
+#[cfg(test)]
+pub(crate) fn test_lego_dir() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(default_data_dir("lego"));
+    if dir.join("transforms_train.json").is_file() {
+        Some(dir)
+    } else {
+        eprintln!(
+            "skipping: lego scene not found at {} ({DOWNLOAD_HINT})",
+            dir.display()
+        );
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Instant;
+
+    #[test]
+    fn whole_train_split_loads() {
+        let Some(dir) = test_lego_dir() else { return };
+        let start = Instant::now();
+        let data = Dataset::load(&dir, Split::Train, 128, 128, false).unwrap();
+        eprintln!(
+            "loaded {} train images at 128×128 in {:.2?}",
+            data.images.len(),
+            start.elapsed()
+        );
+        assert_eq!(data.frames.len(), 100);
+        assert_eq!(data.images.len(), 100);
+        assert!(data
+            .images
+            .iter()
+            .all(|im| im.width == 128 && im.height == 128 && im.data.len() == 128 * 128 * 3));
+    }
+
+    #[test]
+    fn missing_directory_says_where_to_get_the_data() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("lego");
+        let err = read_split(&missing, Split::Train).unwrap_err().to_string();
+        eprintln!("{err}");
+        assert!(err.contains(&missing.display().to_string()), "{err}");
+        assert!(err.contains("nerf_synthetic.zip") && err.contains("scripts/download_lego.sh"));
+        assert!(!err.contains('\n'), "{err}");
+        let err = Dataset::load(&missing, Split::Val, 8, 8, false)
+            .unwrap_err()
+            .to_string();
+        eprintln!("{err}");
+        assert!(err.contains("data.data_dir"), "{err}");
+        // An existing directory without the transforms file names the file.
+        let err = read_split(dir.path(), Split::Test).unwrap_err().to_string();
+        eprintln!("{err}");
+        assert!(
+            err.contains("transforms_test.json") && err.contains("download_lego.sh"),
+            "{err}"
+        );
+    }
+}
