@@ -20,7 +20,7 @@ pub fn eval_nerf(
     limit: Option<usize>,
     device: &Device,
 ) -> Result<EvalReport> {
-    if let crate::app::config::ImplicitFunctionConfig::SdfVolume(_) = config.implicit_function {
+    if config.implicit_function.is_sdf_volume() {
         anyhow::bail!(
             "implicit_function.type sdf_volume: this command needs a NeRF config (e.g. lego); eval scores a trained field against a dataset"
         );

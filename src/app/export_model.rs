@@ -9,7 +9,7 @@ use std::path::Path;
 use anyhow::{bail, Result};
 use candle_core::{DType, Device, Tensor};
 
-use crate::app::config::{Config, ImplicitFunctionConfig};
+use crate::app::config::Config;
 use crate::io::checkpoint;
 
 /// What [`export_model`] wrote.
@@ -32,7 +32,7 @@ pub fn export_model(
     out: &Path,
     device: &Device,
 ) -> Result<ModelExport> {
-    if let ImplicitFunctionConfig::SdfVolume(_) = config.implicit_function {
+    if config.implicit_function.is_sdf_volume() {
         bail!("implicit_function.type sdf_volume: an SDF scene has no checkpoint to export");
     }
     let source = config.checkpoint(checkpoint);

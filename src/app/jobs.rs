@@ -17,7 +17,7 @@ use std::sync::atomic::AtomicBool;
 use anyhow::{bail, Result};
 use candle_core::Device;
 
-use crate::app::config::{Config, ImplicitFunctionConfig, JobKind};
+use crate::app::config::{Config, JobKind};
 use crate::app::train_box::train_sdf;
 use crate::train::fit::FitOutcome;
 
@@ -33,10 +33,7 @@ pub enum TrainJob {
 /// The training job for `config` (named `name` in messages); an error for a render config
 /// (naming `nerf render`) or a `type` its field cannot do.
 pub fn train_job(config: &Config, name: &str) -> Result<TrainJob> {
-    let nerf = matches!(
-        config.implicit_function,
-        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_)
-    );
+    let nerf = !config.implicit_function.is_sdf_volume();
     match config.kind {
         Some(kind) if kind.renders() => bail!(
             "config {name} has `type: {}`: it renders, it does not train; run `nerf render --config {name}` (or `nerf run --config {name}`){}",

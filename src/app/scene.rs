@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use candle_core::{Device, Tensor};
 
-use crate::app::config::{limits, Config, ImplicitFunctionConfig};
+use crate::app::config::{limits, Config};
 use crate::core::camera::PerspectiveCamera;
 use crate::core::sdf::SdfVolume;
-use crate::field::sdf::SdfField;
+use crate::field::trainable::BoxedField;
 use crate::io::images::{viridis_image, write_gif, write_npy, write_png, RgbImage};
 use crate::io::output::prepare_out_dir;
 use crate::io::progress::progress_bar;
@@ -367,20 +367,16 @@ pub fn render_scene(
     raw: bool,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    match &config.implicit_function {
-        ImplicitFunctionConfig::SdfVolume(_) => {
-            if let Some(c) = checkpoint {
-                anyhow::bail!(
-                    "--checkpoint {}: an SDF scene has no checkpoint (NeRF configs only)",
-                    c.display()
-                );
-            }
-            render_sdf_scene(config, out_dir, raw, device)
-        }
-        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_) => {
-            render_nerf_scene(config, &config.checkpoint(checkpoint), out_dir, raw, device)
-        }
+    if !config.implicit_function.is_sdf_volume() {
+        return render_nerf_scene(config, &config.checkpoint(checkpoint), out_dir, raw, device);
     }
+    if let Some(c) = checkpoint {
+        anyhow::bail!(
+            "--checkpoint {}: an SDF scene has no checkpoint (NeRF configs only)",
+            c.display()
+        );
+    }
+    render_sdf_scene(config, out_dir, raw, device)
 }
 
 /// The field a config describes, loaded and ready to render.
@@ -388,7 +384,7 @@ pub enum SceneField {
     /// An SDF volume, with the values it was made from.
     Sdf {
         /// The field.
-        field: SdfField,
+        field: BoxedField,
         /// Its shape, density and colour parameters.
         volume: SdfVolume,
     },
@@ -401,7 +397,7 @@ impl SceneField {
     /// The field as the renderer sees it.
     pub fn as_field(&self) -> &dyn Field {
         match self {
-            SceneField::Sdf { field, .. } => field,
+            SceneField::Sdf { field, .. } => field.as_ref(),
             SceneField::Nerf(field) => field.as_ref(),
         }
     }
@@ -415,21 +411,18 @@ pub fn load_scene_field(
     checkpoint: Option<&Path>,
     device: &Device,
 ) -> Result<SceneField> {
-    match &config.implicit_function {
-        ImplicitFunctionConfig::SdfVolume(_) => {
-            if let Some(c) = checkpoint {
-                anyhow::bail!(
-                    "--checkpoint {}: an SDF scene has no checkpoint (NeRF configs only)",
-                    c.display()
-                );
-            }
-            Ok(SceneField::Sdf {
-                field: config.sdf_field(device)?,
-                volume: config.sdf_volume()?,
-            })
-        }
-        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_) => Ok(SceneField::Nerf(
-            config.load_field(&config.checkpoint(checkpoint), device)?,
-        )),
+    if !config.implicit_function.is_sdf_volume() {
+        let path = config.checkpoint(checkpoint);
+        return Ok(SceneField::Nerf(config.load_field(&path, device)?));
+    }
+    match checkpoint {
+        Some(c) => anyhow::bail!(
+            "--checkpoint {}: an SDF scene has no checkpoint (NeRF configs only)",
+            c.display()
+        ),
+        None => Ok(SceneField::Sdf {
+            field: Box::new(config.sdf_field(device)?),
+            volume: config.sdf_volume()?,
+        }),
     }
 }

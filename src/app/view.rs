@@ -384,10 +384,7 @@ pub fn serve(
     };
     let kind = match worker.scene {
         SceneField::Sdf { .. } => "sdf",
-        SceneField::Nerf(_) => match config.implicit_function {
-            crate::app::config::ImplicitFunctionConfig::Ngp(_) => "ngp",
-            _ => "nerf",
-        },
+        SceneField::Nerf(_) => config.implicit_function.kind().name(),
     };
     let info = serde_json::json!({
         "scene": name, "field": kind,

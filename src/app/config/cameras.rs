@@ -41,7 +41,7 @@ fn default_cameras(f: &ImplicitFunctionConfig) -> CamerasConfig {
             up: [0.0, 1.0, 0.0],
             focal_length: 1.0,
         },
-        ImplicitFunctionConfig::Nerf(_) | ImplicitFunctionConfig::Ngp(_) => CamerasConfig {
+        _ => CamerasConfig {
             radius: 4.0,
             n_poses: 20,
             up: [0.0, 0.0, 1.0],

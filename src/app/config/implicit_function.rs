@@ -21,6 +21,15 @@ pub enum ImplicitFunctionKind {
 }
 
 impl ImplicitFunctionKind {
+    /// The name a config writes for this kind (`implicit_function.type`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::SdfVolume => "sdf_volume",
+            Self::Nerf => "nerf",
+            Self::Ngp => "ngp",
+        }
+    }
+
     /// The kind named by the section's `type`; an error naming `implicit_function.type` when
     /// it is missing (or not a string) or names no kind.
     pub fn of_section(section: &Value) -> Result<Self> {
@@ -57,6 +66,12 @@ impl ImplicitFunctionConfig {
             ImplicitFunctionKind::Nerf => Self::Nerf(from_value(section, prefix)?),
             ImplicitFunctionKind::Ngp => Self::Ngp(from_value(section, prefix)?),
         })
+    }
+
+    /// Whether the section describes the analytic SDF volume (rendered from its parameters,
+    /// no checkpoint) rather than a trainable field loaded from a checkpoint.
+    pub fn is_sdf_volume(&self) -> bool {
+        matches!(self, Self::SdfVolume(_))
     }
 
     /// The kind of field described.
