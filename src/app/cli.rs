@@ -5,6 +5,9 @@
 //! [`DataDirArg`] (`--data-dir`), [`OutDirArg`] (`--out-dir`) and [`TrainingArgs`]
 //! (`--epochs`, `--minutes`, `--overwrite`). What each subcommand does with them is in
 //! [`crate::app::cli_commands`].
+// The doc comments below are clap's help text, written for a terminal: `[200,150]` and
+// `<frame>` there are what a user types, not rustdoc links or HTML.
+#![allow(rustdoc::broken_intra_doc_links, rustdoc::invalid_html_tags)]
 
 use std::path::PathBuf;
 

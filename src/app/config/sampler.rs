@@ -26,7 +26,7 @@ pub struct SamplerConfig {
     /// `sampler.type`: only `stratified` (the default).
     #[serde(rename = "type", default)]
     pub kind: SamplerKind,
-    /// Samples per ray (`sampler.n_pts_per_ray`, 1 to [`limits::PTS_PER_RAY`]).
+    /// Samples per ray (`sampler.n_pts_per_ray`, 1 to [`super::limits::PTS_PER_RAY`]).
     pub n_pts_per_ray: usize,
     /// Depth of the first sample along each ray, in world units (`sampler.min_depth`, ≥ 0).
     pub min_depth: f64,

@@ -202,7 +202,13 @@ pub fn lego_study(
     let truth: Vec<RgbImage> = dataset.images.iter().take(views).cloned().collect();
     let run = |config: &Config| -> Result<(Vec<RenderedView>, f64)> {
         let (state, _) = config.load_model(&options.checkpoint, device)?;
-        timed_frames(config, &*state.render_field(), &cameras, sizes.repeats, device)
+        timed_frames(
+            config,
+            &*state.render_field(),
+            &cameras,
+            sizes.repeats,
+            device,
+        )
     };
     let (reference, _) = run(&render(LegoMethod::Dense, sizes.lego_reference_pts).config()?)?;
     let reference: Vec<RgbImage> = reference.into_iter().map(|f| f.color).collect();
