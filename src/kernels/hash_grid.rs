@@ -18,10 +18,10 @@
 
 use std::sync::{Arc, Mutex};
 
-use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
+use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::use_fused;
 
 const POINTS_PER_TASK: usize = 256;
@@ -206,10 +206,10 @@ pub fn hash_encode(
 ) -> candle_core::Result<Tensor> {
     check_shapes(points, table, params)?;
     if use_fused(table) && points.device().is_cpu() {
-        let op = HashEncode {
+        let op = Fused(HashEncode {
             params: *params,
             sink: sink.cloned(),
-        };
+        });
         let points = points.to_dtype(DType::F32)?.contiguous()?;
         let table = table.contiguous()?;
         if table.track_op() {
@@ -354,20 +354,12 @@ struct HashEncode {
     sink: Option<Arc<TableGradient>>,
 }
 
-impl CustomOp2 for HashEncode {
-    fn name(&self) -> &'static str {
-        "hash-encode"
-    }
+impl CpuKernel<2> for HashEncode {
+    const NAME: &'static str = "hash-encode";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let points = contiguous_f32(s1, l1, "hash-encode")?;
-        let table = contiguous_f32(s2, l2, "hash-encode")?;
+    fn cpu_forward(&self, [points, table]: [CpuInput; 2]) -> KernelOutput {
+        let points = points.f32(Self::NAME)?;
+        let table = table.f32(Self::NAME)?;
         let p = &self.params;
         let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
         let width = p.output_dim();
@@ -395,16 +387,10 @@ impl CustomOp2 for HashEncode {
                     }
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((m, width))))
+        Ok((out, Shape::from((m, width))))
     }
 
-    fn bwd(
-        &self,
-        points: &Tensor,
-        table: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+    fn gradients(&self, [points, table]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let p = &self.params;
         let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
         let width = p.output_dim();
@@ -438,7 +424,7 @@ impl CustomOp2 for HashEncode {
                         }
                     }
                 });
-            return Ok((None, None));
+            return Ok([None, None]);
         }
         let mut dtable = vec![0f32; p.n_rows() * f];
         // One task per level: each writes only its own slice of the table gradient.
@@ -458,7 +444,7 @@ impl CustomOp2 for HashEncode {
                 }
             });
         let dtable = Tensor::from_vec(dtable, table.shape(), table.device())?;
-        Ok((None, Some(dtable)))
+        Ok([None, Some(dtable)])
     }
 }
 

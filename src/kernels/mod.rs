@@ -17,6 +17,7 @@ use candle_core::{DType, Tensor};
 
 pub mod bias;
 pub mod composite;
+pub mod cpu_kernel;
 pub mod gemm;
 pub mod hash_grid;
 pub mod ngp_mlp;

@@ -19,11 +19,11 @@
 //! The output is `(M, 4)`: `[raw density, r, g, b]`. Parameters are passed packed (see
 //! [`MlpShape`]); the tensor-op twin is [`ngp_mlp_tensor_ops`].
 
-use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
+use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::gemm::gemm_f32;
-use crate::kernels::storage::contiguous_f32;
 
 const ROWS_PER_TASK: usize = 256;
 
@@ -131,10 +131,10 @@ pub fn ngp_mlp(
     if let Some(bad) = ray_index.iter().find(|&&r| r as usize >= n) {
         candle_core::bail!("ngp-mlp: ray index {bad} of {n} rays");
     }
-    let op = NgpMlp {
+    let op = Fused(NgpMlp {
         shape,
         rays: ray_index.to_vec(),
-    };
+    });
     let (enc, per_ray, params) = (
         enc.contiguous()?,
         per_ray.contiguous()?,
@@ -449,23 +449,13 @@ fn mask(d: &mut [f32], y: &[f32]) {
         .for_each(|(d, y)| *d = if *y > 0.0 { *d } else { 0.0 });
 }
 
-impl CustomOp3 for NgpMlp {
-    fn name(&self) -> &'static str {
-        "ngp-mlp"
-    }
+impl CpuKernel<3> for NgpMlp {
+    const NAME: &'static str = "ngp-mlp";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let enc = contiguous_f32(s1, l1, "ngp-mlp")?;
-        let per_ray = contiguous_f32(s2, l2, "ngp-mlp")?;
-        let params = contiguous_f32(s3, l3, "ngp-mlp")?;
+    fn cpu_forward(&self, [enc, per_ray, params]: [CpuInput; 3]) -> KernelOutput {
+        let enc = enc.f32(Self::NAME)?;
+        let per_ray = per_ray.f32(Self::NAME)?;
+        let params = params.f32(Self::NAME)?;
         if params.len() != self.shape.n_parameters() {
             candle_core::bail!(
                 "ngp-mlp: {} parameters, expected {}",
@@ -487,17 +477,10 @@ impl CustomOp3 for NgpMlp {
                     row[1..].copy_from_slice(&a.rgb[3 * i..3 * i + 3]);
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((m, 4))))
+        Ok((out, Shape::from((m, 4))))
     }
 
-    fn bwd(
-        &self,
-        enc: &Tensor,
-        per_ray: &Tensor,
-        params: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+    fn gradients(&self, [enc, per_ray, params]: [&Tensor; 3], grad: &Tensor) -> KernelGradients<3> {
         let e = self.shape.enc;
         let n_params = self.shape.n_parameters();
         let per_ray_len = per_ray.elem_count();
@@ -546,11 +529,11 @@ impl CustomOp3 for NgpMlp {
             })
             .unwrap_or_else(new_sums);
         let dev = enc.device();
-        Ok((
+        Ok([
             Some(Tensor::from_vec(d_enc, enc.shape(), dev)?),
             Some(Tensor::from_vec(sums.per_ray, per_ray.shape(), dev)?),
             Some(Tensor::from_vec(sums.params, n_params, dev)?),
-        ))
+        ])
     }
 }
 

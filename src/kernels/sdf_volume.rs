@@ -6,11 +6,11 @@
 //! parameter (the homework's `opt: True`) runs the twin, whose gradients reach every parameter.
 
 use anyhow::Result;
-use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor, D};
+use candle_core::{Shape, Tensor, D};
 use rayon::prelude::*;
 
 use crate::core::sdf::{Sdf, SdfVolume};
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelOutput};
 use crate::kernels::{needs_grad, use_fused};
 
 /// The shape of an SDF volume as tensors (any of them may be a trainable variable).
@@ -137,9 +137,10 @@ pub fn sdf_volume(
             volume.values()?,
         );
     }
-    let fused = points
-        .contiguous()?
-        .apply_op2_no_bwd(&deltas.contiguous()?, &FusedSdfVolume(volume.values()?))?;
+    let fused = points.contiguous()?.apply_op2_no_bwd(
+        &deltas.contiguous()?,
+        &Fused(FusedSdfVolume(volume.values()?)),
+    )?;
     Ok((fused.narrow(2, 0, 1)?, fused.narrow(2, 1, 3)?))
 }
 
@@ -244,21 +245,13 @@ pub fn density_to_sigma(density: &Tensor, deltas: &Tensor) -> Result<Tensor> {
 /// Fused CPU kernel: points `(N, S, 3)` and deltas `(N, S, 1)` → `(N, S, 4)` = `[σ, r, g, b]`.
 struct FusedSdfVolume(SdfVolume);
 
-impl CustomOp2 for FusedSdfVolume {
-    fn name(&self) -> &'static str {
-        "fused-sdf-volume"
-    }
+impl CpuKernel<2> for FusedSdfVolume {
+    const NAME: &'static str = "fused-sdf-volume";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let points = contiguous_f32(s1, l1, "fused-sdf-volume")?;
-        let deltas = contiguous_f32(s2, l2, "fused-sdf-volume")?;
-        let dims = l1.shape().dims();
+    fn cpu_forward(&self, [points_in, deltas]: [CpuInput; 2]) -> KernelOutput {
+        let points = points_in.f32(Self::NAME)?;
+        let deltas = deltas.f32(Self::NAME)?;
+        let dims = points_in.shape().dims();
         if points.len() != 3 * deltas.len() {
             candle_core::bail!("fused-sdf-volume: points and deltas disagree in size");
         }
@@ -273,7 +266,7 @@ impl CustomOp2 for FusedSdfVolume {
                     o.copy_from_slice(&[sigma, f[0], f[1], f[2]]);
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((dims[0], dims[1], 4))))
+        Ok((out, Shape::from((dims[0], dims[1], 4))))
     }
 }
 

@@ -16,11 +16,11 @@
 //! zero tensors).
 
 use anyhow::Result;
-use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
+use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::core::sdf::SdfVolume;
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 
 /// One block of σ's backward pass: points, spacings, `∂L/∂σ`, and where `∂L/∂points` goes.
 type SigmaBlock<'a> = (((&'a [f32], &'a [f32]), &'a [f32]), &'a mut [f32]);
@@ -42,23 +42,24 @@ pub fn sdf_volume_fused_grad(
     let sigma = points.apply_op3(
         &deltas.contiguous()?,
         packed,
-        SigmaOp {
+        Fused(SigmaOp {
             volume,
             points_grad,
-        },
+        }),
     )?;
     let colour = points.apply_op2(
         packed,
-        ColourOp {
+        Fused(ColourOp {
             volume,
             points_grad,
-        },
+        }),
     )?;
     Ok((sigma, colour))
 }
 
-/// Sums per-block `(P,)` float64 partial gradients.
-fn sum_blocks(parts: Vec<Vec<f64>>, len: usize) -> Vec<f32> {
+/// Sums per-block (or per-task) float64 partial gradients, each `(len,)`, into one float32
+/// `(len,)` vector (the fused SDF kernels' backward passes).
+pub(crate) fn sum_blocks(parts: Vec<Vec<f64>>, len: usize) -> Vec<f32> {
     let mut total = vec![0f64; len];
     for part in parts {
         for (t, v) in total.iter_mut().zip(part) {
@@ -66,6 +67,15 @@ fn sum_blocks(parts: Vec<Vec<f64>>, len: usize) -> Vec<f32> {
         }
     }
     total.into_iter().map(|v| v as f32).collect()
+}
+
+/// A backward op's flat output `[∂L/∂packed (P), ∂L/∂points]`: the per-block parameter
+/// gradients summed ([`sum_blocks`]), then `g_points` (empty when the points are not tracked).
+fn backward_output(parts: Vec<Vec<f64>>, p: usize, g_points: Vec<f32>) -> (Vec<f32>, Shape) {
+    let mut out = sum_blocks(parts, p);
+    out.extend(g_points);
+    let n = out.len();
+    (out, Shape::from(n))
 }
 
 /// The gradients an op's backward returns: packed parameters `(P,)`, and the points
@@ -94,22 +104,12 @@ struct SigmaOp {
     points_grad: bool,
 }
 
-impl CustomOp3 for SigmaOp {
-    fn name(&self) -> &'static str {
-        "fused-sdf-sigma"
-    }
+impl CpuKernel<3> for SigmaOp {
+    const NAME: &'static str = "fused-sdf-sigma";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        _s3: &CpuStorage,
-        _l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let points = contiguous_f32(s1, l1, "fused-sdf-sigma")?;
-        let deltas = contiguous_f32(s2, l2, "fused-sdf-sigma")?;
+    fn cpu_forward(&self, [points, deltas_in, _packed]: [CpuInput; 3]) -> KernelOutput {
+        let points = points.f32(Self::NAME)?;
+        let deltas = deltas_in.f32(Self::NAME)?;
         if points.len() != 3 * deltas.len() {
             candle_core::bail!("fused-sdf-sigma: points and deltas disagree in size");
         }
@@ -122,28 +122,25 @@ impl CustomOp3 for SigmaOp {
                     *o = self.volume.evaluate_point([p[0], p[1], p[2]], delta).0;
                 }
             });
-        Ok((CpuStorage::F32(out), l2.shape().clone()))
+        Ok((out, deltas_in.shape().clone()))
     }
 
-    fn bwd(
+    fn gradients(
         &self,
-        points: &Tensor,
-        deltas: &Tensor,
-        packed: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        [points, deltas, packed]: [&Tensor; 3],
+        grad: &Tensor,
+    ) -> KernelGradients<3> {
         let p = packed.elem_count();
         let flat = points.apply_op3_no_bwd(
             &deltas.contiguous()?,
-            &grad_res.contiguous()?,
-            &SigmaBackward {
+            &grad.contiguous()?,
+            &Fused(SigmaBackward {
                 volume: self.volume,
                 points_grad: self.points_grad,
-            },
+            }),
         )?;
         let (g_points, g_params) = split_gradients(&flat, p, points, self.points_grad)?;
-        Ok((g_points, None, Some(g_params)))
+        Ok([g_points, None, Some(g_params)])
     }
 }
 
@@ -153,24 +150,13 @@ struct SigmaBackward {
     points_grad: bool,
 }
 
-impl CustomOp3 for SigmaBackward {
-    fn name(&self) -> &'static str {
-        "fused-sdf-sigma-backward"
-    }
+impl CpuKernel<3> for SigmaBackward {
+    const NAME: &'static str = "fused-sdf-sigma-backward";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let name = "fused-sdf-sigma-backward";
-        let points = contiguous_f32(s1, l1, name)?;
-        let deltas = contiguous_f32(s2, l2, name)?;
-        let grad = contiguous_f32(s3, l3, name)?;
+    fn cpu_forward(&self, [points, deltas, grad]: [CpuInput; 3]) -> KernelOutput {
+        let points = points.f32(Self::NAME)?;
+        let deltas = deltas.f32(Self::NAME)?;
+        let grad = grad.f32(Self::NAME)?;
         let p = self.volume.packed_layout().len();
         let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
         let work = |(((p3, d), g), gp): SigmaBlock| {
@@ -201,10 +187,7 @@ impl CustomOp3 for SigmaBackward {
                 .map(|t| work((t, &mut [])))
                 .collect()
         };
-        let mut out = sum_blocks(parts, p);
-        out.extend(g_points);
-        let n = out.len();
-        Ok((CpuStorage::F32(out), Shape::from(n)))
+        Ok(backward_output(parts, p, g_points))
     }
 }
 
@@ -214,19 +197,11 @@ struct ColourOp {
     points_grad: bool,
 }
 
-impl CustomOp2 for ColourOp {
-    fn name(&self) -> &'static str {
-        "fused-sdf-colour"
-    }
+impl CpuKernel<2> for ColourOp {
+    const NAME: &'static str = "fused-sdf-colour";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        _s2: &CpuStorage,
-        _l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let points = contiguous_f32(s1, l1, "fused-sdf-colour")?;
+    fn cpu_forward(&self, [points_in, _packed]: [CpuInput; 2]) -> KernelOutput {
+        let points = points_in.f32(Self::NAME)?;
         let mut out = vec![0f32; points.len()];
         out.par_chunks_mut(3 * BLOCK)
             .zip(points.par_chunks(3 * BLOCK))
@@ -235,26 +210,20 @@ impl CustomOp2 for ColourOp {
                     o.copy_from_slice(&self.volume.colour_at([p[0], p[1], p[2]]));
                 }
             });
-        Ok((CpuStorage::F32(out), l1.shape().clone()))
+        Ok((out, points_in.shape().clone()))
     }
 
-    fn bwd(
-        &self,
-        points: &Tensor,
-        packed: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+    fn gradients(&self, [points, packed]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let flat = points.apply_op2_no_bwd(
-            &grad_res.contiguous()?,
-            &ColourBackward {
+            &grad.contiguous()?,
+            &Fused(ColourBackward {
                 volume: self.volume,
                 points_grad: self.points_grad,
-            },
+            }),
         )?;
         let (g_points, g_params) =
             split_gradients(&flat, packed.elem_count(), points, self.points_grad)?;
-        Ok((g_points, Some(g_params)))
+        Ok([g_points, Some(g_params)])
     }
 }
 
@@ -264,21 +233,12 @@ struct ColourBackward {
     points_grad: bool,
 }
 
-impl CustomOp2 for ColourBackward {
-    fn name(&self) -> &'static str {
-        "fused-sdf-colour-backward"
-    }
+impl CpuKernel<2> for ColourBackward {
+    const NAME: &'static str = "fused-sdf-colour-backward";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let name = "fused-sdf-colour-backward";
-        let points = contiguous_f32(s1, l1, name)?;
-        let grad = contiguous_f32(s2, l2, name)?;
+    fn cpu_forward(&self, [points, grad]: [CpuInput; 2]) -> KernelOutput {
+        let points = points.f32(Self::NAME)?;
+        let grad = grad.f32(Self::NAME)?;
         let p = self.volume.packed_layout().len();
         let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
         let work = |((p3, g), gp): ((&[f32], &[f32]), &mut [f32])| {
@@ -307,10 +267,7 @@ impl CustomOp2 for ColourBackward {
                 .map(|t| work((t, &mut [])))
                 .collect()
         };
-        let mut out = sum_blocks(parts, p);
-        out.extend(g_points);
-        let n = out.len();
-        Ok((CpuStorage::F32(out), Shape::from(n)))
+        Ok(backward_output(parts, p, g_points))
     }
 }
 
