@@ -6,7 +6,9 @@
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use crate::kernels::cpu_kernel::{
+    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
+};
 use crate::kernels::use_fused;
 
 const ROWS_PER_TASK: usize = 512;
@@ -89,10 +91,10 @@ struct AddRows {
 impl CpuKernel<2> for AddRows {
     const NAME: &'static str = "add-rows";
 
-    fn cpu_forward(&self, [x_in, r_in]: [CpuInput; 2]) -> KernelOutput {
-        let (x, r) = (x_in.f32(Self::NAME)?, r_in.f32(Self::NAME)?);
-        let (m, c) = x_in.shape().dims2()?;
-        let bias = r_in.shape().rank() == 1;
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [x, r] = all_f32(&inputs, Self::NAME)?;
+        let (m, c) = inputs[0].shape().dims2()?;
+        let bias = inputs[1].shape().rank() == 1;
         let expected = if bias { c } else { m / self.group.max(1) * c };
         if r.len() != expected || (!bias && m % self.group.max(1) != 0) {
             candle_core::bail!("add-rows: {} values to add to {m}×{c}", r.len());
@@ -144,6 +146,7 @@ impl CpuKernel<2> for AddRows {
 #[cfg(test)]
 mod add_tests {
     use super::*;
+    use crate::kernels::test_support::weighted_sum_gradients;
     use candle_core::{Device, Var};
 
     #[test]
@@ -165,8 +168,8 @@ mod add_tests {
             .unwrap();
         let diff = |a: &Tensor, c: &Tensor| crate::core::compare::max_abs_difference(a, c).unwrap();
         assert!(diff(&fast, &slow) < 1e-6);
-        let gf = fast.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
-        let gs = slow.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
+        let gf = weighted_sum_gradients(&fast, &w);
+        let gs = weighted_sum_gradients(&slow, &w);
         for v in [&x, &b, &r] {
             let (a, c) = (
                 gf.get(v.as_tensor()).unwrap(),
@@ -180,6 +183,7 @@ mod add_tests {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::test_support::{gradient_values, weighted_sum_gradients};
     use candle_core::DType;
 
     #[test]
@@ -229,31 +233,10 @@ mod tests {
             fused.to_vec2::<f32>().unwrap(),
             reference.to_vec2::<f32>().unwrap()
         );
-        let gf = fused
-            .broadcast_mul(&w)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let gr = reference
-            .broadcast_mul(&w)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let values = |grads: &candle_core::backprop::GradStore, v: &Tensor| {
-            grads
-                .get(v)
-                .unwrap()
-                .flatten_all()
-                .unwrap()
-                .to_vec1::<f32>()
-                .unwrap()
-        };
+        let gf = weighted_sum_gradients(&fused, &w);
+        let gr = weighted_sum_gradients(&reference, &w);
         for v in [&x, &b] {
-            assert_eq!(values(&gf, v.as_tensor()), values(&gr, v.as_tensor()));
+            assert_eq!(gradient_values(&gf, v), gradient_values(&gr, v));
         }
     }
 }

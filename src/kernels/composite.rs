@@ -20,7 +20,9 @@ use anyhow::Result;
 use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use crate::kernels::cpu_kernel::{
+    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
+};
 
 use crate::core::volume::{
     aggregate, clamped_optical_depth, deltas, ray_weights, spacing, weights, MAX_OPTICAL_DEPTH,
@@ -230,9 +232,8 @@ struct PackedComposite {
 impl CpuKernel<2> for PackedComposite {
     const NAME: &'static str = "packed-composite";
 
-    fn cpu_forward(&self, [density, feature]: [CpuInput; 2]) -> KernelOutput {
-        let density = density.f32("packed composite")?;
-        let feature = feature.f32("packed composite")?;
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [density, feature] = all_f32(&inputs, "packed composite")?;
         let m = self.rays.index.len();
         if density.len() != m || feature.len() != m * self.c {
             candle_core::bail!(
@@ -504,6 +505,7 @@ impl CpuKernel<2> for CompositeBackward {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::compare::assert_close;
     use candle_core::{Device, Var};
 
     /// Random inputs; `zero` is the value used for the 30% empty samples.
@@ -589,21 +591,8 @@ mod tests {
         );
         let gr = reference.backward().unwrap();
         for var in [&sv, &vv] {
-            let a = gf.get(var.as_tensor()).unwrap();
-            let b = gr.get(var.as_tensor()).unwrap();
-            let diff = crate::core::compare::max_abs_difference(a, b).unwrap();
-            let scale = b
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-                .max(1.0);
-            assert!(
-                diff <= 1e-4 * scale,
-                "gradient differs by {diff} (scale {scale})"
-            );
+            let (a, b) = (gf.get(var).unwrap(), gr.get(var).unwrap());
+            assert_close(a, b, 1e-4, "gradient");
         }
     }
 

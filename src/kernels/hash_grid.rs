@@ -21,7 +21,9 @@ use std::sync::{Arc, Mutex};
 use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use crate::kernels::cpu_kernel::{
+    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
+};
 use crate::kernels::use_fused;
 
 const POINTS_PER_TASK: usize = 256;
@@ -357,9 +359,8 @@ struct HashEncode {
 impl CpuKernel<2> for HashEncode {
     const NAME: &'static str = "hash-encode";
 
-    fn cpu_forward(&self, [points, table]: [CpuInput; 2]) -> KernelOutput {
-        let points = points.f32(Self::NAME)?;
-        let table = table.f32(Self::NAME)?;
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [points, table] = all_f32(&inputs, Self::NAME)?;
         let p = &self.params;
         let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
         let width = p.output_dim();
@@ -467,6 +468,7 @@ pub fn touched_rows(points: &Tensor, params: &HashGridParams) -> candle_core::Re
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::test_support::{gradient_values, weighted_sum_gradients};
     use crate::kernels::{with_kernel_choice, KernelChoice};
     use candle_core::{Device, Var};
 
@@ -644,19 +646,7 @@ mod tests {
                 .unwrap()
         };
         let enc = hash_encode(&points, &table, &p, None).unwrap();
-        let grads = (enc * &proj)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let g = grads
-            .get(&table)
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1::<f32>()
-            .unwrap();
+        let g = gradient_values(&weighted_sum_gradients(&enc, &proj), &table);
         let base: Vec<f32> = table.flatten_all().unwrap().to_vec1().unwrap();
         let eps = 1e-3f32;
         for i in (0..base.len()).step_by(7) {
@@ -683,16 +673,10 @@ mod tests {
         let run = |choice| {
             with_kernel_choice(choice, || {
                 let enc = hash_encode(&points, &table, &p, None).unwrap();
-                let grads = (&enc * &proj)
-                    .unwrap()
-                    .sum_all()
-                    .unwrap()
-                    .backward()
-                    .unwrap();
-                let g = grads.get(&table).unwrap().flatten_all().unwrap();
+                let grads = weighted_sum_gradients(&enc, &proj);
                 (
                     enc.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
-                    g.to_vec1::<f32>().unwrap(),
+                    gradient_values(&grads, &table),
                 )
             })
         };
@@ -731,29 +715,15 @@ mod tests {
         let p = params(6);
         let (points, table) = inputs(&p, 150);
         let weight = Tensor::randn(0f32, 1.0, (150, p.output_dim()), &Device::Cpu).unwrap();
-        let dense = hash_encode(&points, &table, &p, None)
-            .unwrap()
-            .mul(&weight)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let dense = dense.get(&table).unwrap().flatten_all().unwrap();
-        let dense = dense.to_vec1::<f32>().unwrap();
+        let encoded = hash_encode(&points, &table, &p, None).unwrap();
+        let dense = gradient_values(&weighted_sum_gradients(&encoded, &weight), &table);
         let sink = Arc::new(TableGradient::new(&p));
         // Two backward passes accumulate, as two chunks of one step do.
         for half in [0, 75] {
             let pts = points.narrow(0, half, 75).unwrap();
             let w = weight.narrow(0, half, 75).unwrap();
-            let grads = hash_encode(&pts, &table, &p, Some(&sink))
-                .unwrap()
-                .mul(&w)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap();
+            let encoded = hash_encode(&pts, &table, &p, Some(&sink)).unwrap();
+            let grads = weighted_sum_gradients(&encoded, &w);
             assert!(
                 grads.get(&table).is_none(),
                 "the table gradient went to autograd"

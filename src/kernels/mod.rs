@@ -27,6 +27,8 @@ pub mod sdf_render;
 pub mod sdf_volume;
 pub mod sdf_volume_grad;
 pub mod storage;
+#[cfg(test)]
+pub(crate) mod test_support;
 pub mod trunk;
 
 /// Which implementation of the fused ops runs.

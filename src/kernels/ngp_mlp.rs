@@ -22,7 +22,9 @@
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use crate::kernels::cpu_kernel::{
+    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
+};
 use crate::kernels::gemm::gemm_f32;
 
 const ROWS_PER_TASK: usize = 256;
@@ -452,10 +454,8 @@ fn mask(d: &mut [f32], y: &[f32]) {
 impl CpuKernel<3> for NgpMlp {
     const NAME: &'static str = "ngp-mlp";
 
-    fn cpu_forward(&self, [enc, per_ray, params]: [CpuInput; 3]) -> KernelOutput {
-        let enc = enc.f32(Self::NAME)?;
-        let per_ray = per_ray.f32(Self::NAME)?;
-        let params = params.f32(Self::NAME)?;
+    fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
+        let [enc, per_ray, params] = all_f32(&inputs, Self::NAME)?;
         if params.len() != self.shape.n_parameters() {
             candle_core::bail!(
                 "ngp-mlp: {} parameters, expected {}",
@@ -540,6 +540,8 @@ impl CpuKernel<3> for NgpMlp {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::compare::assert_close;
+    use crate::kernels::test_support::weighted_sum_gradients;
     use candle_core::{Device, Var};
 
     #[test]
@@ -588,31 +590,11 @@ mod tests {
         let slow = ngp_mlp_tensor_ops(&enc, &per_ray, &idx, &layers).unwrap();
         let diff = |a: &Tensor, b: &Tensor| crate::core::compare::max_abs_difference(a, b).unwrap();
         assert!(diff(&fast, &slow) < 1e-5, "forward {}", diff(&fast, &slow));
-        let grads = |t: &Tensor| {
-            t.mul(&weight)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap()
-        };
-        let (gf, gs) = (grads(&fast), grads(&slow));
+        let gf = weighted_sum_gradients(&fast, &weight);
+        let gs = weighted_sum_gradients(&slow, &weight);
         for v in all {
             let (a, b) = (gf.get(v).unwrap(), gs.get(v).unwrap());
-            let scale = b
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-                .max(1.0);
-            assert!(
-                diff(a, b) < 1e-5 * scale,
-                "gradient {:?}: {}",
-                v.dims(),
-                diff(a, b)
-            );
+            assert_close(a, b, 1e-5, &format!("gradient {:?}", v.dims()));
         }
     }
 }

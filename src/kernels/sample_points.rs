@@ -4,7 +4,7 @@ use anyhow::Result;
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelOutput};
+use crate::kernels::cpu_kernel::{all_f32, CpuInput, CpuKernel, Fused, KernelOutput};
 use crate::kernels::{needs_grad, use_fused};
 
 /// `origins[:, None] + lengths · directions[:, None]`. Where [`use_fused`] allows and no input
@@ -42,13 +42,9 @@ struct SamplePointsKernel;
 impl CpuKernel<3> for SamplePointsKernel {
     const NAME: &'static str = "sample-points";
 
-    fn cpu_forward(&self, [o, d, lengths]: [CpuInput; 3]) -> KernelOutput {
-        let (o, d, t) = (
-            o.f32(Self::NAME)?,
-            d.f32(Self::NAME)?,
-            lengths.f32(Self::NAME)?,
-        );
-        let (n, s, _) = lengths.shape().dims3()?;
+    fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
+        let [o, d, t] = all_f32(&inputs, Self::NAME)?;
+        let (n, s, _) = inputs[2].shape().dims3()?;
         let mut out = vec![0f32; n * s * 3];
         out.par_chunks_mut(s * 3).enumerate().for_each(|(r, p)| {
             for (i, q) in p.chunks_exact_mut(3).enumerate() {
@@ -65,6 +61,7 @@ impl CpuKernel<3> for SamplePointsKernel {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::test_support::gradient_values;
     use candle_core::{Device, Var};
 
     #[test]
@@ -92,15 +89,7 @@ mod tests {
             .backward()
             .unwrap();
         // d(Σ points)/d(origin) = S per coordinate.
-        let g = grads
-            .get(&o)
-            .expect("origins get a gradient")
-            .flatten_all()
-            .unwrap();
-        assert!(g
-            .to_vec1::<f32>()
-            .unwrap()
-            .iter()
-            .all(|&v| (v - 5.0).abs() < 1e-6));
+        let g = gradient_values(&grads, &o);
+        assert!(g.iter().all(|&v| (v - 5.0).abs() < 1e-6));
     }
 }

@@ -20,7 +20,9 @@ use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::core::sdf::SdfVolume;
-use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use crate::kernels::cpu_kernel::{
+    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
+};
 
 /// One block of σ's backward pass: points, spacings, `∂L/∂σ`, and where `∂L/∂points` goes.
 type SigmaBlock<'a> = (((&'a [f32], &'a [f32]), &'a [f32]), &'a mut [f32]);
@@ -38,22 +40,13 @@ pub fn sdf_volume_fused_grad(
     volume: SdfVolume,
 ) -> Result<(Tensor, Tensor)> {
     let points_grad = crate::kernels::needs_grad(points);
+    let op = SdfOp {
+        volume,
+        points_grad,
+    };
     let points = points.contiguous()?;
-    let sigma = points.apply_op3(
-        &deltas.contiguous()?,
-        packed,
-        Fused(SigmaOp {
-            volume,
-            points_grad,
-        }),
-    )?;
-    let colour = points.apply_op2(
-        packed,
-        Fused(ColourOp {
-            volume,
-            points_grad,
-        }),
-    )?;
+    let sigma = points.apply_op3(&deltas.contiguous()?, packed, Fused(SigmaOp(op)))?;
+    let colour = points.apply_op2(packed, Fused(ColourOp(op)))?;
     Ok((sigma, colour))
 }
 
@@ -98,11 +91,16 @@ fn split_gradients(
     Ok((g_points, g_params))
 }
 
-/// σ: `(points (N, S, 3), deltas (N, S, 1), packed (P,))` → `(N, S, 1)`.
-struct SigmaOp {
+/// What each of the four ops below holds: the volume's values, and whether the points are
+/// tracked (then the backward passes return their gradient too).
+#[derive(Clone, Copy)]
+struct SdfOp {
     volume: SdfVolume,
     points_grad: bool,
 }
+
+/// σ: `(points (N, S, 3), deltas (N, S, 1), packed (P,))` → `(N, S, 1)`.
+struct SigmaOp(SdfOp);
 
 impl CpuKernel<3> for SigmaOp {
     const NAME: &'static str = "fused-sdf-sigma";
@@ -119,7 +117,7 @@ impl CpuKernel<3> for SigmaOp {
             .zip(deltas.par_chunks(BLOCK))
             .for_each(|((o, p), d)| {
                 for ((o, p), &delta) in o.iter_mut().zip(p.chunks_exact(3)).zip(d) {
-                    *o = self.volume.evaluate_point([p[0], p[1], p[2]], delta).0;
+                    *o = self.0.volume.evaluate_point([p[0], p[1], p[2]], delta).0;
                 }
             });
         Ok((out, deltas_in.shape().clone()))
@@ -134,35 +132,28 @@ impl CpuKernel<3> for SigmaOp {
         let flat = points.apply_op3_no_bwd(
             &deltas.contiguous()?,
             &grad.contiguous()?,
-            &Fused(SigmaBackward {
-                volume: self.volume,
-                points_grad: self.points_grad,
-            }),
+            &Fused(SigmaBackward(self.0)),
         )?;
-        let (g_points, g_params) = split_gradients(&flat, p, points, self.points_grad)?;
+        let (g_points, g_params) = split_gradients(&flat, p, points, self.0.points_grad)?;
         Ok([g_points, None, Some(g_params)])
     }
 }
 
 /// σ's backward: `(points, deltas, ∂L/∂σ)` → `[∂L/∂packed (P), ∂L/∂points (N·S·3)?]`.
-struct SigmaBackward {
-    volume: SdfVolume,
-    points_grad: bool,
-}
+struct SigmaBackward(SdfOp);
 
 impl CpuKernel<3> for SigmaBackward {
     const NAME: &'static str = "fused-sdf-sigma-backward";
 
-    fn cpu_forward(&self, [points, deltas, grad]: [CpuInput; 3]) -> KernelOutput {
-        let points = points.f32(Self::NAME)?;
-        let deltas = deltas.f32(Self::NAME)?;
-        let grad = grad.f32(Self::NAME)?;
-        let p = self.volume.packed_layout().len();
-        let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
+    fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
+        let [points, deltas, grad] = all_f32(&inputs, Self::NAME)?;
+        let p = self.0.volume.packed_layout().len();
+        let mut g_points = vec![0f32; if self.0.points_grad { points.len() } else { 0 }];
         let work = |(((p3, d), g), gp): SigmaBlock| {
             let mut acc = vec![0f64; p];
             for (i, ((x, &delta), &g)) in p3.chunks_exact(3).zip(d).zip(g).enumerate() {
                 let dp = self
+                    .0
                     .volume
                     .sigma_vjp([x[0], x[1], x[2]], delta, g, &mut acc);
                 if !gp.is_empty() {
@@ -171,7 +162,7 @@ impl CpuKernel<3> for SigmaBackward {
             }
             acc
         };
-        let parts: Vec<Vec<f64>> = if self.points_grad {
+        let parts: Vec<Vec<f64>> = if self.0.points_grad {
             points
                 .par_chunks(3 * BLOCK)
                 .zip(deltas.par_chunks(BLOCK))
@@ -192,10 +183,7 @@ impl CpuKernel<3> for SigmaBackward {
 }
 
 /// Colour: `(points (N, S, 3), packed (P,))` → `(N, S, 3)`.
-struct ColourOp {
-    volume: SdfVolume,
-    points_grad: bool,
-}
+struct ColourOp(SdfOp);
 
 impl CpuKernel<2> for ColourOp {
     const NAME: &'static str = "fused-sdf-colour";
@@ -207,44 +195,35 @@ impl CpuKernel<2> for ColourOp {
             .zip(points.par_chunks(3 * BLOCK))
             .for_each(|(o, p)| {
                 for (o, p) in o.chunks_exact_mut(3).zip(p.chunks_exact(3)) {
-                    o.copy_from_slice(&self.volume.colour_at([p[0], p[1], p[2]]));
+                    o.copy_from_slice(&self.0.volume.colour_at([p[0], p[1], p[2]]));
                 }
             });
         Ok((out, points_in.shape().clone()))
     }
 
     fn gradients(&self, [points, packed]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
-        let flat = points.apply_op2_no_bwd(
-            &grad.contiguous()?,
-            &Fused(ColourBackward {
-                volume: self.volume,
-                points_grad: self.points_grad,
-            }),
-        )?;
+        let flat = points.apply_op2_no_bwd(&grad.contiguous()?, &Fused(ColourBackward(self.0)))?;
         let (g_points, g_params) =
-            split_gradients(&flat, packed.elem_count(), points, self.points_grad)?;
+            split_gradients(&flat, packed.elem_count(), points, self.0.points_grad)?;
         Ok([g_points, Some(g_params)])
     }
 }
 
 /// Colour's backward: `(points, ∂L/∂colour)` → `[∂L/∂packed (P), ∂L/∂points (N·S·3)?]`.
-struct ColourBackward {
-    volume: SdfVolume,
-    points_grad: bool,
-}
+struct ColourBackward(SdfOp);
 
 impl CpuKernel<2> for ColourBackward {
     const NAME: &'static str = "fused-sdf-colour-backward";
 
-    fn cpu_forward(&self, [points, grad]: [CpuInput; 2]) -> KernelOutput {
-        let points = points.f32(Self::NAME)?;
-        let grad = grad.f32(Self::NAME)?;
-        let p = self.volume.packed_layout().len();
-        let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [points, grad] = all_f32(&inputs, Self::NAME)?;
+        let p = self.0.volume.packed_layout().len();
+        let mut g_points = vec![0f32; if self.0.points_grad { points.len() } else { 0 }];
         let work = |((p3, g), gp): ((&[f32], &[f32]), &mut [f32])| {
             let mut acc = vec![0f64; p];
             for (i, (x, g)) in p3.chunks_exact(3).zip(g.chunks_exact(3)).enumerate() {
                 let dp = self
+                    .0
                     .volume
                     .colour_vjp([x[0], x[1], x[2]], [g[0], g[1], g[2]], &mut acc);
                 if !gp.is_empty() {
@@ -253,7 +232,7 @@ impl CpuKernel<2> for ColourBackward {
             }
             acc
         };
-        let parts: Vec<Vec<f64>> = if self.points_grad {
+        let parts: Vec<Vec<f64>> = if self.0.points_grad {
             points
                 .par_chunks(3 * BLOCK)
                 .zip(grad.par_chunks(3 * BLOCK))
@@ -399,20 +378,9 @@ mod tests {
                 for var in vars.iter().chain([&points]) {
                     let a = gf.get(var.as_tensor()).expect("fused gradient");
                     let b = gr.get(var.as_tensor()).expect("reference gradient");
-                    let scale = b
-                        .abs()
-                        .unwrap()
-                        .max_all()
-                        .unwrap()
-                        .to_scalar::<f32>()
-                        .unwrap();
-                    let d = crate::core::compare::max_abs_difference(a, b).unwrap();
                     // Measured: at most 4e-7 relative over these seeds.
-                    assert!(
-                        d <= 1e-5 * scale.max(1.0),
-                        "seed {seed}: gradient differs by {d} (scale {scale}) for {:?}",
-                        var.dims()
-                    );
+                    let what = format!("seed {seed}: gradient for {:?}", var.dims());
+                    crate::core::compare::assert_close(a, b, 1e-5, &what);
                 }
             }
         }

@@ -20,7 +20,9 @@ use candle_nn::Linear;
 use rayon::prelude::*;
 
 use crate::kernels::bias::bias_add;
-use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use crate::kernels::cpu_kernel::{
+    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
+};
 use crate::kernels::gemm::gemm_f32;
 use crate::kernels::use_fused;
 
@@ -195,9 +197,9 @@ impl FusedTrunk {
 impl CpuKernel<2> for FusedTrunk {
     const NAME: &'static str = "nerf-trunk";
 
-    fn cpu_forward(&self, [x_in, params]: [CpuInput; 2]) -> KernelOutput {
-        let (x, params) = (x_in.f32(Self::NAME)?, params.f32(Self::NAME)?);
-        let (m, d) = x_in.shape().dims2()?;
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [x, params] = all_f32(&inputs, Self::NAME)?;
+        let (m, d) = inputs[0].shape().dims2()?;
         let s = &self.shape;
         if d != s.input_dim || params.len() != s.n_parameters() || s.skip.is_empty() {
             candle_core::bail!(
@@ -320,6 +322,8 @@ fn relu_backward(g: &mut [f32], y: &[f32], db: &mut [f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::compare::assert_close;
+    use crate::kernels::test_support::weighted_sum_gradients;
     use candle_core::{Device, Var};
     use candle_nn::Module;
 
@@ -361,38 +365,12 @@ mod tests {
         let fast = trunk(&x, &pack_parameters(&layers).unwrap(), &shape).unwrap();
         let diff = |a: &Tensor, b: &Tensor| crate::core::compare::max_abs_difference(a, b).unwrap();
         assert!(diff(&slow, &fast) < 1e-5, "forward {}", diff(&slow, &fast));
-        let g_slow = slow
-            .mul(&weight)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let g_fast = fast
-            .mul(&weight)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
+        let g_slow = weighted_sum_gradients(&slow, &weight);
+        let g_fast = weighted_sum_gradients(&fast, &weight);
         for (i, (w, b)) in vars.iter().enumerate() {
             for v in [w, b] {
-                let (a, c) = (
-                    g_slow.get(v.as_tensor()).unwrap(),
-                    g_fast.get(v.as_tensor()).unwrap(),
-                );
-                let scale = a
-                    .abs()
-                    .unwrap()
-                    .max_all()
-                    .unwrap()
-                    .to_scalar::<f32>()
-                    .unwrap();
-                assert!(
-                    diff(a, c) <= 1e-5 * scale.max(1.0),
-                    "layer {i}: {} (scale {scale})",
-                    diff(a, c)
-                );
+                let (a, c) = (g_slow.get(v).unwrap(), g_fast.get(v).unwrap());
+                assert_close(c, a, 1e-5, &format!("layer {i}"));
             }
         }
         // Without gradient tracking nothing is kept and the output is the same.
