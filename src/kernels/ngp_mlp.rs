@@ -234,19 +234,11 @@ struct Activations {
     rgb: Vec<f32>,
 }
 
-/// `out (c×n) = x · Wᵀ [+ b]` for `W` `(n, k)` row-major, on the calling thread.
-fn linear(
-    out: &mut [f32],
-    x: &[f32],
-    (c, k, n): (usize, usize, usize),
-    w: &[f32],
-    b: Option<&[f32]>,
-) {
+/// `out (c×n) = x · Wᵀ + b` for `W` `(n, k)` row-major and `b` `(n)`, on the calling thread.
+fn linear(out: &mut [f32], x: &[f32], (c, k, n): (usize, usize, usize), w: &[f32], b: &[f32]) {
     gemm_f32((c, n, k), out, n, false, x, (k, 1), w, (1, k), false);
-    if let Some(b) = b {
-        for row in out.chunks_exact_mut(n) {
-            row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
-        }
+    for row in out.chunks_exact_mut(n) {
+        row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
     }
 }
 
@@ -271,20 +263,14 @@ impl NgpMlp {
             h2: vec![0.0; c * h],
             rgb: vec![0.0; c * 3],
         };
-        linear(
-            &mut a.h0,
-            enc,
-            (c, e, h),
-            &p[o.w0..o.b0],
-            Some(&p[o.b0..o.w1]),
-        );
+        linear(&mut a.h0, enc, (c, e, h), &p[o.w0..o.b0], &p[o.b0..o.w1]);
         relu(&mut a.h0);
         linear(
             &mut a.o1,
             &a.h0,
             (c, h, 1 + g),
             &p[o.w1..o.b1],
-            Some(&p[o.b1..o.wg]),
+            &p[o.b1..o.wg],
         );
         // h1 = Wg·geo + p_ray: geo is o1 from column 1, row stride 1 + G.
         gemm_f32(
@@ -304,20 +290,14 @@ impl NgpMlp {
                 .zip(pr)
                 .for_each(|(v, q)| *v = (*v + q).max(0.0));
         }
-        linear(
-            &mut a.h2,
-            &a.h1,
-            (c, h, h),
-            &p[o.w2..o.b2],
-            Some(&p[o.b2..o.w3]),
-        );
+        linear(&mut a.h2, &a.h1, (c, h, h), &p[o.w2..o.b2], &p[o.b2..o.w3]);
         relu(&mut a.h2);
         linear(
             &mut a.rgb,
             &a.h2,
             (c, h, 3),
             &p[o.w3..o.b3],
-            Some(&p[o.b3..o.end]),
+            &p[o.b3..o.end],
         );
         a.rgb
             .iter_mut()

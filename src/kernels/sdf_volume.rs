@@ -48,6 +48,35 @@ pub struct SdfTensors {
 }
 
 impl SdfTensors {
+    /// `volume`'s parameters as tensors, each made by `make(name, values)`: `center` (3), then
+    /// `side_lengths` (3) or `radius` (1), then `alpha`, `beta` (1) and `feature` (3), in that
+    /// order (plain tensors, or variables for the ones being trained).
+    pub fn from_volume<E>(
+        volume: &SdfVolume,
+        mut make: impl FnMut(&str, &[f32]) -> std::result::Result<Tensor, E>,
+    ) -> std::result::Result<Self, E> {
+        let shape = match volume.sdf {
+            Sdf::Box {
+                center,
+                side_lengths,
+            } => ShapeTensors::Box {
+                center: make("center", &center)?,
+                side_lengths: make("side_lengths", &side_lengths)?,
+            },
+            Sdf::Sphere { center, radius } => ShapeTensors::Sphere {
+                center: make("center", &center)?,
+                radius: make("radius", &[radius])?,
+            },
+        };
+        Ok(SdfTensors {
+            shape,
+            alpha: make("alpha", &[volume.alpha as f32])?,
+            beta: make("beta", &[volume.beta as f32])?,
+            rainbow: volume.rainbow,
+            feature: make("feature", &volume.feature)?,
+        })
+    }
+
     /// Every parameter tensor, in a fixed order: `center` `(3,)`, then `side_lengths` `(3,)` or
     /// `radius` `(1,)`, then `alpha`, `beta` `(1,)` and `feature` `(3,)`.
     pub fn tensors(&self) -> Vec<&Tensor> {
@@ -277,28 +306,7 @@ mod tests {
 
     /// Tensors of a plain volume.
     fn tensors(v: &SdfVolume) -> SdfTensors {
-        let dev = &Device::Cpu;
-        let t = |x: &[f32]| Tensor::new(x, dev).unwrap();
-        let shape = match v.sdf {
-            Sdf::Box {
-                center,
-                side_lengths,
-            } => ShapeTensors::Box {
-                center: t(&center),
-                side_lengths: t(&side_lengths),
-            },
-            Sdf::Sphere { center, radius } => ShapeTensors::Sphere {
-                center: t(&center),
-                radius: t(&[radius]),
-            },
-        };
-        SdfTensors {
-            shape,
-            alpha: t(&[v.alpha as f32]),
-            beta: t(&[v.beta as f32]),
-            rainbow: v.rainbow,
-            feature: t(&v.feature),
-        }
+        SdfTensors::from_volume(v, |_, x| Tensor::new(x, &Device::Cpu)).unwrap()
     }
 
     fn values(t: &Tensor) -> Vec<f32> {

@@ -24,9 +24,6 @@ use crate::kernels::cpu_kernel::{
     all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
 };
 
-/// One block of σ's backward pass: points, spacings, `∂L/∂σ`, and where `∂L/∂points` goes.
-type SigmaBlock<'a> = (((&'a [f32], &'a [f32]), &'a [f32]), &'a mut [f32]);
-
 /// Samples per parallel work item.
 const BLOCK: usize = 4096;
 
@@ -99,6 +96,44 @@ struct SdfOp {
     points_grad: bool,
 }
 
+impl SdfOp {
+    /// A backward op's output over `samples` samples, in parallel blocks of [`BLOCK`]:
+    /// `vjp(i, acc)` adds sample `i`'s parameter gradient to `acc` `(P)` (float64) and returns
+    /// its points gradient, kept when the points are tracked. The blocks' sums are added in
+    /// order ([`backward_output`]).
+    fn backward_pass<F>(&self, samples: usize, vjp: F) -> (Vec<f32>, Shape)
+    where
+        F: Fn(usize, &mut [f64]) -> [f32; 3] + Sync,
+    {
+        let p = self.volume.packed_layout().len();
+        let mut g_points = vec![0f32; if self.points_grad { 3 * samples } else { 0 }];
+        let block_sum = |block: usize, gp: &mut [f32]| {
+            let mut acc = vec![0f64; p];
+            let first = block * BLOCK;
+            for i in first..(first + BLOCK).min(samples) {
+                let dp = vjp(i, &mut acc);
+                if !gp.is_empty() {
+                    gp[3 * (i - first)..3 * (i - first) + 3].copy_from_slice(&dp);
+                }
+            }
+            acc
+        };
+        let parts: Vec<Vec<f64>> = if self.points_grad {
+            g_points
+                .par_chunks_mut(3 * BLOCK)
+                .enumerate()
+                .map(|(block, gp)| block_sum(block, gp))
+                .collect()
+        } else {
+            (0..samples.div_ceil(BLOCK))
+                .into_par_iter()
+                .map(|block| block_sum(block, &mut []))
+                .collect()
+        };
+        backward_output(parts, p, g_points)
+    }
+}
+
 /// σ: `(points (N, S, 3), deltas (N, S, 1), packed (P,))` → `(N, S, 1)`.
 struct SigmaOp(SdfOp);
 
@@ -147,38 +182,12 @@ impl CpuKernel<3> for SigmaBackward {
 
     fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
         let [points, deltas, grad] = all_f32(&inputs, Self::NAME)?;
-        let p = self.0.volume.packed_layout().len();
-        let mut g_points = vec![0f32; if self.0.points_grad { points.len() } else { 0 }];
-        let work = |(((p3, d), g), gp): SigmaBlock| {
-            let mut acc = vec![0f64; p];
-            for (i, ((x, &delta), &g)) in p3.chunks_exact(3).zip(d).zip(g).enumerate() {
-                let dp = self
-                    .0
-                    .volume
-                    .sigma_vjp([x[0], x[1], x[2]], delta, g, &mut acc);
-                if !gp.is_empty() {
-                    gp[3 * i..3 * i + 3].copy_from_slice(&dp);
-                }
-            }
-            acc
-        };
-        let parts: Vec<Vec<f64>> = if self.0.points_grad {
-            points
-                .par_chunks(3 * BLOCK)
-                .zip(deltas.par_chunks(BLOCK))
-                .zip(grad.par_chunks(BLOCK))
-                .zip(g_points.par_chunks_mut(3 * BLOCK))
-                .map(work)
-                .collect()
-        } else {
-            points
-                .par_chunks(3 * BLOCK)
-                .zip(deltas.par_chunks(BLOCK))
-                .zip(grad.par_chunks(BLOCK))
-                .map(|t| work((t, &mut [])))
-                .collect()
-        };
-        Ok(backward_output(parts, p, g_points))
+        Ok(self.0.backward_pass(deltas.len(), |i, acc| {
+            let x = &points[3 * i..3 * i + 3];
+            self.0
+                .volume
+                .sigma_vjp([x[0], x[1], x[2]], deltas[i], grad[i], acc)
+        }))
     }
 }
 
@@ -217,36 +226,12 @@ impl CpuKernel<2> for ColourBackward {
 
     fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
         let [points, grad] = all_f32(&inputs, Self::NAME)?;
-        let p = self.0.volume.packed_layout().len();
-        let mut g_points = vec![0f32; if self.0.points_grad { points.len() } else { 0 }];
-        let work = |((p3, g), gp): ((&[f32], &[f32]), &mut [f32])| {
-            let mut acc = vec![0f64; p];
-            for (i, (x, g)) in p3.chunks_exact(3).zip(g.chunks_exact(3)).enumerate() {
-                let dp = self
-                    .0
-                    .volume
-                    .colour_vjp([x[0], x[1], x[2]], [g[0], g[1], g[2]], &mut acc);
-                if !gp.is_empty() {
-                    gp[3 * i..3 * i + 3].copy_from_slice(&dp);
-                }
-            }
-            acc
-        };
-        let parts: Vec<Vec<f64>> = if self.0.points_grad {
-            points
-                .par_chunks(3 * BLOCK)
-                .zip(grad.par_chunks(3 * BLOCK))
-                .zip(g_points.par_chunks_mut(3 * BLOCK))
-                .map(work)
-                .collect()
-        } else {
-            points
-                .par_chunks(3 * BLOCK)
-                .zip(grad.par_chunks(3 * BLOCK))
-                .map(|t| work((t, &mut [])))
-                .collect()
-        };
-        Ok(backward_output(parts, p, g_points))
+        Ok(self.0.backward_pass(points.len() / 3, |i, acc| {
+            let (x, g) = (&points[3 * i..3 * i + 3], &grad[3 * i..3 * i + 3]);
+            self.0
+                .volume
+                .colour_vjp([x[0], x[1], x[2]], [g[0], g[1], g[2]], acc)
+        }))
     }
 }
 
@@ -254,38 +239,18 @@ impl CpuKernel<2> for ColourBackward {
 mod tests {
     use super::*;
     use crate::core::sdf::Sdf;
-    use crate::kernels::sdf_volume::{sdf_volume, sdf_volume_tensor_ops, SdfTensors, ShapeTensors};
+    use crate::kernels::sdf_volume::{sdf_volume, sdf_volume_tensor_ops, SdfTensors};
     use candle_core::{Device, Var};
 
     /// A volume whose every parameter is a variable, and those variables.
     fn variables(v: &SdfVolume) -> (SdfTensors, Vec<Var>) {
-        let dev = &Device::Cpu;
         let mut vars = Vec::new();
-        let mut var = |x: &[f32]| {
-            let v = Var::new(x, dev).unwrap();
+        let tensors = SdfTensors::from_volume(v, |_, x| {
+            let v = Var::new(x, &Device::Cpu)?;
             vars.push(v.clone());
-            v.as_tensor().clone()
-        };
-        let shape = match v.sdf {
-            Sdf::Box {
-                center,
-                side_lengths,
-            } => ShapeTensors::Box {
-                center: var(&center),
-                side_lengths: var(&side_lengths),
-            },
-            Sdf::Sphere { center, radius } => ShapeTensors::Sphere {
-                center: var(&center),
-                radius: var(&[radius]),
-            },
-        };
-        let tensors = SdfTensors {
-            shape,
-            alpha: var(&[v.alpha as f32]),
-            beta: var(&[v.beta as f32]),
-            rainbow: v.rainbow,
-            feature: var(&v.feature),
-        };
+            Ok::<_, candle_core::Error>(v.as_tensor().clone())
+        })
+        .unwrap();
         (tensors, vars)
     }
 
