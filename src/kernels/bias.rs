@@ -6,9 +6,7 @@
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{
-    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
-};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::use_fused;
 
 const ROWS_PER_TASK: usize = 512;
@@ -92,7 +90,7 @@ impl CpuKernel<2> for AddRows {
     const NAME: &'static str = "add-rows";
 
     fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
-        let [x, r] = all_f32(&inputs, Self::NAME)?;
+        let [x, r] = CpuInput::all_f32(&inputs, Self::NAME)?;
         let (m, c) = inputs[0].shape().dims2()?;
         let bias = inputs[1].shape().rank() == 1;
         let expected = if bias { c } else { m / self.group.max(1) * c };

@@ -20,9 +20,7 @@ use anyhow::Result;
 use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{
-    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
-};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 
 use crate::core::volume::{
     aggregate, clamped_optical_depth, deltas, ray_weights, spacing, weights, MAX_OPTICAL_DEPTH,
@@ -233,7 +231,7 @@ impl CpuKernel<2> for PackedComposite {
     const NAME: &'static str = "packed-composite";
 
     fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
-        let [density, feature] = all_f32(&inputs, "packed composite")?;
+        let [density, feature] = CpuInput::all_f32(&inputs, "packed composite")?;
         let m = self.rays.index.len();
         if density.len() != m || feature.len() != m * self.c {
             candle_core::bail!(

@@ -28,16 +28,16 @@ impl<'a> CpuInput<'a> {
     pub fn shape(&self) -> &'a Shape {
         self.layout.shape()
     }
-}
 
-/// Every input's f32 values (see [`CpuInput::f32`]), in order; an error naming `op` at the first
-/// input that is strided.
-pub fn all_f32<'a, const N: usize>(inputs: &[CpuInput<'a>; N], op: &str) -> Result<[&'a [f32]; N]> {
-    let mut values = [&[] as &[f32]; N];
-    for (v, input) in values.iter_mut().zip(inputs) {
-        *v = input.f32(op)?;
+    /// Every input's f32 values (see [`CpuInput::f32`]), in order; an error naming `op` at the
+    /// first input that is strided.
+    pub fn all_f32<const N: usize>(inputs: &[Self; N], op: &str) -> Result<[&'a [f32]; N]> {
+        let mut values = [&[] as &[f32]; N];
+        for (v, input) in values.iter_mut().zip(inputs) {
+            *v = input.f32(op)?;
+        }
+        Ok(values)
     }
-    Ok(values)
 }
 
 /// What a kernel's forward pass returns: its f32 values, row-major, and their shape.

@@ -21,9 +21,7 @@ use std::sync::{Arc, Mutex};
 use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{
-    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
-};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::use_fused;
 
 const POINTS_PER_TASK: usize = 256;
@@ -360,7 +358,7 @@ impl CpuKernel<2> for HashEncode {
     const NAME: &'static str = "hash-encode";
 
     fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
-        let [points, table] = all_f32(&inputs, Self::NAME)?;
+        let [points, table] = CpuInput::all_f32(&inputs, Self::NAME)?;
         let p = &self.params;
         let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
         let width = p.output_dim();

@@ -22,9 +22,7 @@
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{
-    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
-};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::gemm::gemm_f32;
 
 const ROWS_PER_TASK: usize = 256;
@@ -435,7 +433,7 @@ impl CpuKernel<3> for NgpMlp {
     const NAME: &'static str = "ngp-mlp";
 
     fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
-        let [enc, per_ray, params] = all_f32(&inputs, Self::NAME)?;
+        let [enc, per_ray, params] = CpuInput::all_f32(&inputs, Self::NAME)?;
         if params.len() != self.shape.n_parameters() {
             candle_core::bail!(
                 "ngp-mlp: {} parameters, expected {}",

@@ -4,7 +4,7 @@ use anyhow::Result;
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::cpu_kernel::{all_f32, CpuInput, CpuKernel, Fused, KernelOutput};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelOutput};
 use crate::kernels::{needs_grad, use_fused};
 
 /// `origins[:, None] + lengths · directions[:, None]`. Where [`use_fused`] allows and no input
@@ -43,7 +43,7 @@ impl CpuKernel<3> for SamplePointsKernel {
     const NAME: &'static str = "sample-points";
 
     fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
-        let [o, d, t] = all_f32(&inputs, Self::NAME)?;
+        let [o, d, t] = CpuInput::all_f32(&inputs, Self::NAME)?;
         let (n, s, _) = inputs[2].shape().dims3()?;
         let mut out = vec![0f32; n * s * 3];
         out.par_chunks_mut(s * 3).enumerate().for_each(|(r, p)| {

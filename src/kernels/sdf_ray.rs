@@ -75,6 +75,14 @@ struct Block {
     d_beta: [f32; BLOCK],
 }
 
+/// The blocks `start..end` of [`BLOCK`] samples (the last one shorter) of `s` samples, in order.
+#[inline(always)]
+fn blocks(s: usize) -> impl Iterator<Item = (usize, usize)> {
+    (0..s)
+        .step_by(BLOCK)
+        .map(move |start| (start, (start + BLOCK).min(s)))
+}
+
 /// Samples `start..end` (at most [`BLOCK`]) of a block, padded with zeros: their lengths, and
 /// 1 for each sample with a spacing, 0 for one without (zero spacing: zero optical depth
 /// whatever the density, see [`crate::core::volume`]).
@@ -202,12 +210,9 @@ fn forward_with<D: Fn([f32; 3]) -> f32>(
     ray: &[f32],
     lengths: &[f32],
 ) -> [f32; 5] {
-    let s = lengths.len();
     let mut out = [0f32; 5];
     let mut transmittance = 1f32;
-    let mut start = 0;
-    while start < s {
-        let end = (start + BLOCK).min(s);
+    for (start, end) in blocks(lengths.len()) {
         let m = end - start;
         let (t, live) = block_samples(lengths, (start, end));
         let mut clear = [0f32; BLOCK];
@@ -233,7 +238,6 @@ fn forward_with<D: Fn([f32; 3]) -> f32>(
         if transmittance == 0.0 {
             break;
         }
-        start = end;
     }
     out
 }
@@ -279,9 +283,7 @@ fn replay_portable(
     let s = lengths.len();
     let mut out = [0f32; 5];
     let mut transmittance = 1f32;
-    let mut start = 0;
-    while start < s {
-        let end = (start + BLOCK).min(s);
+    for (start, end) in blocks(s) {
         match volume.sdf {
             Sdf::Box {
                 center,
@@ -315,7 +317,6 @@ fn replay_portable(
             out[3] += w * sc.t[i];
             out[4] += w;
         }
-        start = end;
         if transmittance == 0.0 {
             // Every later weight is exactly 0: the rest of the ray changes nothing.
             return (end, out);

@@ -27,9 +27,7 @@ use rayon::prelude::*;
 
 use crate::core::rays::Rays;
 use crate::core::sdf::SdfVolume;
-use crate::kernels::cpu_kernel::{
-    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
-};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::sdf_ray::{forward, replay, reverse, RayScratch};
 use crate::kernels::sdf_volume::SdfTensors;
 use crate::kernels::sdf_volume_grad::sum_blocks;
@@ -130,7 +128,7 @@ impl CpuKernel<3> for SdfRenderBackward {
     const NAME: &'static str = "fused-sdf-render-backward";
 
     fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
-        let [rays, lengths, grad] = all_f32(&inputs, Self::NAME)?;
+        let [rays, lengths, grad] = CpuInput::all_f32(&inputs, Self::NAME)?;
         let (_, s, _) = inputs[1].shape().dims3()?;
         let p = self.params;
         let parts: Vec<Vec<f64>> = rays

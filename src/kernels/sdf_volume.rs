@@ -10,7 +10,7 @@ use candle_core::{Shape, Tensor, D};
 use rayon::prelude::*;
 
 use crate::core::sdf::{Sdf, SdfVolume};
-use crate::kernels::cpu_kernel::{all_f32, CpuInput, CpuKernel, Fused, KernelOutput};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelOutput};
 use crate::kernels::{needs_grad, use_fused};
 
 /// The shape of an SDF volume as tensors (any of them may be a trainable variable).
@@ -278,7 +278,7 @@ impl CpuKernel<2> for FusedSdfVolume {
     const NAME: &'static str = "fused-sdf-volume";
 
     fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
-        let [points, deltas] = all_f32(&inputs, Self::NAME)?;
+        let [points, deltas] = CpuInput::all_f32(&inputs, Self::NAME)?;
         let dims = inputs[0].shape().dims();
         if points.len() != 3 * deltas.len() {
             candle_core::bail!("fused-sdf-volume: points and deltas disagree in size");

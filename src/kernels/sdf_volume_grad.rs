@@ -20,9 +20,7 @@ use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::core::sdf::SdfVolume;
-use crate::kernels::cpu_kernel::{
-    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
-};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 
 /// Samples per parallel work item.
 const BLOCK: usize = 4096;
@@ -181,7 +179,7 @@ impl CpuKernel<3> for SigmaBackward {
     const NAME: &'static str = "fused-sdf-sigma-backward";
 
     fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
-        let [points, deltas, grad] = all_f32(&inputs, Self::NAME)?;
+        let [points, deltas, grad] = CpuInput::all_f32(&inputs, Self::NAME)?;
         Ok(self.0.backward_pass(deltas.len(), |i, acc| {
             let x = &points[3 * i..3 * i + 3];
             self.0
@@ -225,7 +223,7 @@ impl CpuKernel<2> for ColourBackward {
     const NAME: &'static str = "fused-sdf-colour-backward";
 
     fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
-        let [points, grad] = all_f32(&inputs, Self::NAME)?;
+        let [points, grad] = CpuInput::all_f32(&inputs, Self::NAME)?;
         Ok(self.0.backward_pass(points.len() / 3, |i, acc| {
             let (x, g) = (&points[3 * i..3 * i + 3], &grad[3 * i..3 * i + 3]);
             self.0

@@ -20,9 +20,7 @@ use candle_nn::Linear;
 use rayon::prelude::*;
 
 use crate::kernels::bias::bias_add;
-use crate::kernels::cpu_kernel::{
-    all_f32, CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput,
-};
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::gemm::gemm_f32;
 use crate::kernels::use_fused;
 
@@ -198,7 +196,7 @@ impl CpuKernel<2> for FusedTrunk {
     const NAME: &'static str = "nerf-trunk";
 
     fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
-        let [x, params] = all_f32(&inputs, Self::NAME)?;
+        let [x, params] = CpuInput::all_f32(&inputs, Self::NAME)?;
         let (m, d) = inputs[0].shape().dims2()?;
         let s = &self.shape;
         if d != s.input_dim || params.len() != s.n_parameters() || s.skip.is_empty() {
