@@ -309,6 +309,18 @@ mod tests {
         SdfTensors::from_volume(v, |_, x| Tensor::new(x, &Device::Cpu)).unwrap()
     }
 
+    /// Tensors of a volume of shape `sdf` (α = β = 1, a white, plain colour), for the tests of
+    /// the signed distance alone.
+    fn shape_only(sdf: Sdf) -> SdfTensors {
+        tensors(&SdfVolume {
+            sdf,
+            alpha: 1.0,
+            beta: 1.0,
+            rainbow: false,
+            feature: [1.0; 3],
+        })
+    }
+
     fn values(t: &Tensor) -> Vec<f32> {
         t.flatten_all().unwrap().to_vec1::<f32>().unwrap()
     }
@@ -378,15 +390,9 @@ mod tests {
 
     #[test]
     fn box_sdf_by_hand() {
-        let b = tensors(&SdfVolume {
-            sdf: Sdf::Box {
-                center: [0.0, 0.0, 0.0],
-                side_lengths: [2.0, 2.0, 2.0],
-            },
-            alpha: 1.0,
-            beta: 1.0,
-            rainbow: false,
-            feature: [1.0; 3],
+        let b = shape_only(Sdf::Box {
+            center: [0.0, 0.0, 0.0],
+            side_lengths: [2.0, 2.0, 2.0],
         });
         let d = values(
             &signed_distance(
@@ -408,15 +414,9 @@ mod tests {
 
     #[test]
     fn sphere_sdf_by_hand() {
-        let s = tensors(&SdfVolume {
-            sdf: Sdf::Sphere {
-                center: [1.0, 0.0, 0.0],
-                radius: 0.5,
-            },
-            alpha: 1.0,
-            beta: 1.0,
-            rainbow: false,
-            feature: [1.0; 3],
+        let s = shape_only(Sdf::Sphere {
+            center: [1.0, 0.0, 0.0],
+            radius: 0.5,
         });
         let d =
             values(&signed_distance(&s.shape, &pts(&[[1.0, 0.0, 0.0], [1.0, 2.0, 0.0]])).unwrap());
