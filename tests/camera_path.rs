@@ -3,7 +3,7 @@
 use std::path::Path;
 
 mod common;
-use common::{nerf, read_npy, stderr};
+use common::{max_byte_difference, nerf, nerf_ok, read_npy, stderr};
 
 /// A path of `poses` (row-major OpenGL camera-to-world matrices) at `fov` degrees.
 fn write_path(path: &Path, poses: &[[f64; 16]], fov: f64, (w, h): (usize, usize)) {
@@ -16,6 +16,19 @@ fn write_path(path: &Path, poses: &[[f64; 16]], fov: f64, (w, h): (usize, usize)
         "fps": 10, "seconds": poses.len() as f64 / 10.0, "camera_path": cameras,
     });
     std::fs::write(path, serde_json::to_string_pretty(&doc).unwrap()).unwrap();
+}
+
+/// `nerf render` of the box config along the camera path in `json`, into `out`.
+fn render_path_args<'a>(json: &'a Path, out: &'a Path) -> [&'a str; 7] {
+    [
+        "render",
+        "--config",
+        "box",
+        "--camera-path",
+        json.to_str().unwrap(),
+        "--out-dir",
+        out.to_str().unwrap(),
+    ]
 }
 
 /// The box config's surround camera 0 — eye (0, 0, −3) looking at the origin, +Y up, NDC focal
@@ -34,18 +47,7 @@ fn a_path_through_a_surround_pose_renders_that_surround_frame() {
     write_path(&json, &[SURROUND_0, farther], 90.0, (40, 40));
     let out = dir.path().join("path");
     let small = ["sampler.n_pts_per_ray=32", "data.image_size=[40,40]"];
-    let mut args = vec![
-        "render",
-        "--config",
-        "box",
-        "--camera-path",
-        json.to_str().unwrap(),
-        "--out-dir",
-        out.to_str().unwrap(),
-    ];
-    args.extend(small);
-    let o = nerf(&args);
-    assert!(o.status.success(), "{}", stderr(&o));
+    nerf_ok(&[render_path_args(&json, &out).as_slice(), &small].concat());
     let raw = dir.path().join("raw");
     let mut args = vec![
         "render",
@@ -56,17 +58,11 @@ fn a_path_through_a_surround_pose_renders_that_surround_frame() {
         raw.to_str().unwrap(),
     ];
     args.extend(small);
-    let o = nerf(&args);
-    assert!(o.status.success(), "{}", stderr(&o));
+    nerf_ok(&args);
     let (_, expected) = read_npy(&raw.join("color_000.npy"));
     let frame = image::open(out.join("frame_0000.png")).unwrap().to_rgb8();
     assert_eq!(frame.dimensions(), (40, 40));
-    let worst = frame
-        .as_raw()
-        .iter()
-        .zip(&expected)
-        .map(|(b, v)| (*b as f32 / 255.0 - v).abs())
-        .fold(0.0, f32::max);
+    let worst = max_byte_difference(frame.as_raw(), &expected);
     // PNG bytes truncate like matplotlib: within one level.
     assert!(
         worst <= 1.0 / 255.0 + 1e-6,
@@ -115,15 +111,7 @@ fn bad_camera_paths_fail_in_one_line() {
     for (i, (text, expect)) in cases.iter().enumerate() {
         let json = dir.path().join(format!("bad{i}.json"));
         std::fs::write(&json, text).unwrap();
-        let o = nerf(&[
-            "render",
-            "--config",
-            "box",
-            "--camera-path",
-            json.to_str().unwrap(),
-            "--out-dir",
-            out.to_str().unwrap(),
-        ]);
+        let o = nerf(&render_path_args(&json, &out));
         let err = stderr(&o);
         assert!(!o.status.success(), "case {i} succeeded");
         assert_eq!(err.trim_end().lines().count(), 1, "case {i}: {err}");

@@ -7,7 +7,7 @@ use nerf::io::dataset::{load_image_and_transparency, read_split, Split};
 use nerf::PerspectiveCamera;
 
 mod common;
-use common::{lego_dir, nerf, read_npy, stderr};
+use common::{lego_dir, nerf, nerf_ok, read_npy, stderr};
 
 /// A binary PLY as `nerf export` writes it: vertices (x, y, z[, nx, ny, nz], r, g, b) and
 /// triangles. The header must be exactly the layout written, or the test fails.
@@ -121,6 +121,20 @@ fn rasterize(ply: &Ply, camera: &PerspectiveCamera, w: usize, h: usize) -> Vec<O
     image
 }
 
+/// `nerf export mesh` of `config` at `resolution` into `out`.
+fn mesh_args<'a>(config: &'a str, resolution: &'a str, out: &'a str) -> [&'a str; 8] {
+    [
+        "export",
+        "mesh",
+        "--config",
+        config,
+        "--resolution",
+        resolution,
+        "--out",
+        out,
+    ]
+}
+
 fn iou(a: &[bool], b: &[bool]) -> f64 {
     let inter = a.iter().zip(b).filter(|(x, y)| **x && **y).count();
     let union = a.iter().zip(b).filter(|(x, y)| **x || **y).count();
@@ -134,17 +148,7 @@ fn lego_mesh_covers_the_test_masks() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("lego.ply");
-    let o = nerf(&[
-        "export",
-        "mesh",
-        "--config",
-        "lego",
-        "--resolution",
-        "128",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    nerf_ok(&mesh_args("lego", "128", out.to_str().unwrap()));
     let ply = read_ply(&out);
     assert!(ply.faces.len() > 10_000, "{} faces", ply.faces.len());
     // Every 10th test view at 100×100 against alpha > 0.5.
@@ -192,17 +196,7 @@ fn lego_mesh_covers_the_test_masks() {
 fn sphere_mesh_lies_on_the_radius_with_its_rainbow_colours() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("sphere.ply");
-    let o = nerf(&[
-        "export",
-        "mesh",
-        "--config",
-        "sphere",
-        "--resolution",
-        "48",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    nerf_ok(&mesh_args("sphere", "48", out.to_str().unwrap()));
     let ply = read_ply(&out);
     assert!(!ply.vertices.is_empty() && !ply.faces.is_empty());
     // The sphere config: radius 1 at the origin; the box is ±(1 + 0.1 + 4·0.05) = ±1.3, so a
@@ -241,8 +235,7 @@ fn points_and_depth_export_the_box_views() {
         ply_path.to_str().unwrap(),
     ];
     args.extend(small);
-    let o = nerf(&args);
-    assert!(o.status.success(), "{}", stderr(&o));
+    nerf_ok(&args);
     let ply = read_ply(&ply_path);
     assert!(ply.faces.is_empty() && ply.normals.is_empty());
     assert!(ply.vertices.len() > 100, "{} points", ply.vertices.len());
@@ -267,8 +260,7 @@ fn points_and_depth_export_the_box_views() {
         depth_dir.to_str().unwrap(),
     ];
     args.extend(small);
-    let o = nerf(&args);
-    assert!(o.status.success(), "{}", stderr(&o));
+    nerf_ok(&args);
     for name in ["view_000", "view_001"] {
         let (shape, depth) = read_npy(&depth_dir.join(format!("{name}.npy")));
         assert_eq!(shape, vec![24, 32]);
@@ -305,30 +297,12 @@ fn export_refuses_bad_input_in_one_line_and_writes_nothing() {
     let out = dir.path().join("m.ply");
     let o = out.to_str().unwrap();
     refused(
-        &[
-            "export",
-            "mesh",
-            "--config",
-            "sphere",
-            "--resolution",
-            "0",
-            "--out",
-            o,
-        ],
+        &mesh_args("sphere", "0", o),
         &out,
         "--resolution must be 1 to 512",
     );
     refused(
-        &[
-            "export",
-            "mesh",
-            "--config",
-            "sphere",
-            "--resolution",
-            "100000",
-            "--out",
-            o,
-        ],
+        &mesh_args("sphere", "100000", o),
         &out,
         "--resolution must be 1 to 512",
     );

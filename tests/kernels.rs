@@ -4,7 +4,7 @@
 mod common;
 
 use candle_core::{Device, Tensor};
-use common::{max_abs_diff, nerf, read_npy, stderr};
+use common::{max_abs_diff, nerf_ok, read_npy};
 use nerf::app::config::Config;
 use nerf::core::rays::Rays;
 use nerf::{named_vars, with_kernel_choice, KernelChoice, NerfField, NerfState};
@@ -93,8 +93,7 @@ fn raw_render(kernels: &str, args: &[&str]) -> Vec<(Vec<f32>, Vec<f32>)> {
     let mut full = vec!["--kernels", kernels, "render"];
     full.extend(args);
     full.extend(["--raw", "--out-dir", out.to_str().unwrap()]);
-    let o = nerf(&full);
-    assert!(o.status.success(), "{}", stderr(&o));
+    nerf_ok(&full);
     let mut frames = Vec::new();
     for i in 0.. {
         let c = out.join(format!("color_{i:03}.npy"));

@@ -365,15 +365,7 @@ fn resume_continues_exactly() {
     std::fs::write(&log_path, log).unwrap();
     let b = run(split.path(), None);
     // The resumed log holds each of the 4 × 100 steps exactly once, in order.
-    let log = std::fs::read_to_string(split.path().join("nerf_lego.log.jsonl")).unwrap();
-    let steps: Vec<u64> = log
-        .lines()
-        .map(|l| {
-            serde_json::from_str::<serde_json::Value>(l).unwrap()["step"]
-                .as_u64()
-                .unwrap()
-        })
-        .collect();
+    let steps = common::logged_steps(split.path());
     assert_eq!(steps, (1..=400).collect::<Vec<_>>());
     let (wa, wb) = (weights_of(&a), weights_of(&b));
     assert_eq!(checkpoint::load(&b, &Device::Cpu).unwrap().1.epoch, 4);

@@ -8,7 +8,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{nerf, read_npy, stderr};
+use common::{max_byte_difference, nerf, nerf_ok, read_npy, stderr};
 
 /// A running `nerf view`, killed when dropped.
 struct Server {
@@ -114,8 +114,7 @@ fn assert_frame_matches_raw(config: &str, overrides: &[&str], query: &str) -> (f
         "cameras.n_poses=1",
     ];
     args.extend(overrides);
-    let o = nerf(&args);
-    assert!(o.status.success(), "{}", stderr(&o));
+    nerf_ok(&args);
     let (shape, expected) = read_npy(&dir.path().join("color_000.npy"));
     let mut args = vec!["--config", config];
     args.extend(overrides);
@@ -125,12 +124,7 @@ fn assert_frame_matches_raw(config: &str, overrides: &[&str], query: &str) -> (f
     assert_eq!(header(&headers, "content-type"), "image/png");
     let png = image::load_from_memory(&body).unwrap().to_rgb8();
     assert_eq!(vec![png.height() as u64, png.width() as u64, 3], shape);
-    let worst = png
-        .as_raw()
-        .iter()
-        .zip(&expected)
-        .map(|(b, v)| (*b as f32 / 255.0 - v).abs())
-        .fold(0.0, f32::max);
+    let worst = max_byte_difference(png.as_raw(), &expected);
     assert!(
         worst <= 1.0 / 255.0 + 1e-6,
         "{config}: /render.png differs from render --raw by {worst}"

@@ -3,10 +3,10 @@
 //! broadcast-add backward reduces column by column, which cost 7% of a training step).
 //! Elsewhere (another device or dtype, or generic kernels chosen) the Candle ops run.
 
-use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
+use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::use_fused;
 
 const ROWS_PER_TASK: usize = 512;
@@ -15,7 +15,7 @@ const ROWS_PER_TASK: usize = 512;
 /// rows (Candle's `sum(0)` walks the matrix column by column); elsewhere `sum(0)`.
 pub fn column_sum(x: &Tensor) -> candle_core::Result<Tensor> {
     if use_fused(x) {
-        x.contiguous()?.apply_op1_no_bwd(&ColumnSum)
+        x.contiguous()?.apply_op1_no_bwd(&Fused(ColumnSum))
     } else {
         x.sum(0)
     }
@@ -23,14 +23,12 @@ pub fn column_sum(x: &Tensor) -> candle_core::Result<Tensor> {
 
 struct ColumnSum;
 
-impl candle_core::CustomOp1 for ColumnSum {
-    fn name(&self) -> &'static str {
-        "column-sum"
-    }
+impl CpuKernel<1> for ColumnSum {
+    const NAME: &'static str = "column-sum";
 
-    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        let x = contiguous_f32(s, l, "column-sum")?;
-        let (_, h) = l.shape().dims2()?;
+    fn cpu_forward(&self, [input]: [CpuInput; 1]) -> KernelOutput {
+        let x = input.f32(Self::NAME)?;
+        let (_, h) = input.shape().dims2()?;
         let sum = x
             .par_chunks(ROWS_PER_TASK * h.max(1))
             .map(|block| {
@@ -51,7 +49,7 @@ impl candle_core::CustomOp1 for ColumnSum {
                     a
                 },
             );
-        Ok((CpuStorage::F32(sum), Shape::from(h)))
+        Ok((sum, Shape::from(h)))
     }
 }
 
@@ -61,7 +59,7 @@ impl candle_core::CustomOp1 for ColumnSum {
 pub fn bias_add(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
     if use_fused(x) {
         x.contiguous()?
-            .apply_op2(&bias.contiguous()?, AddRows { group: 1 })
+            .apply_op2(&bias.contiguous()?, Fused(AddRows { group: 1 }))
     } else {
         x.broadcast_add(bias)
     }
@@ -73,7 +71,7 @@ pub fn bias_add(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
 pub fn add_per_group(x: &Tensor, r: &Tensor, group: usize) -> candle_core::Result<Tensor> {
     if use_fused(x) {
         x.contiguous()?
-            .apply_op2(&r.contiguous()?, AddRows { group })
+            .apply_op2(&r.contiguous()?, Fused(AddRows { group }))
     } else {
         let (n, c) = r.dims2()?;
         x.reshape((n, group, c))?
@@ -88,24 +86,13 @@ struct AddRows {
     group: usize,
 }
 
-impl CustomOp2 for AddRows {
-    fn name(&self) -> &'static str {
-        "add-rows"
-    }
+impl CpuKernel<2> for AddRows {
+    const NAME: &'static str = "add-rows";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, r) = (
-            contiguous_f32(s1, l1, "add-rows")?,
-            contiguous_f32(s2, l2, "add-rows")?,
-        );
-        let (m, c) = l1.shape().dims2()?;
-        let bias = l2.shape().rank() == 1;
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [x, r] = CpuInput::all_f32(&inputs, Self::NAME)?;
+        let (m, c) = inputs[0].shape().dims2()?;
+        let bias = inputs[1].shape().rank() == 1;
         let expected = if bias { c } else { m / self.group.max(1) * c };
         if r.len() != expected || (!bias && m % self.group.max(1) != 0) {
             candle_core::bail!("add-rows: {} values to add to {m}×{c}", r.len());
@@ -128,16 +115,10 @@ impl CustomOp2 for AddRows {
                     }
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((m, c))))
+        Ok((out, Shape::from((m, c))))
     }
 
-    fn bwd(
-        &self,
-        _x: &Tensor,
-        r: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+    fn gradients(&self, [_x, r]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let grad_r = if r.rank() == 1 {
             column_sum(grad)?
         } else {
@@ -156,13 +137,14 @@ impl CustomOp2 for AddRows {
                 });
             Tensor::from_vec(sums, (n, c), r.device())?
         };
-        Ok((Some(grad.clone()), Some(grad_r)))
+        Ok([Some(grad.clone()), Some(grad_r)])
     }
 }
 
 #[cfg(test)]
 mod add_tests {
     use super::*;
+    use crate::kernels::test_support::weighted_sum_gradients;
     use candle_core::{Device, Var};
 
     #[test]
@@ -184,8 +166,8 @@ mod add_tests {
             .unwrap();
         let diff = |a: &Tensor, c: &Tensor| crate::core::compare::max_abs_difference(a, c).unwrap();
         assert!(diff(&fast, &slow) < 1e-6);
-        let gf = fast.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
-        let gs = slow.mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
+        let gf = weighted_sum_gradients(&fast, &w);
+        let gs = weighted_sum_gradients(&slow, &w);
         for v in [&x, &b, &r] {
             let (a, c) = (
                 gf.get(v.as_tensor()).unwrap(),
@@ -199,6 +181,7 @@ mod add_tests {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::test_support::{gradient_values, weighted_sum_gradients};
     use candle_core::DType;
 
     #[test]
@@ -248,31 +231,10 @@ mod tests {
             fused.to_vec2::<f32>().unwrap(),
             reference.to_vec2::<f32>().unwrap()
         );
-        let gf = fused
-            .broadcast_mul(&w)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let gr = reference
-            .broadcast_mul(&w)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let values = |grads: &candle_core::backprop::GradStore, v: &Tensor| {
-            grads
-                .get(v)
-                .unwrap()
-                .flatten_all()
-                .unwrap()
-                .to_vec1::<f32>()
-                .unwrap()
-        };
+        let gf = weighted_sum_gradients(&fused, &w);
+        let gr = weighted_sum_gradients(&reference, &w);
         for v in [&x, &b] {
-            assert_eq!(values(&gf, v.as_tensor()), values(&gr, v.as_tensor()));
+            assert_eq!(gradient_values(&gf, v), gradient_values(&gr, v));
         }
     }
 }

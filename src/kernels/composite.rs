@@ -17,10 +17,10 @@
 #![allow(clippy::needless_range_loop)]
 
 use anyhow::Result;
-use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
+use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 
 use crate::core::volume::{
     aggregate, clamped_optical_depth, deltas, ray_weights, spacing, weights, MAX_OPTICAL_DEPTH,
@@ -47,7 +47,7 @@ pub fn composite(
     }
     let c = feature.dim(2)?;
     // σ and the features are read through their strides, so a field's output is not copied.
-    split_output(&density.apply_op3(lengths, feature, Composite)?, c)
+    split_output(&density.apply_op3(lengths, feature, Fused(Composite))?, c)
 }
 
 /// The fused ops' `(N, C + 2)` output as colour `(N, C)`, depth and opacity `(N, 1)`.
@@ -182,7 +182,7 @@ pub fn composite_packed(
         .to_vec1::<f32>()?;
     let rays = PackedRays::new(index, lengths_v, (n, s));
     let (density, feature) = (density.contiguous()?, feature.contiguous()?);
-    let op = PackedComposite { rays, c };
+    let op = Fused(PackedComposite { rays, c });
     let out = if density.track_op() || feature.track_op() {
         density.apply_op2(&feature, op)?
     } else {
@@ -227,20 +227,11 @@ struct PackedComposite {
     c: usize,
 }
 
-impl candle_core::CustomOp2 for PackedComposite {
-    fn name(&self) -> &'static str {
-        "packed-composite"
-    }
+impl CpuKernel<2> for PackedComposite {
+    const NAME: &'static str = "packed-composite";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let density = contiguous_f32(s1, l1, "packed composite")?;
-        let feature = contiguous_f32(s2, l2, "packed composite")?;
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [density, feature] = CpuInput::all_f32(&inputs, "packed composite")?;
         let m = self.rays.index.len();
         if density.len() != m || feature.len() != m * self.c {
             candle_core::bail!(
@@ -250,17 +241,11 @@ impl candle_core::CustomOp2 for PackedComposite {
             );
         }
         let out = packed_forward(&self.rays, density, feature, self.c);
-        Ok((CpuStorage::F32(out), Shape::from((self.rays.n, self.c + 2))))
+        Ok((out, Shape::from((self.rays.n, self.c + 2))))
     }
 
     /// The dense backward pass ([`CompositeBackward`]) restricted to the listed samples.
-    fn bwd(
-        &self,
-        density: &Tensor,
-        feature: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+    fn gradients(&self, [density, feature]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let (rays, c) = (&self.rays, self.c);
         let width = c + 2;
         let sigma = density.flatten_all()?.to_vec1::<f32>()?;
@@ -307,10 +292,10 @@ impl candle_core::CustomOp2 for PackedComposite {
             g_values[e * c..(e + 1) * c].copy_from_slice(&gv);
         }
         let dev = density.device();
-        Ok((
+        Ok([
             Some(Tensor::from_vec(g_sigma, density.shape(), dev)?),
             Some(Tensor::from_vec(g_values, feature.shape(), dev)?),
-        ))
+        ])
     }
 }
 
@@ -336,7 +321,8 @@ struct View<'a> {
 }
 
 impl<'a> View<'a> {
-    fn new(storage: &'a CpuStorage, layout: &Layout) -> candle_core::Result<Self> {
+    fn new(input: CpuInput<'a>) -> candle_core::Result<Self> {
+        let (storage, layout) = (input.storage, input.layout);
         let st = layout.stride();
         if st.len() != 3 {
             candle_core::bail!(
@@ -397,23 +383,13 @@ impl Scratch {
 /// The forward op: `(σ, t, v) → (N, C + 2)`.
 pub struct Composite;
 
-impl CustomOp3 for Composite {
-    fn name(&self) -> &'static str {
-        "volume-composite"
-    }
+impl CpuKernel<3> for Composite {
+    const NAME: &'static str = "volume-composite";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (sigma, lengths, values) = (View::new(s1, l1)?, View::new(s2, l2)?, View::new(s3, l3)?);
-        let (n, s, k) = l3.shape().dims3()?;
-        if l1.shape().dims3()? != (n, s, 1) || l2.shape().dims3()? != (n, s, 1) {
+    fn cpu_forward(&self, [s1, s2, s3]: [CpuInput; 3]) -> KernelOutput {
+        let (sigma, lengths, values) = (View::new(s1)?, View::new(s2)?, View::new(s3)?);
+        let (n, s, k) = s3.shape().dims3()?;
+        if s1.shape().dims3()? != (n, s, 1) || s2.shape().dims3()? != (n, s, 1) {
             candle_core::bail!("composite: density, lengths and features disagree in shape");
         }
         let width = k + 2;
@@ -436,30 +412,27 @@ impl CustomOp3 for Composite {
                     }
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((n, width))))
+        Ok((out, Shape::from((n, width))))
     }
 
-    fn bwd(
+    fn gradients(
         &self,
-        sigma: &Tensor,
-        lengths: &Tensor,
-        values: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        [sigma, lengths, values]: [&Tensor; 3],
+        grad: &Tensor,
+    ) -> KernelGradients<3> {
         let (n, s, k) = values.dims3()?;
         let packed = Tensor::cat(
             &[
                 &sigma.flatten_all()?,
                 &lengths.flatten_all()?,
-                &grad_res.flatten_all()?,
+                &grad.flatten_all()?,
             ],
             0,
         )?;
-        let both = packed.apply_op2_no_bwd(&values.contiguous()?, &CompositeBackward)?;
+        let both = packed.apply_op2_no_bwd(&values.contiguous()?, &Fused(CompositeBackward))?;
         let grad_sigma = both.narrow(0, 0, n * s)?.reshape((n, s, 1))?;
         let grad_values = both.narrow(0, n * s, n * s * k)?.reshape((n, s, k))?;
-        Ok((Some(grad_sigma), None, Some(grad_values)))
+        Ok([Some(grad_sigma), None, Some(grad_values)])
     }
 }
 
@@ -467,21 +440,13 @@ impl CustomOp3 for Composite {
 /// `[∂L/∂σ, ∂L/∂v]` flattened and concatenated.
 struct CompositeBackward;
 
-impl candle_core::CustomOp2 for CompositeBackward {
-    fn name(&self) -> &'static str {
-        "volume-composite-backward"
-    }
+impl CpuKernel<2> for CompositeBackward {
+    const NAME: &'static str = "volume-composite-backward";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (n, s, k) = l2.shape().dims3()?;
-        let values = View::new(s2, l2)?;
-        let packed = contiguous_f32(s1, l1, "composite backward")?;
+    fn cpu_forward(&self, [packed, values]: [CpuInput; 2]) -> KernelOutput {
+        let (n, s, k) = values.shape().dims3()?;
+        let values = View::new(values)?;
+        let packed = packed.f32("composite backward")?;
         let (sigma_flat, rest) = packed.split_at(n * s);
         let (lengths_flat, grad) = rest.split_at(n * s);
         let sigma = View {
@@ -531,13 +496,14 @@ impl candle_core::CustomOp2 for CompositeBackward {
                     }
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from(n * s * (k + 1))))
+        Ok((out, Shape::from(n * s * (k + 1))))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::compare::assert_close;
     use candle_core::{Device, Var};
 
     /// Random inputs; `zero` is the value used for the 30% empty samples.
@@ -577,7 +543,7 @@ mod tests {
         // A strided feature view, as the fused SDF field hands over.
         let wide = Tensor::cat(&[&v, &v], 2).unwrap();
         let v_view = wide.narrow(2, 4, 4).unwrap();
-        let fused = sigma.apply_op3(&l, &v_view, Composite).unwrap();
+        let fused = sigma.apply_op3(&l, &v_view, Fused(Composite)).unwrap();
         assert_eq!(fused.dims(), &[300, 6]);
         let w = weights(&sigma, &deltas(&l).unwrap()).unwrap();
         let reference = Tensor::cat(
@@ -605,7 +571,7 @@ mod tests {
         let loss_of = |out: Tensor| out.broadcast_mul(&mix).unwrap().sum_all().unwrap();
         let fused = loss_of(
             sv.as_tensor()
-                .apply_op3(&l, vv.as_tensor(), Composite)
+                .apply_op3(&l, vv.as_tensor(), Fused(Composite))
                 .unwrap(),
         );
         let gf = fused.backward().unwrap();
@@ -623,21 +589,8 @@ mod tests {
         );
         let gr = reference.backward().unwrap();
         for var in [&sv, &vv] {
-            let a = gf.get(var.as_tensor()).unwrap();
-            let b = gr.get(var.as_tensor()).unwrap();
-            let diff = crate::core::compare::max_abs_difference(a, b).unwrap();
-            let scale = b
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-                .max(1.0);
-            assert!(
-                diff <= 1e-4 * scale,
-                "gradient differs by {diff} (scale {scale})"
-            );
+            let (a, b) = (gf.get(var).unwrap(), gr.get(var).unwrap());
+            assert_close(a, b, 1e-4, "gradient");
         }
     }
 

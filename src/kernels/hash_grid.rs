@@ -18,10 +18,10 @@
 
 use std::sync::{Arc, Mutex};
 
-use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
+use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::use_fused;
 
 const POINTS_PER_TASK: usize = 256;
@@ -206,10 +206,10 @@ pub fn hash_encode(
 ) -> candle_core::Result<Tensor> {
     check_shapes(points, table, params)?;
     if use_fused(table) && points.device().is_cpu() {
-        let op = HashEncode {
+        let op = Fused(HashEncode {
             params: *params,
             sink: sink.cloned(),
-        };
+        });
         let points = points.to_dtype(DType::F32)?.contiguous()?;
         let table = table.contiguous()?;
         if table.track_op() {
@@ -354,20 +354,11 @@ struct HashEncode {
     sink: Option<Arc<TableGradient>>,
 }
 
-impl CustomOp2 for HashEncode {
-    fn name(&self) -> &'static str {
-        "hash-encode"
-    }
+impl CpuKernel<2> for HashEncode {
+    const NAME: &'static str = "hash-encode";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let points = contiguous_f32(s1, l1, "hash-encode")?;
-        let table = contiguous_f32(s2, l2, "hash-encode")?;
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [points, table] = CpuInput::all_f32(&inputs, Self::NAME)?;
         let p = &self.params;
         let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
         let width = p.output_dim();
@@ -395,16 +386,10 @@ impl CustomOp2 for HashEncode {
                     }
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((m, width))))
+        Ok((out, Shape::from((m, width))))
     }
 
-    fn bwd(
-        &self,
-        points: &Tensor,
-        table: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+    fn gradients(&self, [points, table]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let p = &self.params;
         let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
         let width = p.output_dim();
@@ -438,7 +423,7 @@ impl CustomOp2 for HashEncode {
                         }
                     }
                 });
-            return Ok((None, None));
+            return Ok([None, None]);
         }
         let mut dtable = vec![0f32; p.n_rows() * f];
         // One task per level: each writes only its own slice of the table gradient.
@@ -458,7 +443,7 @@ impl CustomOp2 for HashEncode {
                 }
             });
         let dtable = Tensor::from_vec(dtable, table.shape(), table.device())?;
-        Ok((None, Some(dtable)))
+        Ok([None, Some(dtable)])
     }
 }
 
@@ -481,6 +466,7 @@ pub fn touched_rows(points: &Tensor, params: &HashGridParams) -> candle_core::Re
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::test_support::{gradient_values, weighted_sum_gradients};
     use crate::kernels::{with_kernel_choice, KernelChoice};
     use candle_core::{Device, Var};
 
@@ -658,19 +644,7 @@ mod tests {
                 .unwrap()
         };
         let enc = hash_encode(&points, &table, &p, None).unwrap();
-        let grads = (enc * &proj)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let g = grads
-            .get(&table)
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1::<f32>()
-            .unwrap();
+        let g = gradient_values(&weighted_sum_gradients(&enc, &proj), &table);
         let base: Vec<f32> = table.flatten_all().unwrap().to_vec1().unwrap();
         let eps = 1e-3f32;
         for i in (0..base.len()).step_by(7) {
@@ -697,16 +671,10 @@ mod tests {
         let run = |choice| {
             with_kernel_choice(choice, || {
                 let enc = hash_encode(&points, &table, &p, None).unwrap();
-                let grads = (&enc * &proj)
-                    .unwrap()
-                    .sum_all()
-                    .unwrap()
-                    .backward()
-                    .unwrap();
-                let g = grads.get(&table).unwrap().flatten_all().unwrap();
+                let grads = weighted_sum_gradients(&enc, &proj);
                 (
                     enc.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
-                    g.to_vec1::<f32>().unwrap(),
+                    gradient_values(&grads, &table),
                 )
             })
         };
@@ -745,29 +713,15 @@ mod tests {
         let p = params(6);
         let (points, table) = inputs(&p, 150);
         let weight = Tensor::randn(0f32, 1.0, (150, p.output_dim()), &Device::Cpu).unwrap();
-        let dense = hash_encode(&points, &table, &p, None)
-            .unwrap()
-            .mul(&weight)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let dense = dense.get(&table).unwrap().flatten_all().unwrap();
-        let dense = dense.to_vec1::<f32>().unwrap();
+        let encoded = hash_encode(&points, &table, &p, None).unwrap();
+        let dense = gradient_values(&weighted_sum_gradients(&encoded, &weight), &table);
         let sink = Arc::new(TableGradient::new(&p));
         // Two backward passes accumulate, as two chunks of one step do.
         for half in [0, 75] {
             let pts = points.narrow(0, half, 75).unwrap();
             let w = weight.narrow(0, half, 75).unwrap();
-            let grads = hash_encode(&pts, &table, &p, Some(&sink))
-                .unwrap()
-                .mul(&w)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap();
+            let encoded = hash_encode(&pts, &table, &p, Some(&sink)).unwrap();
+            let grads = weighted_sum_gradients(&encoded, &w);
             assert!(
                 grads.get(&table).is_none(),
                 "the table gradient went to autograd"

@@ -17,6 +17,7 @@ use candle_core::{DType, Tensor};
 
 pub mod bias;
 pub mod composite;
+pub mod cpu_kernel;
 pub mod gemm;
 pub mod hash_grid;
 pub mod ngp_mlp;
@@ -27,6 +28,8 @@ pub mod sdf_volume;
 pub mod sdf_volume_grad;
 pub mod sparse_adam;
 pub mod storage;
+#[cfg(test)]
+pub(crate) mod test_support;
 pub mod trunk;
 
 /// Which implementation of the fused ops runs.

@@ -19,11 +19,11 @@
 //! The output is `(M, 4)`: `[raw density, r, g, b]`. Parameters are passed packed (see
 //! [`MlpShape`]); the tensor-op twin is [`ngp_mlp_tensor_ops`].
 
-use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
+use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::gemm::gemm_f32;
-use crate::kernels::storage::contiguous_f32;
 
 const ROWS_PER_TASK: usize = 256;
 
@@ -131,10 +131,10 @@ pub fn ngp_mlp(
     if let Some(bad) = ray_index.iter().find(|&&r| r as usize >= n) {
         candle_core::bail!("ngp-mlp: ray index {bad} of {n} rays");
     }
-    let op = NgpMlp {
+    let op = Fused(NgpMlp {
         shape,
         rays: ray_index.to_vec(),
-    };
+    });
     let (enc, per_ray, params) = (
         enc.contiguous()?,
         per_ray.contiguous()?,
@@ -232,19 +232,11 @@ struct Activations {
     rgb: Vec<f32>,
 }
 
-/// `out (c×n) = x · Wᵀ [+ b]` for `W` `(n, k)` row-major, on the calling thread.
-fn linear(
-    out: &mut [f32],
-    x: &[f32],
-    (c, k, n): (usize, usize, usize),
-    w: &[f32],
-    b: Option<&[f32]>,
-) {
+/// `out (c×n) = x · Wᵀ + b` for `W` `(n, k)` row-major and `b` `(n)`, on the calling thread.
+fn linear(out: &mut [f32], x: &[f32], (c, k, n): (usize, usize, usize), w: &[f32], b: &[f32]) {
     gemm_f32((c, n, k), out, n, false, x, (k, 1), w, (1, k), false);
-    if let Some(b) = b {
-        for row in out.chunks_exact_mut(n) {
-            row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
-        }
+    for row in out.chunks_exact_mut(n) {
+        row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
     }
 }
 
@@ -269,20 +261,14 @@ impl NgpMlp {
             h2: vec![0.0; c * h],
             rgb: vec![0.0; c * 3],
         };
-        linear(
-            &mut a.h0,
-            enc,
-            (c, e, h),
-            &p[o.w0..o.b0],
-            Some(&p[o.b0..o.w1]),
-        );
+        linear(&mut a.h0, enc, (c, e, h), &p[o.w0..o.b0], &p[o.b0..o.w1]);
         relu(&mut a.h0);
         linear(
             &mut a.o1,
             &a.h0,
             (c, h, 1 + g),
             &p[o.w1..o.b1],
-            Some(&p[o.b1..o.wg]),
+            &p[o.b1..o.wg],
         );
         // h1 = Wg·geo + p_ray: geo is o1 from column 1, row stride 1 + G.
         gemm_f32(
@@ -302,20 +288,14 @@ impl NgpMlp {
                 .zip(pr)
                 .for_each(|(v, q)| *v = (*v + q).max(0.0));
         }
-        linear(
-            &mut a.h2,
-            &a.h1,
-            (c, h, h),
-            &p[o.w2..o.b2],
-            Some(&p[o.b2..o.w3]),
-        );
+        linear(&mut a.h2, &a.h1, (c, h, h), &p[o.w2..o.b2], &p[o.b2..o.w3]);
         relu(&mut a.h2);
         linear(
             &mut a.rgb,
             &a.h2,
             (c, h, 3),
             &p[o.w3..o.b3],
-            Some(&p[o.b3..o.end]),
+            &p[o.b3..o.end],
         );
         a.rgb
             .iter_mut()
@@ -449,23 +429,11 @@ fn mask(d: &mut [f32], y: &[f32]) {
         .for_each(|(d, y)| *d = if *y > 0.0 { *d } else { 0.0 });
 }
 
-impl CustomOp3 for NgpMlp {
-    fn name(&self) -> &'static str {
-        "ngp-mlp"
-    }
+impl CpuKernel<3> for NgpMlp {
+    const NAME: &'static str = "ngp-mlp";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let enc = contiguous_f32(s1, l1, "ngp-mlp")?;
-        let per_ray = contiguous_f32(s2, l2, "ngp-mlp")?;
-        let params = contiguous_f32(s3, l3, "ngp-mlp")?;
+    fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
+        let [enc, per_ray, params] = CpuInput::all_f32(&inputs, Self::NAME)?;
         if params.len() != self.shape.n_parameters() {
             candle_core::bail!(
                 "ngp-mlp: {} parameters, expected {}",
@@ -487,17 +455,10 @@ impl CustomOp3 for NgpMlp {
                     row[1..].copy_from_slice(&a.rgb[3 * i..3 * i + 3]);
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((m, 4))))
+        Ok((out, Shape::from((m, 4))))
     }
 
-    fn bwd(
-        &self,
-        enc: &Tensor,
-        per_ray: &Tensor,
-        params: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+    fn gradients(&self, [enc, per_ray, params]: [&Tensor; 3], grad: &Tensor) -> KernelGradients<3> {
         let e = self.shape.enc;
         let n_params = self.shape.n_parameters();
         let per_ray_len = per_ray.elem_count();
@@ -546,17 +507,19 @@ impl CustomOp3 for NgpMlp {
             })
             .unwrap_or_else(new_sums);
         let dev = enc.device();
-        Ok((
+        Ok([
             Some(Tensor::from_vec(d_enc, enc.shape(), dev)?),
             Some(Tensor::from_vec(sums.per_ray, per_ray.shape(), dev)?),
             Some(Tensor::from_vec(sums.params, n_params, dev)?),
-        ))
+        ])
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::compare::assert_close;
+    use crate::kernels::test_support::weighted_sum_gradients;
     use candle_core::{Device, Var};
 
     #[test]
@@ -605,31 +568,11 @@ mod tests {
         let slow = ngp_mlp_tensor_ops(&enc, &per_ray, &idx, &layers).unwrap();
         let diff = |a: &Tensor, b: &Tensor| crate::core::compare::max_abs_difference(a, b).unwrap();
         assert!(diff(&fast, &slow) < 1e-5, "forward {}", diff(&fast, &slow));
-        let grads = |t: &Tensor| {
-            t.mul(&weight)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap()
-        };
-        let (gf, gs) = (grads(&fast), grads(&slow));
+        let gf = weighted_sum_gradients(&fast, &weight);
+        let gs = weighted_sum_gradients(&slow, &weight);
         for v in all {
             let (a, b) = (gf.get(v).unwrap(), gs.get(v).unwrap());
-            let scale = b
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-                .max(1.0);
-            assert!(
-                diff(a, b) < 1e-5 * scale,
-                "gradient {:?}: {}",
-                v.dims(),
-                diff(a, b)
-            );
+            assert_close(a, b, 1e-5, &format!("gradient {:?}", v.dims()));
         }
     }
 }

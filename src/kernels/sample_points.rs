@@ -1,10 +1,10 @@
 //! Sample points along rays, `o + t·d`: a fused CPU pass and its tensor-op twin.
 
 use anyhow::Result;
-use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
+use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelOutput};
 use crate::kernels::{needs_grad, use_fused};
 
 /// `origins[:, None] + lengths · directions[:, None]`. Where [`use_fused`] allows and no input
@@ -17,7 +17,7 @@ pub fn sample_points(origins: &Tensor, directions: &Tensor, lengths: &Tensor) ->
         return Ok(origins.contiguous()?.apply_op3_no_bwd(
             &directions.contiguous()?,
             &lengths.contiguous()?,
-            &SamplePointsKernel,
+            &Fused(SamplePointsKernel),
         )?);
     }
     sample_points_tensor_ops(origins, directions, lengths)
@@ -39,24 +39,12 @@ pub fn sample_points_tensor_ops(
 
 struct SamplePointsKernel;
 
-impl CustomOp3 for SamplePointsKernel {
-    fn name(&self) -> &'static str {
-        "sample-points"
-    }
+impl CpuKernel<3> for SamplePointsKernel {
+    const NAME: &'static str = "sample-points";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let o = contiguous_f32(s1, l1, "sample-points")?;
-        let d = contiguous_f32(s2, l2, "sample-points")?;
-        let t = contiguous_f32(s3, l3, "sample-points")?;
-        let (n, s, _) = l3.shape().dims3()?;
+    fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
+        let [o, d, t] = CpuInput::all_f32(&inputs, Self::NAME)?;
+        let (n, s, _) = inputs[2].shape().dims3()?;
         let mut out = vec![0f32; n * s * 3];
         out.par_chunks_mut(s * 3).enumerate().for_each(|(r, p)| {
             for (i, q) in p.chunks_exact_mut(3).enumerate() {
@@ -66,13 +54,14 @@ impl CustomOp3 for SamplePointsKernel {
                 }
             }
         });
-        Ok((CpuStorage::F32(out), Shape::from((n, s, 3))))
+        Ok((out, Shape::from((n, s, 3))))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::test_support::gradient_values;
     use candle_core::{Device, Var};
 
     #[test]
@@ -100,15 +89,7 @@ mod tests {
             .backward()
             .unwrap();
         // d(Σ points)/d(origin) = S per coordinate.
-        let g = grads
-            .get(&o)
-            .expect("origins get a gradient")
-            .flatten_all()
-            .unwrap();
-        assert!(g
-            .to_vec1::<f32>()
-            .unwrap()
-            .iter()
-            .all(|&v| (v - 5.0).abs() < 1e-6));
+        let g = gradient_values(&grads, &o);
+        assert!(g.iter().all(|&v| (v - 5.0).abs() < 1e-6));
     }
 }

@@ -75,6 +75,43 @@ struct Block {
     d_beta: [f32; BLOCK],
 }
 
+/// The blocks `start..end` of [`BLOCK`] samples (the last one shorter) of `s` samples, in order.
+#[inline(always)]
+fn blocks(s: usize) -> impl Iterator<Item = (usize, usize)> {
+    (0..s)
+        .step_by(BLOCK)
+        .map(move |start| (start, (start + BLOCK).min(s)))
+}
+
+/// Samples `start..end` (at most [`BLOCK`]) of a block, padded with zeros: their lengths, and
+/// 1 for each sample with a spacing, 0 for one without (zero spacing: zero optical depth
+/// whatever the density, see [`crate::core::volume`]).
+#[inline(always)]
+fn block_samples(lengths: &[f32], (start, end): (usize, usize)) -> ([f32; BLOCK], [f32; BLOCK]) {
+    let m = end - start;
+    let mut t = [0f32; BLOCK];
+    let mut live = [0f32; BLOCK];
+    t[..m].copy_from_slice(&lengths[start..end]);
+    for j in 0..m {
+        live[j] = if spacing(lengths, start + j) == 0.0 {
+            0.0
+        } else {
+            1.0
+        };
+    }
+    (t, live)
+}
+
+/// The point at length `t` along `ray` = `[origin, direction]`: `o + t·d`.
+#[inline(always)]
+fn point_at(ray: &[f32], t: f32) -> [f32; 3] {
+    [
+        ray[0] + t * ray[3],
+        ray[1] + t * ray[4],
+        ray[2] + t * ray[5],
+    ]
+}
+
 /// Fills samples `start..end` (at most [`BLOCK`]) of the scratch (everything but the
 /// weights' running product) for the ray `ray` = `[origin, direction]`; `distance` is the
 /// shape's signed distance with its derivatives.
@@ -90,24 +127,10 @@ fn fill<D>(
     D: Fn([f32; 3]) -> (f32, [f32; 3], [f32; 3]),
 {
     let m = end - start;
-    let mut t = [0f32; BLOCK];
-    let mut live = [0f32; BLOCK];
-    t[..m].copy_from_slice(&lengths[start..end]);
-    for j in 0..m {
-        // Zero spacing: zero optical depth whatever the density (see core::volume).
-        live[j] = if spacing(lengths, start + j) == 0.0 {
-            0.0
-        } else {
-            1.0
-        };
-    }
+    let (t, live) = block_samples(lengths, (start, end));
     let mut b = Block::default();
     for j in 0..BLOCK {
-        let point = [
-            ray[0] + t[j] * ray[3],
-            ray[1] + t[j] * ray[4],
-            ray[2] + t[j] * ray[5],
-        ];
+        let point = point_at(ray, t[j]);
         let (clear, d) = volume.transparency_from_distance(distance(point));
         let (scale, d_scale) = volume.colour_factors(point);
         b.clear[j] = 1.0 - live[j] * (1.0 - clear);
@@ -187,31 +210,15 @@ fn forward_with<D: Fn([f32; 3]) -> f32>(
     ray: &[f32],
     lengths: &[f32],
 ) -> [f32; 5] {
-    let s = lengths.len();
     let mut out = [0f32; 5];
     let mut transmittance = 1f32;
-    let mut start = 0;
-    while start < s {
-        let end = (start + BLOCK).min(s);
+    for (start, end) in blocks(lengths.len()) {
         let m = end - start;
-        let mut t = [0f32; BLOCK];
-        let mut live = [0f32; BLOCK];
-        t[..m].copy_from_slice(&lengths[start..end]);
-        for j in 0..m {
-            live[j] = if spacing(lengths, start + j) == 0.0 {
-                0.0
-            } else {
-                1.0
-            };
-        }
+        let (t, live) = block_samples(lengths, (start, end));
         let mut clear = [0f32; BLOCK];
         let mut colour = [[0f32; BLOCK]; 3];
         for j in 0..BLOCK {
-            let p = [
-                ray[0] + t[j] * ray[3],
-                ray[1] + t[j] * ray[4],
-                ray[2] + t[j] * ray[5],
-            ];
+            let p = point_at(ray, t[j]);
             let (c, _, _) = volume.transparency_parts(distance(p));
             clear[j] = 1.0 - live[j] * (1.0 - c);
             let rgb = volume.colour_at(p);
@@ -231,7 +238,6 @@ fn forward_with<D: Fn([f32; 3]) -> f32>(
         if transmittance == 0.0 {
             break;
         }
-        start = end;
     }
     out
 }
@@ -277,9 +283,7 @@ fn replay_portable(
     let s = lengths.len();
     let mut out = [0f32; 5];
     let mut transmittance = 1f32;
-    let mut start = 0;
-    while start < s {
-        let end = (start + BLOCK).min(s);
+    for (start, end) in blocks(s) {
         match volume.sdf {
             Sdf::Box {
                 center,
@@ -313,7 +317,6 @@ fn replay_portable(
             out[3] += w * sc.t[i];
             out[4] += w;
         }
-        start = end;
         if transmittance == 0.0 {
             // Every later weight is exactly 0: the rest of the ray changes nothing.
             return (end, out);

@@ -22,14 +22,15 @@
 //! with the loss, each ray replayed once.
 
 use anyhow::Result;
-use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
+use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::core::rays::Rays;
 use crate::core::sdf::SdfVolume;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::sdf_ray::{forward, replay, reverse, RayScratch};
 use crate::kernels::sdf_volume::SdfTensors;
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::sdf_volume_grad::sum_blocks;
 use crate::kernels::{needs_grad, use_fused};
 
 /// Rays per parallel work item.
@@ -50,9 +51,9 @@ pub fn sdf_render(
         return Ok(None);
     }
     let packed_rays = Tensor::cat(&[&rays.origins, &rays.directions], 1)?;
-    let op = SdfRender {
+    let op = Fused(SdfRender {
         volume: volume.values()?,
-    };
+    });
     let packed = volume.packed()?;
     let out = if volume.tensors().into_iter().any(needs_grad) {
         packed_rays.apply_op3(&lengths.contiguous()?, &packed, op)?
@@ -72,34 +73,13 @@ struct SdfRender {
     volume: SdfVolume,
 }
 
-/// Sums per-task float64 gradient vectors into one float32 `(P,)` vector.
-fn sum_parts(parts: Vec<Vec<f64>>, p: usize) -> Vec<f32> {
-    let mut total = vec![0f64; p];
-    for part in parts {
-        for (t, v) in total.iter_mut().zip(part) {
-            *t += v;
-        }
-    }
-    total.into_iter().map(|v| v as f32).collect()
-}
+impl CpuKernel<3> for SdfRender {
+    const NAME: &'static str = "fused-sdf-render";
 
-impl CustomOp3 for SdfRender {
-    fn name(&self) -> &'static str {
-        "fused-sdf-render"
-    }
-
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        _s3: &CpuStorage,
-        _l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let rays = contiguous_f32(s1, l1, "fused-sdf-render")?;
-        let lengths = contiguous_f32(s2, l2, "fused-sdf-render")?;
-        let (n, s, _) = l2.shape().dims3()?;
+    fn cpu_forward(&self, [rays, lengths_in, _packed]: [CpuInput; 3]) -> KernelOutput {
+        let rays = rays.f32(Self::NAME)?;
+        let lengths = lengths_in.f32(Self::NAME)?;
+        let (n, s, _) = lengths_in.shape().dims3()?;
         if rays.len() != 6 * n {
             candle_core::bail!("fused-sdf-render: rays and lengths disagree in size");
         }
@@ -116,28 +96,25 @@ impl CustomOp3 for SdfRender {
                     o.copy_from_slice(&forward(&self.volume, r, l));
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((n, 5))))
+        Ok((out, Shape::from((n, 5))))
     }
 
-    fn bwd(
+    fn gradients(
         &self,
-        rays: &Tensor,
-        lengths: &Tensor,
-        packed: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        [rays, lengths, packed]: [&Tensor; 3],
+        grad: &Tensor,
+    ) -> KernelGradients<3> {
         let g = rays.apply_op3_no_bwd(
             lengths,
-            &grad_res.contiguous()?,
-            &SdfRenderBackward {
+            &grad.contiguous()?,
+            &Fused(SdfRenderBackward {
                 render: SdfRender {
                     volume: self.volume,
                 },
                 params: packed.elem_count(),
-            },
+            }),
         )?;
-        Ok((None, None, Some(g)))
+        Ok([None, None, Some(g)])
     }
 }
 
@@ -147,25 +124,12 @@ struct SdfRenderBackward {
     params: usize,
 }
 
-impl CustomOp3 for SdfRenderBackward {
-    fn name(&self) -> &'static str {
-        "fused-sdf-render-backward"
-    }
+impl CpuKernel<3> for SdfRenderBackward {
+    const NAME: &'static str = "fused-sdf-render-backward";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let name = "fused-sdf-render-backward";
-        let rays = contiguous_f32(s1, l1, name)?;
-        let lengths = contiguous_f32(s2, l2, name)?;
-        let grad = contiguous_f32(s3, l3, name)?;
-        let (_, s, _) = l2.shape().dims3()?;
+    fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
+        let [rays, lengths, grad] = CpuInput::all_f32(&inputs, Self::NAME)?;
+        let (_, s, _) = inputs[1].shape().dims3()?;
         let p = self.params;
         let parts: Vec<Vec<f64>> = rays
             .par_chunks(6 * RAYS_PER_TASK)
@@ -186,8 +150,7 @@ impl CustomOp3 for SdfRenderBackward {
                 acc
             })
             .collect();
-        let out = sum_parts(parts, p);
-        Ok((CpuStorage::F32(out), Shape::from(p)))
+        Ok((sum_blocks(parts, p), Shape::from(p)))
     }
 }
 
@@ -211,13 +174,13 @@ pub fn sdf_render_mse(
         return Ok(None);
     }
     let packed_rays = Tensor::cat(&[&rays.origins, &rays.directions, target], 1)?;
-    let op = SdfRenderMse {
+    let op = Fused(SdfRenderMse {
         render: SdfRender {
             volume: volume.values()?,
         },
         white_background,
         gradient: std::sync::Mutex::new(Vec::new()),
-    };
+    });
     Ok(Some(packed_rays.apply_op3(
         &lengths.contiguous()?,
         &volume.packed()?,
@@ -263,28 +226,18 @@ impl SdfRenderMse {
     }
 }
 
-impl CustomOp3 for SdfRenderMse {
-    fn name(&self) -> &'static str {
-        "fused-sdf-render-mse"
-    }
+impl CpuKernel<3> for SdfRenderMse {
+    const NAME: &'static str = "fused-sdf-render-mse";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        _s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let name = "fused-sdf-render-mse";
-        let rays = contiguous_f32(s1, l1, name)?;
-        let lengths = contiguous_f32(s2, l2, name)?;
-        let (n, s, _) = l2.shape().dims3()?;
+    fn cpu_forward(&self, [rays, lengths_in, packed]: [CpuInput; 3]) -> KernelOutput {
+        let name = Self::NAME;
+        let rays = rays.f32(name)?;
+        let lengths = lengths_in.f32(name)?;
+        let (n, s, _) = lengths_in.shape().dims3()?;
         if rays.len() != 9 * n || n == 0 {
             candle_core::bail!("{name}: rays, targets and lengths disagree in size");
         }
-        let p = l3.shape().elem_count();
+        let p = packed.shape().elem_count();
         let scale = 1.0 / (3 * n) as f32;
         let parts: Vec<(f64, Vec<f64>)> = rays
             .par_chunks(9 * RAYS_PER_TASK)
@@ -301,22 +254,18 @@ impl CustomOp3 for SdfRenderMse {
             })
             .collect();
         let loss = parts.iter().map(|(e, _)| e).sum::<f64>() / (3 * n) as f64;
-        let gradient = sum_parts(parts.into_iter().map(|(_, g)| g).collect(), p);
+        let gradient = sum_blocks(parts.into_iter().map(|(_, g)| g).collect(), p);
         *self.gradient.lock().expect("gradient lock") = gradient;
-        Ok((CpuStorage::F32(vec![loss as f32]), Shape::from(())))
+        Ok((vec![loss as f32], Shape::from(())))
     }
 
-    fn bwd(
+    fn gradients(
         &self,
-        _rays: &Tensor,
-        _lengths: &Tensor,
-        packed: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        [_rays, _lengths, packed]: [&Tensor; 3],
+        grad: &Tensor,
+    ) -> KernelGradients<3> {
         let gradient = self.gradient.lock().expect("gradient lock").clone();
-        let g =
-            Tensor::from_vec(gradient, packed.shape(), packed.device())?.broadcast_mul(grad_res)?;
-        Ok((None, None, Some(g)))
+        let g = Tensor::from_vec(gradient, packed.shape(), packed.device())?.broadcast_mul(grad)?;
+        Ok([None, None, Some(g)])
     }
 }

@@ -6,11 +6,11 @@
 //! parameter (the homework's `opt: True`) runs the twin, whose gradients reach every parameter.
 
 use anyhow::Result;
-use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor, D};
+use candle_core::{Shape, Tensor, D};
 use rayon::prelude::*;
 
 use crate::core::sdf::{Sdf, SdfVolume};
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelOutput};
 use crate::kernels::{needs_grad, use_fused};
 
 /// The shape of an SDF volume as tensors (any of them may be a trainable variable).
@@ -48,6 +48,35 @@ pub struct SdfTensors {
 }
 
 impl SdfTensors {
+    /// `volume`'s parameters as tensors, each made by `make(name, values)`: `center` (3), then
+    /// `side_lengths` (3) or `radius` (1), then `alpha`, `beta` (1) and `feature` (3), in that
+    /// order (plain tensors, or variables for the ones being trained).
+    pub fn from_volume<E>(
+        volume: &SdfVolume,
+        mut make: impl FnMut(&str, &[f32]) -> std::result::Result<Tensor, E>,
+    ) -> std::result::Result<Self, E> {
+        let shape = match volume.sdf {
+            Sdf::Box {
+                center,
+                side_lengths,
+            } => ShapeTensors::Box {
+                center: make("center", &center)?,
+                side_lengths: make("side_lengths", &side_lengths)?,
+            },
+            Sdf::Sphere { center, radius } => ShapeTensors::Sphere {
+                center: make("center", &center)?,
+                radius: make("radius", &[radius])?,
+            },
+        };
+        Ok(SdfTensors {
+            shape,
+            alpha: make("alpha", &[volume.alpha as f32])?,
+            beta: make("beta", &[volume.beta as f32])?,
+            rainbow: volume.rainbow,
+            feature: make("feature", &volume.feature)?,
+        })
+    }
+
     /// Every parameter tensor, in a fixed order: `center` `(3,)`, then `side_lengths` `(3,)` or
     /// `radius` `(1,)`, then `alpha`, `beta` `(1,)` and `feature` `(3,)`.
     pub fn tensors(&self) -> Vec<&Tensor> {
@@ -137,9 +166,10 @@ pub fn sdf_volume(
             volume.values()?,
         );
     }
-    let fused = points
-        .contiguous()?
-        .apply_op2_no_bwd(&deltas.contiguous()?, &FusedSdfVolume(volume.values()?))?;
+    let fused = points.contiguous()?.apply_op2_no_bwd(
+        &deltas.contiguous()?,
+        &Fused(FusedSdfVolume(volume.values()?)),
+    )?;
     Ok((fused.narrow(2, 0, 1)?, fused.narrow(2, 1, 3)?))
 }
 
@@ -244,21 +274,12 @@ pub fn density_to_sigma(density: &Tensor, deltas: &Tensor) -> Result<Tensor> {
 /// Fused CPU kernel: points `(N, S, 3)` and deltas `(N, S, 1)` → `(N, S, 4)` = `[σ, r, g, b]`.
 struct FusedSdfVolume(SdfVolume);
 
-impl CustomOp2 for FusedSdfVolume {
-    fn name(&self) -> &'static str {
-        "fused-sdf-volume"
-    }
+impl CpuKernel<2> for FusedSdfVolume {
+    const NAME: &'static str = "fused-sdf-volume";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let points = contiguous_f32(s1, l1, "fused-sdf-volume")?;
-        let deltas = contiguous_f32(s2, l2, "fused-sdf-volume")?;
-        let dims = l1.shape().dims();
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [points, deltas] = CpuInput::all_f32(&inputs, Self::NAME)?;
+        let dims = inputs[0].shape().dims();
         if points.len() != 3 * deltas.len() {
             candle_core::bail!("fused-sdf-volume: points and deltas disagree in size");
         }
@@ -273,7 +294,7 @@ impl CustomOp2 for FusedSdfVolume {
                     o.copy_from_slice(&[sigma, f[0], f[1], f[2]]);
                 }
             });
-        Ok((CpuStorage::F32(out), Shape::from((dims[0], dims[1], 4))))
+        Ok((out, Shape::from((dims[0], dims[1], 4))))
     }
 }
 
@@ -285,28 +306,19 @@ mod tests {
 
     /// Tensors of a plain volume.
     fn tensors(v: &SdfVolume) -> SdfTensors {
-        let dev = &Device::Cpu;
-        let t = |x: &[f32]| Tensor::new(x, dev).unwrap();
-        let shape = match v.sdf {
-            Sdf::Box {
-                center,
-                side_lengths,
-            } => ShapeTensors::Box {
-                center: t(&center),
-                side_lengths: t(&side_lengths),
-            },
-            Sdf::Sphere { center, radius } => ShapeTensors::Sphere {
-                center: t(&center),
-                radius: t(&[radius]),
-            },
-        };
-        SdfTensors {
-            shape,
-            alpha: t(&[v.alpha as f32]),
-            beta: t(&[v.beta as f32]),
-            rainbow: v.rainbow,
-            feature: t(&v.feature),
-        }
+        SdfTensors::from_volume(v, |_, x| Tensor::new(x, &Device::Cpu)).unwrap()
+    }
+
+    /// Tensors of a volume of shape `sdf` (α = β = 1, a white, plain colour), for the tests of
+    /// the signed distance alone.
+    fn shape_only(sdf: Sdf) -> SdfTensors {
+        tensors(&SdfVolume {
+            sdf,
+            alpha: 1.0,
+            beta: 1.0,
+            rainbow: false,
+            feature: [1.0; 3],
+        })
     }
 
     fn values(t: &Tensor) -> Vec<f32> {
@@ -378,15 +390,9 @@ mod tests {
 
     #[test]
     fn box_sdf_by_hand() {
-        let b = tensors(&SdfVolume {
-            sdf: Sdf::Box {
-                center: [0.0, 0.0, 0.0],
-                side_lengths: [2.0, 2.0, 2.0],
-            },
-            alpha: 1.0,
-            beta: 1.0,
-            rainbow: false,
-            feature: [1.0; 3],
+        let b = shape_only(Sdf::Box {
+            center: [0.0, 0.0, 0.0],
+            side_lengths: [2.0, 2.0, 2.0],
         });
         let d = values(
             &signed_distance(
@@ -408,15 +414,9 @@ mod tests {
 
     #[test]
     fn sphere_sdf_by_hand() {
-        let s = tensors(&SdfVolume {
-            sdf: Sdf::Sphere {
-                center: [1.0, 0.0, 0.0],
-                radius: 0.5,
-            },
-            alpha: 1.0,
-            beta: 1.0,
-            rainbow: false,
-            feature: [1.0; 3],
+        let s = shape_only(Sdf::Sphere {
+            center: [1.0, 0.0, 0.0],
+            radius: 0.5,
         });
         let d =
             values(&signed_distance(&s.shape, &pts(&[[1.0, 0.0, 0.0], [1.0, 2.0, 0.0]])).unwrap());

@@ -16,14 +16,11 @@
 //! zero tensors).
 
 use anyhow::Result;
-use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
+use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::core::sdf::SdfVolume;
-use crate::kernels::storage::contiguous_f32;
-
-/// One block of σ's backward pass: points, spacings, `∂L/∂σ`, and where `∂L/∂points` goes.
-type SigmaBlock<'a> = (((&'a [f32], &'a [f32]), &'a [f32]), &'a mut [f32]);
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 
 /// Samples per parallel work item.
 const BLOCK: usize = 4096;
@@ -38,27 +35,19 @@ pub fn sdf_volume_fused_grad(
     volume: SdfVolume,
 ) -> Result<(Tensor, Tensor)> {
     let points_grad = crate::kernels::needs_grad(points);
+    let op = SdfOp {
+        volume,
+        points_grad,
+    };
     let points = points.contiguous()?;
-    let sigma = points.apply_op3(
-        &deltas.contiguous()?,
-        packed,
-        SigmaOp {
-            volume,
-            points_grad,
-        },
-    )?;
-    let colour = points.apply_op2(
-        packed,
-        ColourOp {
-            volume,
-            points_grad,
-        },
-    )?;
+    let sigma = points.apply_op3(&deltas.contiguous()?, packed, Fused(SigmaOp(op)))?;
+    let colour = points.apply_op2(packed, Fused(ColourOp(op)))?;
     Ok((sigma, colour))
 }
 
-/// Sums per-block `(P,)` float64 partial gradients.
-fn sum_blocks(parts: Vec<Vec<f64>>, len: usize) -> Vec<f32> {
+/// Sums per-block (or per-task) float64 partial gradients, each `(len,)`, into one float32
+/// `(len,)` vector (the fused SDF kernels' backward passes).
+pub(crate) fn sum_blocks(parts: Vec<Vec<f64>>, len: usize) -> Vec<f32> {
     let mut total = vec![0f64; len];
     for part in parts {
         for (t, v) in total.iter_mut().zip(part) {
@@ -66,6 +55,15 @@ fn sum_blocks(parts: Vec<Vec<f64>>, len: usize) -> Vec<f32> {
         }
     }
     total.into_iter().map(|v| v as f32).collect()
+}
+
+/// A backward op's flat output `[∂L/∂packed (P), ∂L/∂points]`: the per-block parameter
+/// gradients summed ([`sum_blocks`]), then `g_points` (empty when the points are not tracked).
+fn backward_output(parts: Vec<Vec<f64>>, p: usize, g_points: Vec<f32>) -> (Vec<f32>, Shape) {
+    let mut out = sum_blocks(parts, p);
+    out.extend(g_points);
+    let n = out.len();
+    (out, Shape::from(n))
 }
 
 /// The gradients an op's backward returns: packed parameters `(P,)`, and the points
@@ -88,28 +86,61 @@ fn split_gradients(
     Ok((g_points, g_params))
 }
 
-/// σ: `(points (N, S, 3), deltas (N, S, 1), packed (P,))` → `(N, S, 1)`.
-struct SigmaOp {
+/// What each of the four ops below holds: the volume's values, and whether the points are
+/// tracked (then the backward passes return their gradient too).
+#[derive(Clone, Copy)]
+struct SdfOp {
     volume: SdfVolume,
     points_grad: bool,
 }
 
-impl CustomOp3 for SigmaOp {
-    fn name(&self) -> &'static str {
-        "fused-sdf-sigma"
+impl SdfOp {
+    /// A backward op's output over `samples` samples, in parallel blocks of [`BLOCK`]:
+    /// `vjp(i, acc)` adds sample `i`'s parameter gradient to `acc` `(P)` (float64) and returns
+    /// its points gradient, kept when the points are tracked. The blocks' sums are added in
+    /// order ([`backward_output`]).
+    fn backward_pass<F>(&self, samples: usize, vjp: F) -> (Vec<f32>, Shape)
+    where
+        F: Fn(usize, &mut [f64]) -> [f32; 3] + Sync,
+    {
+        let p = self.volume.packed_layout().len();
+        let mut g_points = vec![0f32; if self.points_grad { 3 * samples } else { 0 }];
+        let block_sum = |block: usize, gp: &mut [f32]| {
+            let mut acc = vec![0f64; p];
+            let first = block * BLOCK;
+            for i in first..(first + BLOCK).min(samples) {
+                let dp = vjp(i, &mut acc);
+                if !gp.is_empty() {
+                    gp[3 * (i - first)..3 * (i - first) + 3].copy_from_slice(&dp);
+                }
+            }
+            acc
+        };
+        let parts: Vec<Vec<f64>> = if self.points_grad {
+            g_points
+                .par_chunks_mut(3 * BLOCK)
+                .enumerate()
+                .map(|(block, gp)| block_sum(block, gp))
+                .collect()
+        } else {
+            (0..samples.div_ceil(BLOCK))
+                .into_par_iter()
+                .map(|block| block_sum(block, &mut []))
+                .collect()
+        };
+        backward_output(parts, p, g_points)
     }
+}
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        _s3: &CpuStorage,
-        _l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let points = contiguous_f32(s1, l1, "fused-sdf-sigma")?;
-        let deltas = contiguous_f32(s2, l2, "fused-sdf-sigma")?;
+/// σ: `(points (N, S, 3), deltas (N, S, 1), packed (P,))` → `(N, S, 1)`.
+struct SigmaOp(SdfOp);
+
+impl CpuKernel<3> for SigmaOp {
+    const NAME: &'static str = "fused-sdf-sigma";
+
+    fn cpu_forward(&self, [points, deltas_in, _packed]: [CpuInput; 3]) -> KernelOutput {
+        let points = points.f32(Self::NAME)?;
+        let deltas = deltas_in.f32(Self::NAME)?;
         if points.len() != 3 * deltas.len() {
             candle_core::bail!("fused-sdf-sigma: points and deltas disagree in size");
         }
@@ -119,198 +150,86 @@ impl CustomOp3 for SigmaOp {
             .zip(deltas.par_chunks(BLOCK))
             .for_each(|((o, p), d)| {
                 for ((o, p), &delta) in o.iter_mut().zip(p.chunks_exact(3)).zip(d) {
-                    *o = self.volume.evaluate_point([p[0], p[1], p[2]], delta).0;
+                    *o = self.0.volume.evaluate_point([p[0], p[1], p[2]], delta).0;
                 }
             });
-        Ok((CpuStorage::F32(out), l2.shape().clone()))
+        Ok((out, deltas_in.shape().clone()))
     }
 
-    fn bwd(
+    fn gradients(
         &self,
-        points: &Tensor,
-        deltas: &Tensor,
-        packed: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        [points, deltas, packed]: [&Tensor; 3],
+        grad: &Tensor,
+    ) -> KernelGradients<3> {
         let p = packed.elem_count();
         let flat = points.apply_op3_no_bwd(
             &deltas.contiguous()?,
-            &grad_res.contiguous()?,
-            &SigmaBackward {
-                volume: self.volume,
-                points_grad: self.points_grad,
-            },
+            &grad.contiguous()?,
+            &Fused(SigmaBackward(self.0)),
         )?;
-        let (g_points, g_params) = split_gradients(&flat, p, points, self.points_grad)?;
-        Ok((g_points, None, Some(g_params)))
+        let (g_points, g_params) = split_gradients(&flat, p, points, self.0.points_grad)?;
+        Ok([g_points, None, Some(g_params)])
     }
 }
 
 /// σ's backward: `(points, deltas, ∂L/∂σ)` → `[∂L/∂packed (P), ∂L/∂points (N·S·3)?]`.
-struct SigmaBackward {
-    volume: SdfVolume,
-    points_grad: bool,
-}
+struct SigmaBackward(SdfOp);
 
-impl CustomOp3 for SigmaBackward {
-    fn name(&self) -> &'static str {
-        "fused-sdf-sigma-backward"
-    }
+impl CpuKernel<3> for SigmaBackward {
+    const NAME: &'static str = "fused-sdf-sigma-backward";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let name = "fused-sdf-sigma-backward";
-        let points = contiguous_f32(s1, l1, name)?;
-        let deltas = contiguous_f32(s2, l2, name)?;
-        let grad = contiguous_f32(s3, l3, name)?;
-        let p = self.volume.packed_layout().len();
-        let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
-        let work = |(((p3, d), g), gp): SigmaBlock| {
-            let mut acc = vec![0f64; p];
-            for (i, ((x, &delta), &g)) in p3.chunks_exact(3).zip(d).zip(g).enumerate() {
-                let dp = self
-                    .volume
-                    .sigma_vjp([x[0], x[1], x[2]], delta, g, &mut acc);
-                if !gp.is_empty() {
-                    gp[3 * i..3 * i + 3].copy_from_slice(&dp);
-                }
-            }
-            acc
-        };
-        let parts: Vec<Vec<f64>> = if self.points_grad {
-            points
-                .par_chunks(3 * BLOCK)
-                .zip(deltas.par_chunks(BLOCK))
-                .zip(grad.par_chunks(BLOCK))
-                .zip(g_points.par_chunks_mut(3 * BLOCK))
-                .map(work)
-                .collect()
-        } else {
-            points
-                .par_chunks(3 * BLOCK)
-                .zip(deltas.par_chunks(BLOCK))
-                .zip(grad.par_chunks(BLOCK))
-                .map(|t| work((t, &mut [])))
-                .collect()
-        };
-        let mut out = sum_blocks(parts, p);
-        out.extend(g_points);
-        let n = out.len();
-        Ok((CpuStorage::F32(out), Shape::from(n)))
+    fn cpu_forward(&self, inputs: [CpuInput; 3]) -> KernelOutput {
+        let [points, deltas, grad] = CpuInput::all_f32(&inputs, Self::NAME)?;
+        Ok(self.0.backward_pass(deltas.len(), |i, acc| {
+            let x = &points[3 * i..3 * i + 3];
+            self.0
+                .volume
+                .sigma_vjp([x[0], x[1], x[2]], deltas[i], grad[i], acc)
+        }))
     }
 }
 
 /// Colour: `(points (N, S, 3), packed (P,))` → `(N, S, 3)`.
-struct ColourOp {
-    volume: SdfVolume,
-    points_grad: bool,
-}
+struct ColourOp(SdfOp);
 
-impl CustomOp2 for ColourOp {
-    fn name(&self) -> &'static str {
-        "fused-sdf-colour"
-    }
+impl CpuKernel<2> for ColourOp {
+    const NAME: &'static str = "fused-sdf-colour";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        _s2: &CpuStorage,
-        _l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let points = contiguous_f32(s1, l1, "fused-sdf-colour")?;
+    fn cpu_forward(&self, [points_in, _packed]: [CpuInput; 2]) -> KernelOutput {
+        let points = points_in.f32(Self::NAME)?;
         let mut out = vec![0f32; points.len()];
         out.par_chunks_mut(3 * BLOCK)
             .zip(points.par_chunks(3 * BLOCK))
             .for_each(|(o, p)| {
                 for (o, p) in o.chunks_exact_mut(3).zip(p.chunks_exact(3)) {
-                    o.copy_from_slice(&self.volume.colour_at([p[0], p[1], p[2]]));
+                    o.copy_from_slice(&self.0.volume.colour_at([p[0], p[1], p[2]]));
                 }
             });
-        Ok((CpuStorage::F32(out), l1.shape().clone()))
+        Ok((out, points_in.shape().clone()))
     }
 
-    fn bwd(
-        &self,
-        points: &Tensor,
-        packed: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
-        let flat = points.apply_op2_no_bwd(
-            &grad_res.contiguous()?,
-            &ColourBackward {
-                volume: self.volume,
-                points_grad: self.points_grad,
-            },
-        )?;
+    fn gradients(&self, [points, packed]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
+        let flat = points.apply_op2_no_bwd(&grad.contiguous()?, &Fused(ColourBackward(self.0)))?;
         let (g_points, g_params) =
-            split_gradients(&flat, packed.elem_count(), points, self.points_grad)?;
-        Ok((g_points, Some(g_params)))
+            split_gradients(&flat, packed.elem_count(), points, self.0.points_grad)?;
+        Ok([g_points, Some(g_params)])
     }
 }
 
 /// Colour's backward: `(points, ∂L/∂colour)` → `[∂L/∂packed (P), ∂L/∂points (N·S·3)?]`.
-struct ColourBackward {
-    volume: SdfVolume,
-    points_grad: bool,
-}
+struct ColourBackward(SdfOp);
 
-impl CustomOp2 for ColourBackward {
-    fn name(&self) -> &'static str {
-        "fused-sdf-colour-backward"
-    }
+impl CpuKernel<2> for ColourBackward {
+    const NAME: &'static str = "fused-sdf-colour-backward";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let name = "fused-sdf-colour-backward";
-        let points = contiguous_f32(s1, l1, name)?;
-        let grad = contiguous_f32(s2, l2, name)?;
-        let p = self.volume.packed_layout().len();
-        let mut g_points = vec![0f32; if self.points_grad { points.len() } else { 0 }];
-        let work = |((p3, g), gp): ((&[f32], &[f32]), &mut [f32])| {
-            let mut acc = vec![0f64; p];
-            for (i, (x, g)) in p3.chunks_exact(3).zip(g.chunks_exact(3)).enumerate() {
-                let dp = self
-                    .volume
-                    .colour_vjp([x[0], x[1], x[2]], [g[0], g[1], g[2]], &mut acc);
-                if !gp.is_empty() {
-                    gp[3 * i..3 * i + 3].copy_from_slice(&dp);
-                }
-            }
-            acc
-        };
-        let parts: Vec<Vec<f64>> = if self.points_grad {
-            points
-                .par_chunks(3 * BLOCK)
-                .zip(grad.par_chunks(3 * BLOCK))
-                .zip(g_points.par_chunks_mut(3 * BLOCK))
-                .map(work)
-                .collect()
-        } else {
-            points
-                .par_chunks(3 * BLOCK)
-                .zip(grad.par_chunks(3 * BLOCK))
-                .map(|t| work((t, &mut [])))
-                .collect()
-        };
-        let mut out = sum_blocks(parts, p);
-        out.extend(g_points);
-        let n = out.len();
-        Ok((CpuStorage::F32(out), Shape::from(n)))
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [points, grad] = CpuInput::all_f32(&inputs, Self::NAME)?;
+        Ok(self.0.backward_pass(points.len() / 3, |i, acc| {
+            let (x, g) = (&points[3 * i..3 * i + 3], &grad[3 * i..3 * i + 3]);
+            self.0
+                .volume
+                .colour_vjp([x[0], x[1], x[2]], [g[0], g[1], g[2]], acc)
+        }))
     }
 }
 
@@ -318,38 +237,18 @@ impl CustomOp2 for ColourBackward {
 mod tests {
     use super::*;
     use crate::core::sdf::Sdf;
-    use crate::kernels::sdf_volume::{sdf_volume, sdf_volume_tensor_ops, SdfTensors, ShapeTensors};
+    use crate::kernels::sdf_volume::{sdf_volume, sdf_volume_tensor_ops, SdfTensors};
     use candle_core::{Device, Var};
 
     /// A volume whose every parameter is a variable, and those variables.
     fn variables(v: &SdfVolume) -> (SdfTensors, Vec<Var>) {
-        let dev = &Device::Cpu;
         let mut vars = Vec::new();
-        let mut var = |x: &[f32]| {
-            let v = Var::new(x, dev).unwrap();
+        let tensors = SdfTensors::from_volume(v, |_, x| {
+            let v = Var::new(x, &Device::Cpu)?;
             vars.push(v.clone());
-            v.as_tensor().clone()
-        };
-        let shape = match v.sdf {
-            Sdf::Box {
-                center,
-                side_lengths,
-            } => ShapeTensors::Box {
-                center: var(&center),
-                side_lengths: var(&side_lengths),
-            },
-            Sdf::Sphere { center, radius } => ShapeTensors::Sphere {
-                center: var(&center),
-                radius: var(&[radius]),
-            },
-        };
-        let tensors = SdfTensors {
-            shape,
-            alpha: var(&[v.alpha as f32]),
-            beta: var(&[v.beta as f32]),
-            rainbow: v.rainbow,
-            feature: var(&v.feature),
-        };
+            Ok::<_, candle_core::Error>(v.as_tensor().clone())
+        })
+        .unwrap();
         (tensors, vars)
     }
 
@@ -442,20 +341,9 @@ mod tests {
                 for var in vars.iter().chain([&points]) {
                     let a = gf.get(var.as_tensor()).expect("fused gradient");
                     let b = gr.get(var.as_tensor()).expect("reference gradient");
-                    let scale = b
-                        .abs()
-                        .unwrap()
-                        .max_all()
-                        .unwrap()
-                        .to_scalar::<f32>()
-                        .unwrap();
-                    let d = crate::core::compare::max_abs_difference(a, b).unwrap();
                     // Measured: at most 4e-7 relative over these seeds.
-                    assert!(
-                        d <= 1e-5 * scale.max(1.0),
-                        "seed {seed}: gradient differs by {d} (scale {scale}) for {:?}",
-                        var.dims()
-                    );
+                    let what = format!("seed {seed}: gradient for {:?}", var.dims());
+                    crate::core::compare::assert_close(a, b, 1e-5, &what);
                 }
             }
         }

@@ -15,13 +15,13 @@
 
 use std::sync::Mutex;
 
-use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
+use candle_core::{Shape, Tensor};
 use candle_nn::Linear;
 use rayon::prelude::*;
 
 use crate::kernels::bias::bias_add;
+use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::gemm::gemm_f32;
-use crate::kernels::storage::contiguous_f32;
 use crate::kernels::use_fused;
 
 const ROWS_PER_TASK: usize = 256;
@@ -115,14 +115,15 @@ pub fn trunk_tensor_ops(
 /// parameters (CPU, f32). Keeps activations for the backward pass only when the parameters
 /// track gradients.
 pub fn trunk(x: &Tensor, params: &Tensor, shape: &TrunkShape) -> candle_core::Result<Tensor> {
-    let op = FusedTrunk {
+    let keep = params.track_op();
+    let op = Fused(FusedTrunk {
         shape: shape.clone(),
         saved: Mutex::new(None),
-        keep: params.track_op(),
-    };
+        keep,
+    });
     let x = x.contiguous()?;
     let params = params.contiguous()?;
-    if op.keep {
+    if keep {
         x.apply_op2(&params, op)
     } else {
         x.apply_op2_no_bwd(&params, &op)
@@ -191,23 +192,12 @@ impl FusedTrunk {
     }
 }
 
-impl CustomOp2 for FusedTrunk {
-    fn name(&self) -> &'static str {
-        "nerf-trunk"
-    }
+impl CpuKernel<2> for FusedTrunk {
+    const NAME: &'static str = "nerf-trunk";
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, params) = (
-            contiguous_f32(s1, l1, "nerf-trunk")?,
-            contiguous_f32(s2, l2, "nerf-trunk")?,
-        );
-        let (m, d) = l1.shape().dims2()?;
+    fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
+        let [x, params] = CpuInput::all_f32(&inputs, Self::NAME)?;
+        let (m, d) = inputs[0].shape().dims2()?;
         let s = &self.shape;
         if d != s.input_dim || params.len() != s.n_parameters() || s.skip.is_empty() {
             candle_core::bail!(
@@ -225,16 +215,10 @@ impl CustomOp2 for FusedTrunk {
         } else {
             outputs.pop().expect("at least one layer")
         };
-        Ok((CpuStorage::F32(result), Shape::from((m, s.hidden))))
+        Ok((result, Shape::from((m, s.hidden))))
     }
 
-    fn bwd(
-        &self,
-        x: &Tensor,
-        params: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+    fn gradients(&self, [x, params]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let s = &self.shape;
         let h = s.hidden;
         let (m, _) = x.dims2()?;
@@ -301,7 +285,7 @@ impl CustomOp2 for FusedTrunk {
             }
         }
         let dparams = Tensor::from_vec(dparams, s.n_parameters(), params.device())?;
-        Ok((None, Some(dparams)))
+        Ok([None, Some(dparams)])
     }
 }
 
@@ -336,6 +320,8 @@ fn relu_backward(g: &mut [f32], y: &[f32], db: &mut [f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::compare::assert_close;
+    use crate::kernels::test_support::weighted_sum_gradients;
     use candle_core::{Device, Var};
     use candle_nn::Module;
 
@@ -377,38 +363,12 @@ mod tests {
         let fast = trunk(&x, &pack_parameters(&layers).unwrap(), &shape).unwrap();
         let diff = |a: &Tensor, b: &Tensor| crate::core::compare::max_abs_difference(a, b).unwrap();
         assert!(diff(&slow, &fast) < 1e-5, "forward {}", diff(&slow, &fast));
-        let g_slow = slow
-            .mul(&weight)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let g_fast = fast
-            .mul(&weight)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
+        let g_slow = weighted_sum_gradients(&slow, &weight);
+        let g_fast = weighted_sum_gradients(&fast, &weight);
         for (i, (w, b)) in vars.iter().enumerate() {
             for v in [w, b] {
-                let (a, c) = (
-                    g_slow.get(v.as_tensor()).unwrap(),
-                    g_fast.get(v.as_tensor()).unwrap(),
-                );
-                let scale = a
-                    .abs()
-                    .unwrap()
-                    .max_all()
-                    .unwrap()
-                    .to_scalar::<f32>()
-                    .unwrap();
-                assert!(
-                    diff(a, c) <= 1e-5 * scale.max(1.0),
-                    "layer {i}: {} (scale {scale})",
-                    diff(a, c)
-                );
+                let (a, c) = (g_slow.get(v).unwrap(), g_fast.get(v).unwrap());
+                assert_close(c, a, 1e-5, &format!("layer {i}"));
             }
         }
         // Without gradient tracking nothing is kept and the output is the same.

@@ -13,6 +13,14 @@ pub fn nerf(args: &[&str]) -> Output {
         .expect("run nerf")
 }
 
+/// Runs the `nerf` binary with `args` and asserts that it succeeded (a failure shows its
+/// stderr).
+pub fn nerf_ok(args: &[&str]) -> Output {
+    let o = nerf(args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    o
+}
+
 /// Runs the `nerf` binary with `args` in the working directory `dir` (the homework's configs
 /// name files relative to it).
 pub fn nerf_in(dir: &Path, args: &[&str]) -> Output {
@@ -84,6 +92,16 @@ pub fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     a.iter()
         .zip(b)
         .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+/// The largest difference between 8-bit image bytes, read as `b / 255`, and the float values
+/// they were written from, pairwise (as far as both go).
+pub fn max_byte_difference(bytes: &[u8], values: &[f32]) -> f32 {
+    bytes
+        .iter()
+        .zip(values)
+        .map(|(b, v)| (*b as f32 / 255.0 - v).abs())
         .fold(0.0, f32::max)
 }
 
