@@ -9,6 +9,7 @@ pub mod image;
 pub mod marching_cubes;
 pub mod marching_tables;
 pub mod metrics;
+pub mod pixel_grid;
 pub mod rays;
 pub mod sdf;
 pub mod term;

@@ -11,58 +11,9 @@ use rand::seq::index::sample;
 use rand::Rng;
 
 use crate::core::camera_model::CameraModel;
-
-/// `linspace(start, end, n)` computed in f64 (torch's values up to one f32 rounding).
-pub fn linspace(start: f64, end: f64, n: usize) -> Vec<f64> {
-    (0..n).map(|i| linspace_value(start, end, n, i)).collect()
-}
-
-/// Value `i` of [`linspace`]`(start, end, n)`, alone.
-pub fn linspace_value(start: f64, end: f64, n: usize, i: usize) -> f64 {
-    if n < 2 {
-        return start;
-    }
-    let step = (end - start) / (n - 1) as f64;
-    // Symmetric evaluation as torch does, so the last value is exactly `end`.
-    if i < n / 2 {
-        start + step * i as f64
-    } else {
-        end - step * (n - 1 - i) as f64
-    }
-}
-
-/// The homework's NDC point of pixel `(column, row)` of a `width × height` image:
-/// `(−linspace(−1, 1, W)[column], −linspace(−1, 1, H)[row])`, the first row the top.
-pub fn homework_ndc(column: usize, row: usize, (width, height): (usize, usize)) -> [f64; 2] {
-    [
-        -linspace_value(-1.0, 1.0, width, column),
-        -linspace_value(-1.0, 1.0, height, row),
-    ]
-}
-
-/// NDC coordinates of every pixel of a `width × height` image, row-major, as `(x, y)` pairs.
-pub fn pixel_grid_values(width: usize, height: usize) -> Vec<[f64; 2]> {
-    let xs = linspace(-1.0, 1.0, width);
-    let ys = linspace(-1.0, 1.0, height);
-    let mut grid = Vec::with_capacity(width * height);
-    for y in &ys {
-        for x in &xs {
-            grid.push([-x, -y]);
-        }
-    }
-    grid
-}
-
-/// The pixel grid as a tensor.
-///
-/// Returns `(W·H, 2)` f32: NDC `(x, y)` of each pixel, row-major from the top-left pixel.
-pub fn pixel_grid(width: usize, height: usize, device: &Device) -> Result<Tensor> {
-    let flat: Vec<f32> = pixel_grid_values(width, height)
-        .into_iter()
-        .flat_map(|[x, y]| [x as f32, y as f32])
-        .collect();
-    Ok(Tensor::from_vec(flat, (width * height, 2), device)?)
-}
+pub use crate::core::pixel_grid::{
+    homework_ndc, linspace, linspace_value, pixel_grid, pixel_grid_values,
+};
 
 /// `n` distinct pixel indices (row-major, `y·W + x`) drawn uniformly from a `width × height`
 /// image, for training batches. `n` larger than the image takes every pixel once.
@@ -279,5 +230,54 @@ mod tests {
         let mut every = random_pixel_indices(w, h, 1000, &mut rng);
         every.sort();
         assert_eq!(every, (0..w * h).collect::<Vec<_>>());
+    }
+}
+
+#[cfg(test)]
+mod camera_model_tests {
+    use super::*;
+    use crate::core::camera::surround_cameras;
+    use crate::core::camera_model::CameraModel;
+    use candle_core::Device;
+
+    /// An orthographic camera looking down −z from z = 5, imaging a 2×2 square: a kind whose
+    /// rays do not share an origin, so it overrides the default ray.
+    #[derive(Debug)]
+    struct Orthographic;
+
+    impl CameraModel for Orthographic {
+        fn center(&self) -> DVec3 {
+            DVec3::new(0.0, 0.0, 5.0)
+        }
+        fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3 {
+            // +X left in NDC: world x = −x for a camera looking down −z with +y up.
+            DVec3::new(-x, y, 5.0 - depth)
+        }
+        fn validate(&self) -> Result<()> {
+            Ok(())
+        }
+        fn ray_through_ndc(&self, x: f64, y: f64) -> (DVec3, DVec3) {
+            (self.unproject_ndc(x, y, 0.0), DVec3::new(0.0, 0.0, -1.0))
+        }
+    }
+
+    #[test]
+    fn rays_come_from_any_camera_kind() {
+        let rays = Rays::for_image(&Orthographic, 3, 2, &Device::Cpu).unwrap();
+        let origins = rays.origins.to_vec2::<f32>().unwrap();
+        let directions = rays.directions.to_vec2::<f32>().unwrap();
+        // First pixel: top-left of the image, NDC (+1, +1) → world (−1, 1).
+        assert_eq!(origins[0], [-1.0, 1.0, 5.0]);
+        assert_eq!(origins[5], [1.0, -1.0, 5.0]);
+        assert!(directions.iter().all(|d| *d == [0.0, 0.0, -1.0]));
+    }
+
+    #[test]
+    fn the_pinhole_kind_is_pytorch3d_unprojection() {
+        let camera = surround_cameras(4.0, 3, DVec3::Y, 1.5)[1];
+        let (o, d) = CameraModel::ray_through_ndc(&camera, 0.3, -0.6);
+        assert!((o - camera.center()).length() < 1e-12);
+        let target = camera.unproject_ndc(0.3, -0.6, 1.0);
+        assert!((d - (target - o).normalize()).length() < 1e-12);
     }
 }

@@ -104,13 +104,13 @@ impl Progress {
             let mut last = plain.last.lock().unwrap_or_else(|e| e.into_inner());
             if now - *last >= plain.every {
                 *last = now;
-                crate::core::term::note(&format!(
+                log::info!(
                     "{}: {}/{} after {:.0} s",
                     plain.what,
                     self.position(),
                     self.length(),
                     now
-                ));
+                );
             }
         }
     }
@@ -155,7 +155,7 @@ impl Progress {
             self.bar.println(message);
             return;
         }
-        crate::core::term::note(message);
+        log::info!("{message}");
     }
 
     /// Removes the bar.

@@ -51,6 +51,13 @@ pub trait RaySampler: std::fmt::Debug + Send + Sync {
     }
 }
 
+/// The homework's stratified sampler: its own depths, unrefined.
+impl RaySampler for StratifiedSampler {
+    fn stratified(&self) -> &StratifiedSampler {
+        self
+    }
+}
+
 /// A shared sampler is a sampler (configs hand theirs out as `Arc<dyn RaySampler>`).
 impl<S: RaySampler + ?Sized> RaySampler for std::sync::Arc<S> {
     fn stratified(&self) -> &StratifiedSampler {

@@ -6,7 +6,6 @@ use rand::Rng;
 
 use crate::core::rays::{linspace, Rays};
 use crate::kernels::sample_points::sample_points;
-use crate::render::ray_sampler::RaySampler;
 
 /// Sample points along a batch of rays.
 #[derive(Debug, Clone)]
@@ -137,12 +136,6 @@ impl StratifiedSampler {
                     .to_dtype(dtype)?
             }
         })
-    }
-}
-
-impl RaySampler for StratifiedSampler {
-    fn stratified(&self) -> &StratifiedSampler {
-        self
     }
 }
 

@@ -80,12 +80,12 @@ impl Dataset {
         check_sizes_agree(&frames, &loaded)?;
         let opaque = loaded.iter().filter(|l| !l.has_alpha).count();
         if opaque > 0 {
-            crate::core::term::note(&format!(
+            log::warn!(
                 "note: {opaque} of the {} images of {} have no alpha channel and are taken as \
                  opaque (no background compositing applies to them)",
                 loaded.len(),
                 split.transforms_path(data_dir).display()
-            ));
+            );
         }
         let (images, transparency) = loaded
             .into_iter()
