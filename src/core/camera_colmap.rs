@@ -361,7 +361,8 @@ impl ColmapCamera {
     /// `z ≤ 0`). Points outside the image frame still get coordinates.
     pub fn project(&self, world_point: DVec3) -> Option<(f64, f64)> {
         let p = self.pose.world_to_camera(world_point);
-        if !(p.z > 0.0) {
+        // Written so that a NaN depth is not in front either.
+        if p.z.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return None;
         }
         let distorted = self.distortion.distort(DVec2::new(p.x / p.z, p.y / p.z));
@@ -749,6 +750,6 @@ mod tests {
         let (_, camera) = &cameras_of_every_model()[4];
         let behind = camera.pose.camera_to_world(DVec3::new(0.1, 0.2, -3.0));
         assert_eq!(camera.project(behind), None);
-        assert_eq!(camera.project(camera.center()), None);
+        assert_eq!(camera.project(DVec3::NAN), None);
     }
 }
