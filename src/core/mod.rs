@@ -2,8 +2,10 @@
 
 pub mod allocator;
 pub mod camera;
+pub mod camera_colmap;
 pub mod camera_model;
 pub mod compare;
+pub mod distortion;
 pub mod fastexp;
 pub mod image;
 pub mod marching_cubes;

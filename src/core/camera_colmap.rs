@@ -1,0 +1,755 @@
+//! Real cameras from COLMAP and nerfstudio captures: pixel intrinsics with lens distortion.
+//!
+//! Conventions (COLMAP's, `src/colmap/sensor/models.h` and the COLMAP docs):
+//!
+//! * **Pose**: world → camera, `X_cam = R · X_world + t` (column vectors), as COLMAP's
+//!   `images.txt` stores it (`QW QX QY QZ TX TY TZ`, a Hamilton unit quaternion). The camera
+//!   centre is `C = −Rᵀ t`.
+//! * **Camera axes** (OpenCV): +x right, +y down, +z forward (into the scene).
+//! * **Pixels**: `(u, v)` with `u` along the columns and `v` down the rows; the image's top-left
+//!   corner is `(0, 0)` and the centre of pixel `(i, j)` (column `i`, row `j`) is
+//!   `(i + 0.5, j + 0.5)`. A camera-space point projects to `u = f_x · x_d + c_x`,
+//!   `v = f_y · y_d + c_y`, where `(x_d, y_d)` is the distorted point
+//!   ([`crate::core::distortion`]) of the normalised point `(X/Z, Y/Z)`.
+//! * **Models** and their parameter lists, exactly COLMAP's: `SIMPLE_PINHOLE (f, cx, cy)`,
+//!   `PINHOLE (fx, fy, cx, cy)`, `SIMPLE_RADIAL (f, cx, cy, k)`, `RADIAL (f, cx, cy, k1, k2)`,
+//!   `OPENCV (fx, fy, cx, cy, k1, k2, p1, p2)`,
+//!   `FULL_OPENCV (fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6)`,
+//!   `OPENCV_FISHEYE (fx, fy, cx, cy, k1, k2, k3, k4)`.
+//!
+//! nerfstudio's `transforms.json` stores camera → world in OpenGL axes (+x right, +y up,
+//! +z backward) instead; [`ColmapCamera::from_nerfstudio`] converts it.
+
+use anyhow::{bail, ensure, Context, Result};
+use glam::{DMat3, DQuat, DVec2, DVec3};
+
+use crate::core::camera_model::CameraModel;
+use crate::core::distortion::LensDistortion;
+
+/// The COLMAP camera models this crate images with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ColmapCameraModel {
+    /// `SIMPLE_PINHOLE`: `f, cx, cy`.
+    SimplePinhole,
+    /// `PINHOLE`: `fx, fy, cx, cy`.
+    Pinhole,
+    /// `SIMPLE_RADIAL`: `f, cx, cy, k` (radial `1 + k r²`).
+    SimpleRadial,
+    /// `RADIAL`: `f, cx, cy, k1, k2` (radial `1 + k1 r² + k2 r⁴`).
+    Radial,
+    /// `OPENCV`: `fx, fy, cx, cy, k1, k2, p1, p2`.
+    OpenCv,
+    /// `FULL_OPENCV`: `fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6` (rational radial term).
+    FullOpenCv,
+    /// `OPENCV_FISHEYE`: `fx, fy, cx, cy, k1, k2, k3, k4` (Kannala–Brandt in `θ`).
+    OpenCvFisheye,
+}
+
+impl ColmapCameraModel {
+    /// Every supported model, in COLMAP's model-id order.
+    pub const ALL: [Self; 7] = [
+        Self::SimplePinhole,
+        Self::Pinhole,
+        Self::SimpleRadial,
+        Self::Radial,
+        Self::OpenCv,
+        Self::OpenCvFisheye,
+        Self::FullOpenCv,
+    ];
+
+    /// COLMAP's name of the model (`cameras.txt`'s `MODEL` column).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::SimplePinhole => "SIMPLE_PINHOLE",
+            Self::Pinhole => "PINHOLE",
+            Self::SimpleRadial => "SIMPLE_RADIAL",
+            Self::Radial => "RADIAL",
+            Self::OpenCv => "OPENCV",
+            Self::FullOpenCv => "FULL_OPENCV",
+            Self::OpenCvFisheye => "OPENCV_FISHEYE",
+        }
+    }
+
+    /// The model's parameter names in COLMAP's order.
+    pub fn parameter_names(self) -> &'static [&'static str] {
+        match self {
+            Self::SimplePinhole => &["f", "cx", "cy"],
+            Self::Pinhole => &["fx", "fy", "cx", "cy"],
+            Self::SimpleRadial => &["f", "cx", "cy", "k"],
+            Self::Radial => &["f", "cx", "cy", "k1", "k2"],
+            Self::OpenCv => &["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"],
+            Self::FullOpenCv => &[
+                "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6",
+            ],
+            Self::OpenCvFisheye => &["fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"],
+        }
+    }
+
+    /// The model of a COLMAP name; an error naming the unknown model and the supported ones.
+    pub fn from_name(name: &str) -> Result<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|model| model.name() == name)
+            .with_context(|| {
+                let supported: Vec<_> = Self::ALL.iter().map(|m| m.name()).collect();
+                format!(
+                    "unknown COLMAP camera model `{name}` (supported: {})",
+                    supported.join(", ")
+                )
+            })
+    }
+
+    /// Splits COLMAP's parameter list into focal lengths `[fx, fy]`, principal point
+    /// `[cx, cy]` (pixels) and the lens distortion; an error naming the model when the
+    /// parameter count is wrong.
+    pub fn intrinsics(self, params: &[f64]) -> Result<([f64; 2], [f64; 2], LensDistortion)> {
+        let names = self.parameter_names();
+        ensure!(
+            params.len() == names.len(),
+            "COLMAP camera model {} takes {} parameters ({}), got {}",
+            self.name(),
+            names.len(),
+            names.join(", "),
+            params.len()
+        );
+        let p = params;
+        Ok(match self {
+            Self::SimplePinhole => ([p[0], p[0]], [p[1], p[2]], LensDistortion::None),
+            Self::Pinhole => ([p[0], p[1]], [p[2], p[3]], LensDistortion::None),
+            Self::SimpleRadial => (
+                [p[0], p[0]],
+                [p[1], p[2]],
+                LensDistortion::polynomial([p[3], 0.0, 0.0, 0.0], [0.0, 0.0]),
+            ),
+            Self::Radial => (
+                [p[0], p[0]],
+                [p[1], p[2]],
+                LensDistortion::polynomial([p[3], p[4], 0.0, 0.0], [0.0, 0.0]),
+            ),
+            Self::OpenCv => (
+                [p[0], p[1]],
+                [p[2], p[3]],
+                LensDistortion::polynomial([p[4], p[5], 0.0, 0.0], [p[6], p[7]]),
+            ),
+            Self::FullOpenCv => (
+                [p[0], p[1]],
+                [p[2], p[3]],
+                LensDistortion::RadialTangential {
+                    numerator: [p[4], p[5], p[8], 0.0],
+                    denominator: [p[9], p[10], p[11]],
+                    tangential: [p[6], p[7]],
+                },
+            ),
+            Self::OpenCvFisheye => (
+                [p[0], p[1]],
+                [p[2], p[3]],
+                LensDistortion::Fisheye {
+                    k: [p[4], p[5], p[6], p[7]],
+                },
+            ),
+        })
+    }
+}
+
+/// A camera pose as COLMAP stores it: world → camera, `X_cam = rotation · X_world + translation`
+/// with OpenCV camera axes (+x right, +y down, +z forward).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ColmapPose {
+    /// The world → camera rotation `R` (acting on column vectors).
+    pub rotation: DMat3,
+    /// The world → camera translation `t`.
+    pub translation: DVec3,
+}
+
+impl ColmapPose {
+    /// A pose from COLMAP's `images.txt` quaternion `[qw, qx, qy, qz]` (Hamilton, normalised
+    /// here) and translation `[tx, ty, tz]`; an error for a zero or non-finite quaternion.
+    pub fn from_quaternion([qw, qx, qy, qz]: [f64; 4], translation: [f64; 3]) -> Result<Self> {
+        let q = DQuat::from_xyzw(qx, qy, qz, qw);
+        let norm = q.length();
+        ensure!(
+            norm.is_finite() && norm > 1e-12,
+            "COLMAP pose quaternion [{qw}, {qx}, {qy}, {qz}] is zero or not finite"
+        );
+        Ok(Self {
+            rotation: DMat3::from_quat(q / norm),
+            translation: DVec3::from_array(translation),
+        })
+    }
+
+    /// A pose from the world → camera rotation given row by row (`rotation[i][j]` = `R_ij`,
+    /// as numpy prints it) and the translation.
+    pub fn from_matrix(rotation: [[f64; 3]; 3], translation: [f64; 3]) -> Self {
+        // from_cols_array_2d reads each inner array as a column: transposing gives R.
+        Self {
+            rotation: DMat3::from_cols_array_2d(&rotation).transpose(),
+            translation: DVec3::from_array(translation),
+        }
+    }
+
+    /// A pose from nerfstudio's camera → world matrix in OpenGL axes (+x right, +y up,
+    /// +z backward): the top three rows of `transforms.json`'s `transform_matrix`, row by row.
+    /// OpenCV's camera axes are OpenGL's with y and z negated, so the OpenCV camera → world
+    /// rotation is the OpenGL one with its second and third columns negated; the world →
+    /// camera pose is its inverse.
+    pub fn from_opengl_camera_to_world(camera_to_world: [[f64; 4]; 3]) -> Self {
+        let column = |j: usize| DVec3::from_array([0, 1, 2].map(|i| camera_to_world[i][j]));
+        let camera_to_world_rotation = DMat3::from_cols(column(0), -column(1), -column(2));
+        let rotation = camera_to_world_rotation.transpose();
+        Self {
+            rotation,
+            translation: -(rotation * column(3)),
+        }
+    }
+
+    /// The camera centre in world space, `C = −Rᵀ t`.
+    pub fn center(&self) -> DVec3 {
+        -(self.rotation.transpose() * self.translation)
+    }
+
+    /// World point → camera-space point (OpenCV axes).
+    pub fn world_to_camera(&self, point: DVec3) -> DVec3 {
+        self.rotation * point + self.translation
+    }
+
+    /// Camera-space point → world point.
+    pub fn camera_to_world(&self, point: DVec3) -> DVec3 {
+        self.rotation.transpose() * (point - self.translation)
+    }
+}
+
+/// nerfstudio's per-camera intrinsics, as `transforms.json` names them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NerfstudioIntrinsics {
+    /// `camera_model`: `OPENCV` (radial `1 + k1 r² + k2 r⁴ + k3 r⁶ + k4 r⁸`, tangential p1 p2)
+    /// or `OPENCV_FISHEYE` (k1..k4 in `θ`, p1 = p2 = 0).
+    pub camera_model: String,
+    /// `fl_x`, focal length along the columns in pixels.
+    pub fl_x: f64,
+    /// `fl_y`, focal length along the rows in pixels.
+    pub fl_y: f64,
+    /// `cx`, principal point column in pixels (COLMAP's convention: pixel centres at `i + 0.5`).
+    pub cx: f64,
+    /// `cy`, principal point row in pixels.
+    pub cy: f64,
+    /// `w`, image width in pixels.
+    pub w: usize,
+    /// `h`, image height in pixels.
+    pub h: usize,
+    /// Distortion coefficients `[k1, k2, k3, k4]` (absent keys are 0).
+    pub k: [f64; 4],
+    /// Tangential distortion `[p1, p2]` (absent keys are 0).
+    pub p: [f64; 2],
+}
+
+/// A camera with pixel intrinsics and lens distortion in COLMAP's conventions (see the module
+/// documentation): one of COLMAP's models, or nerfstudio's `OPENCV` / `OPENCV_FISHEYE`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColmapCamera {
+    /// World → camera pose.
+    pub pose: ColmapPose,
+    /// The image size `(width, height)` in pixels that the intrinsics refer to.
+    pub size: (usize, usize),
+    /// Focal lengths `[fx, fy]` in pixels.
+    pub focal: [f64; 2],
+    /// Principal point `[cx, cy]` in pixels.
+    pub principal_point: [f64; 2],
+    /// The lens distortion on the normalised plane.
+    pub distortion: LensDistortion,
+}
+
+impl ColmapCamera {
+    /// A camera of `model` with COLMAP's parameter list `params` for images of `size =
+    /// (width, height)` pixels; an error naming the model for a wrong parameter count, or
+    /// what [`CameraModel::validate`] rejects.
+    pub fn new(
+        model: ColmapCameraModel,
+        params: &[f64],
+        size: (usize, usize),
+        pose: ColmapPose,
+    ) -> Result<Self> {
+        let (focal, principal_point, distortion) = model.intrinsics(params)?;
+        let camera = Self {
+            pose,
+            size,
+            focal,
+            principal_point,
+            distortion,
+        };
+        camera
+            .validate()
+            .with_context(|| format!("COLMAP camera model {}", model.name()))?;
+        Ok(camera)
+    }
+
+    /// A camera from a `cameras.txt` line's model name and parameters: as [`Self::new`],
+    /// with an error naming an unknown model and listing the supported ones.
+    pub fn from_colmap(
+        model_name: &str,
+        params: &[f64],
+        size: (usize, usize),
+        pose: ColmapPose,
+    ) -> Result<Self> {
+        Self::new(
+            ColmapCameraModel::from_name(model_name)?,
+            params,
+            size,
+            pose,
+        )
+    }
+
+    /// A camera from a nerfstudio frame: camera → world in OpenGL axes (the top three rows of
+    /// `transform_matrix`, see [`ColmapPose::from_opengl_camera_to_world`]) and its intrinsics.
+    /// Errors name an unsupported `camera_model`, tangential terms given to a fisheye, or what
+    /// [`CameraModel::validate`] rejects.
+    pub fn from_nerfstudio(
+        camera_to_world: [[f64; 4]; 3],
+        intrinsics: &NerfstudioIntrinsics,
+    ) -> Result<Self> {
+        let NerfstudioIntrinsics { k, p, .. } = *intrinsics;
+        let model = intrinsics.camera_model.as_str();
+        let distortion = match model {
+            "OPENCV" => LensDistortion::polynomial(k, p),
+            "OPENCV_FISHEYE" => {
+                ensure!(
+                    p == [0.0, 0.0],
+                    "nerfstudio camera_model OPENCV_FISHEYE has no tangential terms, \
+                     but p1 = {}, p2 = {}",
+                    p[0],
+                    p[1]
+                );
+                LensDistortion::Fisheye { k }
+            }
+            other => bail!(
+                "unsupported nerfstudio camera_model `{other}` (supported: OPENCV, OPENCV_FISHEYE)"
+            ),
+        };
+        let camera = Self {
+            pose: ColmapPose::from_opengl_camera_to_world(camera_to_world),
+            size: (intrinsics.w, intrinsics.h),
+            focal: [intrinsics.fl_x, intrinsics.fl_y],
+            principal_point: [intrinsics.cx, intrinsics.cy],
+            distortion,
+        };
+        camera
+            .validate()
+            .with_context(|| format!("nerfstudio camera_model {model}"))?;
+        Ok(camera)
+    }
+
+    /// Unit world-space direction of the ray imaged at pixel coordinates `(u, v)` of the
+    /// camera's own image size (fractional; the centre of pixel `(i, j)` is
+    /// `(i + 0.5, j + 0.5)`): the distortion is removed by Newton's method
+    /// ([`LensDistortion::undistorted_direction`]).
+    pub fn direction_at_pixel(&self, u: f64, v: f64) -> DVec3 {
+        let distorted = DVec2::new(
+            (u - self.principal_point[0]) / self.focal[0],
+            (v - self.principal_point[1]) / self.focal[1],
+        );
+        let camera = self.distortion.undistorted_direction(distorted);
+        (self.pose.rotation.transpose() * camera).normalize()
+    }
+
+    /// Origin (the camera centre) and unit direction of the ray through the fractional pixel
+    /// coordinates `(u, v)` of the camera's own image size.
+    pub fn ray_through_pixel(&self, u: f64, v: f64) -> (DVec3, DVec3) {
+        (self.pose.center(), self.direction_at_pixel(u, v))
+    }
+
+    /// Pixel coordinates `(u, v)` (own image size, distortion applied) at which the world
+    /// point is imaged, or `None` when it is not in front of the camera (camera-space
+    /// `z ≤ 0`). Points outside the image frame still get coordinates.
+    pub fn project(&self, world_point: DVec3) -> Option<(f64, f64)> {
+        let p = self.pose.world_to_camera(world_point);
+        // Written so that a NaN depth is not in front either.
+        if p.z.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return None;
+        }
+        let distorted = self.distortion.distort(DVec2::new(p.x / p.z, p.y / p.z));
+        Some((
+            self.focal[0] * distorted.x + self.principal_point[0],
+            self.focal[1] * distorted.y + self.principal_point[1],
+        ))
+    }
+
+    /// The pixel coordinates (own image size) of the homework NDC point `(x, y)` (+X left,
+    /// +Y up, [−1, 1] across the image): `u = (1 − x) / 2 · width`, `v = (1 − y) / 2 · height`,
+    /// so NDC `(1, 1)` is the image's top-left corner `(0, 0)` and `(−1, −1)` its bottom-right
+    /// corner `(width, height)`.
+    pub fn ndc_to_pixel(&self, x: f64, y: f64) -> (f64, f64) {
+        (
+            (1.0 - x) / 2.0 * self.size.0 as f64,
+            (1.0 - y) / 2.0 * self.size.1 as f64,
+        )
+    }
+}
+
+impl CameraModel for ColmapCamera {
+    fn center(&self) -> DVec3 {
+        self.pose.center()
+    }
+
+    /// The point at camera-space depth `z = depth` on the ray through the pixel
+    /// [`ColmapCamera::ndc_to_pixel`] gives; for a fisheye ray at or beyond 90° from the axis
+    /// (no positive depth), the point at distance `depth` along the ray.
+    fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3 {
+        let (u, v) = self.ndc_to_pixel(x, y);
+        let direction = self.pose.rotation * self.direction_at_pixel(u, v);
+        let camera_point = if direction.z > 0.0 {
+            direction * (depth / direction.z)
+        } else {
+            direction * depth
+        };
+        self.pose.camera_to_world(camera_point)
+    }
+
+    fn validate(&self) -> Result<()> {
+        let (width, height) = self.size;
+        ensure!(
+            width > 0 && height > 0,
+            "camera image size must be positive, got {width}×{height}"
+        );
+        let translation = self.pose.translation.to_array();
+        let all_finite = self
+            .pose
+            .rotation
+            .to_cols_array()
+            .iter()
+            .chain(&translation)
+            .chain(&self.focal)
+            .chain(&self.principal_point)
+            .copied()
+            .chain(self.distortion.coefficients())
+            .all(f64::is_finite);
+        ensure!(
+            all_finite,
+            "camera has a non-finite value in its rotation, translation, focal length, \
+             principal point or distortion"
+        );
+        let [fx, fy] = self.focal;
+        ensure!(
+            fx > 0.0 && fy > 0.0,
+            "camera focal lengths must be positive, got fx = {fx}, fy = {fy}"
+        );
+        let r = self.pose.rotation;
+        let orthogonality = (r.transpose() * r - DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .fold(0.0_f64, |worst, v| worst.max(v.abs()));
+        ensure!(
+            orthogonality < 1e-6 && r.determinant() > 0.0,
+            "camera rotation is not a proper rotation (|RᵀR − I| = {orthogonality:.2e}, \
+             det R = {:.6})",
+            r.determinant()
+        );
+        Ok(())
+    }
+
+    fn ray_through_ndc(&self, x: f64, y: f64) -> (DVec3, DVec3) {
+        let (u, v) = self.ndc_to_pixel(x, y);
+        self.ray_through_pixel(u, v)
+    }
+
+    /// COLMAP's pixel convention: the ray through the centre `(column + 0.5, row + 0.5)` of
+    /// the pixel in a `size = (width, height)` image. A size other than the camera's own (a
+    /// downscaled image) scales the intrinsics by `width / own width` and `height / own
+    /// height`, i.e. the pixel centre maps to `((column + 0.5) · own width / width, …)`.
+    fn pixel_ray(&self, column: usize, row: usize, size: (usize, usize)) -> (DVec3, DVec3) {
+        let u = (column as f64 + 0.5) * self.size.0 as f64 / size.0 as f64;
+        let v = (row as f64 + 0.5) * self.size.1 as f64 / size.1 as f64;
+        self.ray_through_pixel(u, v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{rngs::StdRng, Rng, SeedableRng};
+
+    const SIZE: (usize, usize) = (640, 480);
+
+    /// An arbitrary pose: a generic rotation and an off-axis translation.
+    fn arbitrary_pose() -> ColmapPose {
+        ColmapPose::from_quaternion([0.9, 0.1, -0.3, 0.2], [0.3, -1.2, 2.5]).unwrap()
+    }
+
+    /// One camera of every model with realistic, non-zero distortion.
+    fn cameras_of_every_model() -> Vec<(ColmapCameraModel, ColmapCamera)> {
+        use ColmapCameraModel::*;
+        let params = |model| -> Vec<f64> {
+            match model {
+                SimplePinhole => vec![500.0, 320.0, 240.0],
+                Pinhole => vec![510.0, 490.0, 322.5, 238.0],
+                SimpleRadial => vec![500.0, 320.0, 240.0, -0.08],
+                Radial => vec![500.0, 320.0, 240.0, -0.1, 0.02],
+                OpenCv => vec![510.0, 490.0, 322.5, 238.0, -0.1, 0.02, 1e-3, -5e-4],
+                FullOpenCv => vec![
+                    510.0, 490.0, 322.5, 238.0, -0.1, 0.02, 1e-3, -5e-4, 0.003, 0.01, -0.005, 0.001,
+                ],
+                OpenCvFisheye => vec![300.0, 302.0, 320.0, 240.0, 0.05, -0.01, 0.002, -5e-4],
+            }
+        };
+        ColmapCameraModel::ALL
+            .into_iter()
+            .map(|model| {
+                let camera =
+                    ColmapCamera::new(model, &params(model), SIZE, arbitrary_pose()).unwrap();
+                (model, camera)
+            })
+            .collect()
+    }
+
+    /// Distance from `point` to the ray, relative to the point's distance from the origin.
+    fn relative_miss((origin, direction): (DVec3, DVec3), point: DVec3) -> f64 {
+        let to_point = point - origin;
+        to_point.cross(direction).length() / to_point.length()
+    }
+
+    #[test]
+    fn rays_through_projected_pixels_pass_through_the_points() {
+        let mut rng = StdRng::seed_from_u64(22);
+        for (model, camera) in cameras_of_every_model() {
+            let mut worst: f64 = 0.0;
+            let mut inside = 0;
+            for _ in 0..500 {
+                // A point in front of the camera, within about ±35° of the axis.
+                let z = rng.random_range(0.3..20.0);
+                let camera_point = DVec3::new(
+                    rng.random_range(-0.7..0.7) * z,
+                    rng.random_range(-0.5..0.5) * z,
+                    z,
+                );
+                let world_point = camera.pose.camera_to_world(camera_point);
+                let (u, v) = camera.project(world_point).unwrap();
+                if (0.0..640.0).contains(&u) && (0.0..480.0).contains(&v) {
+                    inside += 1;
+                }
+                let miss = relative_miss(camera.ray_through_pixel(u, v), world_point);
+                worst = worst.max(miss);
+            }
+            eprintln!(
+                "{}: worst relative ray miss {worst:.3e} ({inside}/500 inside the image)",
+                model.name()
+            );
+            assert!(inside > 300, "{}: points should mostly image", model.name());
+            assert!(worst < 1e-5, "{}: {worst}", model.name());
+        }
+    }
+
+    #[test]
+    fn pixel_ray_is_the_pixel_centre_and_scales_for_downscaled_images() {
+        for (model, camera) in cameras_of_every_model() {
+            for (i, j) in [(0, 0), (17, 300), (639, 479)] {
+                let (o, d) = camera.pixel_ray(i, j, SIZE);
+                let (o2, d2) = camera.ray_through_pixel(i as f64 + 0.5, j as f64 + 0.5);
+                assert_eq!((o, d), (o2, d2), "{}", model.name());
+            }
+            // Half size: pixel (i, j) covers own pixels 2i..2i+2, centred at 2i + 1.
+            let (_, d) = camera.pixel_ray(100, 50, (320, 240));
+            let (_, d2) = camera.ray_through_pixel(201.0, 101.0);
+            assert!((d - d2).length() < 1e-12, "{}", model.name());
+        }
+    }
+
+    #[test]
+    fn pinhole_ray_matches_a_hand_computation() {
+        let identity = ColmapPose::from_matrix(
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0; 3],
+        );
+        let camera =
+            ColmapCamera::from_colmap("PINHOLE", &[500.0, 400.0, 320.0, 240.0], SIZE, identity)
+                .unwrap();
+        // Pixel (10, 20): centre (10.5, 20.5); x = (10.5 − 320) / 500 = −0.619,
+        // y = (20.5 − 240) / 400 = −0.54875, z = 1 (up and left of the axis: y down).
+        let (origin, direction) = camera.pixel_ray(10, 20, SIZE);
+        let expected = DVec3::new(-0.619, -0.54875, 1.0).normalize();
+        assert_eq!(origin, DVec3::ZERO);
+        assert!((direction - expected).length() < 1e-15, "{direction}");
+        // And it projects back to the pixel centre.
+        let (u, v) = camera.project(direction * 3.0).unwrap();
+        assert!((u - 10.5).abs() < 1e-12 && (v - 20.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn quaternion_and_matrix_poses_agree() {
+        let pose = arbitrary_pose();
+        let rows = pose.rotation.transpose().to_cols_array_2d();
+        let again = ColmapPose::from_matrix(rows, pose.translation.to_array());
+        assert!((again.rotation - pose.rotation).abs_diff_eq(DMat3::ZERO, 1e-15));
+        // A half turn about x, camera at (0, 0, 5) looking down world −z.
+        let half_turn = ColmapPose::from_quaternion([0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 5.0]).unwrap();
+        assert!((half_turn.center() - DVec3::new(0.0, 0.0, 5.0)).length() < 1e-15);
+        let forward = half_turn.rotation.transpose() * DVec3::Z;
+        assert!((forward - DVec3::NEG_Z).length() < 1e-15);
+    }
+
+    fn nerfstudio_intrinsics(camera_model: &str) -> NerfstudioIntrinsics {
+        NerfstudioIntrinsics {
+            camera_model: camera_model.to_string(),
+            fl_x: 510.0,
+            fl_y: 490.0,
+            cx: 322.5,
+            cy: 238.0,
+            w: 640,
+            h: 480,
+            k: [-0.1, 0.02, 0.0, 0.0],
+            p: [1e-3, -5e-4],
+        }
+    }
+
+    #[test]
+    fn nerfstudio_opengl_and_colmap_poses_give_the_same_rays() {
+        // By hand: nerfstudio's camera at (0, 0, 5) with the identity OpenGL rotation looks
+        // down world −z with +y up; COLMAP's is the half turn about x, t = (0, 0, 5).
+        let opengl = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 5.0],
+        ];
+        let colmap_pose =
+            ColmapPose::from_quaternion([0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 5.0]).unwrap();
+        let params = [510.0, 490.0, 322.5, 238.0, -0.1, 0.02, 1e-3, -5e-4];
+        let pairs = [
+            (
+                ColmapCamera::from_nerfstudio(opengl, &nerfstudio_intrinsics("OPENCV")).unwrap(),
+                ColmapCamera::from_colmap("OPENCV", &params, SIZE, colmap_pose).unwrap(),
+            ),
+            {
+                // The arbitrary pose written as nerfstudio would: c2w with y, z negated.
+                let pose = arbitrary_pose();
+                let c2w_cv = pose.rotation.transpose();
+                let c = pose.center();
+                let cols = [c2w_cv.x_axis, -c2w_cv.y_axis, -c2w_cv.z_axis, c];
+                let opengl = [0, 1, 2].map(|i| cols.map(|col| col[i]));
+                (
+                    ColmapCamera::from_nerfstudio(opengl, &nerfstudio_intrinsics("OPENCV"))
+                        .unwrap(),
+                    ColmapCamera::from_colmap("OPENCV", &params, SIZE, pose).unwrap(),
+                )
+            },
+        ];
+        for (nerfstudio, colmap) in pairs {
+            for (i, j) in [(0, 0), (320, 240), (5, 470), (600, 33)] {
+                let (o1, d1) = nerfstudio.pixel_ray(i, j, SIZE);
+                let (o2, d2) = colmap.pixel_ray(i, j, SIZE);
+                assert!((o1 - o2).length() < 1e-12 && (d1 - d2).length() < 1e-12);
+            }
+        }
+        // The principal point looks straight ahead: world −z for the first pair.
+        let camera =
+            ColmapCamera::from_nerfstudio(opengl, &nerfstudio_intrinsics("OPENCV")).unwrap();
+        assert!((camera.direction_at_pixel(322.5, 238.0) - DVec3::NEG_Z).length() < 1e-15);
+        // Image up (smaller v) is world +y.
+        assert!(camera.direction_at_pixel(322.5, 0.0).y > 0.0);
+    }
+
+    #[test]
+    fn nerfstudio_fisheye_and_k3_k4_are_supported() {
+        let c2w = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 5.0],
+        ];
+        let mut opencv = nerfstudio_intrinsics("OPENCV");
+        opencv.k = [-0.12, 0.03, -0.004, 0.0005];
+        let mut fisheye = nerfstudio_intrinsics("OPENCV_FISHEYE");
+        fisheye.k = [0.05, -0.01, 0.002, -5e-4];
+        assert!(ColmapCamera::from_nerfstudio(c2w, &fisheye).is_err()); // p1, p2 set
+        fisheye.p = [0.0, 0.0];
+        for intrinsics in [opencv, fisheye] {
+            let camera = ColmapCamera::from_nerfstudio(c2w, &intrinsics).unwrap();
+            let point = DVec3::new(1.2, -0.7, -2.0);
+            let (u, v) = camera.project(point).unwrap();
+            let miss = relative_miss(camera.ray_through_pixel(u, v), point);
+            assert!(miss < 1e-10, "{}: {miss}", intrinsics.camera_model);
+        }
+        let error = ColmapCamera::from_nerfstudio(c2w, &nerfstudio_intrinsics("EQUIRECTANGULAR"))
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("EQUIRECTANGULAR") && error.contains("OPENCV_FISHEYE"));
+    }
+
+    #[test]
+    fn wrong_parameter_counts_and_unknown_models_are_errors_naming_the_model() {
+        let pose = arbitrary_pose();
+        for model in ColmapCameraModel::ALL {
+            let n = model.parameter_names().len();
+            let error = ColmapCamera::new(model, &vec![1.0; n + 1], SIZE, pose)
+                .unwrap_err()
+                .to_string();
+            assert!(error.contains(model.name()), "{error}");
+            assert!(error.contains(&format!("takes {n} parameters")), "{error}");
+        }
+        let error = ColmapCamera::from_colmap("OPENCV", &[500.0, 320.0, 240.0], SIZE, pose)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            error,
+            "COLMAP camera model OPENCV takes 8 parameters \
+             (fx, fy, cx, cy, k1, k2, p1, p2), got 3"
+        );
+        let error = ColmapCamera::from_colmap("THIN_PRISM_FISHEYE", &[1.0; 12], SIZE, pose)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("THIN_PRISM_FISHEYE"), "{error}");
+        assert!(error.contains("SIMPLE_PINHOLE, PINHOLE"), "{error}");
+    }
+
+    #[test]
+    fn validate_rejects_bad_focal_lengths_and_rotations() {
+        let pose = arbitrary_pose();
+        let error =
+            ColmapCamera::from_colmap("SIMPLE_PINHOLE", &[-5.0, 1.0, 1.0], SIZE, pose).unwrap_err();
+        assert!(format!("{error:#}").contains("focal lengths must be positive"));
+        let sheared = ColmapPose::from_matrix(
+            [[1.0, 0.2, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0; 3],
+        );
+        let error = ColmapCamera::from_colmap("SIMPLE_PINHOLE", &[5.0, 1.0, 1.0], SIZE, sheared)
+            .unwrap_err();
+        assert!(format!("{error:#}").contains("not a proper rotation"));
+        let mirror = ColmapPose::from_matrix(
+            [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0; 3],
+        );
+        assert!(
+            ColmapCamera::from_colmap("SIMPLE_PINHOLE", &[5.0, 1.0, 1.0], SIZE, mirror).is_err()
+        );
+        let nan =
+            ColmapCamera::from_colmap("SIMPLE_RADIAL", &[5.0, 1.0, 1.0, f64::NAN], SIZE, pose);
+        assert!(format!("{:#}", nan.unwrap_err()).contains("non-finite"));
+        assert!(ColmapPose::from_quaternion([0.0; 4], [0.0; 3]).is_err());
+    }
+
+    #[test]
+    fn unproject_ndc_maps_the_homework_square_onto_the_image() {
+        for (model, camera) in cameras_of_every_model() {
+            for (x, y) in [(1.0, 1.0), (-1.0, -1.0), (0.3, -0.6), (0.0, 0.0)] {
+                let point = camera.unproject_ndc(x, y, 2.5);
+                // View depth 2.5 …
+                let depth = camera.pose.world_to_camera(point).z;
+                assert!((depth - 2.5).abs() < 1e-12, "{}", model.name());
+                // … imaged at u = (1 − x)/2 · W, v = (1 − y)/2 · H.
+                let (u, v) = camera.project(point).unwrap();
+                let (eu, ev) = ((1.0 - x) / 2.0 * 640.0, (1.0 - y) / 2.0 * 480.0);
+                assert!(
+                    (u - eu).abs() < 1e-8 && (v - ev).abs() < 1e-8,
+                    "{}",
+                    model.name()
+                );
+                let (o, d) = camera.ray_through_ndc(x, y);
+                assert!(relative_miss((o, d), point) < 1e-12);
+            }
+            assert_eq!(camera.center(), camera.pose.center());
+        }
+    }
+
+    #[test]
+    fn points_behind_the_camera_do_not_project() {
+        let (_, camera) = &cameras_of_every_model()[4];
+        let behind = camera.pose.camera_to_world(DVec3::new(0.1, 0.2, -3.0));
+        assert_eq!(camera.project(behind), None);
+        assert_eq!(camera.project(DVec3::NAN), None);
+    }
+}
