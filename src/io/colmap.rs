@@ -1,7 +1,8 @@
 //! COLMAP sparse models: cameras (intrinsics), images (poses and names) and 3D points, read
 //! from and written to COLMAP's text (`cameras.txt`, `images.txt`, `points3D.txt`) and binary
-//! (`cameras.bin`, `images.bin`, `points3D.bin`, in [`colmap_binary`]) formats, and found in a
-//! capture directory ([`find_model`]).
+//! (`cameras.bin`, `images.bin`, `points3D.bin`) formats (the private `text` and `binary`
+//! submodules, which document the layouts), and found in a capture directory
+//! ([`find_model`]).
 //!
 //! Values are stored as COLMAP stores them: camera parameters by model name, unconverted;
 //! image poses world-to-camera (`qvec` = `[qw, qx, qy, qz]`, `tvec`). Turning them into rays
@@ -15,19 +16,15 @@
 //! ignored: `images.*` holds each image's composed world-to-camera pose either way. Errors
 //! are one line naming the file, and the line for text files.
 //!
-//! [`colmap_binary`]: crate::io::colmap_binary
+//! [`check_regular_file`]: crate::io::bounded_read::check_regular_file
 
 use std::collections::{BTreeMap, HashSet};
-use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Component, Path, PathBuf};
-use std::str::FromStr;
 
 use anyhow::{anyhow, bail, Result};
 
-use crate::io::bounded_read::check_regular_file;
-use crate::io::colmap_binary;
-use crate::io::output::write_atomically;
+mod binary;
+mod text;
 
 /// A COLMAP camera model: its id in binary files, its name in text files and how many
 /// parameters it takes.
@@ -229,13 +226,13 @@ impl Default for ColmapReadOptions {
 
 /// The step between the points kept when a file of `total` points is read under a limit of
 /// `max`: every `step`-th point from the first, at most `max` of them.
-pub(crate) fn point_step(total: u64, max: usize) -> u64 {
+fn point_step(total: u64, max: usize) -> u64 {
     total.div_ceil(max.max(1) as u64).max(1)
 }
 
 /// Why `name` cannot be an image name (empty, too long, absolute, with a `..` component, a
 /// NUL or line break, or space at either end), if it cannot.
-pub(crate) fn image_name_problem(name: &str) -> Option<String> {
+fn image_name_problem(name: &str) -> Option<String> {
     if name.is_empty() {
         return Some("an empty image name".into());
     }
@@ -260,7 +257,7 @@ pub(crate) fn image_name_problem(name: &str) -> Option<String> {
 }
 
 /// An error unless every value of `values` is finite; `what` names them for the message.
-pub(crate) fn check_finite(values: &[f64], what: &str) -> Result<(), String> {
+fn check_finite(values: &[f64], what: &str) -> Result<(), String> {
     match values.iter().find(|v| !v.is_finite()) {
         Some(v) => Err(format!("{what} holds {v}, not a finite number")),
         None => Ok(()),
@@ -268,7 +265,7 @@ pub(crate) fn check_finite(values: &[f64], what: &str) -> Result<(), String> {
 }
 
 /// Checks a camera's model, parameter count, parameters and size.
-pub(crate) fn camera_problem(camera: &ColmapCamera) -> Option<String> {
+fn camera_problem(camera: &ColmapCamera) -> Option<String> {
     let id = camera.id;
     let Some(info) = camera_model_by_name(&camera.model) else {
         return Some(format!(
@@ -294,7 +291,7 @@ pub(crate) fn camera_problem(camera: &ColmapCamera) -> Option<String> {
 }
 
 /// Checks an image's name, pose values and quaternion.
-pub(crate) fn image_problem(image: &ColmapImage) -> Option<String> {
+fn image_problem(image: &ColmapImage) -> Option<String> {
     if let Some(p) = image_name_problem(&image.name) {
         return Some(format!("image {} has {p}", image.id));
     }
@@ -397,12 +394,12 @@ pub fn read_model(dir: &Path, options: &ColmapReadOptions) -> Result<ColmapModel
     let [cameras_file, images_file, points_file] = &files;
     let (cameras, mut images) = match format {
         ColmapFormat::Binary => (
-            colmap_binary::read_cameras(cameras_file)?,
-            colmap_binary::read_images(images_file, options.points2d)?,
+            binary::read_cameras(cameras_file)?,
+            binary::read_images(images_file, options.points2d)?,
         ),
         ColmapFormat::Text => (
-            read_cameras_text(cameras_file)?,
-            read_images_text(images_file, options.points2d)?,
+            text::read_cameras(cameras_file)?,
+            text::read_images(images_file, options.points2d)?,
         ),
     };
     let points = if options.max_points3d == 0 {
@@ -419,10 +416,8 @@ pub fn read_model(dir: &Path, options: &ColmapReadOptions) -> Result<ColmapModel
         Vec::new()
     } else {
         match format {
-            ColmapFormat::Binary => {
-                colmap_binary::read_points3d(points_file, options.max_points3d)?
-            }
-            ColmapFormat::Text => read_points3d_text(points_file, options.max_points3d)?,
+            ColmapFormat::Binary => binary::read_points3d(points_file, options.max_points3d)?,
+            ColmapFormat::Text => text::read_points3d(points_file, options.max_points3d)?,
         }
     };
     images.sort_by(|a, b| a.name.cmp(&b.name));
@@ -555,9 +550,9 @@ fn prepare_write(dir: &Path, model: &ColmapModel, format: ColmapFormat) -> Resul
 /// (one line) for a model [`read_model`] would refuse.
 pub fn write_binary(dir: &Path, model: &ColmapModel) -> Result<()> {
     let [cameras, images, points] = prepare_write(dir, model, ColmapFormat::Binary)?;
-    colmap_binary::write_cameras(&cameras, &model.cameras)?;
-    colmap_binary::write_images(&images, &model.images)?;
-    colmap_binary::write_points3d(&points, &model.points)
+    binary::write_cameras(&cameras, &model.cameras)?;
+    binary::write_images(&images, &model.images)?;
+    binary::write_points3d(&points, &model.points)
 }
 
 /// Writes `model` to `dir` (created if missing) as `cameras.txt`, `images.txt` and
@@ -566,343 +561,10 @@ pub fn write_binary(dir: &Path, model: &ColmapModel) -> Result<()> {
 /// [`read_model`] would refuse.
 pub fn write_text(dir: &Path, model: &ColmapModel) -> Result<()> {
     let [cameras, images, points] = prepare_write(dir, model, ColmapFormat::Text)?;
-    write_atomically(&cameras, |w| write_cameras_text(w, model))?;
-    write_atomically(&images, |w| write_images_text(w, model))?;
-    write_atomically(&points, |w| write_points3d_text(w, model))
+    text::write_cameras(&cameras, &model.cameras)?;
+    text::write_images(&images, &model.images)?;
+    text::write_points3d(&points, &model.points)
 }
-
-fn write_cameras_text(w: &mut BufWriter<File>, model: &ColmapModel) -> Result<()> {
-    writeln!(w, "# Camera list with one line of data per camera:")?;
-    writeln!(w, "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]")?;
-    writeln!(w, "# Number of cameras: {}", model.cameras.len())?;
-    for c in model.cameras.values() {
-        write!(w, "{} {} {} {}", c.id, c.model, c.width, c.height)?;
-        for p in &c.params {
-            write!(w, " {p:?}")?;
-        }
-        writeln!(w)?;
-    }
-    Ok(())
-}
-
-fn write_images_text(w: &mut BufWriter<File>, model: &ColmapModel) -> Result<()> {
-    writeln!(w, "# Image list with two lines of data per image:")?;
-    writeln!(
-        w,
-        "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME"
-    )?;
-    writeln!(w, "#   POINTS2D[] as (X, Y, POINT3D_ID)")?;
-    writeln!(w, "# Number of images: {}", model.images.len())?;
-    for image in &model.images {
-        write!(w, "{}", image.id)?;
-        for v in image.qvec.iter().chain(&image.tvec) {
-            write!(w, " {v:?}")?;
-        }
-        writeln!(w, " {} {}", image.camera_id, image.name)?;
-        for (i, p) in image.points2d.iter().enumerate() {
-            let sep = if i == 0 { "" } else { " " };
-            match p.point3d_id {
-                Some(id) => write!(w, "{sep}{:?} {:?} {id}", p.xy[0], p.xy[1])?,
-                None => write!(w, "{sep}{:?} {:?} -1", p.xy[0], p.xy[1])?,
-            }
-        }
-        writeln!(w)?;
-    }
-    Ok(())
-}
-
-fn write_points3d_text(w: &mut BufWriter<File>, model: &ColmapModel) -> Result<()> {
-    writeln!(w, "# 3D point list with one line of data per point:")?;
-    writeln!(
-        w,
-        "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"
-    )?;
-    writeln!(w, "# Number of points: {}", model.points.len())?;
-    for p in &model.points {
-        let [x, y, z] = p.xyz;
-        let [r, g, b] = p.rgb;
-        writeln!(w, "{} {x:?} {y:?} {z:?} {r} {g} {b} {:?}", p.id, p.error)?;
-    }
-    Ok(())
-}
-
-/// A text file read line by line, each line bounded by [`MAX_TEXT_LINE_BYTES`]; errors name
-/// the file and the line.
-struct TextLines {
-    reader: BufReader<File>,
-    what: &'static str,
-    path: PathBuf,
-    line_no: usize,
-    line: String,
-}
-
-impl TextLines {
-    /// Opens the regular file `path` of at most `max_bytes`.
-    fn open(path: &Path, what: &'static str, max_bytes: u64) -> Result<(Self, u64)> {
-        let len = check_regular_file(path, what, max_bytes)?;
-        let file =
-            File::open(path).map_err(|e| anyhow!("cannot read {what} {}: {e}", path.display()))?;
-        let lines = TextLines {
-            reader: BufReader::new(file),
-            what,
-            path: path.to_path_buf(),
-            line_no: 0,
-            line: String::new(),
-        };
-        Ok((lines, len))
-    }
-
-    /// An error at the current line.
-    fn error(&self, message: impl std::fmt::Display) -> anyhow::Error {
-        anyhow!(
-            "{} {} line {}: {message}",
-            self.what,
-            self.path.display(),
-            self.line_no
-        )
-    }
-
-    /// Moves to the next line; false at the end of the file.
-    fn advance(&mut self) -> Result<bool> {
-        self.line.clear();
-        let limit = MAX_TEXT_LINE_BYTES as u64 + 1;
-        let n = (&mut self.reader)
-            .take(limit)
-            .read_line(&mut self.line)
-            .map_err(|e| {
-                anyhow!(
-                    "cannot read {} {} after line {}: {e}",
-                    self.what,
-                    self.path.display(),
-                    self.line_no
-                )
-            })?;
-        if n == 0 {
-            return Ok(false);
-        }
-        self.line_no += 1;
-        if self.line.len() > MAX_TEXT_LINE_BYTES {
-            return Err(self.error(format!(
-                "a line longer than the {MAX_TEXT_LINE_BYTES} bytes read"
-            )));
-        }
-        Ok(true)
-    }
-
-    /// Moves to the next line that is neither empty nor a comment; false at the end.
-    fn advance_to_data(&mut self) -> Result<bool> {
-        while self.advance()? {
-            let line = self.line();
-            if !line.is_empty() && !line.starts_with('#') {
-                return Ok(true);
-            }
-        }
-        Ok(false)
-    }
-
-    /// The current line, trimmed.
-    fn line(&self) -> &str {
-        self.line.trim()
-    }
-
-    /// `field` parsed as a `T`; `what` names it for the error.
-    fn parse<T: FromStr>(&self, field: &str, what: &str) -> Result<T> {
-        field
-            .parse()
-            .map_err(|_| self.error(format!("{what} {field:?} is not a valid number here")))
-    }
-
-    /// `field` parsed as a finite number.
-    fn parse_finite(&self, field: &str, what: &str) -> Result<f64> {
-        let v: f64 = self.parse(field, what)?;
-        if !v.is_finite() {
-            return Err(self.error(format!("{what} is {field}, not a finite number")));
-        }
-        Ok(v)
-    }
-}
-
-/// The first `n` whitespace-separated fields of `line` (fewer when it has fewer) and the rest
-/// of the line, trimmed.
-fn split_fields(line: &str, n: usize) -> (Vec<&str>, &str) {
-    let mut rest = line;
-    let mut fields = Vec::with_capacity(n);
-    while fields.len() < n {
-        rest = rest.trim_start();
-        if rest.is_empty() {
-            break;
-        }
-        let end = rest.find(char::is_whitespace).unwrap_or(rest.len());
-        fields.push(&rest[..end]);
-        rest = &rest[end..];
-    }
-    (fields, rest.trim())
-}
-
-/// Reads `cameras.txt`: one camera per line, `CAMERA_ID MODEL WIDTH HEIGHT PARAMS...`.
-fn read_cameras_text(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
-    let (mut lines, _) = TextLines::open(path, "COLMAP cameras file", MAX_CAMERAS_FILE_BYTES)?;
-    let mut cameras = BTreeMap::new();
-    while lines.advance_to_data()? {
-        let fields: Vec<&str> = lines.line().split_whitespace().collect();
-        if fields.len() < 4 {
-            return Err(lines.error(format!(
-                "{} fields, not CAMERA_ID MODEL WIDTH HEIGHT PARAMS...",
-                fields.len()
-            )));
-        }
-        let id: u32 = lines.parse(fields[0], "camera id")?;
-        let params = fields[4..]
-            .iter()
-            .map(|f| lines.parse_finite(f, "camera parameter"))
-            .collect::<Result<Vec<f64>>>()?;
-        let camera = ColmapCamera {
-            id,
-            model: fields[1].to_string(),
-            width: lines.parse(fields[2], "width")?,
-            height: lines.parse(fields[3], "height")?,
-            params,
-        };
-        if let Some(p) = camera_problem(&camera) {
-            return Err(lines.error(p));
-        }
-        if cameras.len() >= MAX_CAMERAS {
-            return Err(lines.error(format!("more than {MAX_CAMERAS} cameras")));
-        }
-        if cameras.insert(id, camera).is_some() {
-            return Err(lines.error(format!("a second camera with id {id}")));
-        }
-    }
-    Ok(cameras)
-}
-
-/// Reads `images.txt`: two lines per image, `IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`
-/// (the name is the rest of the line) and its 2D features as `X Y POINT3D_ID` triples (an
-/// empty line when it has none; read whatever it holds, as COLMAP does). The features are
-/// kept when `keep_points2d`; their line is checked either way, so an image whose feature
-/// line is missing is an error rather than an image lost.
-fn read_images_text(path: &Path, keep_points2d: bool) -> Result<Vec<ColmapImage>> {
-    let (mut lines, _) = TextLines::open(path, "COLMAP images file", MAX_IMAGES_FILE_BYTES)?;
-    let mut images = Vec::new();
-    while lines.advance_to_data()? {
-        let (fields, name) = split_fields(lines.line(), 9);
-        if fields.len() < 9 || name.is_empty() {
-            return Err(lines.error(
-                "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME (the first of an image's two lines)",
-            ));
-        }
-        let mut pose = [0.0; 7];
-        for (v, (f, what)) in pose.iter_mut().zip(
-            fields[1..8]
-                .iter()
-                .zip(["qw", "qx", "qy", "qz", "tx", "ty", "tz"]),
-        ) {
-            *v = lines.parse_finite(f, what)?;
-        }
-        let mut image = ColmapImage {
-            id: lines.parse(fields[0], "image id")?,
-            qvec: [pose[0], pose[1], pose[2], pose[3]],
-            tvec: [pose[4], pose[5], pose[6]],
-            camera_id: lines.parse(fields[8], "camera id")?,
-            name: name.to_string(),
-            points2d: Vec::new(),
-        };
-        if let Some(p) = image_problem(&image) {
-            return Err(lines.error(p));
-        }
-        if images.len() >= MAX_IMAGES {
-            return Err(lines.error(format!("more than {MAX_IMAGES} images")));
-        }
-        if lines.advance()? {
-            image.points2d = read_points2d_line(&lines, &image.name, keep_points2d)?;
-        }
-        images.push(image);
-    }
-    Ok(images)
-}
-
-/// The 2D features on the current line of `lines` (the second line of image `name`), kept
-/// only when `keep`.
-fn read_points2d_line(lines: &TextLines, name: &str, keep: bool) -> Result<Vec<ColmapPoint2D>> {
-    let fields: Vec<&str> = lines.line().split_whitespace().collect();
-    if fields.len() % 3 != 0 {
-        return Err(lines.error(format!(
-            "{} fields on the 2D feature line of image {name:?}, not X Y POINT3D_ID triples (each image takes two lines, the second empty when it has no features)",
-            fields.len()
-        )));
-    }
-    if !keep {
-        return Ok(Vec::new());
-    }
-    fields
-        .chunks_exact(3)
-        .map(|t| {
-            let point3d_id = match t[2] {
-                "-1" => None,
-                id => Some(lines.parse(id, "3D point id")?),
-            };
-            Ok(ColmapPoint2D {
-                xy: [
-                    lines.parse_finite(t[0], "feature x")?,
-                    lines.parse_finite(t[1], "feature y")?,
-                ],
-                point3d_id,
-            })
-        })
-        .collect()
-}
-
-/// The fewest bytes a data line of `points3D.txt` takes (`0 0 0 0 0 0 0 0` and its newline).
-const MIN_POINT3D_LINE_BYTES: u64 = 16;
-
-/// Reads `points3D.txt`: one point per line, `POINT3D_ID X Y Z R G B ERROR TRACK...` (the
-/// track is not kept), keeping at most `max_points` spread evenly over the file (it is read
-/// twice when it may hold more: once to count).
-fn read_points3d_text(path: &Path, max_points: usize) -> Result<Vec<ColmapPoint3D>> {
-    const WHAT: &str = "COLMAP points file";
-    let (mut lines, len) = TextLines::open(path, WHAT, MAX_POINTS3D_FILE_BYTES)?;
-    let step = if len / MIN_POINT3D_LINE_BYTES <= max_points as u64 {
-        1
-    } else {
-        let (mut counter, _) = TextLines::open(path, WHAT, MAX_POINTS3D_FILE_BYTES)?;
-        let mut total = 0u64;
-        while counter.advance_to_data()? {
-            total += 1;
-        }
-        point_step(total, max_points)
-    };
-    let mut points = Vec::new();
-    let mut index = 0u64;
-    while lines.advance_to_data()? && points.len() < max_points {
-        let keep = index % step == 0;
-        index += 1;
-        if !keep {
-            continue;
-        }
-        let (fields, _track) = split_fields(lines.line(), 8);
-        if fields.len() < 8 {
-            return Err(lines.error(
-                "expected POINT3D_ID X Y Z R G B ERROR and the track (IMAGE_ID POINT2D_IDX pairs)",
-            ));
-        }
-        let mut xyz = [0.0; 3];
-        for (v, (f, what)) in xyz.iter_mut().zip(fields[1..4].iter().zip(["x", "y", "z"])) {
-            *v = lines.parse_finite(f, what)?;
-        }
-        points.push(ColmapPoint3D {
-            id: lines.parse(fields[0], "3D point id")?,
-            xyz,
-            rgb: [
-                lines.parse(fields[4], "red (0 to 255)")?,
-                lines.parse(fields[5], "green (0 to 255)")?,
-                lines.parse(fields[6], "blue (0 to 255)")?,
-            ],
-            error: lines.parse_finite(fields[7], "error")?,
-        });
-    }
-    Ok(points)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -934,14 +596,6 @@ mod tests {
         ] {
             assert!(image_name_problem(bad).is_some(), "{bad:?}");
         }
-    }
-
-    #[test]
-    fn fields_and_the_rest_of_a_line() {
-        let (f, rest) = split_fields("1  2\t3 a b.png ", 3);
-        assert_eq!((f, rest), (vec!["1", "2", "3"], "a b.png"));
-        let (f, rest) = split_fields("1 2", 3);
-        assert_eq!((f, rest), (vec!["1", "2"], ""));
     }
 
     #[test]

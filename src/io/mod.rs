@@ -6,7 +6,6 @@ pub mod camera_path;
 pub mod checkpoint;
 pub mod checkpoint_file;
 pub mod colmap;
-pub mod colmap_binary;
 pub mod dataset;
 pub mod images;
 pub mod npy;

@@ -1,5 +1,5 @@
 //! COLMAP's binary model files (`cameras.bin`, `images.bin`, `points3D.bin`), read and
-//! written for [`colmap`](crate::io::colmap). All numbers are little-endian:
+//! written for the parent module. All numbers are little-endian:
 //!
 //! * `cameras.bin`: `u64` count; per camera `u32` id, `i32` model id, `u64` width, `u64`
 //!   height, then the model's parameters as `f64`s (their number set by the model);
@@ -20,12 +20,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Result};
 
-use crate::io::bounded_read::check_regular_file;
-use crate::io::colmap::{
+use super::{
     camera_model_by_id, camera_model_by_name, camera_problem, image_problem, point_step,
     ColmapCamera, ColmapImage, ColmapPoint2D, ColmapPoint3D, MAX_CAMERAS, MAX_CAMERAS_FILE_BYTES,
     MAX_IMAGES, MAX_IMAGES_FILE_BYTES, MAX_IMAGE_NAME_BYTES, MAX_POINTS3D_FILE_BYTES,
 };
+use crate::io::bounded_read::check_regular_file;
 use crate::io::output::write_atomically;
 
 /// The 3D point id COLMAP writes for a feature with no 3D point.
@@ -174,7 +174,7 @@ impl BinaryReader {
 }
 
 /// Reads `cameras.bin`.
-pub(crate) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
+pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
     let mut r = BinaryReader::open(path, "COLMAP cameras file", MAX_CAMERAS_FILE_BYTES)?;
     let n = r.count("cameras", MIN_CAMERA_BYTES, MAX_CAMERAS as u64)?;
     let mut cameras = BTreeMap::new();
@@ -238,7 +238,7 @@ fn read_name(r: &mut BinaryReader, id: u32) -> Result<String> {
 }
 
 /// Reads `images.bin`, keeping each image's 2D features when `keep_points2d`.
-pub(crate) fn read_images(path: &Path, keep_points2d: bool) -> Result<Vec<ColmapImage>> {
+pub(super) fn read_images(path: &Path, keep_points2d: bool) -> Result<Vec<ColmapImage>> {
     let mut r = BinaryReader::open(path, "COLMAP images file", MAX_IMAGES_FILE_BYTES)?;
     let n = r.count("images", MIN_IMAGE_BYTES, MAX_IMAGES as u64)?;
     let mut images = Vec::with_capacity(n.min(1 << 16) as usize);
@@ -292,7 +292,7 @@ pub(crate) fn read_images(path: &Path, keep_points2d: bool) -> Result<Vec<Colmap
 
 /// Reads `points3D.bin`, keeping at most `max_points` spread evenly over the file (tracks
 /// are skipped).
-pub(crate) fn read_points3d(path: &Path, max_points: usize) -> Result<Vec<ColmapPoint3D>> {
+pub(super) fn read_points3d(path: &Path, max_points: usize) -> Result<Vec<ColmapPoint3D>> {
     let mut r = BinaryReader::open(path, "COLMAP points file", MAX_POINTS3D_FILE_BYTES)?;
     let n = r.count("3D points", MIN_POINT3D_BYTES, u64::MAX)?;
     let step = point_step(n, max_points);
@@ -300,7 +300,7 @@ pub(crate) fn read_points3d(path: &Path, max_points: usize) -> Result<Vec<Colmap
     for i in 0..n {
         let id = r.u64("a 3D point id")?;
         let what = format!("3D point {id}");
-        let keep = i % step == 0 && points.len() < max_points;
+        let keep = i.is_multiple_of(step) && points.len() < max_points;
         if keep {
             let mut xyz = [0.0; 3];
             for v in &mut xyz {
@@ -326,7 +326,7 @@ pub(crate) fn read_points3d(path: &Path, max_points: usize) -> Result<Vec<Colmap
 }
 
 /// Writes `cameras.bin` (cameras already checked).
-pub(crate) fn write_cameras(path: &Path, cameras: &BTreeMap<u32, ColmapCamera>) -> Result<()> {
+pub(super) fn write_cameras(path: &Path, cameras: &BTreeMap<u32, ColmapCamera>) -> Result<()> {
     write_atomically(path, |w| {
         w.write_all(&(cameras.len() as u64).to_le_bytes())?;
         for c in cameras.values() {
@@ -348,7 +348,7 @@ pub(crate) fn write_cameras(path: &Path, cameras: &BTreeMap<u32, ColmapCamera>) 
 }
 
 /// Writes `images.bin` (images already checked).
-pub(crate) fn write_images(path: &Path, images: &[ColmapImage]) -> Result<()> {
+pub(super) fn write_images(path: &Path, images: &[ColmapImage]) -> Result<()> {
     write_atomically(path, |w| {
         w.write_all(&(images.len() as u64).to_le_bytes())?;
         for image in images {
@@ -369,7 +369,7 @@ pub(crate) fn write_images(path: &Path, images: &[ColmapImage]) -> Result<()> {
 }
 
 /// Writes `points3D.bin` with empty tracks (points already checked).
-pub(crate) fn write_points3d(path: &Path, points: &[ColmapPoint3D]) -> Result<()> {
+pub(super) fn write_points3d(path: &Path, points: &[ColmapPoint3D]) -> Result<()> {
     write_atomically(path, |w| {
         w.write_all(&(points.len() as u64).to_le_bytes())?;
         for p in points {
