@@ -265,7 +265,8 @@ fn fused_training_loss_matches_renderer_and_tensor_ops() {
             let run = |choice| {
                 with_kernel_choice(choice, || {
                     let (f, vars) = field(&params, rainbow, DType::F32);
-                    let loss = batch_loss(&f, &settings, &setup.rays, &target).unwrap();
+                    let model = nerf::field::sdf::SdfModel::from_field(f);
+                    let loss = batch_loss(&model, &settings, &setup.rays, &target).unwrap();
                     let grads = loss.backward().unwrap();
                     let g: Vec<Vec<f32>> = vars
                         .iter()

@@ -196,11 +196,7 @@ pub fn bench_train_box(repeats: usize, device: &Device) -> Result<BenchResult> {
     settings.num_epochs = BOX_FIT_STEPS / views.len();
     let mut runs = Vec::with_capacity(repeats);
     for _ in 0..repeats {
-        let fit = crate::field::sdf::SdfField::new(
-            &config.sdf_volume()?,
-            config.sdf_trainable()?,
-            device,
-        )?;
+        let fit = config.sdf_model(device)?;
         let report = fit_sdf(&fit, &views, &settings, device, |_, _, _| {})?;
         runs.push(report.seconds / report.steps as f64);
     }

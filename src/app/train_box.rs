@@ -18,10 +18,11 @@ use crate::app::config::Config;
 use crate::app::scene::render_views;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::sdf::{Sdf, SdfVolume};
-use crate::field::sdf::SdfField;
+use crate::field::trainable::TrainableField;
 use crate::io::images::{write_gif, write_npy, write_png};
 use crate::io::npy::read_npy_image;
 use crate::io::output::{prepare_out_dir, write_text};
+use crate::render::field::Field;
 use crate::train::fit_sdf::{fit_sdf, SdfFitReport, SdfView};
 
 /// What a fit produced.
@@ -66,7 +67,7 @@ pub fn load_training_views(config: &Config) -> Result<Vec<SdfView>> {
 /// Renders the views of `cameras` and writes `<prefix>_{i}.png` for each into `out_dir`.
 fn write_views(
     config: &Config,
-    field: &SdfField,
+    field: &dyn Field,
     cameras: &[PerspectiveCamera],
     out_dir: &Path,
     prefix: &str,
@@ -123,8 +124,8 @@ pub fn outcome_json(o: &SdfFitOutcome) -> serde_json::Value {
 pub fn train_sdf(config: &Config, out_dir: &Path, device: &Device) -> Result<SdfFitOutcome> {
     let settings = config.sdf_fit_settings()?;
     let initial = config.sdf_volume()?;
-    let field = SdfField::new(&initial, config.sdf_trainable()?, device)?;
-    if field.variables.is_empty() {
+    let model = config.sdf_model(device)?;
+    if model.varmap().all_vars().is_empty() {
         bail!("implicit_function: no parameter has `opt: True`, so there is nothing to train");
     }
     let views = load_training_views(config)?;
@@ -132,17 +133,17 @@ pub fn train_sdf(config: &Config, out_dir: &Path, device: &Device) -> Result<Sdf
     prepare_out_dir(out_dir)?;
     let mut written = write_views(
         config,
-        &field.detached()?,
+        &*model.render_field(None),
         &cameras,
         out_dir,
         "render_box_before_training",
         device,
     )?;
-    let report = fit_sdf(&field, &views, &settings, device, |_, _, _| {})?;
-    let fitted = field.detached()?;
+    let report = fit_sdf(&model, &views, &settings, device, |_, _, _| {})?;
+    let fitted = model.render_field(None);
     written.extend(write_views(
         config,
-        &fitted,
+        &*fitted,
         &cameras,
         out_dir,
         "render_box_after_training",
@@ -150,7 +151,7 @@ pub fn train_sdf(config: &Config, out_dir: &Path, device: &Device) -> Result<Sdf
     )?);
     let (sampler, renderer) = (config.sampler()?, config.renderer()?);
     let frames = render_views(
-        &fitted,
+        &*fitted,
         &config.surround_cameras(),
         config.image_size(),
         &sampler,
@@ -166,8 +167,13 @@ pub fn train_sdf(config: &Config, out_dir: &Path, device: &Device) -> Result<Sdf
     written.push(gif);
     let mut outcome = SdfFitOutcome {
         initial,
-        fitted: fitted.values()?,
-        trained: field.variables.iter().map(|(n, _)| n.clone()).collect(),
+        fitted: model.field.values()?,
+        trained: model
+            .field
+            .variables
+            .iter()
+            .map(|(n, _)| n.clone())
+            .collect(),
         report,
         written,
     };

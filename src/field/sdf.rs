@@ -2,13 +2,19 @@
 //! constant or rainbow colour. Each parameter the config marks `opt: True` is a trainable
 //! variable; the others are constants.
 
+use std::sync::Arc;
+
 use anyhow::Result;
 use candle_core::{Device, Tensor, Var};
+use candle_nn::VarMap;
 
 use crate::core::rays::Rays;
 use crate::core::sdf::{Sdf, SdfVolume};
+use crate::field::trainable::{BoxedField, TrainableField};
+use crate::kernels::sdf_render::sdf_render_mse;
 use crate::kernels::sdf_volume::{sdf_volume, SdfTensors, ShapeTensors};
 use crate::render::field::{Composited, Field, FieldOutput};
+use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
 
 /// Which parameters of an SDF volume are trained (the homework's `opt` flags). `side_lengths`
@@ -105,16 +111,81 @@ impl SdfField {
     pub fn values(&self) -> Result<SdfVolume> {
         self.params.values()
     }
+}
 
-    /// The same field with every parameter a constant of its current value (for rendering:
-    /// no gradient graph, and the fused kernel can run).
-    pub fn detached(&self) -> Result<Self> {
-        Ok(Self {
-            params: self
-                .values()
-                .and_then(|v| SdfField::fixed(&v, self.params.alpha.device()).map(|f| f.params))?,
+/// The SDF volume as a trainable model (the homework's box fit): its field and the
+/// parameters marked `opt: True`, by name.
+pub struct SdfModel {
+    /// The field, its trainable parameters as variables.
+    pub field: SdfField,
+    varmap: VarMap,
+}
+
+impl SdfModel {
+    /// `volume`'s values with its `trainable` parameters as variables.
+    pub fn new(volume: &SdfVolume, trainable: SdfTrainable, device: &Device) -> Result<Self> {
+        Ok(Self::from_field(SdfField::new(volume, trainable, device)?))
+    }
+
+    /// The model of `field`'s variables.
+    pub fn from_field(field: SdfField) -> Self {
+        let varmap = VarMap::new();
+        {
+            let mut data = varmap.data().lock().expect("varmap lock");
+            for (name, var) in &field.variables {
+                data.insert(name.clone(), var.clone());
+            }
+        }
+        Self { field, varmap }
+    }
+}
+
+impl TrainableField for SdfModel {
+    fn kind(&self) -> &'static str {
+        "sdf_volume"
+    }
+
+    fn varmap(&self) -> &VarMap {
+        &self.varmap
+    }
+
+    /// The field itself: its variables are tracked. (An SDF volume has no occupancy grid and
+    /// no density noise.)
+    fn training_field(&self, _: Option<Arc<OccupancyGrid>>, _: f64) -> BoxedField {
+        Box::new(self.field.clone())
+    }
+
+    /// Every parameter a constant of its current value: no gradient graph, and the fused
+    /// kernels can run.
+    fn render_field(&self, _: Option<Arc<OccupancyGrid>>) -> BoxedField {
+        Box::new(SdfField {
+            params: self.field.params.detach(),
             variables: Vec::new(),
         })
+    }
+
+    /// σ for a unit sample spacing, `−ln(1 − density)`.
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        let points = points.unsqueeze(1)?;
+        let deltas = points.narrow(2, 0, 1)?.ones_like()?;
+        let params = self.field.params.detach();
+        Ok(sdf_volume(&points, &deltas, &params)?.0.squeeze(1)?)
+    }
+
+    /// α in [0, 1]; β, side lengths and radius at least 1e-6 ([`SdfField::clamp_to_valid`]).
+    fn constrain(&self) -> Result<()> {
+        self.field.clamp_to_valid()
+    }
+
+    /// The fused SDF render-and-loss kernel (`kernels::sdf_render::sdf_render_mse`).
+    fn fused_mse(
+        &self,
+        rays: &Rays,
+        lengths: &Tensor,
+        target: &Tensor,
+        white_background: bool,
+    ) -> Result<Option<Tensor>> {
+        sdf_render_mse(rays, lengths, target, &self.field.params, white_background)
     }
 }
 

@@ -77,6 +77,26 @@ pub trait TrainableField: Send + Sync {
     /// Density σ `(M, 1)` at points `(M, 3)`, detached (the occupancy grid's probe).
     fn density(&self, points: &Tensor) -> Result<Tensor>;
 
+    /// After each optimiser step: holds the parameters inside the range where the field is
+    /// defined (the SDF volume clamps α, β and its sizes). The default does nothing.
+    fn constrain(&self) -> Result<()> {
+        Ok(())
+    }
+
+    /// The mean squared colour error of `rays` (N) rendered at `lengths` `(N, S, 1)` against
+    /// `target` `(N, 3)` (composited on white when `white_background`), from a fused
+    /// render-and-loss kernel, differentiable in the parameters; `None` (the default) when the
+    /// kind has none for these inputs, and the trainer renders and takes the error itself.
+    fn fused_mse(
+        &self,
+        _rays: &crate::core::rays::Rays,
+        _lengths: &Tensor,
+        _target: &Tensor,
+        _white_background: bool,
+    ) -> Result<Option<Tensor>> {
+        Ok(None)
+    }
+
     /// How the optimiser treats the parameters. The default: PyTorch's Adam on all of them.
     fn param_groups(&self) -> ParamGroups {
         ParamGroups {

@@ -77,6 +77,31 @@ impl SdfTensors {
         })
     }
 
+    /// The same parameters detached from the autograd graph (constants of their current
+    /// values, which the fused kernels accept).
+    pub fn detach(&self) -> Self {
+        let shape = match &self.shape {
+            ShapeTensors::Box {
+                center,
+                side_lengths,
+            } => ShapeTensors::Box {
+                center: center.detach(),
+                side_lengths: side_lengths.detach(),
+            },
+            ShapeTensors::Sphere { center, radius } => ShapeTensors::Sphere {
+                center: center.detach(),
+                radius: radius.detach(),
+            },
+        };
+        Self {
+            shape,
+            alpha: self.alpha.detach(),
+            beta: self.beta.detach(),
+            rainbow: self.rainbow,
+            feature: self.feature.detach(),
+        }
+    }
+
     /// Every parameter tensor, in a fixed order: `center` `(3,)`, then `side_lengths` `(3,)` or
     /// `radius` `(1,)`, then `alpha`, `beta` `(1,)` and `feature` `(3,)`.
     pub fn tensors(&self) -> Vec<&Tensor> {

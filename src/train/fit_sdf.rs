@@ -4,10 +4,11 @@
 //! Each epoch visits the views in a random order; each step takes `batch_size` distinct random
 //! pixels of one view, renders their rays (the sampler's fixed depths, as the homework's
 //! sampler and the targets' own renders), and takes an Adam step on the mean squared colour
-//! error. Gradients reach every variable of the [`SdfField`] through the renderer's
+//! error. Gradients reach every variable of the model (the SDF volume's
+//! `crate::field::sdf::SdfModel`, or any [`TrainableField`]) through the renderer's
 //! compositing and the SDF volume (fused kernels with backward passes on the CPU, tensor ops
 //! elsewhere). After each step the parameters are held in their valid range
-//! ([`SdfField::clamp_to_valid`]).
+//! ([`TrainableField::constrain`]).
 
 use std::time::Instant;
 
@@ -19,9 +20,8 @@ use rand::SeedableRng;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::image::RgbImage;
 use crate::core::rays::{random_pixel_indices, Rays};
-use crate::field::sdf::SdfField;
+use crate::field::trainable::TrainableField;
 use crate::io::progress::progress_bar;
-use crate::kernels::sdf_render::sdf_render_mse;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::sampler::StratifiedSampler;
 use crate::train::adam::Adam;
@@ -78,29 +78,31 @@ fn batch(view: &SdfView, pixels: &[usize], device: &Device) -> Result<(Rays, Ten
 }
 
 /// The mean squared error of the rendered `rays` against `target` `(B, 3)`, differentiable
-/// in the field's variables: the fused render-and-loss kernel on the CPU
-/// ([`sdf_render_mse`]), else the renderer and tensor ops.
+/// in the model's variables: the model's fused render-and-loss kernel where it has one
+/// ([`TrainableField::fused_mse`]; the SDF volume's on the CPU), else the renderer and tensor
+/// ops.
 pub fn batch_loss(
-    field: &SdfField,
+    model: &dyn TrainableField,
     settings: &SdfFitSettings,
     rays: &Rays,
     target: &Tensor,
 ) -> Result<Tensor> {
     let lengths = settings.sampler.lengths(rays, None)?;
     let white = settings.renderer.white_background;
-    if let Some(loss) = sdf_render_mse(rays, &lengths, target, &field.params, white)? {
+    if let Some(loss) = model.fused_mse(rays, &lengths, target, white)? {
         return Ok(loss);
     }
+    let field = model.training_field(None, 0.0);
     let out = settings
         .renderer
-        .render(field, &settings.sampler, rays, None)?;
+        .render(&*field, &settings.sampler, rays, None)?;
     Ok(out.color.sub(target)?.sqr()?.mean_all()?)
 }
 
-/// Fits `field`'s variables to `views` in place; `on_step(epoch, step, loss)` is called after
+/// Fits `model`'s variables to `views` in place; `on_step(epoch, step, loss)` is called after
 /// every step (after the progress bar, which shows the loss, is updated).
 pub fn fit_sdf(
-    field: &SdfField,
+    model: &dyn TrainableField,
     views: &[SdfView],
     settings: &SdfFitSettings,
     device: &Device,
@@ -108,10 +110,12 @@ pub fn fit_sdf(
 ) -> Result<SdfFitReport> {
     ensure!(!views.is_empty(), "no training views");
     ensure!(
-        !field.variables.is_empty(),
+        !model.varmap().all_vars().is_empty(),
         "nothing to train: no parameter of the SDF volume is trainable"
     );
-    let mut adam = Adam::new(field.variables.clone(), settings.lr)?;
+    let dense = model.param_groups().dense;
+    let mut adam = Adam::new(dense.vars, settings.lr)?;
+    (adam.beta2, adam.eps) = (dense.beta2, dense.eps);
     let mut rng = rand::rngs::StdRng::seed_from_u64(settings.seed);
     let bar = progress_bar((settings.num_epochs * views.len()) as u64, "fitting");
     let start = Instant::now();
@@ -129,9 +133,9 @@ pub fn fit_sdf(
                 &mut rng,
             );
             let (rays, target) = batch(view, &pixels, device)?;
-            let loss = batch_loss(field, settings, &rays, &target)?;
+            let loss = batch_loss(model, settings, &rays, &target)?;
             adam.step(&loss.backward()?)?;
-            field.clamp_to_valid()?;
+            model.constrain()?;
             let loss = loss.to_scalar::<f32>()? as f64;
             if !loss.is_finite() {
                 bail!("the fit diverged at epoch {epoch}: loss is {loss}");

@@ -18,7 +18,7 @@ use super::Config;
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::field::nerf::NerfParams;
 use crate::field::ngp::NgpParams;
-use crate::field::sdf::{SdfField, SdfTrainable};
+use crate::field::sdf::{SdfField, SdfModel, SdfTrainable};
 use crate::field::trainable::{BoxedField, FieldSpec};
 use crate::io::checkpoint::CheckpointInfo;
 use crate::train::model::TrainModel;
@@ -136,6 +136,11 @@ impl Config {
             beta: s.beta.opt,
             feature: s.feature.opt,
         })
+    }
+
+    /// The SDF volume as a model to fit: its `opt: True` parameters as variables.
+    pub fn sdf_model(&self, device: &Device) -> Result<SdfModel> {
+        SdfModel::new(&self.sdf_volume()?, self.sdf_trainable()?, device)
     }
 
     /// The SDF volume as a field for rendering (every parameter constant).
