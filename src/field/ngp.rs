@@ -203,8 +203,9 @@ impl Ngp {
         Ok((unit, inside))
     }
 
-    /// σ `(M, 1)` (0 outside the box) and the geometry features `(M, 15)` at `points` `(M, 3)`.
-    pub fn geometry(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
+    /// The hash encoding `(M, L·F)` of `points` `(M, 3)` mapped into the box, and whether each
+    /// point is inside it `(M, 1)`.
+    fn encode(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
         let (unit, inside) = self.normalise(points)?;
         let enc = hash_encode(
             &unit,
@@ -212,6 +213,12 @@ impl Ngp {
             &self.params.grid,
             self.gradient.as_ref(),
         )?;
+        Ok((enc, inside))
+    }
+
+    /// σ `(M, 1)` (0 outside the box) and the geometry features `(M, 15)` at `points` `(M, 3)`.
+    pub fn geometry(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
+        let (enc, inside) = self.encode(points)?;
         let h = linear(&self.density[0], &enc)?.relu()?;
         let out = linear(&self.density[1], &h)?;
         let sigma = self.activate(&out.narrow(1, 0, 1)?, &inside)?;
@@ -294,13 +301,7 @@ impl Ngp {
         ray_index: &Tensor,
         directions: &Tensor,
     ) -> Result<(Tensor, Tensor)> {
-        let (unit, inside) = self.normalise(points)?;
-        let enc = hash_encode(
-            &unit,
-            &self.table,
-            &self.params.grid,
-            self.gradient.as_ref(),
-        )?;
+        let (enc, inside) = self.encode(points)?;
         // The per-ray part only for the rays that have samples here (a segment of a skipping
         // render holds a few of them), the samples' ray indices renumbered to match.
         let rays = ray_index.to_vec1::<u32>()?;
