@@ -514,7 +514,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
     Ok(rows)
 }
 
-/// The shipped hash-grid model ([`crate::app::runtime::SHIPPED_NGP_CHECKPOINT`], config
+/// The shipped hash-grid model ([`crate::app::config::SHIPPED_NGP_CHECKPOINT`], config
 /// `lego_ngp`), when present: a frame of each camera, and the whole `nerf render` command
 /// (20 surround views and the GIF, into a temporary directory).
 fn ngp_rows(
@@ -522,7 +522,7 @@ fn ngp_rows(
     truth: Option<&[RgbImage]>,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
-    let checkpoint = std::path::Path::new(crate::app::runtime::SHIPPED_NGP_CHECKPOINT);
+    let checkpoint = std::path::Path::new(crate::app::config::SHIPPED_NGP_CHECKPOINT);
     if !checkpoint.is_file() {
         return Ok(Vec::new());
     }

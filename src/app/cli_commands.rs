@@ -258,7 +258,7 @@ pub fn report(args: ReportArgs, device: &Device) -> Result<()> {
         data_dir: jobs::data_dir_for(&lego_config, args.data.data_dir),
         views: args.views,
         training_logs,
-        ngp_checkpoint: Some(crate::app::runtime::SHIPPED_NGP_CHECKPOINT.into()),
+        ngp_checkpoint: Some(crate::app::config::SHIPPED_NGP_CHECKPOINT.into()),
         lego: !args.no_lego,
     };
     say_written(&crate::app::report::write_report(&options, device)?)

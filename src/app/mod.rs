@@ -14,7 +14,6 @@ pub mod jobs;
 pub mod messages;
 #[cfg(feature = "cli")]
 pub mod report;
-pub mod runtime;
 pub mod scene;
 pub mod train;
 pub mod train_box;
