@@ -7,8 +7,6 @@ mod common;
 #[path = "../examples/custom_field/voxels.rs"]
 mod voxels;
 
-use std::sync::Arc;
-
 use candle_core::Device;
 use nerf::app::config::Config;
 use nerf::io::dataset::{Dataset, Split};
@@ -31,13 +29,7 @@ fn a_field_kind_from_outside_the_crate_trains_and_resumes_with_the_library_train
         resolution: 12,
         half_extent: 1.5,
     };
-    let mut settings = config.train_settings().unwrap();
-    settings.model = Arc::new(spec);
-    settings.grid = None;
-    settings.samples_per_step = None;
-    settings.num_epochs = 1;
-    settings.lr = 0.05;
-    settings.render_interval = usize::MAX;
+    let mut settings = voxels::train_settings(&config, spec).unwrap();
     let (w, h) = config.image_size();
     let dataset = Dataset::load(&lego, Split::Train, w, h, true).unwrap();
     let dir = tempfile::tempdir().unwrap();

@@ -11,14 +11,12 @@
 
 mod voxels;
 
-use std::path::PathBuf;
-use std::sync::Arc;
-
 use anyhow::{Context, Result};
 use candle_core::Device;
 use nerf::app::config::Config;
 use nerf::io::dataset::{Dataset, Split};
 use nerf::{fit, render_view, Hooks, RunLimits, TrainModel, TrainPaths};
+use std::path::PathBuf;
 
 fn main() -> Result<()> {
     // The library's progress notes (fresh run, resume, step lines) on stderr.
@@ -40,13 +38,7 @@ fn main() -> Result<()> {
         resolution: 24,
         half_extent: 1.5,
     };
-    let mut settings = config.train_settings()?;
-    settings.model = Arc::new(spec);
-    settings.grid = None;
-    settings.samples_per_step = None;
-    settings.num_epochs = 1;
-    settings.lr = 0.05;
-    settings.render_interval = usize::MAX;
+    let settings = voxels::train_settings(&config, spec)?;
     let (w, h) = config.image_size();
     let white = config.renderer.white_background;
     let dataset = Dataset::load(&lego, Split::Train, w, h, white)

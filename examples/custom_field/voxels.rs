@@ -10,10 +10,26 @@ use std::sync::Arc;
 use anyhow::Result;
 use candle_core::{DType, Device, Tensor, D};
 use candle_nn::VarMap;
+use nerf::app::config::Config;
 use nerf::field::trainable::{
     named_vars, seed_uniform, BoxedField, DenseGroup, ParamGroups, SparseRowsGroup,
 };
-use nerf::{Field, FieldOutput, FieldSpec, OccupancyGrid, RaySamples, TrainableField};
+use nerf::{
+    Field, FieldOutput, FieldSpec, OccupancyGrid, RaySamples, TrainSettings, TrainableField,
+};
+
+/// A config's NeRF training settings with the model swapped for `spec`: no occupancy grid,
+/// fixed rays per step, one epoch, the grid's learning rate (0.05), no previews.
+pub fn train_settings(config: &Config, spec: VoxelSpec) -> Result<TrainSettings> {
+    let mut settings = config.train_settings()?;
+    settings.model = Arc::new(spec);
+    settings.grid = None;
+    settings.samples_per_step = None;
+    settings.num_epochs = 1;
+    settings.lr = 0.05;
+    settings.render_interval = usize::MAX;
+    Ok(settings)
+}
 
 /// The parameter's name in checkpoints.
 pub const VOXELS: &str = "voxels";
