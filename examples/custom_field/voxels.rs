@@ -120,13 +120,7 @@ impl TrainableField for VoxelModel {
         let (name, var) = named_vars(&self.varmap).remove(0);
         ParamGroups {
             dense: DenseGroup::pytorch(Vec::new()),
-            sparse_rows: vec![SparseRowsGroup {
-                name,
-                var,
-                beta2: 0.99,
-                eps: 1e-15,
-                sink: None,
-            }],
+            sparse_rows: vec![SparseRowsGroup::instant_ngp(name, var, None)],
         }
     }
 }

@@ -473,12 +473,9 @@ impl TrainableField for NgpState {
             .partition(|(n, _)| n == TABLE);
         let sparse_rows = table
             .into_iter()
-            .map(|(name, var)| SparseRowsGroup {
-                name,
-                var,
-                beta2: 0.99,
-                eps: 1e-15,
-                sink: Some((self.gradient.clone(), self.model.params.grid)),
+            .map(|(name, var)| {
+                let sink = (self.gradient.clone(), self.model.params.grid);
+                SparseRowsGroup::instant_ngp(name, var, Some(sink))
             })
             .collect();
         ParamGroups {

@@ -143,6 +143,24 @@ pub struct SparseRowsGroup {
     pub sink: Option<(Arc<TableGradient>, HashGridParams)>,
 }
 
+impl SparseRowsGroup {
+    /// The table `var`, saved under `name`, with instant-ngp's Adam constants (β₂ = 0.99,
+    /// ε = 1e‑15); `sink` as [`SparseRowsGroup::sink`].
+    pub fn instant_ngp(
+        name: String,
+        var: Var,
+        sink: Option<(Arc<TableGradient>, HashGridParams)>,
+    ) -> Self {
+        Self {
+            name,
+            var,
+            beta2: 0.99,
+            eps: 1e-15,
+            sink,
+        }
+    }
+}
+
 /// How an optimiser treats a model's parameters: every parameter in exactly one group.
 pub struct ParamGroups {
     /// The dense parameters; their Adam's step count is the run's.
