@@ -82,4 +82,4 @@ pub use crate::render::sampler::{RaySamples, StratifiedSampler};
 pub use crate::render::view::{render_view, RenderedView};
 pub use crate::train::adam::Adam;
 pub use crate::train::fit::{fit, Hooks, RunLimits, TrainPaths, TrainSettings};
-pub use crate::train::model::{Optimizer, TrainModel};
+pub use crate::train::model::{LoadedCheckpoint, Optimizer, TrainModel};

@@ -71,8 +71,8 @@ fn a_field_kind_from_outside_the_crate_trains_and_resumes_with_the_library_train
 
     // The checkpoint holds the grid (under the kind's own parameter name) and its sparse Adam
     // moments, and loads back into the same kind.
-    let (model, tensors, info) =
-        TrainModel::from_checkpoint(&spec, &paths.checkpoint, &device).unwrap();
+    let loaded = TrainModel::from_checkpoint(&spec, &paths.checkpoint, &device).unwrap();
+    let (model, tensors, info) = (loaded.model, loaded.tensors, loaded.info);
     assert_eq!((info.epoch, info.adam_step), (first.epoch, first.adam_step));
     assert_eq!(model.field.kind(), spec.kind());
     let grid = &tensors[voxels::VOXELS];

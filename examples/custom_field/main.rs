@@ -76,7 +76,7 @@ fn main() -> Result<()> {
     );
 
     // The checkpoint loads back into the example's field kind, and renders.
-    let (model, _, _) = TrainModel::from_checkpoint(&spec, &paths.checkpoint, &device)?;
+    let model = TrainModel::from_checkpoint(&spec, &paths.checkpoint, &device)?.model;
     let test = Dataset::load_first(&lego, Split::Test, w, h, white, Some(1))?;
     let view = render_view(
         &*model.render_field(),

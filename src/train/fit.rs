@@ -193,8 +193,8 @@ fn start_or_resume(
 ) -> Result<(TrainModel, Optimizer, CheckpointInfo)> {
     let (mut state, tensors, info) = if settings.resume && paths.checkpoint.is_file() {
         let resumed = TrainModel::from_checkpoint(&*settings.model, &paths.checkpoint, device)?;
-        check_resumable(&resumed.2, settings, n_images, &paths.checkpoint)?;
-        resumed
+        check_resumable(&resumed.info, settings, n_images, &paths.checkpoint)?;
+        (resumed.model, resumed.tensors, resumed.info)
     } else {
         log::info!(
             "starting a fresh run (no checkpoint to resume at {}); writing it there",

@@ -23,6 +23,17 @@ use crate::render::occupancy::{
 use crate::train::adam::Adam;
 use crate::train::sparse_adam::SparseAdam;
 
+/// A model read from a checkpoint, with everything else the checkpoint holds.
+pub struct LoadedCheckpoint {
+    /// The model, its parameters set from the checkpoint (no occupancy grid yet).
+    pub model: TrainModel,
+    /// Every tensor of the checkpoint by name: the parameters, the optimiser's state
+    /// (`adam.*`) and, when saved, the occupancy grid.
+    pub tensors: HashMap<String, Tensor>,
+    /// What the checkpoint says of training progress.
+    pub info: CheckpointInfo,
+}
+
 /// The model being trained or rendered: a field of any kind and, when the config uses one, the
 /// occupancy grid that marks where it can have density.
 pub struct TrainModel {
@@ -53,7 +64,7 @@ impl TrainModel {
         spec: &dyn FieldSpec,
         path: &Path,
         device: &Device,
-    ) -> Result<(Self, HashMap<String, Tensor>, CheckpointInfo)> {
+    ) -> Result<LoadedCheckpoint> {
         let field = spec.seeded(0, device)?;
         let expected = field.parameter_shapes();
         let (tensors, info) = checkpoint_file::load(path, &expected, device)?;
@@ -64,7 +75,11 @@ impl TrainModel {
             field.kind(),
             path,
         )?;
-        Ok((Self::new(field), tensors, info))
+        Ok(LoadedCheckpoint {
+            model: Self::new(field),
+            tensors,
+            info,
+        })
     }
 
     /// A trained model for rendering: weights from the checkpoint at `path` and, with `grid`,
@@ -75,7 +90,11 @@ impl TrainModel {
         path: &Path,
         device: &Device,
     ) -> Result<(Self, CheckpointInfo)> {
-        let (mut model, tensors, info) = Self::from_checkpoint(spec, path, device)?;
+        let LoadedCheckpoint {
+            mut model,
+            tensors,
+            info,
+        } = Self::from_checkpoint(spec, path, device)?;
         if let Some(grid) = grid {
             let field = &model.field;
             let density = |p: &Tensor| field.density(p);
