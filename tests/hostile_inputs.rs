@@ -2,6 +2,8 @@
 //! oversized files, FIFOs where files belong, malformed overrides, cameras 1e300 away and
 //! images wider than the decoder accepts. Each is refused quickly with one line.
 
+mod common;
+
 use nerf::app::config::Config;
 use nerf::app::yaml_bounds::MAX_YAML_BYTES;
 use nerf::io::camera_path::read_camera_path;
