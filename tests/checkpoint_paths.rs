@@ -9,16 +9,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{lego_dir, logged_steps, nerf, nerf_in, stderr, temp_files};
-
-/// A failed run's stderr, after checking that it is one line and the exit status 1.
-fn one_line_error(o: &std::process::Output) -> String {
-    let err = stderr(o);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(!err.contains("panicked"), "{err}");
-    err
-}
+use common::{lego_dir, logged_steps, nerf, nerf_in, one_line_error, stderr, temp_files};
 
 /// `nerf render` of the lego NeRF from `checkpoint`, small, into `out`.
 fn render(checkpoint: &Path, out: &Path) -> std::process::Output {
@@ -153,15 +144,8 @@ fn counts_in_a_checkpoint_are_checked_before_anything_is_sized_by_them() {
     };
     let dir = tempfile::tempdir().unwrap();
     let good = dir.path().join("good");
-    assert!(common::tiny_train(&good, &data, 1, 1)
-        .status()
-        .unwrap()
-        .success());
-    let (tensors, info) = nerf::io::checkpoint::load(
-        &good.join("nerf_lego.safetensors"),
-        &candle_core::Device::Cpu,
-    )
-    .unwrap();
+    common::tiny_train_ok(&good, &data, 1, 1);
+    let (tensors, info) = common::load_trained(&good);
     let mut tensors: Vec<(String, candle_core::Tensor)> = tensors.into_iter().collect();
     tensors.sort_by(|a, b| a.0.cmp(&b.0));
     let crafted = |name: &str, edit: &dyn Fn(&mut nerf::CheckpointInfo)| {
@@ -223,16 +207,6 @@ fn counts_in_a_checkpoint_are_checked_before_anything_is_sized_by_them() {
     assert!(err.contains("bad metadata epoch"), "{err}");
 }
 
-/// The metadata of the checkpoint training writes in `ckpt_dir`.
-fn checkpoint_info(ckpt_dir: &Path) -> nerf::CheckpointInfo {
-    nerf::io::checkpoint::load(
-        &ckpt_dir.join("nerf_lego.safetensors"),
-        &candle_core::Device::Cpu,
-    )
-    .unwrap()
-    .1
-}
-
 /// `command` with file sizes limited to `bytes` (`RLIMIT_FSIZE`) and SIGXFSZ ignored: a write
 /// past the limit fails with EFBIG, as on a full disk.
 fn with_file_size_limit(command: &mut std::process::Command, bytes: u64) {
@@ -262,10 +236,7 @@ fn a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_the_log_stay
     };
     let dir = tempfile::tempdir().unwrap();
     let ckpt = dir.path().join("c");
-    assert!(common::tiny_train(&ckpt, &data, 1, 5)
-        .status()
-        .unwrap()
-        .success());
+    common::tiny_train_ok(&ckpt, &data, 1, 5);
     let file = ckpt.join("nerf_lego.safetensors");
     let before = std::fs::read(&file).unwrap();
     let log_size = std::fs::metadata(ckpt.join("nerf_lego.log.jsonl"))
@@ -296,11 +267,8 @@ fn a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_the_log_stay
     assert_eq!(std::fs::read(&file).unwrap(), before);
     assert_eq!(logged_steps(&ckpt), (1..=100).collect::<Vec<u64>>());
     // The run resumes from it once there is room.
-    assert!(common::tiny_train(&ckpt, &data, 2, 5)
-        .status()
-        .unwrap()
-        .success());
-    assert_eq!(checkpoint_info(&ckpt).adam_step, 200);
+    common::tiny_train_ok(&ckpt, &data, 2, 5);
+    assert_eq!(common::load_trained(&ckpt).1.adam_step, 200);
     assert_eq!(logged_steps(&ckpt), (1..=200).collect::<Vec<u64>>());
 }
 
@@ -357,8 +325,7 @@ fn a_missing_checkpoint_points_to_a_shipped_model_that_renders_well_with_this_co
 fn a_fifo_as_checkpoint_is_refused_without_blocking() {
     let dir = tempfile::tempdir().unwrap();
     let fifo = dir.path().join("model.safetensors");
-    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
-    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    common::make_fifo(&fifo);
     let out = dir.path().join("out");
     let err = one_line_error(&render(&fifo, &out));
     assert!(err.contains("not a regular file"), "{err}");

@@ -306,90 +306,34 @@ fn export_refuses_bad_input_in_one_line_and_writes_nothing() {
         &out,
         "--resolution must be 1 to 512",
     );
+    let missing_checkpoint = ["--checkpoint", "/nonexistent/x.safetensors"];
     refused(
-        &[
-            "export",
-            "mesh",
-            "--config",
-            "lego",
-            "--checkpoint",
-            "/nonexistent/x.safetensors",
-            "--out",
-            o,
-        ],
+        &export_args("mesh", "lego", &missing_checkpoint, o),
         &out,
         "not found",
     );
-    refused(
-        &[
-            "export",
-            "mesh",
-            "--config",
-            "sphere",
-            "--threshold",
-            "2",
-            "--out",
-            o,
-        ],
-        &out,
-        "threshold",
-    );
-    refused(
-        &[
-            "export",
-            "mesh",
-            "--config",
-            "sphere",
-            "--threshold",
-            "nan",
-            "--out",
-            o,
-        ],
-        &out,
-        "finite",
-    );
+    for (threshold, expect) in [("2", "threshold"), ("nan", "finite")] {
+        refused(
+            &export_args("mesh", "sphere", &["--threshold", threshold], o),
+            &out,
+            expect,
+        );
+    }
     // A directory that cannot exist: its parent is a file.
     let blocker = dir.path().join("file");
     std::fs::write(&blocker, b"x").unwrap();
     let inside = blocker.join("m.ply");
-    refused(
-        &[
-            "export",
-            "mesh",
-            "--config",
-            "sphere",
-            "--out",
-            inside.to_str().unwrap(),
-        ],
-        &inside,
-        "cannot create output directory",
-    );
-    refused(
-        &[
-            "export",
-            "points",
-            "--config",
-            "box",
-            "--out",
-            inside.to_str().unwrap(),
-        ],
-        &inside,
-        "cannot create output directory",
-    );
+    for (kind, config) in [("mesh", "sphere"), ("points", "box")] {
+        refused(
+            &export_args(kind, config, &[], inside.to_str().unwrap()),
+            &inside,
+            "cannot create output directory",
+        );
+    }
     // No surface at all: the lego NeRF's density never reaches 1e9.
+    let unreachable = ["--resolution", "16", "--threshold", "1e9"];
     refused(
-        &[
-            "export",
-            "mesh",
-            "--config",
-            "lego",
-            "--resolution",
-            "16",
-            "--threshold",
-            "1e9",
-            "--out",
-            o,
-        ],
+        &export_args("mesh", "lego", &unreachable, o),
         &out,
         "no surface at threshold",
     );
@@ -398,6 +342,21 @@ fn export_refuses_bad_input_in_one_line_and_writes_nothing() {
         1,
         "only the blocker file is left"
     );
+}
+
+/// `nerf export KIND --config CONFIG EXTRA… --out OUT`.
+fn export_args<'a>(
+    kind: &'a str,
+    config: &'a str,
+    extra: &[&'a str],
+    out: &'a str,
+) -> Vec<&'a str> {
+    [
+        &["export", kind, "--config", config][..],
+        extra,
+        &["--out", out],
+    ]
+    .concat()
 }
 
 /// Overrides that make `nerf_lego_ngp` tiny: 16×16 images, a 4-level 2^10 table.

@@ -32,10 +32,7 @@ fn ok(o: &std::process::Output, what: &str) -> String {
 
 /// Asserts a clean failure: exit code 1, one line on stderr containing `needle`, no panic.
 fn fails_with(o: &std::process::Output, needle: &str) {
-    let err = stderr(o);
-    assert_eq!(o.status.code(), Some(1), "expected failure: {err}");
-    assert!(!err.contains("panicked"), "{err}");
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    let err = common::one_line_error(o);
     assert!(err.contains(needle), "expected `{needle}` in: {err}");
 }
 

@@ -2,6 +2,8 @@
 //! oversized files, FIFOs where files belong, malformed overrides, cameras 1e300 away and
 //! images wider than the decoder accepts. Each is refused quickly with one line.
 
+mod common;
+
 use nerf::app::config::Config;
 use nerf::app::yaml_bounds::MAX_YAML_BYTES;
 use nerf::io::camera_path::read_camera_path;
@@ -52,8 +54,7 @@ fn deep_or_large_yaml_is_refused_quickly() {
     );
     assert!(err.contains("more than"), "{err}");
     let fifo = dir.path().join("fifo.yaml");
-    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
-    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    common::make_fifo(&fifo);
     let err = format!(
         "{:#}",
         Config::load(fifo.to_str().unwrap(), &[]).unwrap_err()
@@ -93,8 +94,7 @@ fn far_cameras_fifos_and_huge_images_are_refused_with_one_line() {
     }
     // A FIFO in place of the transforms file is refused without blocking.
     std::fs::remove_file(&path).unwrap();
-    let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
-    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    common::make_fifo(&path);
     let start = std::time::Instant::now();
     let err = read_split(dir.path(), Split::Train)
         .unwrap_err()

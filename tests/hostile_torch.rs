@@ -23,29 +23,31 @@ impl Pickle {
         self.0.push(op);
         self
     }
-    fn put(&mut self, i: u32) -> &mut Self {
-        self.op(b'r');
-        self.0.extend_from_slice(&i.to_le_bytes());
+    /// The opcode `op`, `n` times.
+    fn ops(&mut self, op: u8, n: usize) -> &mut Self {
+        self.0.extend(std::iter::repeat_n(op, n));
         self
+    }
+    /// The opcode `op` followed by the bytes of its argument.
+    fn op_with(&mut self, op: u8, argument: &[u8]) -> &mut Self {
+        self.op(op);
+        self.0.extend_from_slice(argument);
+        self
+    }
+    fn put(&mut self, i: u32) -> &mut Self {
+        self.op_with(b'r', &i.to_le_bytes())
     }
     fn get(&mut self, i: u32) -> &mut Self {
-        self.op(b'j');
-        self.0.extend_from_slice(&i.to_le_bytes());
-        self
+        self.op_with(b'j', &i.to_le_bytes())
     }
     fn int(&mut self, v: i32) -> &mut Self {
-        self.op(b'J');
-        self.0.extend_from_slice(&v.to_le_bytes());
-        self
+        self.op_with(b'J', &v.to_le_bytes())
     }
     fn long(&mut self, v: i64) -> &mut Self {
-        self.op(0x8a).op(8);
-        self.0.extend_from_slice(&v.to_le_bytes());
-        self
+        self.op(0x8a).op_with(8, &v.to_le_bytes())
     }
     fn str(&mut self, s: &str) -> &mut Self {
-        self.op(b'X');
-        self.0.extend_from_slice(&(s.len() as u32).to_le_bytes());
+        self.op_with(b'X', &(s.len() as u32).to_le_bytes());
         self.0.extend_from_slice(s.as_bytes());
         self
     }
@@ -205,30 +207,20 @@ fn nesting_100k_deep_is_refused_without_overflowing_the_stack() {
     let cases: Vec<(&str, Vec<u8>)> = vec![
         ("lists", {
             let mut p = Pickle::new();
-            for _ in 0..n {
-                p.op(b']');
-            }
-            for _ in 1..n {
-                p.op(b'a');
-            }
+            p.ops(b']', n);
+            p.ops(b'a', n - 1);
             p.stop()
         }),
         ("tuples", {
             let mut p = Pickle::new();
             p.op(b')');
-            for _ in 0..n {
-                p.op(0x85);
-            }
+            p.ops(0x85, n);
             p.stop()
         }),
         ("marks", {
             let mut p = Pickle::new();
-            for _ in 0..n {
-                p.op(b'(');
-            }
-            for _ in 0..n {
-                p.op(b't');
-            }
+            p.ops(b'(', n);
+            p.ops(b't', n);
             p.stop()
         }),
         ("dicts", {
@@ -237,9 +229,7 @@ fn nesting_100k_deep_is_refused_without_overflowing_the_stack() {
             for _ in 0..n {
                 p.op(b'K').op(1).op(b'}');
             }
-            for _ in 0..n {
-                p.op(b's');
-            }
+            p.ops(b's', n);
             p.stop()
         }),
     ];

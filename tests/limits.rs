@@ -249,16 +249,6 @@ fn a_render_whose_last_file_cannot_be_written_leaves_none_of_its_files() {
         ],
     );
     refused_with(&o, "render_cube.gif");
-    let left: Vec<String> = files_and_dirs(dir.path());
+    let left: Vec<String> = common::sorted_names(dir.path());
     assert_eq!(left, vec!["render_cube.gif".to_string()]);
-}
-
-/// The names in `dir`, sorted.
-fn files_and_dirs(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
-        .collect();
-    names.sort();
-    names
 }

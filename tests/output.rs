@@ -7,7 +7,7 @@ use std::os::unix::fs::FileTypeExt;
 use std::path::Path;
 
 mod common;
-use common::{nerf, stderr};
+use common::{nerf, sorted_names, stderr};
 
 /// `nerf export mesh` of the analytic sphere (fast) to `out`.
 fn export_mesh(out: &Path) -> std::process::Output {
@@ -21,16 +21,6 @@ fn export_mesh(out: &Path) -> std::process::Output {
         "--out",
         out.to_str().unwrap(),
     ])
-}
-
-/// The names in `dir`, sorted.
-fn names(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
-        .collect();
-    v.sort();
-    v
 }
 
 #[test]
@@ -54,8 +44,8 @@ fn export_onto_a_link_writes_its_target_and_keeps_the_link() {
     );
     assert!(bytes.windows(13).any(|w| w == b"element face "));
     // No temporary file beside the link or the target.
-    assert_eq!(names(&real), ["sphere.ply"]);
-    assert_eq!(names(dir.path()), ["latest.ply", "meshes"]);
+    assert_eq!(sorted_names(&real), ["sphere.ply"]);
+    assert_eq!(sorted_names(dir.path()), ["latest.ply", "meshes"]);
 }
 
 #[test]
@@ -85,8 +75,8 @@ fn export_onto_a_directory_is_refused_in_one_line() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(err.contains("is a directory"), "{err}");
-    assert!(names(&target).is_empty());
-    assert_eq!(names(dir.path()), ["out.ply"]);
+    assert!(sorted_names(&target).is_empty());
+    assert_eq!(sorted_names(dir.path()), ["out.ply"]);
 }
 
 /// `nerf export model` of the shipped NeRF (from `checkpoint`) to `out`.

@@ -1,6 +1,8 @@
 //! Stiff and extreme cases: every stage pushed to its limits must give finite outputs, weights in
 //! [0, 1] with Σw ≤ 1 + 1e-6, and agree with a float64 recomputation where that is meaningful.
 
+mod common;
+
 use candle_core::{Device, Tensor};
 use nerf::app::config::Config;
 use nerf::core::rays::Rays;
@@ -177,20 +179,16 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
 #[test]
 fn near_equals_far_renders_through_the_binary() {
     let dir = tempfile::tempdir().unwrap();
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_nerf"))
-        .args([
-            "render",
-            "--config",
-            "box",
-            "--out-dir",
-            dir.path().to_str().unwrap(),
-            "data.image_size=[16,16]",
-            "sampler.min_depth=2.5",
-            "sampler.max_depth=2.5",
-        ])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    common::nerf_ok(&[
+        "render",
+        "--config",
+        "box",
+        "--out-dir",
+        dir.path().to_str().unwrap(),
+        "data.image_size=[16,16]",
+        "sampler.min_depth=2.5",
+        "sampler.max_depth=2.5",
+    ]);
     assert!(dir.path().join("render_cube.gif").is_file());
 }
 

@@ -150,19 +150,6 @@ impl Watched {
     }
 }
 
-fn load(
-    ckpt_dir: &Path,
-) -> (
-    std::collections::HashMap<String, candle_core::Tensor>,
-    nerf::CheckpointInfo,
-) {
-    nerf::io::checkpoint::load(
-        &ckpt_dir.join("nerf_lego.safetensors"),
-        &candle_core::Device::Cpu,
-    )
-    .unwrap()
-}
-
 #[test]
 fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
     let Some(data) = lego_dir("sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact") else {
@@ -171,10 +158,7 @@ fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
     let dir = tempfile::tempdir().unwrap();
     let epochs = 4;
     let straight = dir.path().join("straight");
-    assert!(tiny_train(&straight, &data, epochs)
-        .status()
-        .unwrap()
-        .success());
+    common::tiny_train_ok(&straight, &data, epochs, 5);
     for (signal, name) in [(libc::SIGINT, "int"), (libc::SIGTERM, "term")] {
         let stopped = dir.path().join(name);
         let run = watched(tiny_train(&stopped, &data, epochs));
@@ -187,7 +171,7 @@ fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
             err.contains("resume with: nerf train --config nerf_lego"),
             "{err}"
         );
-        let (_, info) = load(&stopped);
+        let (_, info) = common::load_trained(&stopped);
         assert!(info.step_in_epoch > 0 && info.epoch == 1, "{info:?}");
         // The log and the checkpoint agree about which steps exist.
         assert_eq!(log_lines(&stopped) as u64, info.adam_step);
@@ -197,7 +181,10 @@ fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
             .output()
             .unwrap();
         assert!(out.status.success(), "{}", stderr(&out));
-        let ((a, ia), (b, ib)) = (load(&straight), load(&stopped));
+        let ((a, ia), (b, ib)) = (
+            common::load_trained(&straight),
+            common::load_trained(&stopped),
+        );
         assert_eq!((ia.epoch, ia.adam_step), (ib.epoch, ib.adam_step));
         for (k, t) in &a {
             let d = common::max_abs_diff(
@@ -232,7 +219,7 @@ fn a_second_sigint_exits_at_once_and_leaves_whole_files() {
     // No temporary file is left, and the log holds no step the checkpoint does not.
     assert!(temp_files(&ckpt).is_empty(), "{:?}", temp_files(&ckpt));
     let held = if ckpt.join("nerf_lego.safetensors").exists() {
-        load(&ckpt).1.adam_step // whole, whichever write it was in
+        common::load_trained(&ckpt).1.adam_step // whole, whichever write it was in
     } else {
         0
     };
@@ -251,7 +238,7 @@ fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() 
     };
     let dir = tempfile::tempdir().unwrap();
     let ckpt = dir.path().join("c");
-    assert!(tiny_train(&ckpt, &data, 2).status().unwrap().success());
+    common::tiny_train_ok(&ckpt, &data, 2, 5);
     assert_eq!(log_lines(&ckpt), 200);
     let before = std::fs::read(ckpt.join("nerf_lego.safetensors")).unwrap();
     let out = tiny_train(&ckpt, &data, 1)
@@ -277,7 +264,7 @@ fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() 
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", stderr(&out));
-    let (_, info) = load(&ckpt);
+    let (_, info) = common::load_trained(&ckpt);
     assert_eq!((info.epoch, info.adam_step), (1, 100));
     assert_eq!(
         log_lines(&ckpt),

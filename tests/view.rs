@@ -78,6 +78,16 @@ impl Server {
         self.request("GET", target)
     }
 
+    /// The error message of a render refused with status 400 for the query `query`, after
+    /// checking that it names `reason`.
+    fn refused_render(&self, query: &str, reason: &str) -> String {
+        let (status, _, body) = self.get(&format!("/render.png?{query}"));
+        let message = String::from_utf8_lossy(&body).to_string();
+        assert_eq!(status, 400, "{query}: {message}");
+        assert!(message.contains(reason), "{query}: {message}");
+        message
+    }
+
     /// The counters of `/info.json`.
     fn stats(&self) -> serde_json::Value {
         let (status, _, body) = self.get("/info.json");
@@ -194,10 +204,7 @@ fn bad_requests_are_refused_and_the_server_keeps_serving() {
         ("up=0,0,0", "up"),
         ("zoom=3", "unknown parameter"),
     ] {
-        let (status, _, body) = server.get(&format!("/render.png?{query}"));
-        let message = String::from_utf8_lossy(&body);
-        assert_eq!(status, 400, "{query}: {message}");
-        assert!(message.contains(reason), "{query}: {message}");
+        server.refused_render(query, reason);
     }
     assert_eq!(server.request("POST", "/render.png").0, 405);
     // Still serving.
@@ -540,10 +547,7 @@ fn degenerate_cameras_are_refused(server: &Server) {
         ("width=0", "width"),
         ("height=4097", "height"),
     ] {
-        let (status, _, body) = server.get(&format!("/render.png?{query}"));
-        let message = String::from_utf8_lossy(&body);
-        assert_eq!(status, 400, "{query}: {message}");
-        assert!(message.contains(reason), "{query}: {message}");
+        let message = server.refused_render(query, reason);
         assert_eq!(message.trim_end().lines().count(), 1, "{message}");
     }
 }

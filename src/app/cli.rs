@@ -129,6 +129,13 @@ pub struct ConfigArgs {
     pub overrides: Vec<String>,
 }
 
+impl ConfigArgs {
+    /// The config `--config` names, with the overrides applied.
+    pub fn load(&self) -> Result<crate::app::config::Config> {
+        crate::app::config::Config::load(&self.config, &self.overrides)
+    }
+}
+
 /// `--checkpoint`, for every subcommand that reads (or, training, writes) a NeRF checkpoint.
 #[derive(Args, Debug, Clone, Default)]
 pub struct CheckpointArg {

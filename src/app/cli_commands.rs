@@ -77,7 +77,7 @@ pub fn run(args: RunArgs, device: &Device) -> Result<()> {
         training,
     } = args;
     let options = train_options(data.data_dir, training);
-    let loaded = Config::load(&c.config, &c.overrides)?;
+    let loaded = c.load()?;
     match jobs::run_job(&loaded, &c.config)? {
         RunJob::Render => {
             let kind = loaded.kind.map_or("", |k| k.name());
@@ -108,7 +108,7 @@ pub fn run(args: RunArgs, device: &Device) -> Result<()> {
 
 /// `nerf render`: the surround views (or a camera path) into the output directory.
 pub fn render(args: RenderArgs, device: &Device) -> Result<()> {
-    let config = Config::load(&args.config.config, &args.config.overrides)?;
+    let config = args.config.load()?;
     let checkpoint = args.checkpoint.checkpoint.as_deref();
     let out_dir = &args.out.out_dir;
     let written = match &args.camera_path {
@@ -182,13 +182,13 @@ fn resume_command(config_resumes: bool) -> String {
 
 /// `nerf targets`: writes the training config's target images.
 pub fn targets(args: TargetsArgs, device: &Device) -> Result<()> {
-    let config = Config::load(&args.config.config, &args.config.overrides)?;
+    let config = args.config.load()?;
     say_written(&crate::app::train_box::write_targets(&config, device)?)
 }
 
 /// `nerf eval`: PSNR and SSIM over a split, as a summary or JSON.
 pub fn eval(args: EvalArgs, device: &Device) -> Result<()> {
-    let mut config = Config::load(&args.config.config, &args.config.overrides)?;
+    let mut config = args.config.load()?;
     if args.white {
         config.renderer.white_background = true;
     }
@@ -211,7 +211,7 @@ pub fn eval(args: EvalArgs, device: &Device) -> Result<()> {
 
 /// `nerf import-torch`: converts a PyTorch state dict; the note goes to stderr.
 pub fn import_torch(args: ImportTorchArgs) -> Result<()> {
-    let config = Config::load(&args.config.config, &args.config.overrides)?;
+    let config = args.config.load()?;
     let n = crate::io::torch::import_torch(
         &args.pth,
         &config.field_spec()?.parameter_shapes()?,
@@ -227,7 +227,7 @@ pub fn import_torch(args: ImportTorchArgs) -> Result<()> {
 
 /// `nerf bench`: times the jobs and prints a table or JSON.
 pub fn bench(args: BenchArgs, device: &Device) -> Result<()> {
-    let config = Config::load(&args.config.config, &args.config.overrides)?;
+    let config = args.config.load()?;
     let lego_config = Config::load("lego", &[])?;
     let lego = crate::app::bench::LegoBench {
         checkpoint: lego_config.checkpoint(args.checkpoint.checkpoint.as_deref()),
@@ -266,7 +266,7 @@ pub fn report(args: ReportArgs, device: &Device) -> Result<()> {
 
 /// `nerf view`: serves until killed.
 pub fn view(args: ViewArgs, device: &Device) -> Result<()> {
-    let config = Config::load(&args.config.config, &args.config.overrides)?;
+    let config = args.config.load()?;
     let checkpoint = args.checkpoint.checkpoint.as_deref();
     let scene = crate::app::scene::load_scene_field(&config, checkpoint, device)?;
     let options = crate::app::view::ViewOptions {
@@ -292,7 +292,7 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
     use crate::app::export::{export_depth, export_mesh, export_points, MeshOptions};
     match what {
         ExportCommand::Mesh(a) => {
-            let config = Config::load(&a.config.config, &a.config.overrides)?;
+            let config = a.config.load()?;
             let options = MeshOptions {
                 resolution: a.resolution,
                 threshold: a.threshold,
@@ -314,14 +314,14 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
             ))
         }
         ExportCommand::Points(a) => {
-            let config = Config::load(&a.config.config, &a.config.overrides)?;
+            let config = a.config.load()?;
             let views = export_views(&config, a.split, a.views);
             let checkpoint = a.checkpoint.checkpoint.as_deref();
             let n = export_points(&config, checkpoint, &views, &a.out, device)?;
             say(&format!("wrote {} ({n} points)", a.out.display()))
         }
         ExportCommand::Model(a) => {
-            let config = Config::load(&a.config.config, &a.config.overrides)?;
+            let config = a.config.load()?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
             let e = crate::app::export_model::export_model(&config, checkpoint, &a.out, device)?;
             say(&format!(
@@ -333,7 +333,7 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
             ))
         }
         ExportCommand::Depth(a) => {
-            let config = Config::load(&a.config.config, &a.config.overrides)?;
+            let config = a.config.load()?;
             let views = export_views(&config, a.split, a.views);
             let checkpoint = a.checkpoint.checkpoint.as_deref();
             let written = export_depth(&config, checkpoint, &views, &a.out, device)?;

@@ -9,6 +9,14 @@ use crate::core::camera_model::CameraModel;
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::render::sampler::StratifiedSampler;
 
+/// A box's centre and half side lengths in f64.
+fn box_center_and_half_sides(center: [f32; 3], side_lengths: [f32; 3]) -> (DVec3, DVec3) {
+    (
+        DVec3::from_array(center.map(f64::from)),
+        DVec3::from_array(side_lengths.map(|v| 0.5 * v as f64)),
+    )
+}
+
 /// Signed distance in f64.
 pub fn signed_distance(sdf: &Sdf, p: DVec3) -> f64 {
     match *sdf {
@@ -16,8 +24,7 @@ pub fn signed_distance(sdf: &Sdf, p: DVec3) -> f64 {
             center,
             side_lengths,
         } => {
-            let c = DVec3::from_array(center.map(f64::from));
-            let half = DVec3::from_array(side_lengths.map(|v| 0.5 * v as f64));
+            let (c, half) = box_center_and_half_sides(center, side_lengths);
             let q = (p - c).abs() - half;
             q.max(DVec3::ZERO).length() + q.max_element().min(0.0)
         }
@@ -54,8 +61,7 @@ pub fn analytic_hit(sdf: &Sdf, origin: DVec3, direction: DVec3) -> Option<f64> {
             center,
             side_lengths,
         } => {
-            let c = DVec3::from_array(center.map(f64::from));
-            let half = DVec3::from_array(side_lengths.map(|v| 0.5 * v as f64));
+            let (c, half) = box_center_and_half_sides(center, side_lengths);
             let (mut t_near, mut t_far) = (0f64, f64::INFINITY);
             for k in 0..3 {
                 let (o, d) = (origin[k] - c[k], direction[k]);

@@ -68,6 +68,14 @@ pub fn read_regular_file(path: &Path, what: &str, max_bytes: u64) -> Result<Vec<
     Ok(bytes)
 }
 
+/// Makes a FIFO (named pipe) at `path`, for the tests of readers and writers that must not
+/// block on one.
+#[cfg(test)]
+pub(crate) fn make_fifo(path: &Path) {
+    let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -77,8 +85,7 @@ mod tests {
     fn fifos_directories_and_large_files_are_refused_at_once() {
         let dir = tempfile::tempdir().unwrap();
         let fifo = dir.path().join("pipe");
-        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
-        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        make_fifo(&fifo);
         let start = Instant::now();
         let err = read_regular_file(&fifo, "dataset file", 1 << 20).unwrap_err();
         assert!(start.elapsed() < Duration::from_secs(1));

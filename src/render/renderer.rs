@@ -279,7 +279,7 @@ mod tests {
 }
 
 #[cfg(test)]
-mod coarse_to_fine_tests {
+pub(super) mod coarse_to_fine_tests {
     use super::*;
     use crate::core::sdf::{Sdf, SdfVolume};
     use crate::field::sdf::SdfField;
@@ -287,8 +287,9 @@ mod coarse_to_fine_tests {
     use crate::render::sampler::StratifiedSampler;
     use candle_core::Device;
 
-    /// A unit sphere with a soft surface, and 64 rays from (0, 0, −4) spread over it.
-    fn scene() -> (SdfField, Rays) {
+    /// A rainbow unit sphere at the origin with a soft surface (β = 0.05): the test scene of
+    /// the renderer's and the view's tests.
+    pub(in crate::render) fn soft_unit_sphere() -> SdfField {
         let volume = SdfVolume {
             sdf: Sdf::Sphere {
                 center: [0.0; 3],
@@ -299,7 +300,12 @@ mod coarse_to_fine_tests {
             rainbow: true,
             feature: [1.0, 1.0, 1.0],
         };
-        let field = SdfField::fixed(&volume, &Device::Cpu).unwrap();
+        SdfField::fixed(&volume, &Device::Cpu).unwrap()
+    }
+
+    /// A unit sphere with a soft surface, and 64 rays from (0, 0, −4) spread over it.
+    fn scene() -> (SdfField, Rays) {
+        let field = soft_unit_sphere();
         let (mut origins, mut directions) = (Vec::<f32>::new(), Vec::<f32>::new());
         for k in 0..64 {
             let (x, y) = ((k % 8) as f32 / 8.0 - 0.45, (k / 8) as f32 / 8.0 - 0.45);

@@ -750,15 +750,7 @@ mod tests {
         let (ga, gb) = (loss(&color, &depth, &opacity), loss(&c2, &d2, &o2));
         for (name, var) in crate::field::trainable::named_vars(&state.varmap) {
             let (a, b) = (ga.get(&var).unwrap(), gb.get(&var).unwrap());
-            let scale = b
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap();
-            let d = max_diff(a, b);
-            assert!(d <= 1e-5 * scale.max(1.0), "{name}: {d} (scale {scale})");
+            crate::core::compare::assert_close(a, b, 1e-5, &name);
         }
     }
 }

@@ -94,7 +94,6 @@ mod tests {
     use crate::core::camera::surround_cameras;
     use crate::core::camera::PerspectiveCamera;
     use crate::core::rays::Rays;
-    use crate::core::sdf::{Sdf, SdfVolume};
     use crate::field::sdf::SdfField;
     use crate::render::sampler::StratifiedSampler;
     use glam::DVec3;
@@ -106,17 +105,7 @@ mod tests {
         VolumeRenderer,
         PerspectiveCamera,
     ) {
-        let volume = SdfVolume {
-            sdf: Sdf::Sphere {
-                center: [0.0; 3],
-                radius: 1.0,
-            },
-            alpha: 1.0,
-            beta: 0.05,
-            rainbow: true,
-            feature: [1.0, 1.0, 1.0],
-        };
-        let field = SdfField::fixed(&volume, &Device::Cpu).unwrap();
+        let field = crate::render::renderer::coarse_to_fine_tests::soft_unit_sphere();
         let sampler = StratifiedSampler::new(16, 0.1, 6.0).unwrap();
         let renderer = VolumeRenderer::new(64, false).unwrap();
         let camera = surround_cameras(3.0, 1, DVec3::Y, 1.0)[0];

@@ -106,32 +106,29 @@ mod tests {
     use super::*;
     use candle_core::Device;
 
+    /// One Adam step on the loss (p − 3)².
+    fn step_towards_three(adam: &mut Adam, p: &Var) {
+        let loss = p
+            .as_tensor()
+            .affine(1.0, -3.0)
+            .unwrap()
+            .sqr()
+            .unwrap()
+            .sum_all()
+            .unwrap();
+        adam.step(&loss.backward().unwrap()).unwrap();
+    }
+
     #[test]
     fn matches_hand_computed_pytorch_steps() {
         // Minimise (p − 3)² from p = 0 with lr 0.1: PyTorch's first step moves by exactly lr.
         let p = Var::new(&[0f32], &Device::Cpu).unwrap();
         let mut adam = Adam::new(vec![("p".into(), p.clone())], 0.1).unwrap();
-        let loss = p
-            .as_tensor()
-            .affine(1.0, -3.0)
-            .unwrap()
-            .sqr()
-            .unwrap()
-            .sum_all()
-            .unwrap();
-        adam.step(&loss.backward().unwrap()).unwrap();
+        step_towards_three(&mut adam, &p);
         let v = p.as_tensor().to_vec1::<f32>().unwrap()[0];
         assert!((v - 0.1).abs() < 1e-6, "{v}");
         // Second step by hand: g1 = −6, g2 = 2(0.1 − 3) = −5.8.
-        let loss = p
-            .as_tensor()
-            .affine(1.0, -3.0)
-            .unwrap()
-            .sqr()
-            .unwrap()
-            .sum_all()
-            .unwrap();
-        adam.step(&loss.backward().unwrap()).unwrap();
+        step_towards_three(&mut adam, &p);
         let (g1, g2) = (-6.0f64, -5.8f64);
         let m = 0.9 * (0.1 * g1) + 0.1 * g2;
         let v2 = 0.999 * (0.001 * g1 * g1) + 0.001 * g2 * g2;

@@ -38,6 +38,16 @@ pub fn homework_config(name: &str, test: &str) -> Option<PathBuf> {
         .map(|d| d.join(format!("{name}.yaml")))
 }
 
+/// The error of a run that failed cleanly: exit code 1, one line on stderr, no panic (each
+/// asserted); returns that stderr.
+pub fn one_line_error(o: &Output) -> String {
+    let err = stderr(o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
 /// A run's stderr as text.
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).to_string()
@@ -134,6 +144,25 @@ pub fn save_seeded_checkpoint_with(
     .unwrap();
 }
 
+/// The tiny NeRF's training settings (no rendering during training, 32 rays a batch, learning
+/// rate 0.002), as config overrides.
+pub const TINY_NERF_TRAINING: [&str; 3] = [
+    "training.render_interval=1000",
+    "training.batch_size=32",
+    "training.lr=0.002",
+];
+
+/// The tiny NeRF's model and images, as config overrides: a 3-layer 16-wide trunk (8-wide
+/// direction branch), 8 samples per ray, 8×8 images.
+pub const TINY_NERF_MODEL: [&str; 6] = [
+    "implicit_function.n_hidden_neurons_xyz=16",
+    "implicit_function.n_hidden_neurons_dir=8",
+    "implicit_function.n_layers_xyz=3",
+    "implicit_function.append_xyz=[2]",
+    "sampler.n_pts_per_ray=8",
+    "data.image_size=[8,8]",
+];
+
 /// A tiny NeRF training run of `nerf train` on the lego data in `data` (8×8 images, 8 samples
 /// per ray, a 3-layer 16-wide trunk: about 0.1 s per epoch) into `ckpt_dir`, with a checkpoint
 /// every `checkpoint_interval` epochs. Its stdout and stderr go nowhere unless the caller says.
@@ -153,18 +182,10 @@ pub fn tiny_train(
         &format!("training.checkpoint_path={}", ckpt_dir.display()),
         &format!("training.num_epochs={epochs}"),
         &format!("training.checkpoint_interval={checkpoint_interval}"),
-        "training.render_interval=1000",
-        "training.batch_size=32",
-        "training.lr=0.002",
-        "implicit_function.n_hidden_neurons_xyz=16",
-        "implicit_function.n_hidden_neurons_dir=8",
-        "implicit_function.n_layers_xyz=3",
-        "implicit_function.append_xyz=[2]",
-        "sampler.n_pts_per_ray=8",
-        "data.image_size=[8,8]",
-        "--out-dir",
-        ckpt_dir.join("images").to_str().unwrap(),
     ]);
+    c.args(TINY_NERF_TRAINING);
+    c.args(TINY_NERF_MODEL);
+    c.args(["--out-dir", ckpt_dir.join("images").to_str().unwrap()]);
     c.stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null());
     c
@@ -216,4 +237,44 @@ pub fn temp_files(dir: &Path) -> Vec<String> {
         .map(|e| e.file_name().to_string_lossy().to_string())
         .filter(|n| n.ends_with(".tmp"))
         .collect()
+}
+
+/// Makes a FIFO (named pipe) at `path`, for the tests of readers and writers that must not
+/// block on one.
+pub fn make_fifo(path: &Path) {
+    let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+}
+
+/// The names in `dir`, sorted.
+pub fn sorted_names(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    names.sort();
+    names
+}
+
+/// Runs [`tiny_train`] to its end and asserts that it succeeded.
+pub fn tiny_train_ok(ckpt_dir: &Path, data: &Path, epochs: usize, checkpoint_interval: usize) {
+    assert!(tiny_train(ckpt_dir, data, epochs, checkpoint_interval)
+        .status()
+        .unwrap()
+        .success());
+}
+
+/// The tensors and metadata of the checkpoint that training writes in `ckpt_dir`
+/// (`nerf_lego.safetensors`), loaded on the CPU.
+pub fn load_trained(
+    ckpt_dir: &Path,
+) -> (
+    std::collections::HashMap<String, candle_core::Tensor>,
+    nerf::CheckpointInfo,
+) {
+    nerf::io::checkpoint::load(
+        &ckpt_dir.join("nerf_lego.safetensors"),
+        &candle_core::Device::Cpu,
+    )
+    .unwrap()
 }

@@ -337,18 +337,26 @@ mod tests {
 
     #[test]
     fn errors_name_the_key() {
-        assert!(err(&["sampler.n_pts_per_rays=3"]).contains("n_pts_per_rays"));
-        assert!(err(&["sampler.n_pts_per_ray=abc"]).contains("sampler.n_pts_per_ray"));
-        assert!(err(&["sampler.n_pts_per_ray=0"]).contains("sampler.n_pts_per_ray"));
-        assert!(err(&["sampler.min_depth=-1"]).contains("sampler.min_depth"));
-        assert!(err(&["sampler.min_depth=6"]).contains("sampler.min_depth"));
-        assert!(err(&["data.image_size=[0,5]"]).contains("data.image_size"));
-        assert!(err(&["renderer.chunk_size=0"]).contains("renderer.chunk_size"));
-        assert!(err(&["implicit_function.beta.val=.nan"]).contains("implicit_function.beta.val"));
-        assert!(err(&["implicit_function.sdf.center.val=[0, .inf, 0]"]).contains("center"));
-        assert!(err(&["implicit_function.sdf.colour=1"]).contains("implicit_function.sdf"));
-        assert!(err(&["implicit_function.type=mesh"]).contains("implicit_function.type"));
-        assert!(err(&["cameras.radius=.nan"]).contains("cameras"));
-        assert!(err(&["nokey"]).contains("key.sub=value"));
+        for (setting, key) in [
+            ("sampler.n_pts_per_rays=3", "n_pts_per_rays"),
+            ("sampler.n_pts_per_ray=abc", "sampler.n_pts_per_ray"),
+            ("sampler.n_pts_per_ray=0", "sampler.n_pts_per_ray"),
+            ("sampler.min_depth=-1", "sampler.min_depth"),
+            ("sampler.min_depth=6", "sampler.min_depth"),
+            ("data.image_size=[0,5]", "data.image_size"),
+            ("renderer.chunk_size=0", "renderer.chunk_size"),
+            (
+                "implicit_function.beta.val=.nan",
+                "implicit_function.beta.val",
+            ),
+            ("implicit_function.sdf.center.val=[0, .inf, 0]", "center"),
+            ("implicit_function.sdf.colour=1", "implicit_function.sdf"),
+            ("implicit_function.type=mesh", "implicit_function.type"),
+            ("cameras.radius=.nan", "cameras"),
+            ("nokey", "key.sub=value"),
+        ] {
+            let e = err(&[setting]);
+            assert!(e.contains(key), "{setting}: {e}");
+        }
     }
 }

@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use super::box_study::BoxStudy;
 use super::lego_study::LegoMethod;
 use super::scoring::{log_log_slope, GRAZING_BETAS};
-use super::training_log::{minutes_to_reach, TrainingCurve};
+use super::training_log::minutes_to_reach;
 use super::Report;
 use crate::app::bench::MachineInfo;
 
@@ -245,11 +245,7 @@ fn lego_section(out: &mut String, report: &Report, plot: &str, m: &str) {
 /// The training section: PSNR against wall-clock time from the logs.
 fn training_section(out: &mut String, report: &Report, plot: &str) {
     out.push_str("## Training: PSNR against wall-clock time\n\n");
-    let curves: Vec<&TrainingCurve> = report
-        .training
-        .iter()
-        .filter_map(|c| c.as_ref().ok())
-        .collect();
+    let curves = report.readable_training_curves();
     if !curves.is_empty() {
         out.push_str(
             "From the training logs: wall-clock seconds as the run logged them (evaluation \

@@ -181,6 +181,16 @@ pub struct Report {
     pub training: Vec<std::result::Result<TrainingCurve, String>>,
 }
 
+impl Report {
+    /// The training curves whose logs could be read (those that could not are left out).
+    pub fn readable_training_curves(&self) -> Vec<&TrainingCurve> {
+        self.training
+            .iter()
+            .filter_map(|c| c.as_ref().ok())
+            .collect()
+    }
+}
+
 /// The training logs a report plots by default: the checkpoint's `.log.jsonl` and the
 /// homework-trained model's.
 pub fn default_training_logs(checkpoint: &Path) -> Vec<PathBuf> {
@@ -248,11 +258,7 @@ pub fn write_report(options: &ReportOptions, device: &Device) -> Result<Vec<Path
     if let Ok(l) = &report.lego {
         add_plot("lego", "lego_psnr_vs_time.png", lego_plot(l))?;
     }
-    let curves: Vec<&TrainingCurve> = report
-        .training
-        .iter()
-        .filter_map(|c| c.as_ref().ok())
-        .collect();
+    let curves = report.readable_training_curves();
     if !curves.is_empty() {
         add_plot(
             "training",

@@ -82,8 +82,7 @@ mod tests {
     fn a_training_log_that_is_no_regular_file_is_refused_without_reading() {
         let dir = tempfile::tempdir().unwrap();
         let fifo = dir.path().join("run.log.jsonl");
-        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
-        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        crate::io::bounded_read::make_fifo(&fifo);
         let err = format!("{:#}", read_training_log(&fifo).unwrap_err());
         assert!(
             err.contains("FIFO") && err.contains("training log"),
