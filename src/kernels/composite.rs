@@ -202,6 +202,24 @@ pub fn composite_packed_tensor_ops(
     lengths: &Tensor,
 ) -> Result<(Tensor, Tensor, Tensor)> {
     let s = lengths.dim(1)?;
+    let (dense_density, dense_feature) = scatter_packed(index, (n_rays, s), density, feature)?;
+    let lengths = lengths
+        .to_dtype(density.dtype())?
+        .broadcast_as((n_rays, s, 1))?
+        .contiguous()?;
+    composite_tensor_ops(&dense_density, &dense_feature, &lengths)
+}
+
+/// Packed values scattered into dense tensors: `density` `(M, 1)` and `feature` `(M, C)`,
+/// listed by flat sample index `ray · S + i` in `index` (no repeats), become `(N, S, 1)` and
+/// `(N, S, C)` with zeros at the samples not listed; differentiable (`index_add`), any device
+/// and dtype.
+pub fn scatter_packed(
+    index: Vec<u32>,
+    (n_rays, s): (usize, usize),
+    density: &Tensor,
+    feature: &Tensor,
+) -> Result<(Tensor, Tensor)> {
     let (c, device, dtype) = (feature.dim(1)?, density.device(), density.dtype());
     let mut dense_density = Tensor::zeros((n_rays * s, 1), dtype, device)?;
     let mut dense_feature = Tensor::zeros((n_rays * s, c), dtype, device)?;
@@ -211,15 +229,10 @@ pub fn composite_packed_tensor_ops(
         dense_density = dense_density.index_add(&index, &density.contiguous()?, 0)?;
         dense_feature = dense_feature.index_add(&index, &feature.contiguous()?, 0)?;
     }
-    let lengths = lengths
-        .to_dtype(dtype)?
-        .broadcast_as((n_rays, s, 1))?
-        .contiguous()?;
-    composite_tensor_ops(
-        &dense_density.reshape((n_rays, s, 1))?,
-        &dense_feature.reshape((n_rays, s, c))?,
-        &lengths,
-    )
+    Ok((
+        dense_density.reshape((n_rays, s, 1))?,
+        dense_feature.reshape((n_rays, s, c))?,
+    ))
 }
 
 struct PackedComposite {

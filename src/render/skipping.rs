@@ -378,17 +378,11 @@ impl PackedSamples {
     /// `(1, S, 1)` shared by all rays).
     pub fn composite(&self, lengths: &Tensor) -> Result<(Tensor, Tensor, Tensor)> {
         let device = lengths.device();
-        let cat = |parts: &[Tensor], width: usize| -> Result<Tensor> {
-            Ok(match parts.len() {
-                0 => Tensor::zeros((0, width), DType::F32, device)?,
-                _ => Tensor::cat(parts, 0)?.to_dtype(DType::F32)?,
-            })
-        };
         composite_packed(
             self.index.clone(),
             self.rays,
-            &cat(&self.densities, 1)?,
-            &cat(&self.colours, 3)?,
+            &concat_segments(&self.densities, 1, device)?,
+            &concat_segments(&self.colours, 3, device)?,
             lengths,
         )
     }
@@ -407,9 +401,9 @@ impl PackedSamples {
     }
 }
 
-/// Scatters packed densities `(M, 1)` and colours `(M, 3)` (in the order of `index`, flat
-/// sample indices `ray · S + i`) into dense `(N, S, 1)` and `(N, S, 3)` tensors, zeros
-/// elsewhere; differentiable (`index_add`).
+/// Scatters packed densities `(M, 1)` and colours `(M, 3)`, given in segments (in the order
+/// of `index`, flat sample indices `ray · S + i`), into dense `(N, S, 1)` and `(N, S, 3)`
+/// tensors, zeros elsewhere ([`crate::kernels::composite::scatter_packed`]).
 fn scatter_packed(
     n: usize,
     s: usize,
@@ -418,17 +412,20 @@ fn scatter_packed(
     colours: &[Tensor],
     device: &candle_core::Device,
 ) -> Result<FieldOutput> {
-    let mut density = Tensor::zeros((n * s, 1), DType::F32, device)?;
-    let mut colour = Tensor::zeros((n * s, 3), DType::F32, device)?;
-    if !index.is_empty() {
-        let m = index.len();
-        let index = Tensor::from_vec(index, m, device)?;
-        density = density.index_add(&index, &Tensor::cat(densities, 0)?.contiguous()?, 0)?;
-        colour = colour.index_add(&index, &Tensor::cat(colours, 0)?.contiguous()?, 0)?;
-    }
-    Ok(FieldOutput {
-        density: density.reshape((n, s, 1))?,
-        feature: colour.reshape((n, s, 3))?,
+    let (density, feature) = crate::kernels::composite::scatter_packed(
+        index,
+        (n, s),
+        &concat_segments(densities, 1, device)?,
+        &concat_segments(colours, 3, device)?,
+    )?;
+    Ok(FieldOutput { density, feature })
+}
+
+/// Segments `(M_k, width)` joined into one f32 `(ΣM_k, width)` tensor (empty: `(0, width)`).
+fn concat_segments(parts: &[Tensor], width: usize, device: &candle_core::Device) -> Result<Tensor> {
+    Ok(match parts.len() {
+        0 => Tensor::zeros((0, width), DType::F32, device)?,
+        _ => Tensor::cat(parts, 0)?.to_dtype(DType::F32)?,
     })
 }
 

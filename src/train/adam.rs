@@ -26,6 +26,14 @@ pub struct Adam {
 }
 
 impl Adam {
+    /// Adam on a field's dense parameters with the group's constants
+    /// ([`crate::field::trainable::DenseGroup`]).
+    pub fn for_group(group: crate::field::trainable::DenseGroup, lr: f64) -> Result<Self> {
+        let mut adam = Self::new(group.vars, lr)?;
+        (adam.beta2, adam.eps) = (group.beta2, group.eps);
+        Ok(adam)
+    }
+
     /// PyTorch's defaults: betas (0.9, 0.999), eps 1e-8.
     pub fn new(params: Vec<(String, Var)>, lr: f64) -> Result<Self> {
         let mut moments = HashMap::new();

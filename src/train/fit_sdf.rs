@@ -113,9 +113,7 @@ pub fn fit_sdf(
         !model.varmap().all_vars().is_empty(),
         "nothing to train: no parameter of the SDF volume is trainable"
     );
-    let dense = model.param_groups().dense;
-    let mut adam = Adam::new(dense.vars, settings.lr)?;
-    (adam.beta2, adam.eps) = (dense.beta2, dense.eps);
+    let mut adam = Adam::for_group(model.param_groups().dense, settings.lr)?;
     let mut rng = rand::rngs::StdRng::seed_from_u64(settings.seed);
     let bar = progress_bar((settings.num_epochs * views.len()) as u64, "fitting");
     let start = Instant::now();

@@ -166,9 +166,7 @@ impl Optimizer {
     /// The optimiser for `model` at learning rate `lr`.
     pub fn new(model: &TrainModel, lr: f64) -> Result<Self> {
         let ParamGroups { dense, sparse_rows } = model.field.param_groups();
-        let mut adam = Adam::new(dense.vars, lr)?;
-        adam.beta2 = dense.beta2;
-        adam.eps = dense.eps;
+        let adam = Adam::for_group(dense, lr)?;
         let tables = sparse_rows
             .into_iter()
             .map(|group: SparseRowsGroup| {
