@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use candle_core::Device;
-use nerf::{render_view, Sdf, SdfField, SdfVolume, StratifiedSampler, VolumeRenderer};
+use nerf::{render_view, Pipeline, SdfField, SdfVolume, StratifiedSampler, VolumeRenderer};
 
 fn main() -> Result<()> {
     nerf::tune_allocator();
@@ -23,27 +23,17 @@ fn main() -> Result<()> {
     std::fs::create_dir_all(&out_dir)?;
 
     let device = Device::Cpu;
-    let volume = SdfVolume {
-        sdf: Sdf::Box {
-            center: [0.0; 3],
-            side_lengths: [1.75; 3],
-        },
-        alpha: 1.0,
-        beta: 0.05,
-        rainbow: true,
-        feature: [1.0; 3],
-    };
+    // The homework's box: side 1.75 at the origin, alpha 1, beta 0.05, rainbow colours.
+    let volume = SdfVolume::homework_box();
     let field = SdfField::fixed(&volume, &device)?;
     let sampler = StratifiedSampler::new(64, 0.0, 5.0)?;
     let renderer = VolumeRenderer::new(32768, false)?;
+    let pipeline = Pipeline::new(&field, &sampler, &renderer);
 
     let start = Instant::now();
     let frames = nerf::surround_cameras(3.0, 20, glam::DVec3::Y, 1.0)
         .iter()
-        .map(|camera| {
-            let view = render_view(&field, camera, (size, size), &sampler, &renderer, &device)?;
-            Ok(view.color)
-        })
+        .map(|camera| Ok(render_view(&pipeline, camera, (size, size), &device)?.color))
         .collect::<Result<Vec<_>>>()?;
     let path = out_dir.join("box.gif");
     nerf::io::images::write_gif(&path, &frames, 10)?;

@@ -19,8 +19,8 @@ use rand::SeedableRng;
 
 use nerf::core::rays::random_pixel_indices;
 use nerf::{
-    named_vars, render_view, Adam, NerfParams, NerfState, Rays, RgbImage, Sdf, SdfField, SdfVolume,
-    StratifiedSampler, VolumeRenderer,
+    named_vars, render_view, Adam, NerfParams, NerfState, Pipeline, Rays, RgbImage, SdfField,
+    SdfVolume, StratifiedSampler, VolumeRenderer,
 };
 
 const SIZE: usize = 32;
@@ -35,27 +35,14 @@ fn main() -> Result<()> {
     let start = Instant::now();
 
     // Targets: the rainbow box from 4 cameras around it.
-    let target_field = SdfField::fixed(
-        &SdfVolume {
-            sdf: Sdf::Box {
-                center: [0.0; 3],
-                side_lengths: [1.75; 3],
-            },
-            alpha: 1.0,
-            beta: 0.05,
-            rainbow: true,
-            feature: [1.0; 3],
-        },
-        &device,
-    )?;
+    let target_field = SdfField::fixed(&SdfVolume::homework_box(), &device)?;
     let sampler = StratifiedSampler::new(32, 0.0, 5.0)?;
     let renderer = VolumeRenderer::new(32768, false)?;
+    let targets_pipeline = Pipeline::new(&target_field, &sampler, &renderer);
     let cameras = nerf::surround_cameras(3.0, 4, glam::DVec3::Y, 1.0);
     let targets = cameras
         .iter()
-        .map(|c| {
-            Ok(render_view(&target_field, c, (SIZE, SIZE), &sampler, &renderer, &device)?.color)
-        })
+        .map(|c| Ok(render_view(&targets_pipeline, c, (SIZE, SIZE), &device)?.color))
         .collect::<Result<Vec<RgbImage>>>()?;
 
     // A small NeRF and Adam over its variables.
@@ -111,12 +98,11 @@ fn main() -> Result<()> {
     }
 
     // The trained model from camera 0, beside its target.
+    let trained = state.field(None);
     let view = render_view(
-        &state.field(None),
+        &Pipeline::new(&trained, &sampler, &renderer),
         &cameras[0],
         (SIZE, SIZE),
-        &sampler,
-        &renderer,
         &device,
     )?;
     let mut both = vec![0f32; 2 * SIZE * SIZE * 3];

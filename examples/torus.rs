@@ -17,8 +17,8 @@ use candle_core::{Device, Tensor, D};
 use glam::DVec3;
 use nerf::{density_to_sigma, sdf_to_density};
 use nerf::{
-    look_at_view_transform, render_view, Field, FieldOutput, PerspectiveCamera, RaySamples,
-    StratifiedSampler, VolumeRenderer,
+    look_at_view_transform, render_view, Field, FieldOutput, PerspectiveCamera, Pipeline,
+    RaySamples, StratifiedSampler, VolumeRenderer,
 };
 
 /// A torus centred at the origin, its ring in the xz plane (around the y axis).
@@ -106,13 +106,11 @@ fn main() -> Result<()> {
         .collect();
 
     let start = Instant::now();
-    let frames = cameras
-        .iter()
-        .map(|camera| {
-            let view = render_view(&field, camera, (size, size), &sampler, &renderer, &device)?;
-            Ok(view.color)
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let pipeline = Pipeline::new(&field, &sampler, &renderer);
+    let mut frames = Vec::with_capacity(cameras.len());
+    for camera in &cameras {
+        frames.push(render_view(&pipeline, camera, (size, size), &device)?.color);
+    }
     let rendered = start.elapsed().as_secs_f64();
 
     let gif = out_dir.join("torus.gif");

@@ -19,7 +19,7 @@
 //!   and the `nerf view` web viewer).
 //!
 //! ```no_run
-//! use nerf::{render_view, PerspectiveCamera, SdfField, SdfVolume, Sdf, StratifiedSampler, VolumeRenderer};
+//! use nerf::{render_view, Pipeline, SdfField, SdfVolume, Sdf, StratifiedSampler, VolumeRenderer};
 //! # fn main() -> anyhow::Result<()> {
 //! let device = candle_core::Device::Cpu;
 //! let volume = SdfVolume {
@@ -33,7 +33,7 @@
 //! let camera = nerf::surround_cameras(3.0, 20, glam::DVec3::Y, 1.0)[0];
 //! let sampler = StratifiedSampler::new(64, 0.0, 5.0)?;
 //! let renderer = VolumeRenderer::new(32768, false)?;
-//! let view = render_view(&field, &camera, (256, 256), &sampler, &renderer, &device)?;
+//! let view = render_view(&Pipeline::new(&field, &sampler, &renderer), &camera, (256, 256), &device)?;
 //! nerf::io::images::write_png(std::path::Path::new("box.png"), &view.color)?;
 //! # Ok(())
 //! # }
@@ -79,7 +79,7 @@ pub use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams};
 pub use crate::render::ray_sampler::RaySampler;
 pub use crate::render::renderer::{RenderOutput, VolumeRenderer};
 pub use crate::render::sampler::{RaySamples, StratifiedSampler};
-pub use crate::render::view::{render_view, RenderedView};
+pub use crate::render::view::{render_view, Pipeline, RenderSettings, RenderedView};
 pub use crate::train::adam::Adam;
 pub use crate::train::fit::{fit, Hooks, RunLimits, TrainPaths, TrainSettings};
 pub use crate::train::model::{LoadedCheckpoint, Optimizer, TrainModel};

@@ -14,7 +14,7 @@ use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::dataset::{Dataset, Frame};
 use nerf::train::model::{Optimizer, TrainModel};
 use nerf::train::step::train_step;
-use nerf::{render_view, NerfField, NerfParams, NerfState};
+use nerf::{render_view, NerfField, NerfParams, NerfState, Pipeline};
 use rand::SeedableRng;
 
 /// A small NeRF config (the homework's architecture, smaller sizes) with overrides.
@@ -45,7 +45,8 @@ fn box_dataset(config: &Config) -> Dataset {
     let mut frames = Vec::new();
     let mut images = Vec::new();
     for cam in cameras.iter().take(4) {
-        let f = render_view(&field, cam, (12, 12), &sampler, &renderer, &Device::Cpu).unwrap();
+        let pipeline = Pipeline::new(&field, &*sampler, &renderer);
+        let f = render_view(&pipeline, cam, (12, 12), &Device::Cpu).unwrap();
         frames.push(Frame {
             file_path: PathBuf::from("synthetic"),
             camera: *cam,
@@ -389,12 +390,11 @@ fn nerf_render_does_not_depend_on_chunking() {
     let sampler = config.sampler().unwrap();
     let render = |chunk: usize| {
         let renderer = nerf::render::renderer::VolumeRenderer::new(chunk, false).unwrap();
+        let field = state.field(None);
         render_view(
-            &state.field(None),
+            &Pipeline::new(&field, &*sampler, &renderer),
             &cam,
             (10, 9),
-            &sampler,
-            &renderer,
             &Device::Cpu,
         )
         .unwrap()

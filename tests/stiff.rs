@@ -7,8 +7,8 @@ use candle_core::{Device, Tensor};
 use nerf::app::config::Config;
 use nerf::core::rays::Rays;
 use nerf::core::volume::{deltas, weights, MAX_OPTICAL_DEPTH};
-use nerf::kernels::composite::composite;
-use nerf::{render_view, Field, NerfField, StratifiedSampler, VolumeRenderer};
+use nerf::kernels::composite::{composite, Composited};
+use nerf::{render_view, Field, NerfField, Pipeline, StratifiedSampler, VolumeRenderer};
 
 fn all_finite(t: &Tensor) -> bool {
     t.flatten_all()
@@ -94,7 +94,11 @@ fn extreme_densities_and_spacings() {
             );
         }
         // The fused kernel (CPU f32) gives the same colour, depth and opacity.
-        let (color, depth, opacity) = composite(&density, &colour, &len).unwrap();
+        let Composited {
+            color,
+            depth,
+            opacity,
+        } = composite(&density, &colour, &len).unwrap();
         for t in [&color, &depth, &opacity] {
             assert!(all_finite(t), "{name}: {t}");
         }
@@ -134,7 +138,8 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
         let sampler = config.stratified_sampler().unwrap();
         let renderer = config.renderer().unwrap();
         let cam = config.surround_cameras()[3];
-        let frame = render_view(&field, &cam, (24, 18), &sampler, &renderer, &Device::Cpu).unwrap();
+        let pipeline = Pipeline::new(&field, &sampler, &renderer);
+        let frame = render_view(&pipeline, &cam, (24, 18), &Device::Cpu).unwrap();
         assert!(frame.color.data.iter().all(|v| v.is_finite()));
         assert!(frame.depth.iter().all(|v| v.is_finite()));
         // Per-sample weights of every ray (points far inside and outside the box included).
@@ -258,15 +263,9 @@ fn float32_against_float64_at_64_and_1024_samples() {
         let volume = &config.sdf_volume().unwrap();
         let sampler = config.stratified_sampler().unwrap();
         let cam = config.surround_cameras()[1];
-        let frame = render_view(
-            &field,
-            &cam,
-            (32, 32),
-            &sampler,
-            &config.renderer().unwrap(),
-            &Device::Cpu,
-        )
-        .unwrap();
+        let renderer = config.renderer().unwrap();
+        let pipeline = Pipeline::new(&field, &sampler, &renderer);
+        let frame = render_view(&pipeline, &cam, (32, 32), &Device::Cpu).unwrap();
         let (colours, depths) =
             nerf::eval::reference::render_image(volume, &cam, (32, 32), &sampler);
         let max = |a: &[f32], b: &[f64]| {

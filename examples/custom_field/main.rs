@@ -78,12 +78,12 @@ fn main() -> Result<()> {
     // The checkpoint loads back into the example's field kind, and renders.
     let model = TrainModel::from_checkpoint(&spec, &paths.checkpoint, &device)?.model;
     let test = Dataset::load_first(&lego, Split::Test, w, h, white, Some(1))?;
+    let field = model.render_field();
+    let render = config.render_settings()?;
     let view = render_view(
-        &*model.render_field(),
+        &render.with(&*field),
         &test.frames[0].camera,
         (w, h),
-        &config.sampler()?,
-        &config.renderer()?,
         &device,
     )?;
     let png = out.join("voxels.png");

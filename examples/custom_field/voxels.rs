@@ -188,10 +188,6 @@ fn softplus(x: &Tensor) -> Result<Tensor> {
 }
 
 impl Field for VoxelField {
-    fn max_samples_per_chunk(&self) -> usize {
-        1 << 16
-    }
-
     fn evaluate(
         &self,
         samples: &RaySamples,

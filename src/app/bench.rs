@@ -12,7 +12,7 @@ use crate::app::scene::render_views;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::image::RgbImage;
 use crate::core::metrics::{fastest, mean, mean_psnr, time_runs};
-use crate::render::view::{render_view, RenderedView};
+use crate::render::view::{render_view, Pipeline, RenderedView};
 use crate::train::model::{Optimizer, TrainModel};
 
 /// One benchmark result.
@@ -103,12 +103,11 @@ pub fn bench_sdf_render(
     device: &Device,
 ) -> Result<(BenchResult, Vec<RenderedView>)> {
     let field = config.sdf_field(device)?;
-    let sampler = config.sampler()?;
-    let renderer = config.renderer()?;
+    let render = config.render_settings()?;
     let cameras = config.surround_cameras();
     let size = config.image_size();
     let (runs, frames) = time_runs(repeats, || {
-        render_views(&field, &cameras, size, &sampler, &renderer, device)
+        render_views(&render.with(&field), &cameras, size, device)
     })?;
     let (w, h) = size;
     let work = format!(
@@ -116,7 +115,7 @@ pub fn bench_sdf_render(
         cameras.len(),
         w,
         h,
-        sampler.samples_per_ray()
+        render.sampler.samples_per_ray()
     );
     Ok((
         BenchResult {
@@ -128,7 +127,7 @@ pub fn bench_sdf_render(
                 cameras.len(),
                 w,
                 h,
-                sampler.samples_per_ray(),
+                render.sampler.samples_per_ray(),
             )),
             error: None,
         },
@@ -184,7 +183,8 @@ pub fn bench_train_box(repeats: usize, device: &Device) -> Result<BenchResult> {
     let views = cameras
         .iter()
         .map(|(_, camera, _)| {
-            let image = render_view(&field, camera, (w, h), &sampler, &renderer, device)?.color;
+            let pipeline = Pipeline::new(&field, &*sampler, &renderer);
+            let image = render_view(&pipeline, camera, (w, h), device)?.color;
             Ok(SdfView {
                 camera: *camera,
                 image,
@@ -307,12 +307,11 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
         Ok(())
     })?;
     let (frame_runs, _) = time_runs(repeats.clamp(1, 2), || {
+        let field = state.render_field();
         render_view(
-            &*state.render_field(),
+            &Pipeline::new(&*field, &*sampler, &renderer),
             &camera,
             (w, h),
-            &sampler,
-            &renderer,
             device,
         )
     })?;
@@ -423,19 +422,12 @@ fn render_run(
     let field = config.load_field(checkpoint, device)?;
     let load_seconds = t.elapsed().as_secs_f64();
     let field = &*field;
-    let (sampler, renderer) = (config.sampler()?, config.renderer()?);
+    let render = config.render_settings()?;
     let mut frames = Vec::with_capacity(n);
     let mut runs = Vec::with_capacity(n);
     for cam in cameras {
         let t = Instant::now();
-        frames.push(render_view(
-            field,
-            cam,
-            (w, h),
-            &sampler,
-            &renderer,
-            device,
-        )?);
+        frames.push(render_view(&render.with(field), cam, (w, h), device)?);
         runs.push(t.elapsed().as_secs_f64());
     }
     Ok(RenderRun {

@@ -91,13 +91,13 @@ pub fn render_camera_path(
     check_limits(&camera_path)?;
     let scene = load_scene_field(config, checkpoint, device)?;
     prepare_out_dir(out_dir)?;
-    let (sampler, renderer) = (config.sampler()?, config.renderer()?);
+    let render = config.render_settings()?;
     let size = (camera_path.width, camera_path.height);
     let bar = progress_bar(camera_path.cameras.len() as u64, "camera path");
     let mut frames = Vec::new();
     let mut written = Vec::new();
     for (i, camera) in camera_path.cameras.iter().enumerate() {
-        let view = render_view(scene.as_field(), camera, size, &sampler, &renderer, device)?;
+        let view = render_view(&render.with(scene.as_field()), camera, size, device)?;
         let png = out_dir.join(format!("frame_{i:04}.png"));
         write_png(&png, &view.color)?;
         written.push(png);

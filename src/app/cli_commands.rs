@@ -9,8 +9,8 @@ use anyhow::Result;
 use candle_core::Device;
 
 use crate::app::cli::{
-    BenchArgs, EvalArgs, ExportCommand, ExportViewsArgs, ImportTorchArgs, RenderArgs, ReportArgs,
-    RunArgs, SplitArg, TargetsArgs, TrainArgs, TrainingArgs, ViewArgs,
+    BenchArgs, ConfigArgs, EvalArgs, ExportCommand, ExportViewsArgs, ImportTorchArgs, RenderArgs,
+    ReportArgs, RunArgs, SplitArg, TargetsArgs, TrainArgs, TrainingArgs, ViewArgs,
 };
 use crate::app::config::Config;
 use crate::app::export::ViewSelection;
@@ -277,14 +277,20 @@ pub fn view(args: ViewArgs, device: &Device) -> Result<()> {
     crate::app::view::serve(&config, &args.config.config, scene, &options, device)
 }
 
-/// The views an export renders: `split` of the dataset that `--data-dir` (or the config)
+/// The config, and the views an export renders: `split` of the dataset that `--data-dir` (or the config)
 /// names, the first `--limit` of them.
-fn export_views(config: &Config, split: SplitArg, views: ExportViewsArgs) -> ViewSelection {
-    ViewSelection {
+fn export_views(
+    config: &ConfigArgs,
+    split: SplitArg,
+    views: ExportViewsArgs,
+) -> Result<(Config, ViewSelection)> {
+    let config = config.load()?;
+    let selection = ViewSelection {
         split: split.into(),
-        data_dir: jobs::data_dir_for(config, views.data.data_dir),
+        data_dir: jobs::data_dir_for(&config, views.data.data_dir),
         limit: views.limit,
-    }
+    };
+    Ok((config, selection))
 }
 
 /// `nerf export …`: runs the export and says what it wrote.
@@ -314,8 +320,7 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
             ))
         }
         ExportCommand::Points(a) => {
-            let config = a.config.load()?;
-            let views = export_views(&config, a.split, a.views);
+            let (config, views) = export_views(&a.config, a.split, a.views)?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
             let n = export_points(&config, checkpoint, &views, &a.out, device)?;
             say(&format!("wrote {} ({n} points)", a.out.display()))
@@ -333,8 +338,7 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
             ))
         }
         ExportCommand::Depth(a) => {
-            let config = a.config.load()?;
-            let views = export_views(&config, a.split, a.views);
+            let (config, views) = export_views(&a.config, a.split, a.views)?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
             let written = export_depth(&config, checkpoint, &views, &a.out, device)?;
             say(&format!(

@@ -36,9 +36,7 @@ pub fn eval_nerf(
     )?;
     let field = config.load_field(&config.checkpoint(checkpoint), device)?;
     evaluate(
-        &*field,
-        &config.sampler()?,
-        &config.renderer()?,
+        &config.render_settings()?.with(&*field),
         &dataset,
         split,
         save_images,

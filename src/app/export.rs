@@ -211,8 +211,7 @@ fn mesh_colors(
     surface_colors(
         scene.as_field(),
         &config.renderer()?,
-        &mesh.vertices,
-        &mesh.normals,
+        mesh,
         offset,
         COLOR_SAMPLES,
         band,
@@ -304,17 +303,16 @@ pub fn export_points(
     let scene = load_scene_field(config, checkpoint, device)?;
     let cameras = export_cameras(config, &scene, views)?;
     check_point_cloud_size(cameras.len(), config.image_size())?;
-    let (sampler, renderer) = (config.sampler()?, config.renderer()?);
+    let render = config.render_settings()?;
     let bar = progress_bar(cameras.len() as u64, "points");
     let mut cloud = ColoredPoints::default();
     for (_, camera) in &cameras {
         let size = config.image_size();
+        let pipeline = render.with(scene.as_field());
         let part = depth_points(
-            scene.as_field(),
+            &pipeline,
             camera,
             size,
-            &sampler,
-            &renderer,
             POINT_MIN_OPACITY,
             chunks.rays,
             device,
@@ -352,21 +350,14 @@ pub fn export_depth(
     prepare_out_dir(out_dir)?;
     let scene = load_scene_field(config, checkpoint, device)?;
     let cameras = export_cameras(config, &scene, views)?;
-    let (sampler, renderer) = (config.sampler()?, config.renderer()?);
+    let render = config.render_settings()?;
     let (w, h) = config.image_size();
     let bar = progress_bar(cameras.len() as u64, "depth");
     // A view that fails takes the views written before it away with it.
     let written = write_all(|written| {
         for (name, camera) in &cameras {
-            let view = render_view(
-                scene.as_field(),
-                camera,
-                (w, h),
-                &sampler,
-                &renderer,
-                device,
-            )
-            .with_context(|| format!("view {name}"))?;
+            let view = render_view(&render.with(scene.as_field()), camera, (w, h), device)
+                .with_context(|| format!("view {name}"))?;
             let npy = out_dir.join(format!("{name}.npy"));
             write_npy(&npy, &[h as u64, w as u64], &view.depth)?;
             written.push(npy);

@@ -16,8 +16,7 @@ use crate::render::bands::{band_ndc, band_rays, pixel_bands};
 use crate::render::field::Field;
 use crate::render::pointcloud::{PointSplatter, PointView};
 use crate::render::ray_sampler::RaySampler;
-use crate::render::renderer::VolumeRenderer;
-use crate::render::view::{render_view_interruptible, RenderedView};
+use crate::render::view::{render_view_interruptible, Interrupt, Pipeline, RenderedView};
 
 /// The sizes of the pieces a job works through (see the working-memory part of
 /// [`limits`]): rays per band of an image, sample points per pass of `point_vis`, grid points
@@ -76,44 +75,35 @@ impl WorkChunks {
 
 /// Renders every camera with a progress bar, each image in bands of the default size.
 pub fn render_views(
-    field: &dyn Field,
+    pipeline: &Pipeline,
     cameras: &[PerspectiveCamera],
     size: (usize, usize),
-    sampler: &dyn RaySampler,
-    renderer: &VolumeRenderer,
     device: &Device,
 ) -> Result<Vec<RenderedView>> {
     let band = WorkChunks::default().rays;
-    render_views_in_bands(field, cameras, size, sampler, renderer, band, device)
+    render_views_in_bands(pipeline, cameras, size, band, device)
 }
 
 /// [`render_views`] with images rendered about `band` rays at a time (whole renderer chunks,
 /// so the images do not depend on it).
 pub fn render_views_in_bands(
-    field: &dyn Field,
+    pipeline: &Pipeline,
     cameras: &[PerspectiveCamera],
     size: (usize, usize),
-    sampler: &dyn RaySampler,
-    renderer: &VolumeRenderer,
     band: usize,
     device: &Device,
 ) -> Result<Vec<RenderedView>> {
-    let band = renderer.rays_per_band(field, sampler, band);
+    let band = (pipeline.renderer).rays_per_band(pipeline.field, pipeline.sampler, band);
     let bar = progress_bar(cameras.len() as u64, "rendering");
     let frames = cameras
         .iter()
         .map(|cam| {
-            let f = render_view_interruptible(
-                field,
-                cam,
-                size,
-                sampler,
-                renderer,
-                device,
+            let never = Interrupt {
                 band,
-                &|| false,
-            )?
-            .context("a render nobody stops was stopped");
+                stop: &|| false,
+            };
+            let f = render_view_interruptible(pipeline, cam, size, device, never)?
+                .context("a render nobody stops was stopped");
             bar.inc(1);
             f
         })
@@ -219,6 +209,25 @@ fn remove_stale_raw_frames(out_dir: &Path, n_frames: usize) -> Result<()> {
     Ok(())
 }
 
+/// Writes the frames' colours as the animated GIF `out_dir/gif_name` (10 fps) and, with
+/// `raw`, every frame's colour and depth as `.npy` ([`write_raw_frames`]), pushing each file
+/// written onto `written`.
+fn write_frames(
+    out_dir: &Path,
+    gif_name: &str,
+    (colors, depths): (&[RgbImage], &[Vec<f32>]),
+    raw: bool,
+    written: &mut Vec<PathBuf>,
+) -> Result<()> {
+    let gif = out_dir.join(gif_name);
+    write_gif(&gif, colors, 10)?;
+    written.push(gif);
+    if raw {
+        write_raw_frames(out_dir, colors, depths, written)?;
+    }
+    Ok(())
+}
+
 /// Writes `color_{i:03}.npy` `(H, W, 3)` and `depth_{i:03}.npy` `(H, W)` for every frame
 /// (`colors[i]`, `depths[i]`), pushing each file written onto `written`.
 pub fn write_raw_frames(
@@ -271,11 +280,9 @@ pub fn render_sdf_scene(
     let rays = ray_image(&cameras[0], (w, h), chunks.rays, device)?;
     let points = point_image(&cameras[0], (w, h), &sampler, 256, chunks.points, device)?;
     let frames = render_views_in_bands(
-        &field,
+        &Pipeline::new(&field, &*sampler, &renderer),
         &cameras,
         (w, h),
-        &sampler,
-        &renderer,
         chunks.rays,
         device,
     )?;
@@ -292,13 +299,7 @@ pub fn render_sdf_scene(
             write_png(&p, img)?;
             written.push(p);
         }
-        let gif = out_dir.join("render_cube.gif");
-        write_gif(&gif, &colors, 10)?;
-        written.push(gif);
-        if raw {
-            write_raw_frames(out_dir, &colors, &depths, written)?;
-        }
-        Ok(())
+        write_frames(out_dir, "render_cube.gif", (&colors, &depths), raw, written)
     })
 }
 
@@ -312,12 +313,11 @@ pub fn render_nerf_gif(
     if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         prepare_out_dir(dir)?;
     }
+    let render = config.render_settings()?;
     let frames = render_views(
-        field,
+        &render.with(field),
         &config.surround_cameras(),
         config.image_size(),
-        &config.sampler()?,
-        &config.renderer()?,
         device,
     )?;
     let (colors, _) = split_frames(frames);
@@ -337,25 +337,16 @@ pub fn render_nerf_scene(
     let chunks = WorkChunks::from_env()?;
     let field = config.load_field(checkpoint, device)?;
     prepare_out_dir(out_dir)?;
+    let render = config.render_settings()?;
     let frames = render_views_in_bands(
-        &*field,
+        &render.with(&*field),
         &config.surround_cameras(),
         config.image_size(),
-        &config.sampler()?,
-        &config.renderer()?,
         chunks.rays,
         device,
     )?;
     let (colors, depths) = split_frames(frames);
-    write_all(|written| {
-        let gif = out_dir.join("render_nerf.gif");
-        write_gif(&gif, &colors, 10)?;
-        written.push(gif);
-        if raw {
-            write_raw_frames(out_dir, &colors, &depths, written)?;
-        }
-        Ok(())
-    })
+    write_all(|written| write_frames(out_dir, "render_nerf.gif", (&colors, &depths), raw, written))
 }
 
 /// `nerf render`: the SDF scene's outputs, or the NeRF's GIF from the checkpoint that

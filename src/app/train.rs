@@ -82,20 +82,12 @@ pub fn train_nerf(
     } else {
         None
     };
-    let (sampler, renderer) = (config.sampler()?, config.renderer()?);
+    let render = config.render_settings()?;
     let mut hooks = Hooks::default();
     if let Some(test) = &test {
         hooks.evaluate = Some(Box::new(move |field| {
-            let report = evaluate(
-                field,
-                &sampler,
-                &renderer,
-                test,
-                Split::Test,
-                None,
-                Some(eval_views),
-                device,
-            )?;
+            let pipeline = render.with(field);
+            let report = evaluate(&pipeline, test, Split::Test, None, Some(eval_views), device)?;
             Ok(CheckpointScore {
                 psnr: report.mean_psnr,
                 views: report.views.len(),

@@ -23,6 +23,7 @@ use crate::io::images::{write_gif, write_npy, write_png};
 use crate::io::npy::read_npy_image;
 use crate::io::output::{prepare_out_dir, write_text};
 use crate::render::field::Field;
+use crate::render::view::Pipeline;
 use crate::train::fit_sdf::{fit_sdf, SdfFitReport, SdfView};
 
 /// What a fit produced.
@@ -73,14 +74,8 @@ fn write_views(
     prefix: &str,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    let frames = render_views(
-        field,
-        cameras,
-        config.image_size(),
-        &config.sampler()?,
-        &config.renderer()?,
-        device,
-    )?;
+    let render = config.render_settings()?;
+    let frames = render_views(&render.with(field), cameras, config.image_size(), device)?;
     let mut written = Vec::with_capacity(frames.len());
     for (i, f) in frames.iter().enumerate() {
         let p = out_dir.join(format!("{prefix}_{i}.png"));
@@ -151,11 +146,9 @@ pub fn train_sdf(config: &Config, out_dir: &Path, device: &Device) -> Result<Sdf
     )?);
     let (sampler, renderer) = (config.sampler()?, config.renderer()?);
     let frames = render_views(
-        &*fitted,
+        &Pipeline::new(&*fitted, &*sampler, &renderer),
         &config.surround_cameras(),
         config.image_size(),
-        &sampler,
-        &renderer,
         device,
     )?;
     let gif = out_dir.join("render_box.gif");
@@ -200,14 +193,8 @@ pub fn write_targets(config: &Config, device: &Device) -> Result<Vec<PathBuf>> {
     let field = config.sdf_field(device)?;
     let (w, h) = config.image_size();
     let views: Vec<PerspectiveCamera> = cameras.iter().map(|(_, c, _)| *c).collect();
-    let frames = render_views(
-        &field,
-        &views,
-        (w, h),
-        &config.sampler()?,
-        &config.renderer()?,
-        device,
-    )?;
+    let render = config.render_settings()?;
+    let frames = render_views(&render.with(&field), &views, (w, h), device)?;
     for (path, frame) in paths.iter().zip(&frames) {
         if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
             prepare_out_dir(dir)?;

@@ -53,9 +53,7 @@ use crate::app::view_queue::{Frame, Job, Outcome, Peer, Queue, QUEUE_CAPACITY};
 use crate::app::view_request::{parse_view_query, ViewDefaults};
 use crate::core::term::note;
 use crate::io::images::png_bytes;
-use crate::render::ray_sampler::RaySampler;
-use crate::render::renderer::VolumeRenderer;
-use crate::render::view::render_view_interruptible;
+use crate::render::view::{render_view_interruptible, Interrupt, RenderSettings};
 
 /// The page, built into the binary.
 const PAGE: &str = include_str!("viewer.html");
@@ -77,8 +75,7 @@ impl Drop for CancelOnDrop {
 /// The render worker's fixed parts.
 struct Worker {
     scene: SceneField,
-    sampler: std::sync::Arc<dyn RaySampler>,
-    renderer: VolumeRenderer,
+    render: RenderSettings,
     device: Device,
     queue: Arc<Queue>,
 }
@@ -89,15 +86,16 @@ impl Worker {
     fn run(&self, job: &Job) -> Outcome {
         let r = &job.request;
         let start = Instant::now();
+        let interrupt = Interrupt {
+            band: BAND,
+            stop: &|| self.queue.unwanted(job),
+        };
         let view = render_view_interruptible(
-            self.scene.as_field(),
+            &self.render.with(self.scene.as_field()),
             &r.camera,
             (r.width, r.height),
-            &self.sampler,
-            &self.renderer,
             &self.device,
-            BAND,
-            &|| self.queue.unwanted(job),
+            interrupt,
         );
         match view {
             Ok(Some(view)) => match png_bytes(&view.color) {
@@ -377,8 +375,7 @@ pub fn serve(
     let queue = Arc::new(Queue::default());
     let worker = Worker {
         scene,
-        sampler: config.sampler()?,
-        renderer: config.renderer()?,
+        render: config.render_settings()?,
         device: device.clone(),
         queue: queue.clone(),
     };

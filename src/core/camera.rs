@@ -191,40 +191,38 @@ mod tests {
         (a - b).abs().max_element() <= tol
     }
 
-    #[test]
-    fn look_at_from_positive_z_matches_hand_computed_matrix() {
-        // Eye on +z looking at the origin with y up: z axis = (0,0,-1),
-        // x = up × z = (0,1,0)×(0,0,-1) = (-1,0,0), y = z × x = (0,1,0).
-        let (r, t) = look_at_view_transform(DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO, DVec3::Y);
-        let expected_r = [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]];
+    /// `look_at_view_transform(eye, 0, +y)` gives `expected_r` and `expected_t` to 1e-12.
+    fn assert_look_at(eye: DVec3, expected_r: [[f64; 3]; 3], expected_t: DVec3) {
+        let (r, t) = look_at_view_transform(eye, DVec3::ZERO, DVec3::Y);
         for i in 0..3 {
             for j in 0..3 {
                 assert!((r[i][j] - expected_r[i][j]).abs() < 1e-12, "R[{i}][{j}]");
             }
         }
-        // T = -Rᵀ eye = -(0,0,-3) = (0,0,3).
-        assert!(close(
-            DVec3::from_array(t),
-            DVec3::new(0.0, 0.0, 3.0),
-            1e-12
-        ));
+        assert!(close(DVec3::from_array(t), expected_t, 1e-12));
     }
 
     #[test]
-    fn look_at_from_positive_x_matches_hand_computed_matrix() {
+    fn look_at_from_positive_z_and_x_matches_hand_computed_matrices() {
+        // (eye, R, T). Eye on +z looking at the origin with y up: z axis = (0,0,-1),
+        // x = up × z = (0,1,0)×(0,0,-1) = (-1,0,0), y = z × x = (0,1,0);
+        // T = -Rᵀ eye = -(0,0,-3) = (0,0,3).
         // Eye (2,0,0): z = (-1,0,0), x = (0,1,0)×(-1,0,0) = (0,0,1), y = z×x = (0,1,0).
-        let (r, t) = look_at_view_transform(DVec3::new(2.0, 0.0, 0.0), DVec3::ZERO, DVec3::Y);
-        let expected_r = [[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]];
-        for i in 0..3 {
-            for j in 0..3 {
-                assert!((r[i][j] - expected_r[i][j]).abs() < 1e-12, "R[{i}][{j}]");
-            }
+        let cases = [
+            (
+                [0.0, 0.0, 3.0],
+                [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]],
+                [0.0, 0.0, 3.0],
+            ),
+            (
+                [2.0, 0.0, 0.0],
+                [[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]],
+                [0.0, 0.0, 2.0],
+            ),
+        ];
+        for (eye, r, t) in cases {
+            assert_look_at(DVec3::from_array(eye), r, DVec3::from_array(t));
         }
-        assert!(close(
-            DVec3::from_array(t),
-            DVec3::new(0.0, 0.0, 2.0),
-            1e-12
-        ));
     }
 
     #[test]

@@ -598,15 +598,18 @@ mod tests {
         }
     }
 
+    /// nerfstudio's camera-to-world at (0, 0, 5) with the identity OpenGL rotation: it looks
+    /// down world −z with +y up.
+    const OPENGL_AT_Z5: [[f64; 4]; 3] = [
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 5.0],
+    ];
+
     #[test]
     fn nerfstudio_opengl_and_colmap_poses_give_the_same_rays() {
-        // By hand: nerfstudio's camera at (0, 0, 5) with the identity OpenGL rotation looks
-        // down world −z with +y up; COLMAP's is the half turn about x, t = (0, 0, 5).
-        let opengl = [
-            [1.0, 0.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, 5.0],
-        ];
+        // By hand: COLMAP's pose of [`OPENGL_AT_Z5`] is the half turn about x, t = (0, 0, 5).
+        let opengl = OPENGL_AT_Z5;
         let colmap_pose =
             ColmapPose::from_quaternion([0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 5.0]).unwrap();
         let params = [510.0, 490.0, 322.5, 238.0, -0.1, 0.02, 1e-3, -5e-4];
@@ -646,11 +649,7 @@ mod tests {
 
     #[test]
     fn nerfstudio_fisheye_and_k3_k4_are_supported() {
-        let c2w = [
-            [1.0, 0.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, 5.0],
-        ];
+        let c2w = OPENGL_AT_Z5;
         let mut opencv = nerfstudio_intrinsics("OPENCV");
         opencv.k = [-0.12, 0.03, -0.004, 0.0005];
         let mut fisheye = nerfstudio_intrinsics("OPENCV_FISHEYE");

@@ -173,6 +173,23 @@ pub struct SdfVolume {
     pub feature: [f32; 3],
 }
 
+impl SdfVolume {
+    /// The homework's box scene (`box.yaml`): a cube of side 1.75 at the origin, α = 1,
+    /// β = 0.05, rainbow colours at full scale.
+    pub fn homework_box() -> Self {
+        SdfVolume {
+            sdf: Sdf::Box {
+                center: [0.0; 3],
+                side_lengths: [1.75; 3],
+            },
+            alpha: 1.0,
+            beta: 0.05,
+            rainbow: true,
+            feature: [1.0; 3],
+        }
+    }
+}
+
 /// An entry of a gradient sum: `f32` for a ray's few samples, `f64` for long sums.
 pub trait Accumulate {
     /// Adds `v`.
@@ -274,7 +291,6 @@ impl SdfVolume {
         let (s, ds_dc, ds_dshape) = self.sdf.distance_with_gradient(p);
         let density = sdf_to_density_scalar(s, self.alpha, self.beta);
         let sigma = density_to_sigma_scalar(density, delta);
-        let (alpha, beta) = (self.alpha as f32, self.beta as f32);
         let clear = 1.0 - density;
         if delta == 0.0 || clear <= 0.0 {
             return (sigma, Partials::default());
@@ -283,14 +299,30 @@ impl SdfVolume {
         let unit = if s > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
         // ∂σ/∂density = 1/((1 − density)Δ); ∂density/∂s = −α e/(2β).
         let g_density = 1.0 / (clear * delta);
-        let g_s = -g_density * alpha * e / (2.0 * beta);
-        let partials = Partials {
+        let partials = self.density_partials(g_density, (s, ds_dc, ds_dshape), e, unit);
+        (sigma, partials)
+    }
+
+    /// `g · ∂density/∂θ` of one sample, from its signed distance and derivatives
+    /// `(s, ∂s/∂center, ∂s/∂shape)`, `e = e^{−|s|/β}` and the unit density `unit`
+    /// ([`SdfVolume::transparency_parts`]): `∂density/∂s = −α e/(2β)`, `∂density/∂α = unit`,
+    /// `∂density/∂β = α e s/(2β²)`.
+    #[inline(always)]
+    fn density_partials(
+        &self,
+        g: f32,
+        (s, ds_dc, ds_dshape): (f32, [f32; 3], [f32; 3]),
+        e: f32,
+        unit: f32,
+    ) -> Partials {
+        let (alpha, beta) = (self.alpha as f32, self.beta as f32);
+        let g_s = -g * alpha * e / (2.0 * beta);
+        Partials {
             center: ds_dc.map(|v| g_s * v),
             shape: ds_dshape.map(|v| g_s * v),
-            alpha: g_density * unit,
-            beta: g_density * alpha * e * s / (2.0 * beta * beta),
-        };
-        (sigma, partials)
+            alpha: g * unit,
+            beta: g * alpha * e * s / (2.0 * beta * beta),
+        }
     }
 
     /// Adds `g · ∂σ/∂θ` for one sample to `params` (the packed layout of
@@ -386,18 +418,13 @@ impl SdfVolume {
         &self,
         (s, ds_dc, ds_dshape): (f32, [f32; 3], [f32; 3]),
     ) -> (f32, Partials) {
-        let (alpha, beta) = (self.alpha as f32, self.beta as f32);
         let (clear, e, unit) = self.transparency_parts(s);
         // Where the sample is opaque (clear = 0) τ is clamped: no gradient.
         let inv = if clear > 0.0 { 1.0 / clear } else { 0.0 };
-        let g_s = -inv * alpha * e / (2.0 * beta);
-        let partials = Partials {
-            center: ds_dc.map(|v| g_s * v),
-            shape: ds_dshape.map(|v| g_s * v),
-            alpha: inv * unit,
-            beta: inv * alpha * e * s / (2.0 * beta * beta),
-        };
-        (clear, partials)
+        (
+            clear,
+            self.density_partials(inv, (s, ds_dc, ds_dshape), e, unit),
+        )
     }
 
     /// σ and colour of one sample: `(σ, [r, g, b])`.

@@ -11,11 +11,8 @@ use crate::io::dataset::{Dataset, Split};
 use crate::io::images::write_png;
 use crate::io::output::prepare_out_dir;
 use crate::io::progress::progress_bar;
-use crate::render::field::Field;
-use crate::render::ray_sampler::RaySampler;
-use crate::render::renderer::VolumeRenderer;
 use crate::render::skipping::SampleCounts;
-use crate::render::view::render_view;
+use crate::render::view::{render_view, Pipeline};
 
 /// PSNR and SSIM of one view.
 #[derive(Debug, Clone, Serialize)]
@@ -88,13 +85,10 @@ fn ssim_fits(size: (usize, usize)) -> bool {
     size.0 >= SSIM_WINDOW && size.1 >= SSIM_WINDOW
 }
 
-/// Renders every view of `dataset` with `field` (through `sampler` and `renderer`) and scores it; with `save_images`, writes each
-/// prediction as `<frame>.png` there. `limit` evaluates only the first views.
-#[allow(clippy::too_many_arguments)]
+/// Renders every view of `dataset` through `pipeline` and scores it; with `save_images`,
+/// writes each prediction as `<frame>.png` there. `limit` evaluates only the first views.
 pub fn evaluate(
-    field: &dyn Field,
-    sampler: &dyn RaySampler,
-    renderer: &VolumeRenderer,
+    pipeline: &Pipeline,
     dataset: &Dataset,
     split: Split,
     save_images: Option<&Path>,
@@ -112,7 +106,7 @@ pub fn evaluate(
     let mut counts = SampleCounts::default();
     for (frame, truth) in dataset.frames.iter().zip(&dataset.images).take(n) {
         let t = std::time::Instant::now();
-        let predicted = render_view(field, &frame.camera, size, sampler, renderer, device)?;
+        let predicted = render_view(pipeline, &frame.camera, size, device)?;
         render_seconds += t.elapsed().as_secs_f64();
         counts = counts + predicted.samples;
         let name = frame
@@ -137,8 +131,8 @@ pub fn evaluate(
         split: split.name().to_string(),
         width: size.0,
         height: size.1,
-        n_pts_per_ray: sampler.samples_per_ray(),
-        white_background: renderer.white_background,
+        n_pts_per_ray: pipeline.sampler.samples_per_ray(),
+        white_background: pipeline.renderer.white_background,
         seconds_per_view: render_seconds / n.max(1) as f64,
         evaluated_fraction: counts.evaluated_fraction(),
         mean_psnr: mean(&values),

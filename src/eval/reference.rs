@@ -9,28 +9,39 @@ use crate::core::camera_model::CameraModel;
 use crate::core::sdf::{Sdf, SdfVolume};
 use crate::render::sampler::StratifiedSampler;
 
-/// A box's centre and half side lengths in f64.
-fn box_center_and_half_sides(center: [f32; 3], side_lengths: [f32; 3]) -> (DVec3, DVec3) {
-    (
-        DVec3::from_array(center.map(f64::from)),
-        DVec3::from_array(side_lengths.map(|v| 0.5 * v as f64)),
-    )
+/// A shape in f64: a box by its centre and half side lengths, a sphere by its centre and
+/// radius.
+enum Shape {
+    Box { c: DVec3, half: DVec3 },
+    Sphere { c: DVec3, r: f64 },
+}
+
+impl Shape {
+    fn of(sdf: &Sdf) -> Self {
+        match *sdf {
+            Sdf::Box {
+                center,
+                side_lengths,
+            } => Shape::Box {
+                c: DVec3::from_array(center.map(f64::from)),
+                half: DVec3::from_array(side_lengths.map(|v| 0.5 * v as f64)),
+            },
+            Sdf::Sphere { center, radius } => Shape::Sphere {
+                c: DVec3::from_array(center.map(f64::from)),
+                r: radius as f64,
+            },
+        }
+    }
 }
 
 /// Signed distance in f64.
 pub fn signed_distance(sdf: &Sdf, p: DVec3) -> f64 {
-    match *sdf {
-        Sdf::Box {
-            center,
-            side_lengths,
-        } => {
-            let (c, half) = box_center_and_half_sides(center, side_lengths);
+    match Shape::of(sdf) {
+        Shape::Box { c, half } => {
             let q = (p - c).abs() - half;
             q.max(DVec3::ZERO).length() + q.max_element().min(0.0)
         }
-        Sdf::Sphere { center, radius } => {
-            (p - DVec3::from_array(center.map(f64::from))).length() - radius as f64
-        }
+        Shape::Sphere { c, r } => (p - c).length() - r,
     }
 }
 
@@ -56,12 +67,8 @@ pub const MIN_CHORD: f64 = 1e-9;
 /// the solid (along an edge or a face, or tangent to the sphere: a chord shorter than
 /// [`MIN_CHORD`]) crosses no volume, so volume rendering sees nothing there: a miss.
 pub fn analytic_hit(sdf: &Sdf, origin: DVec3, direction: DVec3) -> Option<f64> {
-    match *sdf {
-        Sdf::Box {
-            center,
-            side_lengths,
-        } => {
-            let (c, half) = box_center_and_half_sides(center, side_lengths);
+    match Shape::of(sdf) {
+        Shape::Box { c, half } => {
             let (mut t_near, mut t_far) = (0f64, f64::INFINITY);
             for k in 0..3 {
                 let (o, d) = (origin[k] - c[k], direction[k]);
@@ -78,10 +85,10 @@ pub fn analytic_hit(sdf: &Sdf, origin: DVec3, direction: DVec3) -> Option<f64> {
             }
             (t_far - t_near > MIN_CHORD).then_some(t_near)
         }
-        Sdf::Sphere { center, radius } => {
-            let oc = origin - DVec3::from_array(center.map(f64::from));
+        Shape::Sphere { c, r } => {
+            let oc = origin - c;
             let b = oc.dot(direction);
-            let disc = b * b - (oc.length_squared() - (radius as f64).powi(2));
+            let disc = b * b - (oc.length_squared() - r.powi(2));
             if disc < 0.0 {
                 return None;
             }

@@ -353,10 +353,6 @@ pub struct NgpField {
 }
 
 impl Field for NgpField {
-    fn max_samples_per_chunk(&self) -> usize {
-        1 << 16
-    }
-
     fn evaluate(
         &self,
         samples: &RaySamples,

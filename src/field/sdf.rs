@@ -197,12 +197,7 @@ impl Field for SdfField {
     }
 
     fn render_fused(&self, rays: &Rays, lengths: &Tensor) -> Result<Option<Composited>> {
-        let rendered = crate::kernels::sdf_render::sdf_render(rays, lengths, &self.params)?;
-        Ok(rendered.map(|(color, depth, opacity)| Composited {
-            color,
-            depth,
-            opacity,
-        }))
+        crate::kernels::sdf_render::sdf_render(rays, lengths, &self.params)
     }
 
     fn evaluate(

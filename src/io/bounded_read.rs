@@ -11,16 +11,23 @@ use anyhow::{anyhow, bail, Result};
 
 /// What kind of file `meta` is, in a user's words, when it is not a regular file.
 pub fn kind(meta: &std::fs::Metadata) -> &'static str {
+    file_kind(meta.file_type())
+}
+
+/// What kind of file `t` is, in a user's words, when it is not a regular file: the one
+/// wording of every reader's and writer's refusal.
+pub fn file_kind(t: std::fs::FileType) -> &'static str {
     use std::os::unix::fs::FileTypeExt;
-    let t = meta.file_type();
     if t.is_dir() {
         "a directory"
     } else if t.is_fifo() {
         "a FIFO (named pipe)"
     } else if t.is_socket() {
         "a socket"
-    } else if t.is_block_device() || t.is_char_device() {
-        "a device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_char_device() {
+        "a character device"
     } else {
         "not a regular file"
     }
@@ -83,8 +90,7 @@ mod tests {
 
     #[test]
     fn fifos_directories_and_large_files_are_refused_at_once() {
-        let dir = tempfile::tempdir().unwrap();
-        let fifo = dir.path().join("pipe");
+        let (dir, fifo) = crate::io::test_files::temp_file("pipe");
         make_fifo(&fifo);
         let start = Instant::now();
         let err = read_regular_file(&fifo, "dataset file", 1 << 20).unwrap_err();

@@ -163,32 +163,13 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
         )
     })?;
     let meta = header.metadata().clone().unwrap_or_default();
-    let num = |k: &str| -> Result<u64> {
-        meta.get(k)
-            .map(|v| v.parse::<u64>())
-            .transpose()
-            .with_context(|| format!("checkpoint {}: bad metadata {k}", path.display()))
-            .map(|v| v.unwrap_or(0))
-    };
-    let wall_seconds = meta
-        .get("wall_seconds")
-        .map(|v| v.parse::<f64>())
-        .transpose()
-        .with_context(|| format!("checkpoint {}: bad metadata wall_seconds", path.display()))?
-        .unwrap_or(0.0);
-    let rng_word_pos = meta
-        .get("rng_word_pos")
-        .map(|v| v.parse::<u128>())
-        .transpose()
-        .with_context(|| format!("checkpoint {}: bad metadata rng_word_pos", path.display()))?
-        .unwrap_or(0);
     let info = CheckpointInfo {
-        epoch: num("epoch")? as usize,
-        adam_step: num("adam_step")?,
-        wall_seconds,
-        step_in_epoch: num("step_in_epoch")? as usize,
-        rng_word_pos,
-        rays_per_step: num("rays_per_step")? as usize,
+        epoch: metadata_value(&meta, "epoch", path)?,
+        adam_step: metadata_value(&meta, "adam_step", path)?,
+        wall_seconds: metadata_value(&meta, "wall_seconds", path)?,
+        step_in_epoch: metadata_value(&meta, "step_in_epoch", path)?,
+        rng_word_pos: metadata_value(&meta, "rng_word_pos", path)?,
+        rays_per_step: metadata_value(&meta, "rays_per_step", path)?,
     };
     info.validate(path)?;
     let mut tensors = HashMap::new();
@@ -239,4 +220,19 @@ pub fn model_tensors(varmap: &VarMap) -> Vec<(String, Tensor)> {
         .collect();
     v.sort_by(|a, b| a.0.cmp(&b.0));
     v
+}
+
+/// The metadata entry `key` of the checkpoint at `path` parsed as a `T`, its default (0)
+/// when absent; an error naming the key when it does not parse.
+fn metadata_value<T: std::str::FromStr + Default>(
+    meta: &HashMap<String, String>,
+    key: &str,
+    path: &Path,
+) -> Result<T> {
+    match meta.get(key) {
+        None => Ok(T::default()),
+        Some(v) => v
+            .parse()
+            .map_err(|_| anyhow::anyhow!("checkpoint {}: bad metadata {key}", path.display())),
+    }
 }

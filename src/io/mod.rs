@@ -15,6 +15,8 @@ pub mod pickle;
 pub mod plot;
 pub mod ply;
 pub mod progress;
+#[cfg(test)]
+pub(crate) mod test_files;
 pub mod torch;
 pub mod torch_archive;
 pub mod torch_save;

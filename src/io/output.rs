@@ -83,23 +83,6 @@ fn follow_links(path: &Path) -> Result<PathBuf> {
     )
 }
 
-/// What kind of non-regular file `t` is, for an error message.
-fn kind(t: std::fs::FileType) -> &'static str {
-    if t.is_dir() {
-        "a directory"
-    } else if t.is_socket() {
-        "a socket"
-    } else if t.is_block_device() {
-        "a block device"
-    } else if t.is_char_device() {
-        "a character device"
-    } else if t.is_fifo() {
-        "a FIFO"
-    } else {
-        "not a regular file"
-    }
-}
-
 /// Where a write to `path` goes under the module's rule; an error (one line) for a directory,
 /// socket or block device, or a path with no file name.
 pub fn target(path: &Path) -> Result<Target> {
@@ -113,7 +96,7 @@ pub fn target(path: &Path) -> Result<Target> {
         Ok(m) => bail!(
             "cannot write {}: it is {}, not a file",
             path.display(),
-            kind(m.file_type())
+            crate::io::bounded_read::file_kind(m.file_type())
         ),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => follow_links(path)?,
         Err(e) => bail!("cannot write {}: {e}", path.display()),
@@ -258,7 +241,7 @@ pub fn open_append(path: &Path) -> Result<File> {
             bail!(
                 "cannot append to {}: it is {}, not a file",
                 path.display(),
-                kind(m.file_type())
+                crate::io::bounded_read::file_kind(m.file_type())
             );
         }
     }

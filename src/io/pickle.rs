@@ -353,6 +353,19 @@ impl<'a> Machine<'a> {
         Ok(())
     }
 
+    /// The memo key of a GET or PUT opcode (`name`): a text line for `g`/`p`, one
+    /// little-endian byte for `h`/`q`, four for `j`/`r`.
+    fn memo_key(&mut self, op: u8, name: &str) -> Result<u64> {
+        match op {
+            b'h' | b'q' => self.le(1),
+            b'j' | b'r' => self.le(4),
+            _ => {
+                let s = self.line_str()?.trim();
+                s.parse().map_err(|_| anyhow!("bad {name} {s:?}"))
+            }
+        }
+    }
+
     fn memo_get(&mut self, key: u64) -> Result<()> {
         let v = self
             .memo
@@ -615,30 +628,12 @@ impl<'a> Machine<'a> {
                 let v = self.node(Kind::Set, items)?;
                 self.push(v)?
             }
-            b'g' => {
-                let s = self.line_str()?.trim();
-                let key = s.parse().map_err(|_| anyhow!("bad GET {s:?}"))?;
+            b'g' | b'h' | b'j' => {
+                let key = self.memo_key(op, "GET")?;
                 self.memo_get(key)?
             }
-            b'h' => {
-                let key = self.le(1)?;
-                self.memo_get(key)?
-            }
-            b'j' => {
-                let key = self.le(4)?;
-                self.memo_get(key)?
-            }
-            b'p' => {
-                let s = self.line_str()?.trim();
-                let key = s.parse().map_err(|_| anyhow!("bad PUT {s:?}"))?;
-                self.memo_put(key)?
-            }
-            b'q' => {
-                let key = self.le(1)?;
-                self.memo_put(key)?
-            }
-            b'r' => {
-                let key = self.le(4)?;
+            b'p' | b'q' | b'r' => {
+                let key = self.memo_key(op, "PUT")?;
                 self.memo_put(key)?
             }
             0x94 => {

@@ -89,8 +89,7 @@ mod tests {
 
     #[test]
     fn mesh_file_has_header_and_packed_body() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("t.ply");
+        let (_dir, path) = crate::io::test_files::temp_file("t.ply");
         let mesh = TriMesh {
             vertices: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
             normals: vec![[0.0, 0.0, 1.0]; 3],
@@ -111,8 +110,7 @@ mod tests {
 
     #[test]
     fn mismatched_or_out_of_range_input_writes_nothing() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("t.ply");
+        let (dir, path) = crate::io::test_files::temp_file("t.ply");
         assert!(write_points_ply(&path, &[[0.0; 3]], &[]).is_err());
         let mesh = TriMesh {
             vertices: vec![[0.0; 3]],

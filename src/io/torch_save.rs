@@ -238,8 +238,7 @@ mod tests {
 
     #[test]
     fn archives_read_back_with_their_tensors_order_and_values() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("ckpt");
+        let (_dir, path) = crate::io::test_files::temp_file("ckpt");
         let dev = &Device::Cpu;
         let a = Tensor::new(&[[1f32, 2.0, 3.0], [4.0, 5.0, 6.0]], dev).unwrap();
         let b = Tensor::new(7.5f32, dev).unwrap();

@@ -30,6 +30,43 @@ use crate::kernels::use_fused;
 /// Rays per parallel work item.
 const RAYS_PER_TASK: usize = 256;
 
+/// What compositing N rays' samples gives.
+#[derive(Debug, Clone)]
+pub struct Composited {
+    /// `(N, C)` colour: the weighted sum of the samples' features.
+    pub color: Tensor,
+    /// `(N, 1)` expected depth `Σ w t`.
+    pub depth: Tensor,
+    /// `(N, 1)` opacity `Σ w`.
+    pub opacity: Tensor,
+}
+
+impl Composited {
+    /// A fused op's `(N, C + 2)` output `[colour, depth, opacity]`, split.
+    pub(crate) fn from_columns(out: &Tensor, c: usize) -> Result<Self> {
+        Ok(Composited {
+            color: out.narrow(1, 0, c)?,
+            depth: out.narrow(1, c, 1)?,
+            opacity: out.narrow(1, c + 1, 1)?,
+        })
+    }
+}
+
+/// The evaluated samples of a skipping render, packed: `index` holds the flat sample index
+/// `ray · S + i` of each (any order, no repeats) over `n_rays` rays, `density` `(M, 1)` and
+/// `feature` `(M, C)` the field's values there.
+#[derive(Debug, Clone)]
+pub struct PackedValues {
+    /// Flat sample index `ray · S + i` of each value.
+    pub index: Vec<u32>,
+    /// Rays N.
+    pub n_rays: usize,
+    /// Densities `(M, 1)`.
+    pub density: Tensor,
+    /// Features `(M, C)`.
+    pub feature: Tensor,
+}
+
 /// Colour, depth and opacity of each ray from its samples: the weights and their weighted
 /// sums, with spacings derived from the lengths ([`crate::core::volume::deltas`]). The fused
 /// [`Composite`] kernel (forward and backward) where [`use_fused`] allows, else
@@ -37,26 +74,13 @@ const RAYS_PER_TASK: usize = 256;
 ///
 /// `density`, `lengths`: `(N, S, 1)`; `feature`: `(N, S, C)`. Returns colour `(N, C)`, depth
 /// `(N, 1)` and opacity `(N, 1)`.
-pub fn composite(
-    density: &Tensor,
-    feature: &Tensor,
-    lengths: &Tensor,
-) -> Result<(Tensor, Tensor, Tensor)> {
+pub fn composite(density: &Tensor, feature: &Tensor, lengths: &Tensor) -> Result<Composited> {
     if !use_fused(density) {
         return composite_tensor_ops(density, feature, lengths);
     }
     let c = feature.dim(2)?;
     // σ and the features are read through their strides, so a field's output is not copied.
-    split_output(&density.apply_op3(lengths, feature, Fused(Composite))?, c)
-}
-
-/// The fused ops' `(N, C + 2)` output as colour `(N, C)`, depth and opacity `(N, 1)`.
-fn split_output(out: &Tensor, c: usize) -> Result<(Tensor, Tensor, Tensor)> {
-    Ok((
-        out.narrow(1, 0, c)?,
-        out.narrow(1, c, 1)?,
-        out.narrow(1, c + 1, 1)?,
-    ))
+    Composited::from_columns(&density.apply_op3(lengths, feature, Fused(Composite))?, c)
 }
 
 /// The packed samples of a skipping render grouped by ray: `index` holds the flat sample
@@ -150,31 +174,29 @@ fn packed_forward(rays: &PackedRays, density: &[f32], feature: &[f32], c: usize)
 }
 
 /// Colour `(N, C)`, depth and opacity `(N, 1)` of N rays from the packed samples of a skipping
-/// render: `index` holds the flat sample index `ray · S + i` of each evaluated sample (any
-/// order, no repeats), `density` `(M, 1)` and `feature` `(M, C)` the field's values there
-/// (f32, CPU), and `lengths` `(N, S, 1)` every sample's length, or `(1, S, 1)` lengths shared
-/// by all `n_rays` rays. Samples not listed have σ = 0.
+/// render ([`PackedValues`]), given `lengths` `(N, S, 1)`, every sample's length, or
+/// `(1, S, 1)` lengths shared by all rays. Samples not listed have σ = 0.
 /// This is what [`composite`] gives on the dense tensors with zeros at the skipped samples,
 /// bit for bit (a zero optical depth leaves the transmittance and the sums unchanged), but
 /// only the listed samples are visited, forward and backward. Differentiable in `density`
 /// and `feature`. The fused kernel where [`use_fused`] allows, else its twin
 /// [`composite_packed_tensor_ops`].
-pub fn composite_packed(
-    index: Vec<u32>,
-    n_rays: usize,
-    density: &Tensor,
-    feature: &Tensor,
-    lengths: &Tensor,
-) -> Result<(Tensor, Tensor, Tensor)> {
+pub fn composite_packed(values: PackedValues, lengths: &Tensor) -> Result<Composited> {
     let (rows, s, _) = lengths.dims3()?;
+    let n = values.n_rays;
     anyhow::ensure!(
-        rows == n_rays || rows == 1,
-        "composite_packed: lengths have {rows} rows for {n_rays} rays"
+        rows == n || rows == 1,
+        "composite_packed: lengths have {rows} rows for {n} rays"
     );
-    if !use_fused(density) {
-        return composite_packed_tensor_ops(index, n_rays, density, feature, lengths);
+    if !use_fused(&values.density) {
+        return composite_packed_tensor_ops(values, lengths);
     }
-    let n = n_rays;
+    let PackedValues {
+        index,
+        density,
+        feature,
+        ..
+    } = values;
     let c = feature.dim(1)?;
     let lengths_v = lengths
         .to_dtype(DType::F32)?
@@ -188,21 +210,21 @@ pub fn composite_packed(
     } else {
         density.apply_op2_no_bwd(&feature, &op)?
     };
-    split_output(&out, c)
+    Composited::from_columns(&out, c)
 }
 
 /// The twin of [`composite_packed`] (any device and dtype): the packed values scattered into
 /// dense `(N, S, ·)` tensors, zeros at the samples not listed (`index_add`, differentiable),
 /// then [`composite_tensor_ops`].
-pub fn composite_packed_tensor_ops(
-    index: Vec<u32>,
-    n_rays: usize,
-    density: &Tensor,
-    feature: &Tensor,
-    lengths: &Tensor,
-) -> Result<(Tensor, Tensor, Tensor)> {
+pub fn composite_packed_tensor_ops(values: PackedValues, lengths: &Tensor) -> Result<Composited> {
     let s = lengths.dim(1)?;
-    let (dense_density, dense_feature) = scatter_packed(index, (n_rays, s), density, feature)?;
+    let PackedValues {
+        index,
+        n_rays,
+        density,
+        feature,
+    } = values;
+    let (dense_density, dense_feature) = scatter_packed(index, (n_rays, s), &density, &feature)?;
     let lengths = lengths
         .to_dtype(density.dtype())?
         .broadcast_as((n_rays, s, 1))?
@@ -320,9 +342,13 @@ pub fn composite_tensor_ops(
     density: &Tensor,
     feature: &Tensor,
     lengths: &Tensor,
-) -> Result<(Tensor, Tensor, Tensor)> {
+) -> Result<Composited> {
     let w = weights(density, &deltas(lengths)?)?;
-    Ok((aggregate(&w, feature)?, aggregate(&w, lengths)?, w.sum(1)?))
+    Ok(Composited {
+        color: aggregate(&w, feature)?,
+        depth: aggregate(&w, lengths)?,
+        opacity: w.sum(1)?,
+    })
 }
 
 /// A read-only `(N, S, K)` view with arbitrary strides.
@@ -619,17 +645,23 @@ mod tests {
         let sigma = Var::from_tensor(&Tensor::rand(0f32, 3.0, (m, 1), dev).unwrap()).unwrap();
         let feature = Var::from_tensor(&Tensor::rand(0f32, 1.0, (m, c), dev).unwrap()).unwrap();
         let mix = Tensor::new(&[[0.3f32, -1.2, 0.7]], dev).unwrap();
-        let loss = |(colour, depth, opacity): (Tensor, Tensor, Tensor)| {
+        let loss = |out: Composited| {
             let parts = [
-                colour.broadcast_mul(&mix).unwrap().sum_all().unwrap(),
-                depth.sum_all().unwrap().affine(0.4, 0.0).unwrap(),
-                opacity.sum_all().unwrap().affine(2.0, 0.0).unwrap(),
+                out.color.broadcast_mul(&mix).unwrap().sum_all().unwrap(),
+                out.depth.sum_all().unwrap().affine(0.4, 0.0).unwrap(),
+                out.opacity.sum_all().unwrap().affine(2.0, 0.0).unwrap(),
             ];
             ((&parts[0] + &parts[1]).unwrap() + &parts[2]).unwrap()
         };
         let (s_t, f_t) = (sigma.as_tensor(), feature.as_tensor());
-        let fused = loss(composite_packed(index.clone(), n, s_t, f_t, &l).unwrap());
-        let twin = loss(composite_packed_tensor_ops(index, n, s_t, f_t, &l).unwrap());
+        let values = PackedValues {
+            index,
+            n_rays: n,
+            density: s_t.clone(),
+            feature: f_t.clone(),
+        };
+        let fused = loss(composite_packed(values.clone(), &l).unwrap());
+        let twin = loss(composite_packed_tensor_ops(values, &l).unwrap());
         let (a, b) = (
             fused.to_scalar::<f32>().unwrap(),
             twin.to_scalar::<f32>().unwrap(),

@@ -60,6 +60,11 @@ struct Offsets {
 }
 
 impl MlpShape {
+    /// (encoding width E, hidden width H, geometry features G).
+    fn dims(&self) -> (usize, usize, usize) {
+        (self.enc, self.hidden, self.geo)
+    }
+
     fn offsets(&self) -> Offsets {
         let (e, h, o) = (self.enc, self.hidden, 1 + self.geo);
         let w0 = 0;
@@ -247,11 +252,7 @@ fn relu(v: &mut [f32]) {
 impl NgpMlp {
     /// The forward pass of `c = enc.len() / E` samples whose rays are `rays`.
     fn forward(&self, enc: &[f32], rays: &[u32], per_ray: &[f32], p: &[f32]) -> Activations {
-        let MlpShape {
-            enc: e,
-            hidden: h,
-            geo: g,
-        } = self.shape;
+        let (e, h, g) = self.shape.dims();
         let o = self.shape.offsets();
         let c = rays.len();
         let mut a = Activations {
@@ -358,11 +359,7 @@ impl NgpMlp {
         d_enc: &mut [f32],
         sums: &mut Sums,
     ) {
-        let MlpShape {
-            enc: e,
-            hidden: h,
-            geo: g,
-        } = self.shape;
+        let (e, h, g) = self.shape.dims();
         let o = self.shape.offsets();
         let c = rays.len();
         let a = self.forward(enc, rays, per_ray, p);

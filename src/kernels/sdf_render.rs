@@ -27,6 +27,7 @@ use rayon::prelude::*;
 
 use crate::core::rays::Rays;
 use crate::core::sdf::SdfVolume;
+use crate::kernels::composite::Composited;
 use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::sdf_ray::{forward, replay, reverse, RayScratch};
 use crate::kernels::sdf_volume::SdfTensors;
@@ -45,7 +46,7 @@ pub fn sdf_render(
     rays: &Rays,
     lengths: &Tensor,
     volume: &SdfTensors,
-) -> Result<Option<(Tensor, Tensor, Tensor)>> {
+) -> Result<Option<Composited>> {
     let inputs = [&rays.origins, &rays.directions, lengths];
     if !use_fused(lengths) || !use_fused(&rays.origins) || inputs.into_iter().any(needs_grad) {
         return Ok(None);
@@ -60,11 +61,7 @@ pub fn sdf_render(
     } else {
         packed_rays.apply_op3_no_bwd(&lengths.contiguous()?, &packed, &op)?
     };
-    Ok(Some((
-        out.narrow(1, 0, 3)?,
-        out.narrow(1, 3, 1)?,
-        out.narrow(1, 4, 1)?,
-    )))
+    Ok(Some(Composited::from_columns(&out, 3)?))
 }
 
 /// `(rays (N, 6) = [origin, direction], lengths (N, S, 1), packed (P,))` → `(N, 5)` =

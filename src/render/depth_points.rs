@@ -8,9 +8,8 @@ use candle_core::Device;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::rays::Rays;
 use crate::render::bands::{band_rays, pixel_bands};
-use crate::render::field::Field;
-use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::{RenderOutput, VolumeRenderer};
+use crate::render::view::Pipeline;
 
 /// Coloured points in world space.
 #[derive(Debug, Clone, Default)]
@@ -25,13 +24,10 @@ pub struct ColoredPoints {
 /// `min_opacity`, the point `origin + direction · Σ wᵢtᵢ / Σ wᵢ` (nerfstudio's expected depth,
 /// normalised by the accumulated weight) with the colour `Σ wᵢcᵢ / Σ wᵢ`. The rays are made and
 /// rendered about `band` at a time (whole renderer chunks, so the points do not depend on it).
-#[allow(clippy::too_many_arguments)]
 pub fn depth_points(
-    field: &dyn Field,
+    pipeline: &Pipeline,
     camera: &PerspectiveCamera,
     size: (usize, usize),
-    sampler: &dyn RaySampler,
-    renderer: &VolumeRenderer,
     min_opacity: f32,
     band: usize,
     device: &Device,
@@ -40,13 +36,19 @@ pub fn depth_points(
     // On black, so that dividing by the opacity recovers the colour.
     let black = VolumeRenderer {
         white_background: false,
-        ..*renderer
+        ..*pipeline.renderer
     };
-    let band = black.rays_per_band(field, sampler, band);
+    let black = Pipeline {
+        renderer: &black,
+        ..*pipeline
+    };
+    let band = black
+        .renderer
+        .rays_per_band(black.field, black.sampler, band);
     let mut cloud = ColoredPoints::default();
     for pixels in pixel_bands(size.0 * size.1, band) {
         let rays = band_rays(camera, size, pixels, device)?;
-        let out = black.render(field, sampler, &rays, None)?;
+        let out = black.render(&rays)?;
         add_opaque_points(&mut cloud, &rays, &out, min_opacity)?;
     }
     Ok(cloud)

@@ -18,16 +18,7 @@ pub struct FieldOutput {
     pub feature: Tensor,
 }
 
-/// What compositing a ray's samples gives.
-#[derive(Debug, Clone)]
-pub struct Composited {
-    /// `(N, C)` colour: the weighted sum of the samples' features.
-    pub color: Tensor,
-    /// `(N, 1)` expected depth `Σ w t`.
-    pub depth: Tensor,
-    /// `(N, 1)` opacity `Σ w`.
-    pub opacity: Tensor,
-}
+pub use crate::kernels::composite::Composited;
 
 /// A radiance field.
 pub trait Field {
@@ -53,8 +44,11 @@ pub trait Field {
     }
 
     /// The most samples (rays × points per ray) to evaluate at once. The renderer lowers its
-    /// `chunk_size` to fit, which bounds memory without changing any output.
-    fn max_samples_per_chunk(&self) -> usize;
+    /// `chunk_size` to fit, which bounds memory without changing any output. The default,
+    /// 2^16, suits a field with small MLPs (the hash grid's: a few MiB of activations).
+    fn max_samples_per_chunk(&self) -> usize {
+        1 << 16
+    }
 
     /// Whether [`Field::evaluate_packed`] is implemented. Fields whose σ does not depend on the
     /// spacing implement it; the others (the default) are always evaluated densely.

@@ -93,14 +93,8 @@ impl VolumeRenderer {
         let sampler = sampler.stratified();
         if !self.skips_samples(field) {
             let lengths = sampler.lengths(rays, jitter)?;
-            if let Some(Composited {
-                color,
-                depth,
-                opacity,
-            }) = field.render_fused(rays, &lengths)?
-            {
-                let counts = SampleCounts::dense(lengths.elem_count());
-                return self.finish(color, depth, opacity, counts);
+            if let Some(out) = field.render_fused(rays, &lengths)? {
+                return self.finish(out, SampleCounts::dense(lengths.elem_count()));
             }
             return self.composite_samples(field, rays, lengths);
         }
@@ -111,8 +105,7 @@ impl VolumeRenderer {
         let counts = packed.counts;
         // Composited straight from the packed values (the kernel scatters them into dense
         // tensors itself where it runs as tensor ops).
-        let (color, depth, opacity) = packed.composite(lengths)?;
-        self.finish(color, depth, opacity, counts)
+        self.finish(packed.composite(lengths)?, counts)
     }
 
     /// Rendering at depths a sampler refines by looking at the field (coarse-to-fine): the
@@ -148,23 +141,20 @@ impl VolumeRenderer {
         let samples = RaySamples { points, lengths };
         let deltas = deltas(&samples.lengths)?;
         let out = field.evaluate(&samples, &deltas, &rays.directions)?;
-        let (color, depth, opacity) = composite(&out.density, &out.feature, &samples.lengths)?;
+        let composited = composite(&out.density, &out.feature, &samples.lengths)?;
         self.finish(
-            color,
-            depth,
-            opacity,
+            composited,
             SampleCounts::dense(samples.lengths.elem_count()),
         )
     }
 
     /// The output, composited onto white (`colour + 1 − opacity`) with `white_background`.
-    fn finish(
-        &self,
-        mut color: Tensor,
-        depth: Tensor,
-        opacity: Tensor,
-        samples: SampleCounts,
-    ) -> Result<RenderOutput> {
+    fn finish(&self, composited: Composited, samples: SampleCounts) -> Result<RenderOutput> {
+        let Composited {
+            mut color,
+            depth,
+            opacity,
+        } = composited;
         if self.white_background {
             color = color.add(&opacity.affine(-1.0, 1.0)?.broadcast_as(color.shape())?)?;
         }

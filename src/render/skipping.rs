@@ -24,7 +24,7 @@ use rayon::prelude::*;
 
 use crate::core::rays::Rays;
 use crate::core::volume::{clamped_optical_depth, spacing};
-use crate::kernels::composite::composite_packed;
+use crate::kernels::composite::{composite_packed, Composited, PackedValues};
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::{EmptyBlocks, OccupancyGrid};
 
@@ -376,15 +376,15 @@ impl PackedSamples {
     /// Colour `(N, 3)`, depth and opacity `(N, 1)` composited straight from the packed values
     /// ([`composite_packed`]; differentiable), given every sample's `lengths` `(N, S, 1)` (or
     /// `(1, S, 1)` shared by all rays).
-    pub fn composite(&self, lengths: &Tensor) -> Result<(Tensor, Tensor, Tensor)> {
+    pub fn composite(&self, lengths: &Tensor) -> Result<Composited> {
         let device = lengths.device();
-        composite_packed(
-            self.index.clone(),
-            self.rays,
-            &concat_segments(&self.densities, 1, device)?,
-            &concat_segments(&self.colours, 3, device)?,
-            lengths,
-        )
+        let values = PackedValues {
+            index: self.index.clone(),
+            n_rays: self.rays,
+            density: concat_segments(&self.densities, 1, device)?,
+            feature: concat_segments(&self.colours, 3, device)?,
+        };
+        composite_packed(values, lengths)
     }
 
     /// The values scattered into dense density `(N, S, 1)` and colour `(N, S, 3)`, zeros at
@@ -625,7 +625,8 @@ mod tests {
             .collect();
         let mask = Tensor::from_vec(mask, samples.lengths.shape(), &Device::Cpu).unwrap();
         let density = dense.density.mul(&mask).unwrap();
-        let (color, depth, _) = composite(&density, &dense.feature, &samples.lengths).unwrap();
+        let Composited { color, depth, .. } =
+            composite(&density, &dense.feature, &samples.lengths).unwrap();
         assert!(max_diff(&color, &out.color) < 1e-6);
         assert!(max_diff(&depth, &out.depth) < 1e-5);
     }
@@ -694,25 +695,27 @@ mod tests {
         for termination in [0.0, 1e-2] {
             let packed = evaluate_packed(&f, termination, &rays(), &samples.lengths).unwrap();
             assert!(!packed.tracks_gradient());
-            let (color, depth, opacity) = packed.composite(&samples.lengths).unwrap();
-            let dense = packed.scatter(&Device::Cpu).unwrap();
-            let (c2, d2, o2) = composite(&dense.density, &dense.feature, &samples.lengths).unwrap();
-            assert_eq!(
-                max_diff(&color, &c2),
-                0.0,
-                "colour, termination {termination}"
-            );
-            assert_eq!(
-                max_diff(&depth, &d2),
-                0.0,
-                "depth, termination {termination}"
-            );
-            assert_eq!(
-                max_diff(&opacity, &o2),
-                0.0,
-                "opacity, termination {termination}"
-            );
+            let (direct, dense) = composited_packed_and_dense(packed, &samples.lengths);
+            for (what, a, b) in [
+                ("colour", &direct.color, &dense.color),
+                ("depth", &direct.depth, &dense.depth),
+                ("opacity", &direct.opacity, &dense.opacity),
+            ] {
+                assert_eq!(max_diff(a, b), 0.0, "{what}, termination {termination}");
+            }
         }
+    }
+
+    /// The packed values composited straight ([`PackedSamples::composite`]) and after
+    /// scattering them into dense tensors ([`composite`]).
+    fn composited_packed_and_dense(
+        packed: PackedSamples,
+        lengths: &Tensor,
+    ) -> (Composited, Composited) {
+        let direct = packed.composite(lengths).unwrap();
+        let dense = packed.scatter(&Device::Cpu).unwrap();
+        let dense = composite(&dense.density, &dense.feature, lengths).unwrap();
+        (direct, dense)
     }
 
     #[test]
@@ -734,17 +737,18 @@ mod tests {
         let samples = sampler.sample(&rays(), None).unwrap();
         let packed = evaluate_packed(&f, 1e-3, &rays(), &samples.lengths).unwrap();
         assert!(packed.tracks_gradient());
-        let (color, depth, opacity) = packed.composite(&samples.lengths).unwrap();
-        let dense = packed.scatter(&Device::Cpu).unwrap();
-        let (c2, d2, o2) = composite(&dense.density, &dense.feature, &samples.lengths).unwrap();
-        let weight = Tensor::randn(0f32, 1.0, color.shape(), &Device::Cpu).unwrap();
-        let loss = |c: &Tensor, d: &Tensor, o: &Tensor| {
-            let l = (c.mul(&weight).unwrap().sum_all().unwrap()
-                + d.sum_all().unwrap().affine(0.1, 0.0).unwrap())
+        let (direct, dense) = composited_packed_and_dense(packed, &samples.lengths);
+        let weight = Tensor::randn(0f32, 1.0, direct.color.shape(), &Device::Cpu).unwrap();
+        let loss = |out: &Composited| {
+            let l = (out.color.mul(&weight).unwrap().sum_all().unwrap()
+                + out.depth.sum_all().unwrap().affine(0.1, 0.0).unwrap())
             .unwrap();
-            (l + o.sum_all().unwrap()).unwrap().backward().unwrap()
+            (l + out.opacity.sum_all().unwrap())
+                .unwrap()
+                .backward()
+                .unwrap()
         };
-        let (ga, gb) = (loss(&color, &depth, &opacity), loss(&c2, &d2, &o2));
+        let (ga, gb) = (loss(&direct), loss(&dense));
         for (name, var) in crate::field::trainable::named_vars(&state.varmap) {
             let (a, b) = (ga.get(&var).unwrap(), gb.get(&var).unwrap());
             crate::core::compare::assert_close(a, b, 1e-5, &name);

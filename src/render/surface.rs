@@ -4,7 +4,7 @@
 use anyhow::{ensure, Result};
 use candle_core::{Device, Tensor};
 
-use crate::core::marching_cubes::VolumeGrid;
+use crate::core::marching_cubes::{TriMesh, VolumeGrid};
 use crate::core::rays::Rays;
 use crate::render::bands::pixel_bands;
 use crate::render::field::Field;
@@ -64,20 +64,19 @@ pub fn sample_grid(
 /// volume-rendered and divided by its opacity (so a surface that is not quite opaque over that
 /// short ray keeps its colour instead of fading to the background).
 ///
-/// `vertices`, `normals`: N points and unit normals; returns N colours in `[0, 1]`. The rays
-/// are made and rendered about `band` at a time (whole renderer chunks, so the colours do not
-/// depend on it).
-#[allow(clippy::too_many_arguments)]
+/// `mesh`: N vertices and unit normals; returns N colours in `[0, 1]`. The rays are made and
+/// rendered about `band` at a time (whole renderer chunks, so the colours do not depend on
+/// it).
 pub fn surface_colors(
     field: &dyn Field,
     renderer: &VolumeRenderer,
-    vertices: &[[f32; 3]],
-    normals: &[[f32; 3]],
+    mesh: &TriMesh,
     offset: f32,
     n_samples: usize,
     band: usize,
     device: &Device,
 ) -> Result<Vec<[f32; 3]>> {
+    let (vertices, normals) = (&mesh.vertices, &mesh.normals);
     ensure!(vertices.len() == normals.len(), "one normal per vertex");
     ensure!(
         offset > 0.0 && offset.is_finite(),

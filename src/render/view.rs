@@ -1,5 +1,7 @@
 //! One camera's full image through the renderer.
 
+use std::sync::Arc;
+
 use anyhow::Result;
 use candle_core::Device;
 
@@ -8,7 +10,7 @@ use crate::core::image::RgbImage;
 use crate::render::bands::{band_rays, pixel_bands};
 use crate::render::field::Field;
 use crate::render::ray_sampler::RaySampler;
-use crate::render::renderer::VolumeRenderer;
+use crate::render::renderer::{RenderOutput, VolumeRenderer};
 use crate::render::skipping::SampleCounts;
 
 /// One rendered view.
@@ -22,57 +24,114 @@ pub struct RenderedView {
     pub samples: SampleCounts,
 }
 
-/// Renders one camera's full image (no jitter, no gradients needed).
+/// What turns rays into pixels: the field, how its rays are sampled and how the samples are
+/// composited. Copy it freely: it only borrows.
+#[derive(Clone, Copy)]
+pub struct Pipeline<'a> {
+    /// The field evaluated at the samples.
+    pub field: &'a dyn Field,
+    /// Where along each ray the samples go.
+    pub sampler: &'a dyn RaySampler,
+    /// Chunking, compositing and background.
+    pub renderer: &'a VolumeRenderer,
+}
+
+impl<'a> Pipeline<'a> {
+    /// The pipeline of `field`, `sampler` and `renderer`.
+    pub fn new(
+        field: &'a dyn Field,
+        sampler: &'a dyn RaySampler,
+        renderer: &'a VolumeRenderer,
+    ) -> Self {
+        Self {
+            field,
+            sampler,
+            renderer,
+        }
+    }
+
+    /// Renders `rays` (N rays) without jitter: colour `(N, 3)`, depth and opacity `(N, 1)`.
+    pub fn render(&self, rays: &crate::core::rays::Rays) -> Result<RenderOutput> {
+        self.renderer.render(self.field, self.sampler, rays, None)
+    }
+
+    /// The rays per band that [`render_view`] uses: whole chunks, about
+    /// [`crate::render::bands::BAND_RAYS`] rays.
+    pub fn band_rays(&self) -> usize {
+        self.renderer
+            .rays_per_band(self.field, self.sampler, crate::render::bands::BAND_RAYS)
+    }
+}
+
+/// The owned, field-independent half of a [`Pipeline`]: a sampler and a renderer, paired with
+/// any field by [`RenderSettings::with`].
+#[derive(Clone)]
+pub struct RenderSettings {
+    /// Where along each ray the samples go.
+    pub sampler: Arc<dyn RaySampler>,
+    /// Chunking, compositing and background.
+    pub renderer: VolumeRenderer,
+}
+
+impl RenderSettings {
+    /// The pipeline that renders `field` with these settings.
+    pub fn with<'a>(&'a self, field: &'a dyn Field) -> Pipeline<'a> {
+        Pipeline::new(field, &*self.sampler, &self.renderer)
+    }
+}
+
+/// When a view rendered in bands may stop early: before each band of `band` rays,
+/// `stop()` is asked, and a yes ends the render.
+#[derive(Clone, Copy)]
+pub struct Interrupt<'a> {
+    /// Rays per band (at least 1; whole chunks keep pixels identical, see
+    /// [`VolumeRenderer::rays_per_band`]).
+    pub band: usize,
+    /// Asked before each band; `true` abandons the view.
+    pub stop: &'a dyn Fn() -> bool,
+}
+
+/// Renders one camera's full image of `size` = (W, H) pixels (no jitter, no gradients
+/// needed): colour `(H·W·3)` and depth `(H·W)`, row-major.
 pub fn render_view(
-    field: &dyn Field,
+    pipeline: &Pipeline,
     camera: &dyn CameraModel,
     size: (usize, usize),
-    sampler: &dyn RaySampler,
-    renderer: &VolumeRenderer,
     device: &Device,
 ) -> Result<RenderedView> {
     crate::core::allocator::ensure_allocator_tuned();
-    let view = render_view_interruptible(
-        field,
-        camera,
-        size,
-        sampler,
-        renderer,
-        device,
-        renderer.rays_per_band(field, sampler, crate::render::bands::BAND_RAYS),
-        &|| false,
-    )?;
+    let never = Interrupt {
+        band: pipeline.band_rays(),
+        stop: &|| false,
+    };
+    let view = render_view_interruptible(pipeline, camera, size, device, never)?;
     Ok(view.expect("never interrupted"))
 }
 
-/// [`render_view`] in bands of `band` rays (row-major pixels), asking `stop` before each band,
-/// before any of its rays is made: `None` once it says yes, so that work nobody wants any more
-/// (a stale viewer frame, a client that hung up) ends within one band and costs nothing when
-/// it is stopped before it starts. Only one band's rays exist at a time; the image is written
-/// into its final buffers as the bands come. Each ray is rendered alone, so the image does not
-/// depend on `band`.
-#[allow(clippy::too_many_arguments)]
+/// [`render_view`] in bands of `interrupt.band` rays (row-major pixels), asking
+/// `interrupt.stop` before each band, before any of its rays is made: `None` once it says
+/// yes, so that work nobody wants any more (a stale viewer frame, a client that hung up) ends
+/// within one band and costs nothing when it is stopped before it starts. Only one band's rays
+/// exist at a time; the image is written into its final buffers as the bands come. Each ray
+/// is rendered alone, so the image does not depend on the band size.
 pub fn render_view_interruptible(
-    field: &dyn Field,
+    pipeline: &Pipeline,
     camera: &dyn CameraModel,
     (width, height): (usize, usize),
-    sampler: &dyn RaySampler,
-    renderer: &VolumeRenderer,
     device: &Device,
-    band: usize,
-    stop: &dyn Fn() -> bool,
+    interrupt: Interrupt,
 ) -> Result<Option<RenderedView>> {
     camera.validate()?;
     let n = width * height;
     let mut color = Vec::new();
     let mut depth = Vec::new();
     let mut samples = SampleCounts::default();
-    for pixels in pixel_bands(n, band) {
-        if stop() {
+    for pixels in pixel_bands(n, interrupt.band) {
+        if (interrupt.stop)() {
             return Ok(None);
         }
         let rays = band_rays(camera, (width, height), pixels, device)?;
-        let out = renderer.render(field, sampler, &rays, None)?;
+        let out = pipeline.render(&rays)?;
         if color.is_empty() {
             color.reserve_exact(3 * n);
             depth.reserve_exact(n);
@@ -117,26 +176,17 @@ mod tests {
         let (field, sampler, renderer, camera) = scene();
         let size = (13, 7);
         let whole = Rays::for_image(&camera, size.0, size.1, &Device::Cpu).unwrap();
-        let reference = renderer.render(&field, &sampler, &whole, None).unwrap();
-        let reference = reference
-            .color
-            .flatten_all()
-            .unwrap()
-            .to_vec1::<f32>()
-            .unwrap();
+        let pipeline = Pipeline::new(&field, &sampler, &renderer);
+        let reference = pipeline.render(&whole).unwrap().color;
+        let reference = reference.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         for band in [1, 5, 13, 64, 91, usize::MAX] {
-            let view = render_view_interruptible(
-                &field,
-                &camera,
-                size,
-                &sampler,
-                &renderer,
-                &Device::Cpu,
+            let never = Interrupt {
                 band,
-                &|| false,
-            )
-            .unwrap()
-            .unwrap();
+                stop: &|| false,
+            };
+            let view = render_view_interruptible(&pipeline, &camera, size, &Device::Cpu, never)
+                .unwrap()
+                .unwrap();
             assert_eq!(view.color.data, reference, "band {band}");
             assert_eq!(view.depth.len(), 13 * 7);
         }
@@ -145,40 +195,32 @@ mod tests {
     #[test]
     fn stop_is_asked_before_every_band_and_first_before_any_work() {
         let (field, sampler, renderer, camera) = scene();
+        let pipeline = Pipeline::new(&field, &sampler, &renderer);
         let asked = Cell::new(0);
         // Stopped at once: asked once, nothing rendered (a 4096² image would take seconds).
-        let view = render_view_interruptible(
-            &field,
-            &camera,
-            (4096, 4096),
-            &sampler,
-            &renderer,
-            &Device::Cpu,
-            8192,
-            &|| {
+        let at_once = Interrupt {
+            band: 8192,
+            stop: &|| {
                 asked.set(asked.get() + 1);
                 true
             },
-        )
-        .unwrap();
+        };
+        let view =
+            render_view_interruptible(&pipeline, &camera, (4096, 4096), &Device::Cpu, at_once)
+                .unwrap();
         assert!(view.is_none());
         assert_eq!(asked.get(), 1);
         // Stopped before the third band of 10 rays: asked three times.
         asked.set(0);
-        let view = render_view_interruptible(
-            &field,
-            &camera,
-            (10, 10),
-            &sampler,
-            &renderer,
-            &Device::Cpu,
-            10,
-            &|| {
+        let third = Interrupt {
+            band: 10,
+            stop: &|| {
                 asked.set(asked.get() + 1);
                 asked.get() == 3
             },
-        )
-        .unwrap();
+        };
+        let view =
+            render_view_interruptible(&pipeline, &camera, (10, 10), &Device::Cpu, third).unwrap();
         assert!(view.is_none());
         assert_eq!(asked.get(), 3);
     }

@@ -17,13 +17,10 @@ pub struct DataConfig {
     /// `[width, height]` in pixels.
     pub image_size: [usize; 2],
     /// `data.dataset_name`, e.g. `lego`: names the default data directory and the checkpoint file.
-    #[serde(default)]
     pub dataset_name: Option<String>,
     /// Directory holding the dataset (extension; default `../shared/data/<dataset_name>`).
-    #[serde(default)]
     pub data_dir: Option<PathBuf>,
     /// `data.cameras`: the training cameras of an SDF fit (`type: train`), in order.
-    #[serde(default)]
     pub cameras: Option<DataCameras>,
 }
 
@@ -58,7 +55,6 @@ pub struct DataCameraConfig {
     pub up: [f64; 3],
     /// The target image: a `.npy` float array `(H, W, 3)`, relative to the working directory
     /// (needed to train).
-    #[serde(default)]
     pub image: Option<PathBuf>,
 }
 

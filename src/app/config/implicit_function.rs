@@ -115,10 +115,8 @@ pub struct SdfShapeConfig {
     /// `implicit_function.sdf.center`: the shape's centre `[x, y, z]` in world units.
     pub center: Param<[f64; 3]>,
     /// `implicit_function.sdf.side_lengths`: the box's full side lengths (required for a box).
-    #[serde(default)]
     pub side_lengths: Option<Param<[f64; 3]>>,
     /// `implicit_function.sdf.radius`: the sphere's radius (required for a sphere).
-    #[serde(default)]
     pub radius: Option<Param<f64>>,
 }
 
@@ -207,7 +205,6 @@ pub struct NgpConfig {
     pub base_resolution: f64,
     /// Finest grid resolution `N_max` (`max_resolution`; default 2048 × the box's half-size,
     /// the largest over the axes: 3072 for the default box).
-    #[serde(default)]
     pub max_resolution: Option<f64>,
     /// The box the grid covers, `[[min x, y, z], [max x, y, z]]` in world units (`aabb`,
     /// default ±1.5 on every axis: the lego scene and its occupancy grid).

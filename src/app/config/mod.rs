@@ -81,7 +81,6 @@ impl JobKind {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawConfig {
-    #[serde(default)]
     seed: Option<u64>,
     #[serde(rename = "type", default)]
     kind: Option<JobKind>,
@@ -89,9 +88,7 @@ struct RawConfig {
     renderer: RendererConfig,
     sampler: SamplerConfig,
     implicit_function: Value,
-    #[serde(default)]
     training: Option<TrainingConfig>,
-    #[serde(default)]
     cameras: Option<RawCamerasConfig>,
 }
 

@@ -8,6 +8,7 @@ use super::sampler::SamplerConfig;
 use super::Config;
 use crate::render::occupancy::{density_threshold, OccupancyGridParams};
 use crate::render::renderer::VolumeRenderer;
+use crate::render::view::RenderSettings;
 use crate::train::fit::GridSchedule;
 
 /// The `renderer` section (the homework's keys plus the acceleration extensions).
@@ -27,7 +28,6 @@ pub struct RendererConfig {
     #[serde(default)]
     pub early_termination: f64,
     /// Extension: skip samples in empty cells of an occupancy grid (NeRF fields).
-    #[serde(default)]
     pub occupancy_grid: Option<OccupancyGridConfig>,
 }
 
@@ -132,6 +132,15 @@ impl Config {
     /// The `renderer` section as a renderer ([`RendererConfig::renderer`]).
     pub fn renderer(&self) -> Result<VolumeRenderer> {
         self.renderer.renderer()
+    }
+
+    /// The `sampler` and `renderer` sections together, to pair with a field
+    /// ([`RenderSettings::with`]).
+    pub fn render_settings(&self) -> Result<RenderSettings> {
+        Ok(RenderSettings {
+            sampler: self.sampler()?,
+            renderer: self.renderer()?,
+        })
     }
 
     /// The occupancy grid the renderer uses, with its density threshold

@@ -16,55 +16,42 @@ use crate::train::step::StepSettings;
 /// checkpoint). A job asks for a key with [`TrainingConfig::required`], which names a missing
 /// one. The homework's code has no defaults for these keys.
 #[derive(Debug, Clone, Default, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct TrainingConfig {
     /// Epochs to train (`training.num_epochs`): one step per training image (NeRF) or per
     /// training camera (the box fit) each.
-    #[serde(default)]
     pub num_epochs: Option<usize>,
     /// Rays per training step (`training.batch_size`).
-    #[serde(default)]
     pub batch_size: Option<usize>,
     /// Initial Adam learning rate (`training.lr`).
-    #[serde(default)]
     pub lr: Option<f64>,
     /// Epochs between learning-rate decays (`training.lr_scheduler_step_size`).
-    #[serde(default)]
     pub lr_scheduler_step_size: Option<usize>,
     /// Learning-rate factor per `lr_scheduler_step_size` epochs (`training.lr_scheduler_gamma`).
-    #[serde(default)]
     pub lr_scheduler_gamma: Option<f64>,
     /// The checkpoint (`training.checkpoint_path`): a checkpoint file (ours or a PyTorch
     /// one), or a directory holding `nerf_<dataset_name>.safetensors` (see
     /// `crate::app::checkpoints`). An empty string means none, as in the homework.
-    #[serde(default)]
     pub checkpoint_path: Option<PathBuf>,
     /// Epochs between checkpoints (`training.checkpoint_interval`).
-    #[serde(default)]
     pub checkpoint_interval: Option<usize>,
     /// Continue from the checkpoint when one exists (`training.resume`, default false).
-    #[serde(default)]
     pub resume: bool,
     /// Epochs between preview renders (`training.render_interval`).
-    #[serde(default)]
     pub render_interval: Option<usize>,
     /// Extension: draw each batch's rays from all training images instead of one image per
     /// step (the homework's scheme, the default).
-    #[serde(default)]
     pub rays_from_all_images: bool,
     /// Extension: composite each training ray onto a random colour (prediction and target
     /// alike) instead of the fixed background, so that density where the object is
     /// transparent costs loss even when its colour matches the background.
-    #[serde(default)]
     pub random_background: bool,
     /// Extension: at every checkpoint, log the test PSNR over the first this many test views
     /// (0 = off).
-    #[serde(default)]
     pub eval_views: usize,
     /// Extension: adapt the rays per step so that each step evaluates about this many samples
     /// (instant-ngp's scheme: many rays once the occupancy grid and early termination leave
     /// few samples per ray); `batch_size` is then the first step's rays. Unset: fixed.
-    #[serde(default)]
     pub samples_per_step: Option<usize>,
 }
 

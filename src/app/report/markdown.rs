@@ -3,7 +3,7 @@
 
 use std::fmt::Write as _;
 
-use super::box_study::BoxStudy;
+use super::box_study::{BoxRow, BoxStudy};
 use super::lego_study::LegoMethod;
 use super::scoring::{log_log_slope, GRAZING_BETAS};
 use super::training_log::minutes_to_reach;
@@ -119,18 +119,14 @@ fn box_section(out: &mut String, report: &Report, plot: &str, m: &str) {
         s.box_size, s.box_views, s.repeats
     );
     out.push_str(plot);
-    let hard_depth: Vec<(f64, f64)> = report
-        .hard_box
-        .rows
-        .iter()
-        .filter_map(|r| r.vs_analytic.map(|a| (r.n_pts as f64, a.depth_mae)))
-        .collect();
-    let hard_color: Vec<(f64, f64)> = report
-        .hard_box
-        .rows
-        .iter()
-        .filter_map(|r| r.vs_analytic_clear.map(|a| (r.n_pts as f64, a.color_rmse)))
-        .collect();
+    // (samples per ray, error) of the hard box's rows that have the error.
+    let hard_series = |error: &dyn Fn(&BoxRow) -> Option<f64>| -> Vec<(f64, f64)> {
+        let rows = report.hard_box.rows.iter();
+        rows.filter_map(|r| error(r).map(|e| (r.n_pts as f64, e)))
+            .collect()
+    };
+    let hard_depth = hard_series(&|r| r.vs_analytic.map(|a| a.depth_mae));
+    let hard_color = hard_series(&|r| r.vs_analytic_clear.map(|a| a.color_rmse));
     let grazing = report.hard_box.rows.first().map_or(0, |r| r.grazing_pixels);
     let pixels = s.box_size * s.box_size * s.box_views.len();
     let slope = |p: &[(f64, f64)]| log_log_slope(p).map_or("-".into(), |v| format!("{v:.2}"));

@@ -77,19 +77,12 @@ pub(super) fn timed_frames(
     repeats: usize,
     device: &Device,
 ) -> Result<(Vec<RenderedView>, f64)> {
-    let (sampler, renderer) = (config.sampler()?, config.renderer()?);
+    let render = config.render_settings()?;
     let mut frames = Vec::with_capacity(cameras.len());
     let mut total = 0.0;
     for camera in cameras {
         let (runs, frame) = time_runs(repeats, || {
-            render_view(
-                field,
-                camera,
-                config.image_size(),
-                &sampler,
-                &renderer,
-                device,
-            )
+            render_view(&render.with(field), camera, config.image_size(), device)
         })?;
         frames.push(frame);
         total += fastest(&runs);
@@ -203,14 +196,18 @@ mod tests {
 
     #[test]
     fn image_error_matches_hand_computed_values() {
-        let e = image_error(
-            &[0.5, 0.5, 0.5, 0.0, 0.0, 0.0],
-            &[0.4, 0.5, 0.5, 0.0, 0.0, 0.3],
-            &[3.0, 0.0],
-            &[2.5, 9.0],
-            &[true, true],
-            &[true, false],
-        );
+        // Two pixels: colours, depths, then the colour and depth masks.
+        let two_pixels = |color_mask: &[bool]| {
+            image_error(
+                &[0.5, 0.5, 0.5, 0.0, 0.0, 0.0],
+                &[0.4, 0.5, 0.5, 0.0, 0.0, 0.3],
+                &[3.0, 0.0],
+                &[2.5, 9.0],
+                color_mask,
+                &[true, false],
+            )
+        };
+        let e = two_pixels(&[true, true]);
         let mse: f64 = (0.1f64.powi(2) + 0.3f64.powi(2)) / 6.0;
         assert!((e.color_rmse - mse.sqrt()).abs() < 1e-7);
         assert!((e.psnr + 10.0 * mse.log10()).abs() < 1e-5);
@@ -219,14 +216,7 @@ mod tests {
         let none = image_error(&[0.0; 3], &[0.0; 3], &[1.0], &[2.0], &[true], &[false]);
         assert!(none.depth_mae.is_nan() && none.psnr.is_infinite());
         // The colour mask leaves out the second pixel.
-        let first = image_error(
-            &[0.5, 0.5, 0.5, 0.0, 0.0, 0.0],
-            &[0.4, 0.5, 0.5, 0.0, 0.0, 0.3],
-            &[3.0, 0.0],
-            &[2.5, 9.0],
-            &[true, false],
-            &[true, false],
-        );
+        let first = two_pixels(&[true, false]);
         assert!((first.color_rmse - (0.01f64 / 3.0).sqrt()).abs() < 1e-7);
     }
 

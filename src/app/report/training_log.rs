@@ -80,8 +80,7 @@ mod tests {
 
     #[test]
     fn a_training_log_that_is_no_regular_file_is_refused_without_reading() {
-        let dir = tempfile::tempdir().unwrap();
-        let fifo = dir.path().join("run.log.jsonl");
+        let (_dir, fifo) = crate::io::test_files::temp_file("run.log.jsonl");
         crate::io::bounded_read::make_fifo(&fifo);
         let err = format!("{:#}", read_training_log(&fifo).unwrap_err());
         assert!(

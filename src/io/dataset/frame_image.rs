@@ -164,8 +164,7 @@ mod tests {
 
     #[test]
     fn compositing_follows_alpha() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("a.png");
+        let (_dir, path) = crate::io::test_files::temp_file("a.png");
         // Two pixels: half-transparent red, fully transparent green.
         let rgba: ImageBuffer<image::Rgba<u8>, Vec<u8>> =
             ImageBuffer::from_raw(2, 1, vec![255, 0, 0, 102, 0, 255, 0, 0]).unwrap();
