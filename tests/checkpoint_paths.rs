@@ -229,7 +229,7 @@ fn with_file_size_limit(command: &mut std::process::Command, bytes: u64) {
 
 #[test]
 fn a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_the_log_stays_behind() {
-    let Some((data, dir, ckpt)) = common::lego_trained(
+    let Some((data, _dir, ckpt)) = common::lego_trained(
         "a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_the_log_stays_behind",
         "c",
         1,

@@ -229,7 +229,7 @@ fn a_second_sigint_exits_at_once_and_leaves_whole_files() {
 
 #[test]
 fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() {
-    let Some((data, dir, ckpt)) = common::lego_trained(
+    let Some((data, _dir, ckpt)) = common::lego_trained(
         "a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files",
         "c",
         2,
