@@ -92,15 +92,13 @@ fn drive(page: &Viewer, scratch: &Path, deadline: Instant) -> Result<()> {
     println!("first frame: {}", status.replace('\n', "; "));
 
     // Drag to orbit: the picture must change.
-    page.save_canvas()?;
-    let frames = page.frames()?;
-    let (cx, cy) = page.canvas_centre()?;
-    let path: Vec<(f64, f64)> = (1..=8)
-        .map(|i| (cx + 15.0 * i as f64, cy + 4.0 * i as f64))
-        .collect();
-    page.drag((cx, cy), &path)?;
-    page.settled(frames)?;
-    let change = page.change_since_saved()?;
+    let change = page.change_by(|page| {
+        let (cx, cy) = page.canvas_centre()?;
+        let path: Vec<(f64, f64)> = (1..=8)
+            .map(|i| (cx + 15.0 * i as f64, cy + 4.0 * i as f64))
+            .collect();
+        page.drag((cx, cy), &path)
+    })?;
     println!("after the drag: mean pixel change {change:.2} / 255");
     ensure!(
         change > 2.0,
@@ -108,11 +106,7 @@ fn drive(page: &Viewer, scratch: &Path, deadline: Instant) -> Result<()> {
     );
 
     // Wheel to zoom in: the picture changes again.
-    page.save_canvas()?;
-    let frames = page.frames()?;
-    page.wheel(page.canvas_centre()?, -400.0)?;
-    page.settled(frames)?;
-    let change = page.change_since_saved()?;
+    let change = page.change_by(|page| page.wheel(page.canvas_centre()?, -400.0))?;
     println!("after the wheel: mean pixel change {change:.2} / 255");
     ensure!(
         change > 2.0,
@@ -431,6 +425,16 @@ impl Viewer {
             }
             thread::sleep(Duration::from_millis(100));
         }
+    }
+
+    /// Runs `action` and waits for the full frame it asks for; returns how much the canvas
+    /// changed (as [`Viewer::change_since_saved`]).
+    fn change_by(&self, action: impl FnOnce(&Self) -> Result<()>) -> Result<f64> {
+        self.save_canvas()?;
+        let frames = self.frames()?;
+        action(self)?;
+        self.settled(frames)?;
+        self.change_since_saved()
     }
 
     /// Keeps the canvas's pixels for [`Viewer::change_since_saved`].

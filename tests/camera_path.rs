@@ -3,7 +3,7 @@
 use std::path::Path;
 
 mod common;
-use common::{max_byte_difference, nerf, nerf_ok, read_npy, stderr};
+use common::{max_byte_difference, nerf, nerf_ok, read_npy, render_args, stderr};
 
 /// A path of `poses` (row-major OpenGL camera-to-world matrices) at `fov` degrees.
 fn write_path(path: &Path, poses: &[[f64; 16]], fov: f64, (w, h): (usize, usize)) {
@@ -19,16 +19,8 @@ fn write_path(path: &Path, poses: &[[f64; 16]], fov: f64, (w, h): (usize, usize)
 }
 
 /// `nerf render` of the box config along the camera path in `json`, into `out`.
-fn render_path_args<'a>(json: &'a Path, out: &'a Path) -> [&'a str; 7] {
-    [
-        "render",
-        "--config",
-        "box",
-        "--camera-path",
-        json.to_str().unwrap(),
-        "--out-dir",
-        out.to_str().unwrap(),
-    ]
+fn render_path_args<'a>(json: &'a Path, out: &'a Path) -> Vec<&'a str> {
+    render_args("box", out, &["--camera-path", json.to_str().unwrap()])
 }
 
 /// The box config's surround camera 0 — eye (0, 0, −3) looking at the origin, +Y up, NDC focal
@@ -49,14 +41,7 @@ fn a_path_through_a_surround_pose_renders_that_surround_frame() {
     let small = ["sampler.n_pts_per_ray=32", "data.image_size=[40,40]"];
     nerf_ok(&[render_path_args(&json, &out).as_slice(), &small].concat());
     let raw = dir.path().join("raw");
-    let mut args = vec![
-        "render",
-        "--config",
-        "box",
-        "--raw",
-        "--out-dir",
-        raw.to_str().unwrap(),
-    ];
+    let mut args = render_args("box", &raw, &["--raw"]);
     args.extend(small);
     nerf_ok(&args);
     let (_, expected) = read_npy(&raw.join("color_000.npy"));
@@ -118,14 +103,6 @@ fn bad_camera_paths_fail_in_one_line() {
         assert!(err.contains(expect), "case {i}: {err}");
         assert!(!out.exists(), "case {i} created the output directory");
     }
-    let o = nerf(&[
-        "render",
-        "--config",
-        "box",
-        "--camera-path",
-        "/nonexistent.json",
-        "--out-dir",
-        out.to_str().unwrap(),
-    ]);
+    let o = nerf(&render_path_args(Path::new("/nonexistent.json"), &out));
     assert!(!o.status.success() && stderr(&o).contains("cannot read camera path"));
 }

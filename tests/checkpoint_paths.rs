@@ -9,22 +9,23 @@ mod common;
 
 use std::path::Path;
 
-use common::{lego_dir, logged_steps, nerf, nerf_in, one_line_error, stderr, temp_files};
+use common::{
+    lego_scratch, logged_steps, nerf, nerf_in, one_line_error, render_args, stderr, temp_files,
+};
 
 /// `nerf render` of the lego NeRF from `checkpoint`, small, into `out`.
 fn render(checkpoint: &Path, out: &Path) -> std::process::Output {
-    nerf(&[
-        "render",
-        "--config",
+    nerf(&render_args(
         "lego",
-        "--checkpoint",
-        checkpoint.to_str().unwrap(),
-        "--out-dir",
-        out.to_str().unwrap(),
-        "data.image_size=[8,8]",
-        "cameras.n_poses=1",
-        "sampler.n_pts_per_ray=8",
-    ])
+        out,
+        &[
+            "--checkpoint",
+            checkpoint.to_str().unwrap(),
+            "data.image_size=[8,8]",
+            "cameras.n_poses=1",
+            "sampler.n_pts_per_ray=8",
+        ],
+    ))
 }
 
 #[test]
@@ -93,12 +94,11 @@ fn a_missing_relative_checkpoint_says_where_it_was_looked_for() {
 
 #[test]
 fn training_refuses_several_checkpoints_and_starts_fresh_in_an_empty_directory() {
-    let Some(data) =
-        lego_dir("training_refuses_several_checkpoints_and_starts_fresh_in_an_empty_directory")
+    let Some((data, dir)) =
+        lego_scratch("training_refuses_several_checkpoints_and_starts_fresh_in_an_empty_directory")
     else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let ckpts = dir.path().join("ckpts");
     std::fs::create_dir(&ckpts).unwrap();
     for name in ["x.safetensors", "y.safetensors"] {
@@ -137,14 +137,14 @@ fn safetensors_bytes(header: &str, data: &[u8]) -> Vec<u8> {
 
 #[test]
 fn counts_in_a_checkpoint_are_checked_before_anything_is_sized_by_them() {
-    let Some(data) =
-        lego_dir("counts_in_a_checkpoint_are_checked_before_anything_is_sized_by_them")
-    else {
+    let Some((data, dir, good)) = common::lego_trained(
+        "counts_in_a_checkpoint_are_checked_before_anything_is_sized_by_them",
+        "good",
+        1,
+        1,
+    ) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let good = dir.path().join("good");
-    common::tiny_train_ok(&good, &data, 1, 1);
     let (tensors, info) = common::load_trained(&good);
     let mut tensors: Vec<(String, candle_core::Tensor)> = tensors.into_iter().collect();
     tensors.sort_by(|a, b| a.0.cmp(&b.0));
@@ -229,14 +229,14 @@ fn with_file_size_limit(command: &mut std::process::Command, bytes: u64) {
 
 #[test]
 fn a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_the_log_stays_behind() {
-    let Some(data) = lego_dir(
+    let Some((data, _dir, ckpt)) = common::lego_trained(
         "a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_the_log_stays_behind",
+        "c",
+        1,
+        5,
     ) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let ckpt = dir.path().join("c");
-    common::tiny_train_ok(&ckpt, &data, 1, 5);
     let file = ckpt.join("nerf_lego.safetensors");
     let before = std::fs::read(&file).unwrap();
     let log_size = std::fs::metadata(ckpt.join("nerf_lego.log.jsonl"))
@@ -292,10 +292,7 @@ fn a_missing_checkpoint_points_to_a_shipped_model_that_renders_well_with_this_co
         ),
     ];
     for (config, checkpoint, command) in cases {
-        let err = one_line_error(&nerf_in(
-            dir.path(),
-            &["render", "--config", config, "--out-dir", "out"],
-        ));
+        let err = one_line_error(&nerf_in(dir.path(), &render_args(config, "out", &[])));
         assert!(err.contains(checkpoint), "{config}: {err}");
         assert!(err.contains(command), "{config}: {err}");
         assert!(err.contains("relative to the working directory"), "{err}");

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::{nerf, nerf_in, nerf_ok, read_npy, stderr};
+use common::{nerf, nerf_in, nerf_ok, read_npy, render_args, stderr};
 
 fn gif_frames(path: &Path) -> Vec<Vec<u8>> {
     let mut options = gif::DecodeOptions::new();
@@ -22,16 +22,15 @@ fn gif_frames(path: &Path) -> Vec<Vec<u8>> {
 fn render_box_writes_every_output() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("imgs");
-    nerf_ok(&[
-        "render",
-        "--config",
+    nerf_ok(&render_args(
         "box",
-        "--out-dir",
-        out.to_str().unwrap(),
-        "--raw",
-        "data.image_size=[40,30]",
-        "sampler.n_pts_per_ray=32",
-    ]);
+        &out,
+        &[
+            "--raw",
+            "data.image_size=[40,30]",
+            "sampler.n_pts_per_ray=32",
+        ],
+    ));
     for name in ["grid_vis.png", "ray_vis.png", "point_vis.png", "depth.png"] {
         let img = image::open(out.join(name)).unwrap();
         let expected = if name == "point_vis.png" {
@@ -71,16 +70,15 @@ fn config_file_path_and_sphere_work() {
         .unwrap();
     std::fs::write(&cfg, text).unwrap();
     let out = dir.path().join("o");
-    nerf_ok(&[
-        "render",
-        "--config",
+    nerf_ok(&render_args(
         cfg.to_str().unwrap(),
-        "--out-dir",
-        out.to_str().unwrap(),
-        "data.image_size=[24,16]",
-        "sampler.n_pts_per_ray=16",
-        "cameras.n_poses=3",
-    ]);
+        &out,
+        &[
+            "data.image_size=[24,16]",
+            "sampler.n_pts_per_ray=16",
+            "cameras.n_poses=3",
+        ],
+    ));
     assert_eq!(gif_frames(&out.join("render_cube.gif")).len(), 3);
 }
 
@@ -171,14 +169,7 @@ fn unwritable_output_directory_is_an_error() {
     let file = dir.path().join("a_file");
     std::fs::write(&file, b"x").unwrap();
     let target = file.join("sub");
-    let o = nerf(&[
-        "render",
-        "--config",
-        "box",
-        "--out-dir",
-        target.to_str().unwrap(),
-        "data.image_size=[8,8]",
-    ]);
+    let o = nerf(&render_args("box", &target, &["data.image_size=[8,8]"]));
     assert!(!o.status.success());
     assert_eq!(stderr(&o).trim_end().lines().count(), 1, "{}", stderr(&o));
     assert!(
@@ -211,14 +202,7 @@ fn box_render_agrees_with_the_homework_reference_images() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path();
-    nerf_ok(&[
-        "render",
-        "--config",
-        "box",
-        "--out-dir",
-        out.to_str().unwrap(),
-        "--raw",
-    ]);
+    nerf_ok(&render_args("box", out, &["--raw"]));
     for name in ["grid_vis.png", "ray_vis.png"] {
         let ours = image::open(out.join(name)).unwrap().to_rgb8();
         let theirs = image::open(reference.join(name)).unwrap().to_rgb8();
@@ -311,10 +295,9 @@ fn box_render_agrees_with_the_homework_reference_images() {
 
 #[test]
 fn train_render_and_eval_a_tiny_nerf() {
-    let Some(_lego) = common::lego_dir("train_render_and_eval_a_tiny_nerf") else {
+    let Some((_lego, dir)) = common::lego_scratch("train_render_and_eval_a_tiny_nerf") else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let ckpt_dir = dir.path().join("ckpt");
     let model = common::TINY_NERF_MODEL;
     let mut args = vec!["train", "--config", "nerf_lego", "--out-dir"];
@@ -344,15 +327,8 @@ fn train_render_and_eval_a_tiny_nerf() {
     );
 
     let out = dir.path().join("render");
-    let mut args = vec![
-        "render",
-        "--config",
-        "lego",
-        "--checkpoint",
-        ckpt.to_str().unwrap(),
-        "--out-dir",
-        out.to_str().unwrap(),
-    ];
+    let from_ckpt = ["--checkpoint", ckpt.to_str().unwrap()];
+    let mut args = render_args("lego", &out, &from_ckpt);
     args.extend(model);
     nerf_ok(&args);
     assert_eq!(gif_frames(&out.join("render_nerf.gif")).len(), 20);
@@ -382,15 +358,7 @@ fn train_render_and_eval_a_tiny_nerf() {
     assert!(saved.join("r_0.png").is_file());
 
     // A checkpoint of another width is refused, naming the tensor.
-    let o = nerf(&[
-        "render",
-        "--config",
-        "lego",
-        "--checkpoint",
-        ckpt.to_str().unwrap(),
-        "--out-dir",
-        out.to_str().unwrap(),
-    ]);
+    let o = nerf(&render_args("lego", &out, &from_ckpt));
     assert!(!o.status.success());
     assert!(
         stderr(&o).contains("mlp_xyz.mlp.0.0.weight"),
@@ -534,17 +502,16 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
     // The render command writes the GIF from the checkpoint alone (no dataset).
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
-    nerf_ok(&[
-        "render",
-        "--config",
+    nerf_ok(&render_args(
         "lego",
-        "--checkpoint",
-        ckpt,
-        "--out-dir",
-        out.to_str().unwrap(),
-        "data.image_size=[32,32]",
-        "cameras.n_poses=4",
-    ]);
+        &out,
+        &[
+            "--checkpoint",
+            ckpt,
+            "data.image_size=[32,32]",
+            "cameras.n_poses=4",
+        ],
+    ));
     let frames = gif_frames(&out.join("render_nerf.gif"));
     assert_eq!(frames.len(), 4);
     // Not blank: the model is there.
@@ -605,16 +572,16 @@ fn wrong_shape_checkpoint_and_corrupt_png_name_what_is_wrong() {
 
 #[test]
 fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
-    let Some(data) =
-        common::lego_dir("killed_training_leaves_a_whole_checkpoint_and_resumes_exactly")
-    else {
-        return;
-    };
-    let dir = tempfile::tempdir().unwrap();
     // A checkpoint after each epoch: kills land anywhere, writes included.
     let epochs = 30;
-    let straight = dir.path().join("straight");
-    common::tiny_train_ok(&straight, &data, epochs, 1);
+    let Some((data, dir, straight)) = common::lego_trained(
+        "killed_training_leaves_a_whole_checkpoint_and_resumes_exactly",
+        "straight",
+        epochs,
+        1,
+    ) else {
+        return;
+    };
     let (_, straight_info) = common::load_trained(&straight);
     let steps_per_epoch = straight_info.adam_step / epochs as u64;
     let killed = dir.path().join("killed");
@@ -765,10 +732,9 @@ fn last_logged_step(log: &std::path::Path) -> u64 {
 
 #[test]
 fn training_logs_test_psnr_at_checkpoints() {
-    let Some(data) = common::lego_dir("training_logs_test_psnr_at_checkpoints") else {
+    let Some((data, dir)) = common::lego_scratch("training_logs_test_psnr_at_checkpoints") else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let status = common::tiny_train(dir.path(), &data, 2, 1)
         .arg("training.eval_views=3")
         .status()
@@ -800,6 +766,15 @@ fn training_logs_test_psnr_at_checkpoints() {
     assert_eq!(steps, (1..=200).collect::<Vec<_>>());
 }
 
+/// `nerf report --quick --out-dir OUT MORE…`.
+fn quick_report_args<'a>(out: &'a Path, more: &[&'a str]) -> Vec<&'a str> {
+    [
+        &["report", "--quick", "--out-dir", out.to_str().unwrap()][..],
+        more,
+    ]
+    .concat()
+}
+
 #[test]
 fn report_quick_measures_and_writes_markdown_json_and_plots() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -809,16 +784,15 @@ fn report_quick_measures_and_writes_markdown_json_and_plots() {
     let missing_log = dir.path().join("no_such.log.jsonl");
     let checkpoint = root.join("checkpoints/nerf_lego.safetensors");
     let shipped_log = root.join("checkpoints/nerf_lego.log.jsonl");
-    let mut args = vec![
-        "report",
-        "--quick",
-        "--out-dir",
-        out.to_str().unwrap(),
-        "--log",
-        shipped_log.to_str().unwrap(),
-        "--log",
-        missing_log.to_str().unwrap(),
-    ];
+    let mut args = quick_report_args(
+        &out,
+        &[
+            "--log",
+            shipped_log.to_str().unwrap(),
+            "--log",
+            missing_log.to_str().unwrap(),
+        ],
+    );
     if data.is_dir() {
         args.extend([
             "--views",
@@ -916,13 +890,7 @@ fn report_rejects_an_unusable_output_directory_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("a_file");
     std::fs::write(&file, b"x").unwrap();
-    let o = nerf(&[
-        "report",
-        "--quick",
-        "--no-lego",
-        "--out-dir",
-        file.join("sub").to_str().unwrap(),
-    ]);
+    let o = nerf(&quick_report_args(&file.join("sub"), &["--no-lego"]));
     let err = common::one_line_error(&o);
     assert!(err.contains("a_file"), "{err}");
 }
@@ -933,10 +901,7 @@ fn report_without_its_lego_inputs_is_one_line_naming_them_and_writes_nothing() {
     let out = dir.path().join("report");
     // Run from an empty directory, as a user outside the repository would: the default
     // checkpoint and dataset paths are relative and missing there.
-    let o = nerf_in(
-        dir.path(),
-        &["report", "--quick", "--out-dir", out.to_str().unwrap()],
-    );
+    let o = nerf_in(dir.path(), &quick_report_args(&out, &[]));
     let err = common::one_line_error(&o);
     assert!(err.contains("relative to the working directory"), "{err}");
     assert!(err.contains("--no-lego"), "{err}");
@@ -945,16 +910,15 @@ fn report_without_its_lego_inputs_is_one_line_naming_them_and_writes_nothing() {
     let checkpoint =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints/nerf_lego.safetensors");
     let missing = dir.path().join("no_data");
-    let o = nerf(&[
-        "report",
-        "--quick",
-        "--out-dir",
-        out.to_str().unwrap(),
-        "--checkpoint",
-        checkpoint.to_str().unwrap(),
-        "--data-dir",
-        missing.to_str().unwrap(),
-    ]);
+    let o = nerf(&quick_report_args(
+        &out,
+        &[
+            "--checkpoint",
+            checkpoint.to_str().unwrap(),
+            "--data-dir",
+            missing.to_str().unwrap(),
+        ],
+    ));
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
@@ -990,15 +954,11 @@ fn a_render_off_a_terminal_prints_plain_progress_lines() {
     let dir = tempfile::tempdir().unwrap();
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_nerf"))
         .env("NERF_PROGRESS_SECONDS", "0")
-        .args([
-            "render",
-            "--config",
+        .args(render_args(
             "box",
-            "--out-dir",
-            dir.path().to_str().unwrap(),
-            "data.image_size=[16,16]",
-            "cameras.n_poses=3",
-        ])
+            dir.path(),
+            &["data.image_size=[16,16]", "cameras.n_poses=3"],
+        ))
         .output()
         .unwrap();
     let err = stderr(&o);
@@ -1169,10 +1129,10 @@ fn run_takes_training_options_and_refuses_them_for_render_configs() {
 /// does; and `--checkpoint DIR` reads back what training wrote there.
 #[test]
 fn train_checkpoint_is_the_config_checkpoint_path() {
-    let Some(data) = common::lego_dir("train_checkpoint_is_the_config_checkpoint_path") else {
+    let Some((data, dir)) = common::lego_scratch("train_checkpoint_is_the_config_checkpoint_path")
+    else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let train = |cmd: &str, place: &[&str]| {
         let images = dir.path().join("images");
         let mut args = vec![
@@ -1229,16 +1189,15 @@ fn train_checkpoint_is_the_config_checkpoint_path() {
     assert!(out.contains("trained to epoch 2 "), "{out}");
     // A directory holding the checkpoint is what --checkpoint reads, too.
     let render = dir.path().join("render");
-    let mut args = vec![
-        "render",
-        "--config",
+    let mut args = render_args(
         "nerf_lego",
-        "--checkpoint",
-        by_flag.to_str().unwrap(),
-        "--out-dir",
-        render.to_str().unwrap(),
-        "cameras.n_poses=2",
-    ];
+        &render,
+        &[
+            "--checkpoint",
+            by_flag.to_str().unwrap(),
+            "cameras.n_poses=2",
+        ],
+    );
     args.extend(common::TINY_NERF_TRAINING);
     args.extend(common::TINY_NERF_MODEL);
     let o = nerf_ok(&args);

@@ -4,7 +4,7 @@
 //! the file.
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use nerf::io::colmap::{
@@ -136,16 +136,38 @@ fn one_line_error<T: std::fmt::Debug>(result: anyhow::Result<T>, file: &Path) ->
     e
 }
 
+/// Writes `model` into `dir` in `format`.
+fn write_in(format: ColmapFormat, dir: &Path, model: &ColmapModel) {
+    match format {
+        ColmapFormat::Binary => write_binary(dir, model).unwrap(),
+        ColmapFormat::Text => write_text(dir, model).unwrap(),
+    }
+}
+
+/// A four-image sample model written in `format` into a fresh directory: the directory, the
+/// model and its three files (cameras, images, points).
+fn written_sample(format: ColmapFormat) -> (tempfile::TempDir, ColmapModel, [PathBuf; 3]) {
+    let dir = tempfile::tempdir().unwrap();
+    let model = sample_model(4);
+    write_in(format, dir.path(), &model);
+    let files = format.files(dir.path());
+    (dir, model, files)
+}
+
+/// Writes `contents` over `file` of the model in `d`, reads the model and returns its one-line
+/// error, which names `file`.
+fn error_after_writing(d: &Path, file: &Path, contents: impl AsRef<[u8]>) -> String {
+    std::fs::write(file, contents).unwrap();
+    one_line_error(read_model(d, &ALL), file)
+}
+
 #[test]
 fn text_and_binary_models_read_back_exactly_what_was_written() {
     let model = sample_model(7);
     let dir = tempfile::tempdir().unwrap();
     for format in [ColmapFormat::Binary, ColmapFormat::Text] {
         let out = dir.path().join(format.extension());
-        match format {
-            ColmapFormat::Binary => write_binary(&out, &model).unwrap(),
-            ColmapFormat::Text => write_text(&out, &model).unwrap(),
-        }
+        write_in(format, &out, &model);
         for f in format.files(&out) {
             assert!(f.is_file(), "{} not written", f.display());
         }
@@ -315,29 +337,23 @@ fn no_model_names_the_places_looked() {
 
 #[test]
 fn broken_binary_files_are_refused_on_one_line_naming_the_file() {
-    let dir = tempfile::tempdir().unwrap();
+    let (dir, model, [cameras, images, points]) = written_sample(ColmapFormat::Binary);
     let d = dir.path();
-    let model = sample_model(4);
-    write_binary(d, &model).unwrap();
-    let [cameras, images, points] = ColmapFormat::Binary.files(d);
     let original = std::fs::read(&images).unwrap();
 
     // Truncated inside the last image's features.
-    std::fs::write(&images, &original[..original.len() - 5]).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &images);
+    let e = error_after_writing(d, &images, &original[..original.len() - 5]);
     assert!(e.contains("truncated"), "{e}");
     // Cut inside a record (the last camera's last parameter).
     let original_cameras = std::fs::read(&cameras).unwrap();
-    std::fs::write(&cameras, &original_cameras[..original_cameras.len() - 4]).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &cameras);
+    let e = error_after_writing(d, &cameras, &original_cameras[..original_cameras.len() - 4]);
     assert!(
         e.contains("truncated: a parameter of camera 9 needs 8 bytes, 4 are left"),
         "{e}"
     );
     std::fs::write(&cameras, &original_cameras).unwrap();
     // Bytes past the last record.
-    std::fs::write(&images, [&original[..], &[0u8; 3]].concat()).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &images);
+    let e = error_after_writing(d, &images, [&original[..], &[0u8; 3]].concat());
     assert!(e.contains("3 bytes after the last record"), "{e}");
 
     // A huge count is refused at once, before anything is allocated for it.
@@ -355,8 +371,7 @@ fn broken_binary_files_are_refused_on_one_line_naming_the_file() {
     let original_points = std::fs::read(&points).unwrap();
     let mut bytes = original_points.clone();
     bytes[51..59].copy_from_slice(&(1u64 << 62).to_le_bytes());
-    std::fs::write(&points, &bytes).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &points);
+    let e = error_after_writing(d, &points, &bytes);
     assert!(e.contains("track elements of 3D point 1"), "{e}");
     // ... which is not read at all when points are skipped.
     let no_points = ColmapReadOptions {
@@ -369,14 +384,12 @@ fn broken_binary_files_are_refused_on_one_line_naming_the_file() {
     // NaN as the first parameter of the first camera (after the count, ids and size).
     let mut bytes = original_cameras.clone();
     bytes[32..40].copy_from_slice(&f64::NAN.to_le_bytes());
-    std::fs::write(&cameras, &bytes).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &cameras);
+    let e = error_after_writing(d, &cameras, &bytes);
     assert!(e.contains("NaN") && e.contains("camera 1"), "{e}");
     // An unknown camera model id.
     let mut bytes = original_cameras.clone();
     bytes[12..16].copy_from_slice(&99i32.to_le_bytes());
-    std::fs::write(&cameras, &bytes).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &cameras);
+    let e = error_after_writing(d, &cameras, &bytes);
     assert!(e.contains("model id 99"), "{e}");
 
     // An image whose camera is not in the cameras file.
@@ -393,8 +406,7 @@ fn broken_binary_files_are_refused_on_one_line_naming_the_file() {
     );
 
     // No images at all.
-    std::fs::write(&images, 0u64.to_le_bytes()).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &images);
+    let e = error_after_writing(d, &images, 0u64.to_le_bytes());
     assert!(e.contains("no images"), "{e}");
     // Not a regular file.
     std::fs::remove_file(&images).unwrap();
@@ -405,11 +417,8 @@ fn broken_binary_files_are_refused_on_one_line_naming_the_file() {
 
 #[test]
 fn broken_text_files_are_refused_on_one_line_naming_the_file_and_line() {
-    let dir = tempfile::tempdir().unwrap();
+    let (dir, model, [cameras, images, points]) = written_sample(ColmapFormat::Text);
     let d = dir.path();
-    let model = sample_model(4);
-    write_text(d, &model).unwrap();
-    let [cameras, images, points] = ColmapFormat::Text.files(d);
     let original = std::fs::read_to_string(&images).unwrap();
     let lines: Vec<&str> = original.lines().collect();
     // Line 5 is the first image's first line (after four comment lines).
@@ -426,19 +435,16 @@ fn broken_text_files_are_refused_on_one_line_naming_the_file_and_line() {
     ] {
         let mut f = fields.clone();
         f[2] = bad;
-        std::fs::write(&images, with_line_5(&f.join(" "))).unwrap();
-        let e = one_line_error(read_model(d, &ALL), &images);
+        let e = error_after_writing(d, &images, with_line_5(&f.join(" ")));
         assert!(e.contains("line 5") && e.contains(why), "{e}");
     }
     let mut f = fields.clone();
     f[8] = "42";
-    std::fs::write(&images, with_line_5(&f.join(" "))).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &images);
+    let e = error_after_writing(d, &images, with_line_5(&f.join(" ")));
     assert!(e.contains("uses camera 42"), "{e}");
     let mut f = fields.clone();
     f[9] = "../outside.png";
-    std::fs::write(&images, with_line_5(&f.join(" "))).unwrap();
-    let e = one_line_error(read_model(d, &ALL), &images);
+    let e = error_after_writing(d, &images, with_line_5(&f.join(" ")));
     assert!(
         e.contains("line 5") && e.contains("not a path inside"),
         "{e}"
@@ -446,31 +452,25 @@ fn broken_text_files_are_refused_on_one_line_naming_the_file_and_line() {
     // An image's feature line left out: the next image's first line is not taken for it.
     let mut l = lines.clone();
     l.remove(5);
-    std::fs::write(&images, l.join("\n") + "\n").unwrap();
-    let e = one_line_error(read_model(d, &ALL), &images);
+    let e = error_after_writing(d, &images, l.join("\n") + "\n");
     assert!(e.contains("line 6") && e.contains("2D feature line"), "{e}");
     // Nothing but comments: no images.
-    std::fs::write(&images, "# Number of images: 0\n").unwrap();
-    let e = one_line_error(read_model(d, &ALL), &images);
+    let e = error_after_writing(d, &images, "# Number of images: 0\n");
     assert!(e.contains("no images"), "{e}");
     std::fs::write(&images, &original).unwrap();
 
-    std::fs::write(&cameras, "1 PINHOLE 640 480 500 500 320\n").unwrap();
-    let e = one_line_error(read_model(d, &ALL), &cameras);
+    let e = error_after_writing(d, &cameras, "1 PINHOLE 640 480 500 500 320\n");
     assert!(
         e.contains("line 1") && e.contains("3 parameters, not 4"),
         "{e}"
     );
-    std::fs::write(&cameras, "# c\n1 BROWN 640 480 500 500 320\n").unwrap();
-    let e = one_line_error(read_model(d, &ALL), &cameras);
+    let e = error_after_writing(d, &cameras, "# c\n1 BROWN 640 480 500 500 320\n");
     assert!(e.contains("line 2") && e.contains("\"BROWN\""), "{e}");
 
     write_text(d, &model).unwrap();
-    std::fs::write(&points, "1 0 0 NaN 0 0 0 0.5\n").unwrap();
-    let e = one_line_error(read_model(d, &ALL), &points);
+    let e = error_after_writing(d, &points, "1 0 0 NaN 0 0 0 0.5\n");
     assert!(e.contains("line 1") && e.contains("z is NaN"), "{e}");
-    std::fs::write(&points, "1 0 0 0 0 256 0 0.5\n").unwrap();
-    let e = one_line_error(read_model(d, &ALL), &points);
+    let e = error_after_writing(d, &points, "1 0 0 0 0 256 0 0.5\n");
     assert!(e.contains("green"), "{e}");
 }
 
@@ -507,10 +507,7 @@ fn points_are_bounded_and_spread_over_the_whole_file() {
         .collect();
     for format in [ColmapFormat::Binary, ColmapFormat::Text] {
         let out = dir.path().join(format.extension());
-        match format {
-            ColmapFormat::Binary => write_binary(&out, &model).unwrap(),
-            ColmapFormat::Text => write_text(&out, &model).unwrap(),
-        }
+        write_in(format, &out, &model);
         let limited = ColmapReadOptions {
             points2d: false,
             max_points3d: 30,

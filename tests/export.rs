@@ -7,7 +7,7 @@ use nerf::io::dataset::{load_image_and_transparency, read_split, Split};
 use nerf::PerspectiveCamera;
 
 mod common;
-use common::{lego_dir, nerf, nerf_ok, read_npy, stderr};
+use common::{export_args, lego_scratch, nerf, nerf_ok, read_npy, render_args, stderr};
 
 /// A binary PLY as `nerf export` writes it: vertices (x, y, z[, nx, ny, nz], r, g, b) and
 /// triangles. The header must be exactly the layout written, or the test fails.
@@ -122,17 +122,8 @@ fn rasterize(ply: &Ply, camera: &PerspectiveCamera, w: usize, h: usize) -> Vec<O
 }
 
 /// `nerf export mesh` of `config` at `resolution` into `out`.
-fn mesh_args<'a>(config: &'a str, resolution: &'a str, out: &'a str) -> [&'a str; 8] {
-    [
-        "export",
-        "mesh",
-        "--config",
-        config,
-        "--resolution",
-        resolution,
-        "--out",
-        out,
-    ]
+fn mesh_args<'a>(config: &'a str, resolution: &'a str, out: &'a str) -> Vec<&'a str> {
+    export_args("mesh", config, &["--resolution", resolution], out)
 }
 
 fn iou(a: &[bool], b: &[bool]) -> f64 {
@@ -143,10 +134,9 @@ fn iou(a: &[bool], b: &[bool]) -> f64 {
 
 #[test]
 fn lego_mesh_covers_the_test_masks() {
-    let Some(lego) = lego_dir("lego_mesh_covers_the_test_masks") else {
+    let Some((lego, dir)) = lego_scratch("lego_mesh_covers_the_test_masks") else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("lego.ply");
     nerf_ok(&mesh_args("lego", "128", out.to_str().unwrap()));
     let ply = read_ply(&out);
@@ -223,19 +213,13 @@ fn sphere_mesh_lies_on_the_radius_with_its_rainbow_colours() {
 fn points_and_depth_export_the_box_views() {
     let dir = tempfile::tempdir().unwrap();
     let ply_path = dir.path().join("box_points.ply");
-    let small = ["data.image_size=[32,24]", "sampler.n_pts_per_ray=32"];
-    let mut args = vec![
-        "export",
-        "points",
-        "--config",
-        "box",
-        "--limit",
-        "3",
-        "--out",
-        ply_path.to_str().unwrap(),
-    ];
-    args.extend(small);
-    nerf_ok(&args);
+    // `nerf export KIND` of the first `limit` box views, small, into `out`.
+    let export_box = |kind: &str, limit: &str, out: &Path| {
+        let mut args = export_args(kind, "box", &["--limit", limit], out.to_str().unwrap());
+        args.extend(["data.image_size=[32,24]", "sampler.n_pts_per_ray=32"]);
+        nerf_ok(&args);
+    };
+    export_box("points", "3", &ply_path);
     let ply = read_ply(&ply_path);
     assert!(ply.faces.is_empty() && ply.normals.is_empty());
     assert!(ply.vertices.len() > 100, "{} points", ply.vertices.len());
@@ -249,18 +233,7 @@ fn points_and_depth_export_the_box_views() {
         );
     }
     let depth_dir = dir.path().join("depth");
-    let mut args = vec![
-        "export",
-        "depth",
-        "--config",
-        "box",
-        "--limit",
-        "2",
-        "--out",
-        depth_dir.to_str().unwrap(),
-    ];
-    args.extend(small);
-    nerf_ok(&args);
+    export_box("depth", "2", &depth_dir);
     for name in ["view_000", "view_001"] {
         let (shape, depth) = read_npy(&depth_dir.join(format!("{name}.npy")));
         assert_eq!(shape, vec![24, 32]);
@@ -344,21 +317,6 @@ fn export_refuses_bad_input_in_one_line_and_writes_nothing() {
     );
 }
 
-/// `nerf export KIND --config CONFIG EXTRA… --out OUT`.
-fn export_args<'a>(
-    kind: &'a str,
-    config: &'a str,
-    extra: &[&'a str],
-    out: &'a str,
-) -> Vec<&'a str> {
-    [
-        &["export", kind, "--config", config][..],
-        extra,
-        &["--out", out],
-    ]
-    .concat()
-}
-
 /// Overrides that make `nerf_lego_ngp` tiny: 16×16 images, a 4-level 2^10 table.
 const TINY_NGP: [&str; 7] = [
     "data.image_size=[16,16]",
@@ -372,10 +330,9 @@ const TINY_NGP: [&str; 7] = [
 
 #[test]
 fn ngp_trains_for_minutes_then_exports_a_half_precision_model_that_evaluates_the_same() {
-    let Some(data) = lego_dir("ngp export") else {
+    let Some((data, dir)) = lego_scratch("ngp export") else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let ckpt = dir.path().join("ngp.safetensors");
     let ckpt_key = format!("training.checkpoint_path={}", ckpt.display());
     let with = |head: &[&str]| -> Vec<String> {
@@ -404,14 +361,12 @@ fn ngp_trains_for_minutes_then_exports_a_half_precision_model_that_evaluates_the
     // Three seconds of training end mid-epoch, in a checkpoint that says so.
     assert!(out.contains("trained to epoch 0 step"), "{out}");
     let model = dir.path().join("model.safetensors");
-    let out = run(&with(&[
-        "export",
+    let out = run(&with(&export_args(
         "model",
-        "--config",
         "nerf_lego_ngp",
-        "--out",
+        &[],
         model.to_str().unwrap(),
-    ]));
+    )));
     assert!(out.contains("largest f16 rounding"), "{out}");
     let (full, _) = nerf::io::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
     let (slim, _) = nerf::io::checkpoint::load(&model, &candle_core::Device::Cpu).unwrap();
@@ -443,14 +398,7 @@ fn ngp_trains_for_minutes_then_exports_a_half_precision_model_that_evaluates_the
     assert!((a - b).abs() < 0.05, "full {a} dB, exported {b} dB");
     // The exported model renders the surround views.
     let images = dir.path().join("images");
-    run(&with(&[
-        "render",
-        "--config",
-        "nerf_lego_ngp",
-        "--checkpoint",
-        model.to_str().unwrap(),
-        "--out-dir",
-        images.to_str().unwrap(),
-    ]));
+    let from_model = ["--checkpoint", model.to_str().unwrap()];
+    run(&with(&render_args("nerf_lego_ngp", &images, &from_model)));
     assert!(images.join("render_nerf.gif").is_file());
 }

@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::{homework_config, nerf_in, read_npy, stderr};
+use common::{homework_config, nerf_in, read_npy, render_args, stderr};
 
 use candle_core::Device;
 use nerf::app::config::Config;
@@ -309,14 +309,7 @@ fn nerf_lego_render_reads_a_pytorch_checkpoint_where_the_config_points() {
         "sampler.n_pts_per_ray=16",
     ];
     let render = |out: &str, checkpoint: Option<&str>| {
-        let mut args = vec![
-            "render",
-            "--config",
-            config.to_str().unwrap(),
-            "--raw",
-            "--out-dir",
-            out,
-        ];
+        let mut args = render_args(config.to_str().unwrap(), out, &["--raw"]);
         if let Some(c) = checkpoint {
             args.extend(["--checkpoint", c]);
         }
@@ -335,26 +328,14 @@ fn nerf_lego_render_reads_a_pytorch_checkpoint_where_the_config_points() {
     // A directory holding the file works too; a missing one names the config's path.
     std::fs::create_dir(d.join("held")).unwrap();
     std::fs::rename(d.join("nerf_checkpoints"), d.join("held/model.pth")).unwrap();
-    let mut args = vec![
-        "render",
-        "--config",
+    let mut args = render_args(
         config.to_str().unwrap(),
-        "--out-dir",
         "from_dir",
-        "training.checkpoint_path=held",
-    ];
+        &["training.checkpoint_path=held"],
+    );
     args.extend(small);
     ok(&nerf_in(d, &args), "checkpoint directory");
-    let o = nerf_in(
-        d,
-        &[
-            "render",
-            "--config",
-            config.to_str().unwrap(),
-            "--out-dir",
-            "none",
-        ],
-    );
+    let o = nerf_in(d, &render_args(config.to_str().unwrap(), "none", &[]));
     fails_with(
         &o,
         "checkpoint ./nerf_checkpoints not found (training.checkpoint_path",
@@ -371,21 +352,14 @@ fn pytorch_made_checkpoint_renders_as_its_safetensors_twin() {
     let config = fixtures().join("tiny_nerf.yaml");
     let render = |name: &str| {
         let ckpt = fixtures().join(name);
-        let o = nerf_in(
-            d,
-            &[
-                "render",
-                "--config",
-                config.to_str().unwrap(),
-                "--checkpoint",
-                ckpt.to_str().unwrap(),
-                "--raw",
-                "--out-dir",
-                name,
-                "data.image_size=[20,12]",
-                "cameras.n_poses=3",
-            ],
-        );
+        let more = [
+            "--checkpoint",
+            ckpt.to_str().unwrap(),
+            "--raw",
+            "data.image_size=[20,12]",
+            "cameras.n_poses=3",
+        ];
+        let o = nerf_in(d, &render_args(config.to_str().unwrap(), name, &more));
         ok(&o, name);
         (0..3)
             .map(|i| read_npy(&d.join(name).join(format!("color_{i:03}.npy"))).1)
@@ -430,10 +404,10 @@ fn pytorch_made_checkpoint_renders_as_its_safetensors_twin() {
 /// state, and writes the checkpoint back in PyTorch's format.
 #[test]
 fn training_resumes_from_a_pytorch_checkpoint_and_keeps_its_format() {
-    let Some(data) = common::lego_dir("training_resumes_from_a_pytorch_checkpoint") else {
+    let Some((data, dir)) = common::lego_scratch("training_resumes_from_a_pytorch_checkpoint")
+    else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let ckpt = d.join("checkpoint_file");
     std::fs::copy(fixtures().join("tiny_nerf_homework.pth"), &ckpt).unwrap();
@@ -558,14 +532,7 @@ fn every_homework_config_runs_as_it_is() {
             "{out}"
         );
         assert!(d.join("checkpoints/nerf_lego.safetensors").is_file());
-        let mut args = vec![
-            "render",
-            "--config",
-            &path,
-            "--out-dir",
-            config,
-            "cameras.n_poses=2",
-        ];
+        let mut args = render_args(&path, config, &["cameras.n_poses=2"]);
         args.extend(small);
         ok(&nerf_in(d, &args), config);
         assert!(d.join(config).join("render_nerf.gif").is_file());

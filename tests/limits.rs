@@ -7,7 +7,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 mod common;
-use common::{lego_dir, stderr};
+use common::{export_args, lego_scratch, render_args, stderr};
 
 /// Runs the `nerf` binary with `args`, with `NERF_WORK_CHUNK` set to `chunk` (or unset).
 fn nerf_chunked(chunk: Option<&str>, args: &[&str]) -> Output {
@@ -45,21 +45,24 @@ fn refused_with(o: &Output, expect: &str) {
     );
 }
 
+/// Asserts that `nerf export KIND --config CONFIG EXTRA… --out OUT` is refused (as
+/// [`refused_with`] says) and leaves nothing at `out`.
+fn refused_export(kind: &str, config: &str, extra: &[&str], out: &Path, expect: &str) {
+    let o = nerf_chunked(
+        None,
+        &export_args(kind, config, extra, out.to_str().unwrap()),
+    );
+    refused_with(&o, expect);
+    assert!(!out.exists());
+}
+
 #[test]
 fn a_render_in_tiny_pieces_equals_the_render_in_one() {
     let dir = tempfile::tempdir().unwrap();
     let render = |chunk: Option<&str>, name: &str, extra: &[&str]| {
         let out = dir.path().join(name);
-        let mut args = vec![
-            "render",
-            "--config",
-            "box",
-            "--raw",
-            "data.image_size=[37,23]",
-            "cameras.n_poses=3",
-            "--out-dir",
-            out.to_str().unwrap(),
-        ];
+        let small = ["--raw", "data.image_size=[37,23]", "cameras.n_poses=3"];
+        let mut args = render_args("box", &out, &small);
         args.extend(extra);
         let o = nerf_chunked(chunk, &args);
         assert!(o.status.success(), "{}", stderr(&o));
@@ -107,33 +110,22 @@ fn a_mesh_and_a_point_cloud_in_tiny_pieces_equal_them_in_one() {
         let mesh = dir.path().join(format!("mesh_{chunk}.ply"));
         run(
             Some(chunk),
-            &[
-                "export",
+            &export_args(
                 "mesh",
-                "--config",
                 "sphere",
-                "--resolution",
-                "24",
-                "--out",
+                &["--resolution", "24", renderer_chunk],
                 mesh.to_str().unwrap(),
-                renderer_chunk,
-            ],
+            ),
         );
         let points = dir.path().join(format!("points_{chunk}.ply"));
         run(
             Some(chunk),
-            &[
-                "export",
+            &export_args(
                 "points",
-                "--config",
                 "box",
-                "--limit",
-                "2",
-                "--out",
+                &["--limit", "2", "data.image_size=[29,17]", renderer_chunk],
                 points.to_str().unwrap(),
-                "data.image_size=[29,17]",
-                renderer_chunk,
-            ],
+            ),
         );
     }
     for kind in ["mesh", "points"] {
@@ -149,86 +141,59 @@ fn a_mesh_and_a_point_cloud_in_tiny_pieces_equal_them_in_one() {
 fn sizes_over_a_limit_and_bad_pieces_are_refused_before_anything_is_written() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
-    let o_str = out.to_str().unwrap();
-    let o = nerf_chunked(
-        None,
-        &[
-            "render",
-            "--config",
-            "box",
-            "data.image_size=[4097,8]",
-            "--out-dir",
-            o_str,
-        ],
-    );
-    refused_with(&o, "data.image_size: width and height must be 1 to 4096");
-    assert!(!out.exists());
-    let o = nerf_chunked(
-        None,
-        &[
-            "render",
-            "--config",
-            "box",
-            "cameras.n_poses=5",
-            "data.image_size=[4096,4096]",
-            "--out-dir",
-            o_str,
-        ],
-    );
-    refused_with(&o, "pixels in all");
-    assert!(!out.exists());
-    for bad in ["0", "many", "-3"] {
-        let o = nerf_chunked(
+    // (NERF_WORK_CHUNK, overrides, what the refusal says) of a box render.
+    let too_large: [(Option<&str>, &[&str], &str); 2] = [
+        (
+            None,
+            &["data.image_size=[4097,8]"],
+            "data.image_size: width and height must be 1 to 4096",
+        ),
+        (
+            None,
+            &["cameras.n_poses=5", "data.image_size=[4096,4096]"],
+            "pixels in all",
+        ),
+    ];
+    let bad_pieces = ["0", "many", "-3"].map(|bad| -> (Option<&str>, &[&str], &str) {
+        (
             Some(bad),
-            &["render", "--config", "box", "--out-dir", o_str],
-        );
-        refused_with(&o, "NERF_WORK_CHUNK: must be a whole number of at least 1");
+            &[],
+            "NERF_WORK_CHUNK: must be a whole number of at least 1",
+        )
+    });
+    for (chunk, overrides, expect) in too_large.into_iter().chain(bad_pieces) {
+        let o = nerf_chunked(chunk, &render_args("box", &out, overrides));
+        refused_with(&o, expect);
         assert!(!out.exists());
     }
-    let ply = dir.path().join("m.ply");
-    let o = nerf_chunked(
-        None,
-        &[
-            "export",
-            "mesh",
-            "--config",
-            "sphere",
-            "--resolution",
-            "513",
-            "--out",
-            ply.to_str().unwrap(),
-        ],
+    refused_export(
+        "mesh",
+        "sphere",
+        &["--resolution", "513"],
+        &dir.path().join("m.ply"),
+        "--resolution must be 1 to 512",
     );
-    refused_with(&o, "--resolution must be 1 to 512");
-    assert!(!ply.exists());
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
 
 #[test]
 fn a_point_cloud_of_more_rays_than_its_limit_is_refused_before_rendering() {
-    let Some(data) = lego_dir("point cloud limit") else {
+    let Some((data, dir)) = lego_scratch("point cloud limit") else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let ply = dir.path().join("p.ply");
     // 100 training views of 2048² pixels: 419M rays, over 2^27.
-    let o = nerf_chunked(
-        None,
+    refused_export(
+        "points",
+        "lego",
         &[
-            "export",
-            "points",
-            "--config",
-            "lego",
             "--data-dir",
             data.to_str().unwrap(),
-            "--out",
-            ply.to_str().unwrap(),
             "data.image_size=[2048,2048]",
             "cameras.n_poses=1",
         ],
+        &dir.path().join("p.ply"),
+        "over the 134217728 a point cloud may have",
     );
-    refused_with(&o, "over the 134217728 a point cloud may have");
-    assert!(!ply.exists());
 }
 
 #[test]
@@ -238,15 +203,11 @@ fn a_render_whose_last_file_cannot_be_written_leaves_none_of_its_files() {
     std::fs::create_dir(dir.path().join("render_cube.gif")).unwrap();
     let o = nerf_chunked(
         None,
-        &[
-            "render",
-            "--config",
+        &render_args(
             "box",
-            "data.image_size=[16,16]",
-            "cameras.n_poses=3",
-            "--out-dir",
-            dir.path().to_str().unwrap(),
-        ],
+            dir.path(),
+            &["data.image_size=[16,16]", "cameras.n_poses=3"],
+        ),
     );
     refused_with(&o, "render_cube.gif");
     let left: Vec<String> = common::sorted_names(dir.path());

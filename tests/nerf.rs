@@ -327,15 +327,43 @@ fn weights_of(path: &Path) -> HashMap<String, Vec<f32>> {
         .collect()
 }
 
+/// The resume tests' small runs: 8×8 images, 8 samples a ray, 16 rays a batch and a
+/// checkpoint after every epoch.
+const SMALL_RUN: [&str; 4] = [
+    "data.image_size=[8,8]",
+    "sampler.n_pts_per_ray=8",
+    "training.batch_size=16",
+    "training.checkpoint_interval=1",
+];
+
+/// Trains the config `name` with [`SMALL_RUN`], `overrides` and
+/// `training.checkpoint_path=<checkpoint>` on the lego data in `data` (its images under
+/// `dir/images`) within `limits`, on the CPU; returns the checkpoint's path.
+fn train_lego(
+    name: &str,
+    overrides: &[&str],
+    checkpoint: &Path,
+    dir: &Path,
+    data: &Path,
+    limits: nerf::RunLimits,
+) -> PathBuf {
+    let mut o: Vec<String> = SMALL_RUN
+        .iter()
+        .chain(overrides)
+        .map(|s| s.to_string())
+        .collect();
+    o.push(format!("training.checkpoint_path={}", checkpoint.display()));
+    let config = Config::load(name, &o).unwrap();
+    let paths = config.train_paths(&dir.join("images")).unwrap();
+    train_nerf(&config, data, &paths, limits, None, &Device::Cpu).unwrap();
+    paths.checkpoint
+}
+
 #[test]
 fn resume_continues_exactly() {
     let Some(data) = lego_dir() else { return };
     let base = [
-        "data.image_size=[8,8]",
-        "sampler.n_pts_per_ray=8",
-        "training.batch_size=16",
         "training.num_epochs=4",
-        "training.checkpoint_interval=1",
         "training.render_interval=1000",
         "implicit_function.n_hidden_neurons_xyz=16",
         "implicit_function.n_hidden_neurons_dir=8",
@@ -343,16 +371,11 @@ fn resume_continues_exactly() {
         "implicit_function.append_xyz=[2]",
     ];
     let run = |dir: &Path, stop: Option<usize>| {
-        let mut o: Vec<String> = base.iter().map(|s| s.to_string()).collect();
-        o.push(format!("training.checkpoint_path={}", dir.display()));
-        let config = Config::load("nerf_lego", &o).unwrap();
-        let paths = config.train_paths(&dir.join("images")).unwrap();
         let limits = nerf::RunLimits {
             epochs: stop,
             seconds: None,
         };
-        train_nerf(&config, &data, &paths, limits, None, &Device::Cpu).unwrap();
-        paths.checkpoint
+        train_lego("nerf_lego", &base, dir, dir, &data, limits)
     };
     let straight = tempfile::tempdir().unwrap();
     let a = run(straight.path(), None);
@@ -491,11 +514,7 @@ fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
 fn ngp_training_resumes_exactly_after_a_time_limit() {
     let Some(data) = lego_dir() else { return };
     let base = [
-        "data.image_size=[8,8]",
-        "sampler.n_pts_per_ray=8",
-        "training.batch_size=16",
         "training.num_epochs=2",
-        "training.checkpoint_interval=1",
         "training.eval_views=0",
         "renderer.occupancy_grid.resolution=8",
         "renderer.occupancy_grid.update_interval=4",
@@ -505,19 +524,12 @@ fn ngp_training_resumes_exactly_after_a_time_limit() {
         "implicit_function.max_resolution=32",
     ];
     let run = |dir: &Path, seconds: Option<f64>| {
-        let mut o: Vec<String> = base.iter().map(|s| s.to_string()).collect();
-        o.push(format!(
-            "training.checkpoint_path={}",
-            dir.join("ngp.safetensors").display()
-        ));
-        let config = Config::load("nerf_lego_ngp", &o).unwrap();
-        let paths = config.train_paths(&dir.join("images")).unwrap();
         let limits = nerf::RunLimits {
             epochs: None,
             seconds,
         };
-        train_nerf(&config, &data, &paths, limits, None, &Device::Cpu).unwrap();
-        paths.checkpoint
+        let checkpoint = dir.join("ngp.safetensors");
+        train_lego("nerf_lego_ngp", &base, &checkpoint, dir, &data, limits)
     };
     let straight = tempfile::tempdir().unwrap();
     let a = run(straight.path(), None);

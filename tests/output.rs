@@ -7,20 +7,16 @@ use std::os::unix::fs::FileTypeExt;
 use std::path::Path;
 
 mod common;
-use common::{nerf, sorted_names, stderr};
+use common::{export_args, nerf, sorted_names, stderr};
 
 /// `nerf export mesh` of the analytic sphere (fast) to `out`.
 fn export_mesh(out: &Path) -> std::process::Output {
-    nerf(&[
-        "export",
+    nerf(&export_args(
         "mesh",
-        "--config",
         "sphere",
-        "--resolution",
-        "16",
-        "--out",
+        &["--resolution", "16"],
         out.to_str().unwrap(),
-    ])
+    ))
 }
 
 #[test]
@@ -81,16 +77,12 @@ fn export_onto_a_directory_is_refused_in_one_line() {
 
 /// `nerf export model` of the shipped NeRF (from `checkpoint`) to `out`.
 fn export_model(checkpoint: &Path, out: &Path) -> std::process::Output {
-    nerf(&[
-        "export",
+    nerf(&export_args(
         "model",
-        "--config",
         "nerf_lego",
-        "--checkpoint",
-        checkpoint.to_str().unwrap(),
-        "--out",
+        &["--checkpoint", checkpoint.to_str().unwrap()],
         out.to_str().unwrap(),
-    ])
+    ))
 }
 
 #[test]

@@ -9,6 +9,7 @@ use nerf::core::rays::Rays;
 use nerf::core::volume::{deltas, weights, MAX_OPTICAL_DEPTH};
 use nerf::kernels::composite::{composite, Composited};
 use nerf::{render_view, Field, NerfField, Pipeline, StratifiedSampler, VolumeRenderer};
+use nerf::{PerspectiveCamera, RenderedView, SdfField, SdfVolume};
 
 fn all_finite(t: &Tensor) -> bool {
     t.flatten_all()
@@ -121,21 +122,44 @@ fn extreme_densities_and_spacings() {
     }
 }
 
+/// The box config with `overrides`, its SDF field, its volume (for the float64 recomputation)
+/// and its stratified sampler.
+fn box_scene(overrides: &[String]) -> (Config, SdfField, SdfVolume, StratifiedSampler) {
+    let config = Config::load("box", overrides).unwrap();
+    let field = config.sdf_field(&Device::Cpu).unwrap();
+    let volume = config.sdf_volume().unwrap();
+    let sampler = config.stratified_sampler().unwrap();
+    (config, field, volume, sampler)
+}
+
+/// The largest differences, colour and depth, between `frame` (as rendered from `cam`) and the
+/// float64 recomputation of `volume` from `cam` with `sampler`: the homework's formula
+/// evaluated literally.
+fn float64_errors(
+    frame: &RenderedView,
+    volume: &SdfVolume,
+    cam: &PerspectiveCamera,
+    sampler: &StratifiedSampler,
+) -> (f64, f64) {
+    let size = (frame.color.width, frame.color.height);
+    let (colours, depths) = nerf::eval::reference::render_image(volume, cam, size, sampler);
+    let max = |a: &[f32], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (*x as f64 - y).abs())
+            .fold(0.0, f64::max)
+    };
+    (max(&frame.color.data, &colours), max(&frame.depth, &depths))
+}
+
 #[test]
 fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
     for beta in [1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6] {
-        let config = Config::load(
-            "box",
-            &[
-                "data.image_size=[24,18]".into(),
-                "sampler.n_pts_per_ray=48".into(),
-                format!("implicit_function.beta.val={beta}"),
-            ],
-        )
-        .unwrap();
-        let field = config.sdf_field(&Device::Cpu).unwrap();
-        let volume = &config.sdf_volume().unwrap();
-        let sampler = config.stratified_sampler().unwrap();
+        let (config, field, volume, sampler) = box_scene(&[
+            "data.image_size=[24,18]".into(),
+            "sampler.n_pts_per_ray=48".into(),
+            format!("implicit_function.beta.val={beta}"),
+        ]);
         let renderer = config.renderer().unwrap();
         let cam = config.surround_cameras()[3];
         let pipeline = Pipeline::new(&field, &sampler, &renderer);
@@ -149,21 +173,7 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
         let out = field.evaluate(&samples, &d, &rays.directions).unwrap();
         check_weights(&out.density, &samples.lengths);
         // Float64: the homework's formula evaluated literally.
-        let (colours, depths) =
-            nerf::eval::reference::render_image(volume, &cam, (24, 18), &sampler);
-        let colour_error = frame
-            .color
-            .data
-            .iter()
-            .zip(&colours)
-            .map(|(a, b)| (*a as f64 - b).abs())
-            .fold(0.0, f64::max);
-        let depth_error = frame
-            .depth
-            .iter()
-            .zip(&depths)
-            .map(|(a, b)| (*a as f64 - b).abs())
-            .fold(0.0, f64::max);
+        let (colour_error, depth_error) = float64_errors(&frame, &volume, &cam, &sampler);
         eprintln!(
             "beta {beta:e}: max colour error {colour_error:.1e}, max depth error {depth_error:.1e}"
         );
@@ -184,16 +194,15 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
 #[test]
 fn near_equals_far_renders_through_the_binary() {
     let dir = tempfile::tempdir().unwrap();
-    common::nerf_ok(&[
-        "render",
-        "--config",
+    common::nerf_ok(&common::render_args(
         "box",
-        "--out-dir",
-        dir.path().to_str().unwrap(),
-        "data.image_size=[16,16]",
-        "sampler.min_depth=2.5",
-        "sampler.max_depth=2.5",
-    ]);
+        dir.path(),
+        &[
+            "data.image_size=[16,16]",
+            "sampler.min_depth=2.5",
+            "sampler.max_depth=2.5",
+        ],
+    ));
     assert!(dir.path().join("render_cube.gif").is_file());
 }
 
@@ -251,30 +260,15 @@ fn rays_along_each_axis_with_signed_zeros_hit_the_box_where_expected() {
 fn float32_against_float64_at_64_and_1024_samples() {
     // Reported in docs/conventions.md: the f32 pipeline against the float64 recomputation.
     for n in [64, 1024] {
-        let config = Config::load(
-            "box",
-            &[
-                "data.image_size=[32,32]".into(),
-                format!("sampler.n_pts_per_ray={n}"),
-            ],
-        )
-        .unwrap();
-        let field = config.sdf_field(&Device::Cpu).unwrap();
-        let volume = &config.sdf_volume().unwrap();
-        let sampler = config.stratified_sampler().unwrap();
+        let (config, field, volume, sampler) = box_scene(&[
+            "data.image_size=[32,32]".into(),
+            format!("sampler.n_pts_per_ray={n}"),
+        ]);
         let cam = config.surround_cameras()[1];
         let renderer = config.renderer().unwrap();
         let pipeline = Pipeline::new(&field, &sampler, &renderer);
         let frame = render_view(&pipeline, &cam, (32, 32), &Device::Cpu).unwrap();
-        let (colours, depths) =
-            nerf::eval::reference::render_image(volume, &cam, (32, 32), &sampler);
-        let max = |a: &[f32], b: &[f64]| {
-            a.iter()
-                .zip(b)
-                .map(|(x, y)| (*x as f64 - y).abs())
-                .fold(0.0, f64::max)
-        };
-        let (c, d) = (max(&frame.color.data, &colours), max(&frame.depth, &depths));
+        let (c, d) = float64_errors(&frame, &volume, &cam, &sampler);
         eprintln!(
             "{n} samples: f32 vs f64 max colour difference {c:.1e}, max depth difference {d:.1e}"
         );

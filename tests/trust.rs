@@ -8,20 +8,16 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{lego_dir, logged_steps, stderr, temp_files};
+use common::{lego_dir, lego_scratch, logged_steps, render_args, stderr, temp_files};
 
 /// A small box render (fast) into `out`.
 fn box_render(out: &Path) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_nerf"));
-    c.args([
-        "render",
-        "--config",
+    c.args(render_args(
         "box",
-        "data.image_size=[24,24]",
-        "cameras.n_poses=3",
-        "--out-dir",
-        out.to_str().unwrap(),
-    ]);
+        out,
+        &["data.image_size=[24,24]", "cameras.n_poses=3"],
+    ));
     c
 }
 
@@ -152,13 +148,15 @@ impl Watched {
 
 #[test]
 fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
-    let Some(data) = lego_dir("sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact") else {
+    let epochs = 4;
+    let Some((data, dir, straight)) = common::lego_trained(
+        "sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact",
+        "straight",
+        epochs,
+        5,
+    ) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let epochs = 4;
-    let straight = dir.path().join("straight");
-    common::tiny_train_ok(&straight, &data, epochs, 5);
     for (signal, name) in [(libc::SIGINT, "int"), (libc::SIGTERM, "term")] {
         let stopped = dir.path().join(name);
         let run = watched(tiny_train(&stopped, &data, epochs));
@@ -199,10 +197,10 @@ fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
 
 #[test]
 fn a_second_sigint_exits_at_once_and_leaves_whole_files() {
-    let Some(data) = lego_dir("a_second_sigint_exits_at_once_and_leaves_whole_files") else {
+    let Some((data, dir)) = lego_scratch("a_second_sigint_exits_at_once_and_leaves_whole_files")
+    else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let ckpt = dir.path().join("c");
     let mut command = tiny_train(&ckpt, &data, 50);
     command.env("NERF_FAULT_WRITE_DELAY_MS", "300");
@@ -231,14 +229,14 @@ fn a_second_sigint_exits_at_once_and_leaves_whole_files() {
 
 #[test]
 fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() {
-    let Some(data) =
-        lego_dir("a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files")
-    else {
+    let Some((data, _dir, ckpt)) = common::lego_trained(
+        "a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files",
+        "c",
+        2,
+        5,
+    ) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let ckpt = dir.path().join("c");
-    common::tiny_train_ok(&ckpt, &data, 2, 5);
     assert_eq!(log_lines(&ckpt), 200);
     let before = std::fs::read(ckpt.join("nerf_lego.safetensors")).unwrap();
     let out = tiny_train(&ckpt, &data, 1)
@@ -275,10 +273,10 @@ fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() 
 
 #[test]
 fn training_without_a_terminal_prints_progress_lines() {
-    let Some(data) = lego_dir("training_without_a_terminal_prints_progress_lines") else {
+    let Some((data, dir)) = lego_scratch("training_without_a_terminal_prints_progress_lines")
+    else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let out = tiny_train(&dir.path().join("c"), &data, 2)
         .env("NERF_PROGRESS_SECONDS", "0")
         .stderr(Stdio::piped())
@@ -324,16 +322,8 @@ fn eval_json_into_a_closed_pipe_exits_quietly() {
 
 /// `nerf render --config nerf_lego ... --raw` at 16×16, 2 poses; stderr and frame 0's colour.
 fn render_nerf(out: &Path, extra: &[&str]) -> (String, Vec<f32>) {
-    let mut args = vec![
-        "render",
-        "--config",
-        "nerf_lego",
-        "--raw",
-        "--out-dir",
-        out.to_str().unwrap(),
-        "data.image_size=[16,16]",
-        "cameras.n_poses=2",
-    ];
+    let small = ["--raw", "data.image_size=[16,16]", "cameras.n_poses=2"];
+    let mut args = render_args("nerf_lego", out, &small);
     args.extend(extra);
     let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
         .args(&args)
@@ -392,16 +382,13 @@ fn one_rule_picks_the_checkpoint_and_says_which() {
     );
     assert!(common::max_abs_diff(&from_dir, &homework) > 1e-3);
     // A config without a training section (lego): the shipped model.
+    let e = dir.path().join("e");
     let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
-        .args([
-            "render",
-            "--config",
+        .args(render_args(
             "lego",
-            "data.image_size=[8,8]",
-            "cameras.n_poses=1",
-        ])
-        .arg("--out-dir")
-        .arg(dir.path().join("e"))
+            &e,
+            &["data.image_size=[8,8]", "cameras.n_poses=1"],
+        ))
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
@@ -581,18 +568,12 @@ fn messages_speak_the_users_language() {
         "this command needs a NeRF config (e.g. lego)",
     );
     // Hydra's +key=value adds a key.
-    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
-        .args([
-            "render",
-            "--config",
-            "box",
-            "+cameras.n_poses=2",
-            "data.image_size=[8,8]",
-        ])
-        .arg("--out-dir")
-        .arg(dir.path().join("o"))
-        .output()
-        .unwrap();
+    let out = dir.path().join("o");
+    let o = common::nerf(&render_args(
+        "box",
+        &out,
+        &["+cameras.n_poses=2", "data.image_size=[8,8]"],
+    ));
     assert!(o.status.success(), "{}", stderr(&o));
 }
 

@@ -10,6 +10,32 @@ use std::time::{Duration, Instant};
 mod common;
 use common::{max_byte_difference, nerf, nerf_ok, read_npy, stderr};
 
+/// Starts `nerf view --port 0 ARGS…` with `stdout` and `stderr`.
+fn spawn_view(args: &[&str], stdout: Stdio, stderr: Stdio) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args(["view", "--port", "0"])
+        .args(args)
+        .stdout(stdout)
+        .stderr(stderr)
+        .spawn()
+        .expect("start nerf view")
+}
+
+/// The first line read from `from` (the reader is dropped after it).
+fn first_line(from: impl Read) -> String {
+    let mut line = String::new();
+    BufReader::new(from).read_line(&mut line).unwrap();
+    line
+}
+
+/// The `host:port` of the `http://host:port/…` address in `line`, if any.
+fn address_in(line: &str) -> Option<String> {
+    line.split("http://")
+        .nth(1)
+        .and_then(|rest| rest.split('/').next())
+        .map(str::to_string)
+}
+
 /// A running `nerf view`, killed when dropped.
 struct Server {
     child: Child,
@@ -18,23 +44,9 @@ struct Server {
 
 impl Server {
     fn start(args: &[&str]) -> Server {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_nerf"))
-            .args(["view", "--port", "0"])
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start nerf view");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let addr = line
-            .split("http://")
-            .nth(1)
-            .and_then(|rest| rest.split('/').next())
-            .unwrap_or_else(|| panic!("no address in {line:?}"))
-            .to_string();
+        let mut child = spawn_view(args, Stdio::piped(), Stdio::null());
+        let line = first_line(child.stdout.take().unwrap());
+        let addr = address_in(&line).unwrap_or_else(|| panic!("no address in {line:?}"));
         Server { child, addr }
     }
 
@@ -593,30 +605,11 @@ fn a_stdout_that_cannot_be_written_does_not_stop_the_server() {
         ("closed pipe", Stdio::from(writer)),
         ("full disk", Stdio::from(full)),
     ] {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_nerf"))
-            .args([
-                "view",
-                "--port",
-                "0",
-                "--config",
-                "box",
-                "data.image_size=[8,8]",
-            ])
-            .stdout(stdout)
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start nerf view");
-        let mut line = String::new();
-        BufReader::new(child.stderr.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
+        let args = ["--config", "box", "data.image_size=[8,8]"];
+        let mut child = spawn_view(&args, stdout, Stdio::piped());
+        let line = first_line(child.stderr.take().unwrap());
         assert!(line.contains("cannot write to stdout"), "{what}: {line}");
-        let addr = line
-            .split("http://")
-            .nth(1)
-            .and_then(|rest| rest.split('/').next())
-            .unwrap_or_else(|| panic!("{what}: no address in {line:?}"))
-            .to_string();
+        let addr = address_in(&line).unwrap_or_else(|| panic!("{what}: no address in {line:?}"));
         let server = Server { child, addr };
         let (status, _, body) = server.get("/render.png");
         assert_eq!(status, 200, "{what}");

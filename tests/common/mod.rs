@@ -278,3 +278,50 @@ pub fn load_trained(
     )
     .unwrap()
 }
+
+/// The lego scene in `../shared/data/lego` and a fresh scratch directory for the test's
+/// files, or a visible skip (as [`lego_dir`]).
+pub fn lego_scratch(test: &str) -> Option<(PathBuf, tempfile::TempDir)> {
+    let data = lego_dir(test)?;
+    Some((data, tempfile::tempdir().unwrap()))
+}
+
+/// `nerf render --config CONFIG --out-dir OUT MORE…` (MORE: further flags and overrides).
+pub fn render_args<'a, P: AsRef<Path> + ?Sized>(
+    config: &'a str,
+    out: &'a P,
+    more: &[&'a str],
+) -> Vec<&'a str> {
+    let out = out.as_ref().to_str().unwrap();
+    [&["render", "--config", config, "--out-dir", out][..], more].concat()
+}
+
+/// `nerf export KIND --config CONFIG EXTRA… --out OUT`.
+pub fn export_args<'a>(
+    kind: &'a str,
+    config: &'a str,
+    extra: &[&'a str],
+    out: &'a str,
+) -> Vec<&'a str> {
+    [
+        &["export", kind, "--config", config][..],
+        extra,
+        &["--out", out],
+    ]
+    .concat()
+}
+
+/// [`lego_scratch`] with a tiny NeRF trained into the scratch directory's `name` by
+/// [`tiny_train_ok`] (`epochs` epochs, a checkpoint every `checkpoint_interval`): the data, the
+/// scratch directory and that checkpoint directory, or a visible skip.
+pub fn lego_trained(
+    test: &str,
+    name: &str,
+    epochs: usize,
+    checkpoint_interval: usize,
+) -> Option<(PathBuf, tempfile::TempDir, PathBuf)> {
+    let (data, dir) = lego_scratch(test)?;
+    let ckpt_dir = dir.path().join(name);
+    tiny_train_ok(&ckpt_dir, &data, epochs, checkpoint_interval);
+    Some((data, dir, ckpt_dir))
+}
