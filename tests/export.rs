@@ -148,13 +148,13 @@ fn lego_mesh_covers_the_test_masks() {
     for frame in frames.iter().step_by(10) {
         let (_, transparency) = load_image_and_transparency(&frame.file_path, w, h, false).unwrap();
         let truth: Vec<bool> = transparency.iter().map(|t| 1.0 - t > 0.5).collect();
-        let seen = rasterize(&ply, &frame.camera, w, h);
+        let seen = rasterize(&ply, frame.camera.pinhole().unwrap(), w, h);
         let mask: Vec<bool> = seen.iter().map(Option::is_some).collect();
         scores.push(iou(&mask, &truth));
         // For a person to look at: NERF_TEST_MESH_VIEWS=DIR writes each view of the mesh,
         // rasterised at 256×256.
         if let Ok(views) = std::env::var("NERF_TEST_MESH_VIEWS") {
-            let big = rasterize(&ply, &frame.camera, 256, 256);
+            let big = rasterize(&ply, frame.camera.pinhole().unwrap(), 256, 256);
             let bytes: Vec<u8> = big
                 .iter()
                 .flat_map(|p| p.unwrap_or([0.0; 3]).map(|v| (v * 255.0) as u8))

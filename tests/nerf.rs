@@ -49,7 +49,7 @@ fn box_dataset(config: &Config) -> Dataset {
         let f = render_view(&pipeline, cam, (12, 12), &Device::Cpu).unwrap();
         frames.push(Frame {
             file_path: PathBuf::from("synthetic"),
-            camera: *cam,
+            camera: (*cam).into(),
         });
         images.push(f.color);
     }

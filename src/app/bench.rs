@@ -375,6 +375,27 @@ struct RenderRun {
 
 /// The first `lego.views` test cameras and their images, or the surround cameras without
 /// ground truth when the dataset cannot be read.
+/// The pytorch3d cameras of the first `views` frames of a NeRF-synthetic split; an error for a
+/// capture, whose cameras are not pinholes on the homework's grid.
+pub(crate) fn lego_cameras(
+    dataset: &crate::io::dataset::Dataset,
+    views: usize,
+) -> Result<Vec<PerspectiveCamera>> {
+    dataset
+        .frames
+        .iter()
+        .take(views)
+        .map(|f| {
+            f.camera.pinhole().copied().ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{}: the lego benchmark needs a NeRF-synthetic scene",
+                    f.file_path.display()
+                )
+            })
+        })
+        .collect()
+}
+
 fn bench_views(
     lego: &LegoBench,
     config: &Config,
@@ -389,7 +410,7 @@ fn bench_views(
             config.renderer.white_background,
         ) {
             Ok(d) => (
-                d.frames.iter().take(lego.views).map(|f| f.camera).collect(),
+                lego_cameras(&d, lego.views)?,
                 Some(d.images.into_iter().take(lego.views).collect()),
             ),
             Err(e) => {

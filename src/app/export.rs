@@ -10,7 +10,7 @@ use candle_core::{Device, Tensor};
 
 use crate::app::config::{limits, Config, OccupancyGridConfig};
 use crate::app::scene::{load_scene_field, write_all, SceneField, WorkChunks};
-use crate::core::camera::PerspectiveCamera;
+use crate::core::frame_camera::FrameCamera;
 use crate::core::marching_cubes::{marching_cubes, TriMesh, VolumeGrid};
 use crate::core::sdf::{sdf_at_density, Sdf, SdfVolume};
 use crate::io::dataset::{read_split, Split};
@@ -236,8 +236,8 @@ fn export_cameras(
     config: &Config,
     scene: &SceneField,
     views: &ViewSelection,
-) -> Result<Vec<(String, PerspectiveCamera)>> {
-    let mut cameras: Vec<(String, PerspectiveCamera)> = match scene {
+) -> Result<Vec<(String, FrameCamera)>> {
+    let mut cameras: Vec<(String, FrameCamera)> = match scene {
         SceneField::Nerf(_) => read_split(&views.data_dir, views.split)?
             .into_iter()
             .map(|f| {
@@ -252,7 +252,7 @@ fn export_cameras(
             .surround_cameras()
             .into_iter()
             .enumerate()
-            .map(|(i, c)| (format!("view_{i:03}"), c))
+            .map(|(i, c)| (format!("view_{i:03}"), c.into()))
             .collect(),
     };
     cameras.truncate(views.limit.unwrap_or(usize::MAX));

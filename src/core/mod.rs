@@ -7,6 +7,7 @@ pub mod camera_model;
 pub mod compare;
 pub mod distortion;
 pub mod fastexp;
+pub mod frame_camera;
 pub mod image;
 pub mod marching_cubes;
 pub mod marching_tables;

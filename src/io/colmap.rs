@@ -512,12 +512,7 @@ pub fn find_model_with(dir: &Path, options: &ColmapReadOptions) -> Result<(PathB
             dir.display()
         );
     }
-    let places = [
-        dir.to_path_buf(),
-        dir.join("sparse"),
-        dir.join("colmap").join("sparse"),
-    ];
-    for place in &places {
+    for place in &model_places(dir) {
         if model_format(place).is_some() {
             return Ok((place.clone(), read_model(place, options)?));
         }
@@ -534,6 +529,23 @@ pub fn find_model_with(dir: &Path, options: &ColmapReadOptions) -> Result<(PathB
     bail!(
         "no COLMAP model found in {d}: looked for cameras.bin and images.bin (or cameras.txt and images.txt) in {d}, {d}/sparse and {d}/colmap/sparse, and in their subfolders (sparse/0, ...)"
     )
+}
+
+/// Where [`find_model_with`] looks for a model, in order.
+fn model_places(dir: &Path) -> [PathBuf; 3] {
+    [
+        dir.to_path_buf(),
+        dir.join("sparse"),
+        dir.join("colmap").join("sparse"),
+    ]
+}
+
+/// Whether `dir` holds a COLMAP model where [`find_model_with`] looks: the first such place
+/// (the model folder, or the folder of several models), without reading any model.
+pub fn find_model_folder(dir: &Path) -> Option<PathBuf> {
+    model_places(dir)
+        .into_iter()
+        .find(|place| model_format(place).is_some() || !model_subdirs(place).is_empty())
 }
 
 /// Checks `model` before writing it to `dir` in `format` (never write what could not be

@@ -448,7 +448,9 @@ mod tests {
         .unwrap_err();
         assert!(format!("{err:#}").contains("cannot write"), "{err:#}");
         assert_eq!(names(dir.path()), ["late", "x.png"]);
-        assert!(in_flight().is_empty());
+        // Nothing of this test's is still listed for removal (other tests running beside it
+        // may have writes of their own in flight).
+        assert!(in_flight().iter().all(|p| !p.starts_with(dir.path())));
     }
 
     #[test]

@@ -5,7 +5,7 @@
 use anyhow::Result;
 use candle_core::Device;
 
-use crate::core::camera::PerspectiveCamera;
+use crate::core::camera_model::CameraModel;
 use crate::core::rays::Rays;
 use crate::render::bands::{band_rays, pixel_bands};
 use crate::render::renderer::{RenderOutput, VolumeRenderer};
@@ -26,7 +26,7 @@ pub struct ColoredPoints {
 /// rendered about `band` at a time (whole renderer chunks, so the points do not depend on it).
 pub fn depth_points(
     pipeline: &Pipeline,
-    camera: &PerspectiveCamera,
+    camera: &dyn CameraModel,
     size: (usize, usize),
     min_opacity: f32,
     band: usize,

@@ -39,6 +39,10 @@ const BUILT_IN: &[(&str, &str)] = &[
         "lego_ngp_400",
         include_str!("../../../configs/lego_ngp_400.yaml"),
     ),
+    (
+        "nerf_scene",
+        include_str!("../../../configs/nerf_scene.yaml"),
+    ),
 ];
 
 /// The text of the config file `path`: a regular file of at most [`MAX_YAML_BYTES`], UTF-8.

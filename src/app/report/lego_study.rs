@@ -193,12 +193,7 @@ pub fn lego_study(
     )
     .with_context(|| format!("lego dataset at {}", options.data_dir.display()))?;
     let views = sizes.lego_views.min(dataset.frames.len());
-    let cameras: Vec<PerspectiveCamera> = dataset
-        .frames
-        .iter()
-        .take(views)
-        .map(|f| f.camera)
-        .collect();
+    let cameras = crate::app::bench::lego_cameras(&dataset, views)?;
     let truth: Vec<RgbImage> = dataset.images.iter().take(views).cloned().collect();
     let run = |config: &Config| -> Result<(Vec<RenderedView>, f64)> {
         let (state, _) = config.load_model(&options.checkpoint, device)?;

@@ -83,12 +83,17 @@ pub fn load_frame_image(
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_SOURCE_IMAGE_SIDE);
     limits.max_image_height = Some(MAX_SOURCE_IMAGE_SIDE);
-    let mut reader =
-        image::ImageReader::with_format(std::io::Cursor::new(&bytes), ImageFormat::Png);
+    // PNG or JPEG, by the file's first bytes (captures come as JPEG, renders as PNG).
+    let (format, name) = match image::guess_format(&bytes) {
+        Ok(ImageFormat::Png) => (ImageFormat::Png, "PNG"),
+        Ok(ImageFormat::Jpeg) => (ImageFormat::Jpeg, "JPEG"),
+        _ => bail!("{} is not a PNG or JPEG image", path.display()),
+    };
+    let mut reader = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format);
     reader.limits(limits);
     let decoded = reader.decode().map_err(|e| {
         anyhow!(
-            "cannot decode PNG {}: {}",
+            "cannot decode {name} {}: {}",
             path.display(),
             e.to_string().replace('\n', " ")
         )

@@ -12,7 +12,12 @@
 //! Blender / OpenGL cameras look along their −Z axis with +Y up and +X right; pytorch3d cameras
 //! look along +Z with +Y up and +X left (see [`crate::core::camera`]).
 
+pub mod capture;
+pub mod colmap_scene;
 pub mod frame_image;
+pub mod llff;
+pub mod nerfstudio;
+pub mod normalize;
 pub mod transforms;
 
 use std::path::{Path, PathBuf};
@@ -22,8 +27,35 @@ use rayon::prelude::*;
 
 use crate::core::image::RgbImage;
 
+pub use capture::{read_capture_split, SceneFormat};
 pub use frame_image::*;
 pub use transforms::*;
+
+/// The frames of `split` of the scene in `data_dir`, whatever its format
+/// ([`SceneFormat::detect`]): a NeRF-synthetic split as [`read_blender_split`] reads it, or a
+/// capture's, normalised ([`read_capture_split`]; what was applied is logged).
+pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
+    match SceneFormat::detect(data_dir) {
+        SceneFormat::Blender => read_blender_split(data_dir, split),
+        format => {
+            let read = read_capture_split(data_dir, format, split)?;
+            let t = read.transform;
+            let c = t.center;
+            log::info!(
+                "{}: {} capture, {} of {} frames in the {split} split; normalised: centre ({:.3}, {:.3}, {:.3}) to the origin, mean camera up to +z, scale {:.4}",
+                data_dir.display(),
+                format.name(),
+                read.frames.len(),
+                read.total_frames,
+                c.x,
+                c.y,
+                c.z,
+                t.scale
+            );
+            Ok(read.frames)
+        }
+    }
+}
 
 /// Where to get the data, appended to errors about a missing scene directory or transforms file.
 pub const DOWNLOAD_HINT: &str = "download the NeRF-synthetic lego scene (nerf_synthetic.zip \
@@ -84,7 +116,7 @@ impl Dataset {
                 "note: {opaque} of the {} images of {} have no alpha channel and are taken as \
                  opaque (no background compositing applies to them)",
                 loaded.len(),
-                split.transforms_path(data_dir).display()
+                data_dir.display()
             );
         }
         let (images, transparency) = loaded

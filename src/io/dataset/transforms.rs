@@ -11,6 +11,7 @@ use serde::Deserialize;
 
 use super::DOWNLOAD_HINT;
 use crate::core::camera::PerspectiveCamera;
+use crate::core::frame_camera::FrameCamera;
 use crate::io::bounded_read::read_regular_file;
 
 /// A dataset split, naming `transforms_{split}.json` and the `{split}/` image folder.
@@ -66,8 +67,9 @@ pub struct Frame {
     /// Path of the RGBA PNG: `data_dir` joined with the JSON's `file_path` (leading `./`
     /// dropped), with `.png` appended when the JSON gives no extension.
     pub file_path: PathBuf,
-    /// The view's camera in pytorch3d conventions.
-    pub camera: PerspectiveCamera,
+    /// The view's camera: pytorch3d's pinhole for the NeRF-synthetic scenes, COLMAP's
+    /// conventions (with distortion) for captures.
+    pub camera: FrameCamera,
 }
 
 /// Converts a Blender camera-to-world matrix to a pytorch3d camera.
@@ -191,12 +193,12 @@ fn image_path(data_dir: &Path, file_path: &str) -> PathBuf {
     path
 }
 
-/// Reads `data_dir/transforms_{split}.json`: one [`Frame`] per entry of `frames`, in file order.
+/// Reads the NeRF-synthetic `data_dir/transforms_{split}.json`: one [`Frame`] per entry of `frames`, in file order.
 ///
 /// Errors (one line, naming the file) when the directory or the file is missing (with
 /// [`DOWNLOAD_HINT`]), when the JSON does not parse (with the offending key path), or when a
 /// frame's matrix or the field of view is unusable. Images are not opened here.
-pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
+pub fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
     if data_dir.exists() && !data_dir.is_dir() {
         bail!(
             "dataset directory {} is a file, not a directory; {DOWNLOAD_HINT}",
@@ -257,7 +259,7 @@ pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Fra
             camera.validate().map_err(context)?;
             Ok(Frame {
                 file_path: image_path(data_dir, &entry.file_path),
-                camera,
+                camera: camera.into(),
             })
         })
         .collect()
@@ -268,6 +270,7 @@ mod tests {
     use super::*;
     use crate::core::camera::look_at_rotation;
     use crate::core::rays::ray_through_ndc;
+    use crate::io::dataset::read_split;
     use crate::io::dataset::test_lego_dir;
     use glam::DVec3;
 
@@ -360,13 +363,13 @@ mod tests {
         let reference: serde_json::Value = serde_json::from_str(&text).unwrap();
         let frames: Vec<Frame> = Split::ALL
             .into_iter()
-            .flat_map(|split| read_split(&dir, split).unwrap())
+            .flat_map(|split| read_blender_split(&dir, split).unwrap())
             .collect();
         assert_eq!(frames.len(), 400);
         let number = |v: &serde_json::Value| v.as_f64().unwrap();
         let (mut dr, mut dt, mut df) = (0.0f64, 0.0f64, 0.0f64);
         for (k, frame) in frames.iter().enumerate() {
-            let cam = &frame.camera;
+            let cam = frame.camera.pinhole().expect("a NeRF-synthetic frame");
             let r = &reference["R"][k];
             for i in 0..3 {
                 for j in 0..3 {
@@ -464,7 +467,8 @@ mod tests {
             frames[0].file_path,
             dir.path().join("train").join("r_7.png")
         );
-        assert_eq!(frames[0].camera.t, [0.0, 0.0, 4.0]);
-        assert!((frames[0].camera.focal[0] - 2.0).abs() < 1e-12);
+        let camera = frames[0].camera.pinhole().unwrap();
+        assert_eq!(camera.t, [0.0, 0.0, 4.0]);
+        assert!((camera.focal[0] - 2.0).abs() < 1e-12);
     }
 }

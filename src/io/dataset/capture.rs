@@ -1,0 +1,180 @@
+//! Captures: a user's own photographs with cameras from structure from motion, in one of the
+//! formats other NeRF tools read, chosen by what the directory holds ([`SceneFormat::detect`]):
+//!
+//! * COLMAP ([`super::colmap_scene`]): a sparse model (`sparse/N/`, `sparse/`, the model
+//!   files at the top, or nerfstudio's `colmap/sparse/N`) and the photos in `images/`;
+//! * nerfstudio ([`super::nerfstudio`]): `transforms.json`;
+//! * LLFF ([`super::llff`]): `poses_bounds.npy` and `images/`;
+//! * the NeRF-synthetic ("Blender") scenes, `transforms_{split}.json` ([`super::transforms`]).
+//!
+//! A capture's cameras keep their own models (distortion included, [`ColmapCamera`]), and its
+//! world frame is normalised ([`SceneTransform`]). Its splits: the frames sorted by image
+//! name, every 8th (index % 8 == 0, from 0) held out as `test` (and `val`), the rest `train`,
+//! as mip-NeRF 360 and nerfstudio evaluate, unless the files name the splits themselves.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+
+use super::normalize::SceneTransform;
+use super::transforms::{Frame, Split};
+use crate::core::camera_colmap::ColmapCamera;
+
+/// Every this-many-th frame (by sorted image name, from 0) is held out for evaluation.
+pub const HOLDOUT_EVERY: usize = 8;
+
+/// The dataset formats, by what their directory holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SceneFormat {
+    /// NeRF-synthetic: `transforms_{train,val,test}.json`.
+    Blender,
+    /// nerfstudio: `transforms.json`.
+    Nerfstudio,
+    /// LLFF: `poses_bounds.npy`.
+    Llff,
+    /// COLMAP: a sparse model.
+    Colmap,
+}
+
+impl SceneFormat {
+    /// The format of `dir`: Blender when any `transforms_{split}.json` is there, else
+    /// nerfstudio for `transforms.json`, LLFF for `poses_bounds.npy`, COLMAP for a sparse
+    /// model; Blender otherwise (whose reader then names the missing file).
+    pub fn detect(dir: &Path) -> Self {
+        if Split::ALL.iter().any(|s| s.transforms_path(dir).is_file()) {
+            SceneFormat::Blender
+        } else if dir.join("transforms.json").is_file() {
+            SceneFormat::Nerfstudio
+        } else if dir.join("poses_bounds.npy").is_file() {
+            SceneFormat::Llff
+        } else if crate::io::colmap::find_model_folder(dir).is_some() {
+            SceneFormat::Colmap
+        } else {
+            SceneFormat::Blender
+        }
+    }
+
+    /// The format's name, as users know it.
+    pub fn name(self) -> &'static str {
+        match self {
+            SceneFormat::Blender => "NeRF-synthetic (transforms_{split}.json)",
+            SceneFormat::Nerfstudio => "nerfstudio (transforms.json)",
+            SceneFormat::Llff => "LLFF (poses_bounds.npy)",
+            SceneFormat::Colmap => "COLMAP",
+        }
+    }
+}
+
+/// One photograph of a capture and its camera, in the capture's own world frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureFrame {
+    /// The image file.
+    pub file_path: PathBuf,
+    /// Its camera.
+    pub camera: ColmapCamera,
+}
+
+/// A capture's frames with their split named by the files, when they name it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureFrames {
+    /// Every frame.
+    pub frames: Vec<CaptureFrame>,
+    /// The split of each frame when the files say (nerfstudio's `{train,val,test}_filenames`);
+    /// `None`: the every-8th holdout.
+    pub splits: Option<Vec<Split>>,
+}
+
+/// A capture's split in the normalised frame, and the normalisation applied.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureSplit {
+    /// The split's frames, sorted by image path.
+    pub frames: Vec<Frame>,
+    /// What was applied to every camera (computed from all frames, so that every split
+    /// shares it).
+    pub transform: SceneTransform,
+    /// Frames in the whole capture.
+    pub total_frames: usize,
+}
+
+/// Whether frame `index` (of the frames sorted by image name) belongs to `split` under the
+/// every-8th holdout: `test` and `val` hold index % 8 == 0, `train` the rest.
+pub fn in_holdout_split(index: usize, split: Split) -> bool {
+    let held_out = index.is_multiple_of(HOLDOUT_EVERY);
+    match split {
+        Split::Train => !held_out,
+        Split::Val | Split::Test => held_out,
+    }
+}
+
+/// `split` of a capture read as `format` from `dir`, normalised. Errors name the directory
+/// and what is missing or wrong; a split with no frames is an error.
+pub fn read_capture_split(dir: &Path, format: SceneFormat, split: Split) -> Result<CaptureSplit> {
+    let CaptureFrames { frames, splits } = match format {
+        SceneFormat::Nerfstudio => super::nerfstudio::read_frames(dir)?,
+        SceneFormat::Llff => super::llff::read_frames(dir)?,
+        SceneFormat::Colmap => super::colmap_scene::read_frames(dir)?,
+        SceneFormat::Blender => bail!("{}: not a capture", dir.display()),
+    };
+    if frames.is_empty() {
+        bail!(
+            "{}: the {} capture has no frames",
+            dir.display(),
+            format.name()
+        );
+    }
+    let poses: Vec<_> = frames.iter().map(|f| f.camera.pose).collect();
+    let transform = SceneTransform::from_poses(&poses)?;
+    let total_frames = frames.len();
+    let mut indexed: Vec<(usize, CaptureFrame)> = frames.into_iter().enumerate().collect();
+    indexed.sort_by(|a, b| a.1.file_path.cmp(&b.1.file_path));
+    let chosen: Vec<Frame> = indexed
+        .into_iter()
+        .enumerate()
+        .filter(|(sorted, (original, _))| match &splits {
+            Some(s) => s[*original] == split,
+            None => in_holdout_split(*sorted, split),
+        })
+        .map(|(_, (_, f))| {
+            let camera = ColmapCamera {
+                pose: transform.apply_pose(&f.camera.pose),
+                ..f.camera
+            };
+            Frame {
+                file_path: f.file_path,
+                camera: camera.into(),
+            }
+        })
+        .collect();
+    if chosen.is_empty() {
+        bail!(
+            "{}: the {split} split of this {}-frame capture is empty",
+            dir.display(),
+            total_frames
+        );
+    }
+    Ok(CaptureSplit {
+        frames: chosen,
+        transform,
+        total_frames,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_eighth_frame_from_zero_is_held_out() {
+        let test: Vec<usize> = (0..20)
+            .filter(|&i| in_holdout_split(i, Split::Test))
+            .collect();
+        assert_eq!(test, vec![0, 8, 16]);
+        let train = (0..20)
+            .filter(|&i| in_holdout_split(i, Split::Train))
+            .count();
+        assert_eq!(train, 17);
+        assert!(
+            (0..20).all(|i| in_holdout_split(i, Split::Val) == in_holdout_split(i, Split::Test))
+        );
+    }
+}

@@ -1,0 +1,38 @@
+//! A COLMAP capture: the sparse model that [`crate::io::colmap::find_model`] finds (the one
+//! with the most registered images when there are several) and its photos in `images/`
+//! (subfolders allowed, as COLMAP's image names carry them).
+
+use std::path::Path;
+
+use anyhow::{anyhow, Result};
+
+use super::capture::{CaptureFrame, CaptureFrames};
+use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
+use crate::io::colmap::find_model;
+
+/// Every registered image of the capture in `dir`, with its camera.
+pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
+    let (model_dir, model) = find_model(dir)?;
+    let images = dir.join("images");
+    let frames = model
+        .images
+        .iter()
+        .map(|image| {
+            let record = model.camera_of(image);
+            let what = || format!("{}: image {}", model_dir.display(), image.name);
+            let pose = ColmapPose::from_quaternion(image.qvec, image.tvec)
+                .map_err(|e| anyhow!("{}: {e}", what()))?;
+            let size = (record.width as usize, record.height as usize);
+            let camera = ColmapCamera::from_colmap(&record.model, &record.params, size, pose)
+                .map_err(|e| anyhow!("{}: {e}", what()))?;
+            Ok(CaptureFrame {
+                file_path: images.join(&image.name),
+                camera,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(CaptureFrames {
+        frames,
+        splits: None,
+    })
+}

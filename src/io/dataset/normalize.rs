@@ -1,0 +1,219 @@
+//! Scene normalisation for captures, whose world frame is whatever structure from motion
+//! chose: the cameras are oriented (their mean up vector becomes world +z), centred (the
+//! per-axis median of the camera centres goes to the origin) and scaled (the farthest camera
+//! that is not an outlier lands at distance 1), as nerfstudio's `auto_orient_and_center_poses`
+//! and `auto_scale_poses` do, with medians in place of means so that a few outlier cameras do
+//! not move the scene.
+
+use anyhow::{bail, Result};
+use glam::{DMat3, DVec3};
+
+use crate::core::camera_colmap::ColmapPose;
+
+/// A camera farther from the centre than this many times the median distance is an outlier
+/// and does not set the scale.
+pub const OUTLIER_DISTANCE_FACTOR: f64 = 3.0;
+
+/// The similarity transform applied to a capture: `X' = scale · rotation · (X − center)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneTransform {
+    /// Rotation taking the capture's mean camera up vector to world +z.
+    pub rotation: DMat3,
+    /// The capture's centre, in its own frame.
+    pub center: DVec3,
+    /// Scale factor (> 0).
+    pub scale: f64,
+}
+
+impl SceneTransform {
+    /// The transform that changes nothing.
+    pub fn identity() -> Self {
+        Self {
+            rotation: DMat3::IDENTITY,
+            center: DVec3::ZERO,
+            scale: 1.0,
+        }
+    }
+
+    /// Orientation, centre and scale from the cameras' world → camera poses (see the module
+    /// documentation). An error when there is no camera or the cameras all stand at one point.
+    pub fn from_poses(poses: &[ColmapPose]) -> Result<Self> {
+        if poses.is_empty() {
+            bail!("no cameras to normalise the scene by");
+        }
+        // OpenCV camera axes: +y is down, so the camera's up is −y, in world space the
+        // second row of the world → camera rotation, negated.
+        let up: DVec3 = poses.iter().map(|p| -p.rotation.row(1)).sum();
+        let rotation = if up.length() > 1e-9 {
+            rotation_between(up.normalize(), DVec3::Z)
+        } else {
+            DMat3::IDENTITY
+        };
+        let centers: Vec<DVec3> = poses.iter().map(|p| rotation * p.center()).collect();
+        let median_of = |k: usize| median(centers.iter().map(|c| c[k]).collect());
+        let center_rotated = DVec3::new(median_of(0), median_of(1), median_of(2));
+        let distances: Vec<f64> = centers
+            .iter()
+            .map(|c| (*c - center_rotated).length())
+            .collect();
+        let typical = median(distances.clone());
+        let radius = distances
+            .iter()
+            .copied()
+            .filter(|&d| d <= OUTLIER_DISTANCE_FACTOR * typical)
+            .fold(0.0, f64::max);
+        if !(radius.is_finite() && radius > 1e-12) {
+            bail!("the cameras all stand at one point: the scene has no scale");
+        }
+        Ok(Self {
+            rotation,
+            center: rotation.transpose() * center_rotated,
+            scale: 1.0 / radius,
+        })
+    }
+
+    /// A world point in the normalised frame.
+    pub fn apply_point(&self, point: DVec3) -> DVec3 {
+        self.scale * (self.rotation * (point - self.center))
+    }
+
+    /// A world → camera pose in the normalised frame, imaging every point where the original
+    /// imaged it: with `X = Rᵀ X'/s + c`, the camera point scaled by `s` is
+    /// `(R_c Rᵀ) X' + s (R_c c + t_c)`.
+    pub fn apply_pose(&self, pose: &ColmapPose) -> ColmapPose {
+        let rotation = pose.rotation * self.rotation.transpose();
+        ColmapPose {
+            rotation,
+            translation: self.scale * (pose.rotation * self.center + pose.translation),
+        }
+    }
+}
+
+/// The rotation taking unit vector `from` to unit vector `to` (Rodrigues; a half turn about
+/// an axis perpendicular to `from` when they are opposite).
+pub fn rotation_between(from: DVec3, to: DVec3) -> DMat3 {
+    let axis = from.cross(to);
+    let cos = from.dot(to).clamp(-1.0, 1.0);
+    if axis.length() < 1e-12 {
+        if cos > 0.0 {
+            return DMat3::IDENTITY;
+        }
+        return DMat3::from_axis_angle(from.any_orthonormal_vector(), std::f64::consts::PI);
+    }
+    DMat3::from_axis_angle(axis.normalize(), cos.acos())
+}
+
+/// The median of `values` (the mean of the middle two for an even count); NaN-free input.
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n.is_multiple_of(2) {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    } else {
+        values[n / 2]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::camera_colmap::ColmapCamera;
+    use crate::core::camera_model::CameraModel;
+
+    /// Cameras on a circle of radius 3 about (5, −2, 1) in a frame where "up" is world +x,
+    /// all looking at the centre, plus one outlier far away.
+    fn tilted_ring() -> Vec<ColmapPose> {
+        let centre = DVec3::new(5.0, -2.0, 1.0);
+        let up = DVec3::X;
+        let mut poses: Vec<ColmapPose> = (0..12)
+            .map(|i| {
+                let a = i as f64 / 12.0 * std::f64::consts::TAU;
+                let eye = centre + 3.0 * DVec3::new(0.3, a.cos(), a.sin());
+                look_at(eye, centre, up)
+            })
+            .collect();
+        poses.push(look_at(centre + DVec3::new(0.0, 40.0, 0.0), centre, up));
+        poses
+    }
+
+    /// An OpenCV world → camera pose at `eye` looking at `target` with image up along `up`.
+    fn look_at(eye: DVec3, target: DVec3, up: DVec3) -> ColmapPose {
+        let z = (target - eye).normalize();
+        let x = z.cross(-up).normalize(); // right = forward × down
+        let y = z.cross(x); // down
+        let rotation = DMat3::from_cols(x, y, z).transpose();
+        ColmapPose {
+            rotation,
+            translation: -(rotation * eye),
+        }
+    }
+
+    #[test]
+    fn cameras_are_oriented_centred_and_scaled_ignoring_the_outlier() {
+        let poses = tilted_ring();
+        let t = SceneTransform::from_poses(&poses).unwrap();
+        let centres: Vec<DVec3> = poses[..12]
+            .iter()
+            .map(|p| t.apply_pose(p).center())
+            .collect();
+        // The ring's cameras lie at distance 1 (all equally far; the outlier is left out of
+        // the scale) around the origin, up to the median's offset along the ring's axis.
+        for c in &centres {
+            assert!((c.length() - 1.0).abs() < 1e-9, "{c}");
+        }
+        // Every camera's up (−y) is now close to +z: the mean up vector is exactly +z.
+        let up: DVec3 = poses.iter().map(|p| -t.apply_pose(p).rotation.row(1)).sum();
+        assert!((up.normalize() - DVec3::Z).length() < 1e-12);
+        // The transform maps each centre as the pose does.
+        for p in &poses {
+            let moved = t.apply_point(p.center());
+            assert!((moved - t.apply_pose(p).center()).length() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn a_point_projects_to_the_same_pixel_after_normalisation() {
+        let poses = tilted_ring();
+        let t = SceneTransform::from_poses(&poses).unwrap();
+        let params = [500.0, 480.0, 320.0, 240.0, -0.05, 0.01, 1e-3, -1e-3];
+        let point = DVec3::new(5.3, -1.8, 1.4);
+        for pose in &poses[..12] {
+            let before = ColmapCamera::from_colmap("OPENCV", &params, (640, 480), *pose).unwrap();
+            let after =
+                ColmapCamera::from_colmap("OPENCV", &params, (640, 480), t.apply_pose(pose))
+                    .unwrap();
+            let (u, v) = before.project(point).unwrap();
+            let (u2, v2) = after.project(t.apply_point(point)).unwrap();
+            assert!(
+                (u - u2).abs() < 1e-7 && (v - v2).abs() < 1e-7,
+                "{u},{v} vs {u2},{v2}"
+            );
+            // And the ray through that pixel passes through the moved point.
+            let (o, d) = after.ray_through_pixel(u2, v2);
+            let q = t.apply_point(point) - o;
+            assert!((q - d * q.dot(d)).length() < 1e-7);
+            assert!(after.validate().is_ok());
+        }
+    }
+
+    #[test]
+    fn cameras_at_one_point_are_an_error() {
+        let pose = look_at(DVec3::ONE, DVec3::ZERO, DVec3::Z);
+        let err = SceneTransform::from_poses(&[pose, pose]).unwrap_err();
+        assert!(err.to_string().contains("one point"), "{err}");
+        assert!(SceneTransform::from_poses(&[]).is_err());
+    }
+
+    #[test]
+    fn rotation_between_handles_opposite_vectors() {
+        for (a, b) in [
+            (DVec3::Z, DVec3::Z),
+            (DVec3::Z, -DVec3::Z),
+            (DVec3::X, DVec3::Y),
+        ] {
+            let r = rotation_between(a, b);
+            assert!((r * a - b).length() < 1e-12);
+            assert!((r.determinant() - 1.0).abs() < 1e-12);
+        }
+    }
+}

@@ -1,0 +1,294 @@
+//! Captures in the formats other NeRF tools read (COLMAP text and binary, nerfstudio
+//! `transforms.json`, LLFF `poses_bounds.npy`), made here from the first 16 lego training
+//! views, each read back through `--data-dir` detection. The cameras are checked against
+//! pytorch3d's projection of the lego frames (written out by hand below, independent of the
+//! loaders): a world point projected by the lego camera, in COLMAP's pixel convention, must lie
+//! on the loaded camera's ray through that pixel, in the normalised frame.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DQuat, DVec3};
+use nerf::core::camera_model::CameraModel;
+use nerf::io::dataset::{read_capture_split, Dataset, SceneFormat, Split};
+
+const FRAMES: usize = 16;
+
+/// One lego training view: image, camera → world (Blender/OpenGL axes), image size.
+struct View {
+    image: PathBuf,
+    c2w: [[f64; 4]; 4],
+}
+
+struct Lego {
+    views: Vec<View>,
+    fov: f64,
+    size: (u32, u32),
+}
+
+fn lego(test: &str) -> Option<Lego> {
+    let dir = common::lego_dir(test)?;
+    let text = std::fs::read_to_string(dir.join("transforms_train.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let fov = json["camera_angle_x"].as_f64().unwrap();
+    let views: Vec<View> = json["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .take(FRAMES)
+        .map(|f| {
+            let m = f["transform_matrix"].as_array().unwrap();
+            let c2w = std::array::from_fn(|i| {
+                std::array::from_fn(|j| m[i].as_array().unwrap()[j].as_f64().unwrap())
+            });
+            let name = f["file_path"].as_str().unwrap().trim_start_matches("./");
+            View {
+                image: dir.join(format!("{name}.png")),
+                c2w,
+            }
+        })
+        .collect();
+    let size = image::image_dimensions(&views[0].image).unwrap();
+    Some(Lego { views, fov, size })
+}
+
+impl Lego {
+    /// Focal length in pixels: half the width over tan(fov / 2).
+    fn focal_px(&self) -> f64 {
+        0.5 * self.size.0 as f64 / (0.5 * self.fov).tan()
+    }
+
+    /// `images/frame_NN.png` copies of the views, in `dir`.
+    fn copy_images(&self, dir: &Path) -> Vec<String> {
+        std::fs::create_dir_all(dir.join("images")).unwrap();
+        (0..self.views.len())
+            .map(|i| {
+                let name = format!("frame_{i:02}.png");
+                std::fs::copy(&self.views[i].image, dir.join("images").join(&name)).unwrap();
+                name
+            })
+            .collect()
+    }
+}
+
+/// The pixel `(u, v)` (COLMAP's convention, pixel centres at i + 0.5) where the lego view sees
+/// `point`, by pinhole projection in the view's OpenGL camera axes (+x right, +y up, looking
+/// along −z).
+fn lego_pixel(view: &View, focal: f64, size: (u32, u32), point: DVec3) -> (f64, f64) {
+    let col = |j: usize| DVec3::new(view.c2w[0][j], view.c2w[1][j], view.c2w[2][j]);
+    let q = point - col(3);
+    let (x, y, z) = (q.dot(col(0)), q.dot(col(1)), q.dot(col(2)));
+    let depth = -z;
+    assert!(depth > 0.0);
+    (
+        size.0 as f64 / 2.0 + focal * x / depth,
+        size.1 as f64 / 2.0 - focal * y / depth,
+    )
+}
+
+/// OpenCV world → camera rotation and translation of a Blender camera → world matrix.
+fn opencv_pose(c2w: &[[f64; 4]; 4]) -> (DMat3, DVec3) {
+    let col = |j: usize| DVec3::new(c2w[0][j], c2w[1][j], c2w[2][j]);
+    let c2w_cv = DMat3::from_cols(col(0), -col(1), -col(2));
+    let r = c2w_cv.transpose();
+    (r, -(r * col(3)))
+}
+
+fn write_colmap_text(lego: &Lego, dir: &Path) {
+    let names = lego.copy_images(dir);
+    let sparse = dir.join("sparse").join("0");
+    std::fs::create_dir_all(&sparse).unwrap();
+    let (w, h) = lego.size;
+    let f = lego.focal_px();
+    std::fs::write(
+        sparse.join("cameras.txt"),
+        format!(
+            "# one camera\n1 PINHOLE {w} {h} {f} {f} {} {}\n",
+            w as f64 / 2.0,
+            h as f64 / 2.0
+        ),
+    )
+    .unwrap();
+    let mut images = String::from("# images\n");
+    for (i, (view, name)) in lego.views.iter().zip(&names).enumerate() {
+        let (r, t) = opencv_pose(&view.c2w);
+        let q = DQuat::from_mat3(&r);
+        images += &format!(
+            "{} {} {} {} {} {} {} {} 1 {name}\n\n",
+            i + 1,
+            q.w,
+            q.x,
+            q.y,
+            q.z,
+            t.x,
+            t.y,
+            t.z
+        );
+    }
+    std::fs::write(sparse.join("images.txt"), images).unwrap();
+    std::fs::write(sparse.join("points3D.txt"), "# none\n").unwrap();
+}
+
+fn write_nerfstudio(lego: &Lego, dir: &Path) {
+    let names = lego.copy_images(dir);
+    let (w, h) = lego.size;
+    let frames: Vec<serde_json::Value> = lego
+        .views
+        .iter()
+        .zip(&names)
+        .map(|(v, name)| serde_json::json!({"file_path": format!("images/{name}"), "transform_matrix": v.c2w}))
+        .collect();
+    let json = serde_json::json!({
+        "camera_model": "OPENCV", "fl_x": lego.focal_px(), "fl_y": lego.focal_px(),
+        "cx": w as f64 / 2.0, "cy": h as f64 / 2.0, "w": w, "h": h, "frames": frames,
+    });
+    std::fs::write(dir.join("transforms.json"), json.to_string()).unwrap();
+}
+
+fn write_llff(lego: &Lego, dir: &Path) {
+    lego.copy_images(dir);
+    let (w, h) = lego.size;
+    let mut values = Vec::new();
+    for v in &lego.views {
+        // Columns (down, right, back, centre, hwf) row by row; down = −up.
+        let m = &v.c2w;
+        let hwf = [h as f64, w as f64, lego.focal_px()];
+        for (i, extra) in hwf.iter().enumerate() {
+            values.extend([-m[i][1], m[i][0], m[i][2], m[i][3], *extra]);
+        }
+        values.extend([2.0, 6.0]);
+    }
+    let header = format!(
+        "{{'descr': '<f8', 'fortran_order': False, 'shape': ({}, 17), }}",
+        lego.views.len()
+    );
+    let pad = 64 - (10 + header.len() + 1) % 64;
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend(((header.len() + pad + 1) as u16).to_le_bytes());
+    bytes.extend(header.as_bytes());
+    bytes.extend(std::iter::repeat_n(b' ', pad));
+    bytes.push(b'\n');
+    for v in values {
+        bytes.extend(v.to_le_bytes());
+    }
+    std::fs::write(dir.join("poses_bounds.npy"), bytes).unwrap();
+}
+
+/// Reads the capture in `dir` as `format` and checks every split's cameras against the lego
+/// views (see the module documentation) and the every-8th holdout.
+fn check_capture(lego: &Lego, dir: &Path, format: SceneFormat) {
+    assert_eq!(SceneFormat::detect(dir), format);
+    let points = [
+        DVec3::new(0.1, -0.2, 0.3),
+        DVec3::new(-0.5, 0.4, -0.1),
+        DVec3::ZERO,
+    ];
+    let mut seen = 0;
+    for (split, expected) in [(Split::Train, 14), (Split::Test, 2)] {
+        let read = read_capture_split(dir, format, split).unwrap();
+        assert_eq!(read.frames.len(), expected, "{split}");
+        assert_eq!(read.total_frames, FRAMES);
+        for frame in &read.frames {
+            let name = frame.file_path.file_stem().unwrap().to_string_lossy();
+            let index: usize = name.trim_start_matches("frame_").parse().unwrap();
+            // Sorted names frame_00..frame_15: the held-out ones are 0 and 8.
+            assert_eq!(index.is_multiple_of(8), split == Split::Test, "{name}");
+            let view = &lego.views[index];
+            let nerf::core::frame_camera::FrameCamera::Colmap(camera) = &frame.camera else {
+                panic!("a capture's camera is COLMAP's");
+            };
+            for p in points {
+                let (u, v) = lego_pixel(view, lego.focal_px(), lego.size, p);
+                let (o, d) = camera.ray_through_pixel(u, v);
+                let q = read.transform.apply_point(p) - o;
+                let miss = (q - d * q.dot(d)).length();
+                assert!(miss < 1e-6, "{format:?} {name}: {miss}");
+            }
+            assert!(frame.camera.validate().is_ok());
+            seen += 1;
+        }
+        // The normalised cameras stand at most 1 from the origin.
+        let farthest = read
+            .frames
+            .iter()
+            .map(|f| f.camera.center().length())
+            .fold(0.0, f64::max);
+        assert!(farthest <= 1.0 + 1e-9, "{farthest}");
+    }
+    assert_eq!(seen, FRAMES);
+}
+
+#[test]
+fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
+    let Some(lego) =
+        lego("colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras")
+    else {
+        return;
+    };
+    let root = tempfile::tempdir().unwrap();
+    let text = root.path().join("colmap_text");
+    write_colmap_text(&lego, &text);
+    check_capture(&lego, &text, SceneFormat::Colmap);
+    // The same model written as binary, beside a second, smaller model: the larger is chosen.
+    let binary = root.path().join("colmap_binary");
+    lego.copy_images(&binary);
+    let (_, mut model) = nerf::io::colmap::find_model(&text).unwrap();
+    nerf::io::colmap::write_binary(&binary.join("sparse").join("0"), &model).unwrap();
+    model.images.truncate(3);
+    nerf::io::colmap::write_binary(&binary.join("sparse").join("1"), &model).unwrap();
+    check_capture(&lego, &binary, SceneFormat::Colmap);
+    let ns = root.path().join("nerfstudio");
+    write_nerfstudio(&lego, &ns);
+    check_capture(&lego, &ns, SceneFormat::Nerfstudio);
+    let llff = root.path().join("llff");
+    write_llff(&lego, &llff);
+    check_capture(&lego, &llff, SceneFormat::Llff);
+}
+
+#[test]
+fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
+    let test = "a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene";
+    let Some(lego) = lego(test) else { return };
+    let root = tempfile::tempdir().unwrap();
+    let capture = root.path().join("capture");
+    write_colmap_text(&lego, &capture);
+    let data = Dataset::load(&capture, Split::Test, 20, 20, false).unwrap();
+    assert_eq!(data.frames.len(), 2);
+    assert!(data
+        .images
+        .iter()
+        .all(|im| im.width == 20 && im.height == 20));
+    let ckpt = root.path().join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let overrides = [
+        "data.image_size=[24,24]",
+        "training.num_epochs=1",
+        "training.eval_views=0",
+        "sampler.n_pts_per_ray=32",
+        &ckpt_arg,
+    ];
+    let dir_arg = capture.to_str().unwrap();
+    let mut args = vec!["train", "--config", "nerf_scene", "--data-dir", dir_arg];
+    args.extend(overrides);
+    let o = common::nerf_ok(&args);
+    assert!(ckpt.is_file());
+    let log = common::stderr(&o);
+    assert!(
+        log.contains("COLMAP capture") && log.contains("normalised"),
+        "{log}"
+    );
+    let mut args = vec![
+        "eval",
+        "--config",
+        "nerf_scene",
+        "--data-dir",
+        dir_arg,
+        "--split",
+        "test",
+    ];
+    args.extend(overrides);
+    let o = common::nerf_ok(&args);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("PSNR"), "{out}");
+}
