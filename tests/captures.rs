@@ -291,4 +291,20 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let o = common::nerf_ok(&args);
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.contains("PSNR"), "{out}");
+    // At the photos' own size over data.downscale, written under their own names.
+    let saved = root.path().join("saved");
+    let saved_arg = saved.to_str().unwrap();
+    args.extend(["data.downscale=16", "--save-images", saved_arg]);
+    common::nerf_ok(&args);
+    let side = (lego.size.0 as f64 / 16.0).round() as u32;
+    for name in ["frame_00.png", "frame_08.png"] {
+        assert_eq!(
+            image::image_dimensions(saved.join(name)).unwrap(),
+            (side, side)
+        );
+    }
+    assert_eq!(common::sorted_names(&saved).len(), 2);
+    args.push("data.downscale=0.5");
+    let err = common::one_line_error(&common::nerf(&args));
+    assert!(err.contains("data.downscale"), "{err}");
 }

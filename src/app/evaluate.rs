@@ -25,7 +25,7 @@ pub fn eval_nerf(
             "implicit_function.type sdf_volume: this command needs a NeRF config (e.g. lego); eval scores a trained field against a dataset"
         );
     }
-    let (w, h) = config.image_size();
+    let (w, h) = config.data.dataset_image_size(data_dir)?;
     let dataset = Dataset::load_first(
         data_dir,
         split,

@@ -230,6 +230,16 @@ pub struct ViewSelection {
     pub limit: Option<usize>,
 }
 
+/// The size the views of [`export_cameras`] are rendered at: the dataset's
+/// ([`crate::app::config::DataConfig::dataset_image_size`]) for a NeRF, `data.image_size` for an
+/// SDF scene.
+fn view_size(config: &Config, scene: &SceneField, views: &ViewSelection) -> Result<(usize, usize)> {
+    match scene {
+        SceneField::Nerf(_) => config.data.dataset_image_size(&views.data_dir),
+        SceneField::Sdf { .. } => Ok(config.image_size()),
+    }
+}
+
 /// The named cameras to render: the split's frames (named by image file stem) for a NeRF, the
 /// surround cameras (`view_000`, …) for an SDF scene.
 fn export_cameras(
@@ -302,12 +312,12 @@ pub fn export_points(
     let chunks = WorkChunks::from_env()?;
     let scene = load_scene_field(config, checkpoint, device)?;
     let cameras = export_cameras(config, &scene, views)?;
-    check_point_cloud_size(cameras.len(), config.image_size())?;
+    let size = view_size(config, &scene, views)?;
+    check_point_cloud_size(cameras.len(), size)?;
     let render = config.render_settings()?;
     let bar = progress_bar(cameras.len() as u64, "points");
     let mut cloud = ColoredPoints::default();
     for (_, camera) in &cameras {
-        let size = config.image_size();
         let pipeline = render.with(scene.as_field());
         let part = depth_points(
             &pipeline,
@@ -351,7 +361,7 @@ pub fn export_depth(
     let scene = load_scene_field(config, checkpoint, device)?;
     let cameras = export_cameras(config, &scene, views)?;
     let render = config.render_settings()?;
-    let (w, h) = config.image_size();
+    let (w, h) = view_size(config, &scene, views)?;
     let bar = progress_bar(cameras.len() as u64, "depth");
     // A view that fails takes the views written before it away with it.
     let written = write_all(|written| {

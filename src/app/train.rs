@@ -67,7 +67,7 @@ pub fn train_nerf(
     device: &Device,
 ) -> Result<FitOutcome> {
     let settings = config.train_settings()?;
-    let (w, h) = config.image_size();
+    let (w, h) = config.data.dataset_image_size(data_dir)?;
     let white = config.renderer.white_background;
     let dataset = Dataset::load(data_dir, Split::Train, w, h, white)?;
     let eval_views = config.training()?.eval_views;

@@ -1,7 +1,7 @@
 //! The `data` section: image size, dataset name and directory, and the training cameras of
 //! an SDF fit, with what they become at run time.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use glam::DVec3;
@@ -9,6 +9,7 @@ use serde::Deserialize;
 
 use super::Config;
 use crate::core::camera::{look_at_view_transform, PerspectiveCamera};
+use crate::core::frame_camera::FrameCamera;
 
 /// The `data` section.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
@@ -22,6 +23,9 @@ pub struct DataConfig {
     pub data_dir: Option<PathBuf>,
     /// `data.cameras`: the training cameras of an SDF fit (`type: train`), in order.
     pub cameras: Option<DataCameras>,
+    /// Extension, `data.downscale`: load a dataset's images at their own size divided by this
+    /// (rounded, at least 1 pixel), intrinsics following, instead of at `image_size`.
+    pub downscale: Option<f64>,
 }
 
 impl DataConfig {
@@ -34,6 +38,30 @@ impl DataConfig {
     /// extension, of the checkpoint in a `training.checkpoint_path` directory.
     pub fn dataset_stem(&self) -> String {
         format!("nerf_{}", self.dataset_name.as_deref().unwrap_or("scene"))
+    }
+
+    /// The size a dataset in `data_dir` is loaded at: `image_size`, or with `downscale` its
+    /// first training frame's own size (a capture camera's pixel size, or a NeRF-synthetic
+    /// image file's) divided by the factor, rounded, at least 1.
+    pub fn dataset_image_size(&self, data_dir: &Path) -> Result<(usize, usize)> {
+        let Some(factor) = self.downscale else {
+            return Ok(self.image_size());
+        };
+        let frames = crate::io::dataset::read_split(data_dir, crate::io::dataset::Split::Train)?;
+        let first = frames
+            .first()
+            .with_context(|| format!("{}: no training frames", data_dir.display()))?;
+        let (w, h) = match &first.camera {
+            FrameCamera::Colmap(c) => c.size,
+            FrameCamera::Pinhole(_) => {
+                let (w, h) = image::image_dimensions(&first.file_path).with_context(|| {
+                    format!("data.downscale: size of {}", first.file_path.display())
+                })?;
+                (w as usize, h as usize)
+            }
+        };
+        let scaled = |v: usize| ((v as f64 / factor).round() as usize).max(1);
+        Ok((scaled(w), scaled(h)))
     }
 }
 

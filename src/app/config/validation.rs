@@ -26,6 +26,11 @@ impl Config {
                 limits::IMAGE_SIDE
             );
         }
+        if let Some(d) = self.data.downscale {
+            if !(d.is_finite() && (1.0..=64.0).contains(&d)) {
+                bail!("data.downscale: must be a number from 1 to 64 (got {d})");
+            }
+        }
         count_in_range(
             "sampler.n_pts_per_ray",
             self.sampler.n_pts_per_ray,
