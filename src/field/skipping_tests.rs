@@ -1,0 +1,327 @@
+//! The skipping pass (`render::skipping`) on a NeRF field: packed evaluation, occupancy
+//! grids and early termination against the dense path.
+
+use std::sync::Arc;
+
+use candle_core::Device;
+
+use crate::core::rays::Rays;
+use crate::field::nerf::{Nerf, NerfField, NerfParams};
+use crate::kernels::composite::composite;
+use crate::kernels::composite::Composited;
+use crate::kernels::sample_points::sample_points;
+use crate::render::field::Field;
+use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams};
+use crate::render::renderer::{RenderOutput, VolumeRenderer};
+use crate::render::sampler::StratifiedSampler;
+use crate::render::skipping::*;
+use candle_core::Tensor;
+
+/// A small NeRF whose density bias is `density_bias` (large values make rays terminate).
+fn model(density_bias: f32) -> Nerf {
+    let cfg = NerfParams {
+        n_harmonic_functions_xyz: 4,
+        n_harmonic_functions_dir: 2,
+        n_hidden_neurons_xyz: 32,
+        n_hidden_neurons_dir: 16,
+        n_layers_xyz: 3,
+        append_xyz: vec![2],
+    };
+    // Seeded, so every run tests the same weights.
+    let state = crate::field::nerf::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
+    state.varmap.data().lock().unwrap()["density_layer.0.bias"]
+        .set(&Tensor::new(&[density_bias], &Device::Cpu).unwrap())
+        .unwrap();
+    state.model
+}
+
+fn rays() -> Rays {
+    let cam = crate::core::camera::surround_cameras(4.0, 3, glam::DVec3::Z, 2.0)[1];
+    Rays::for_image(&cam, 9, 7, &Device::Cpu).unwrap()
+}
+
+fn render(
+    renderer: VolumeRenderer,
+    field: &NerfField,
+    sampler: &StratifiedSampler,
+) -> RenderOutput {
+    renderer.render(field, sampler, &rays(), None).unwrap()
+}
+
+fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
+    crate::core::compare::max_abs_difference(a, b).unwrap()
+}
+
+fn field(model: &Nerf, grid: Option<OccupancyGrid>) -> NerfField {
+    NerfField {
+        model: model.clone(),
+        density_noise: 0.0,
+        occupancy: grid.map(Arc::new),
+    }
+}
+
+#[test]
+fn a_chunk_of_skipping_rays_draws_a_bounded_number_of_samples() {
+    let m = model(0.0);
+    let f = field(&m, None);
+    let renderer = VolumeRenderer::new(1 << 20, false)
+        .unwrap()
+        .with_early_termination(1e-3)
+        .unwrap();
+    let per_segment = f.max_samples_per_chunk() / SEGMENT;
+    for s in [16, 128, 4096, 16384] {
+        let sampler = StratifiedSampler::new(s, 0.1, 6.0).unwrap();
+        let rays = renderer.rays_per_chunk(&f, &sampler);
+        assert!(
+            rays * s <= crate::render::renderer::DRAWN_SAMPLES_PER_CHUNK,
+            "S = {s}"
+        );
+        assert!(rays <= per_segment, "S = {s}");
+        // Normal sizes keep the chunk the evaluated samples allow; only long rays shrink it.
+        assert_eq!(rays == per_segment, s <= 4096, "S = {s}: {rays} rays");
+    }
+}
+
+/// A 4³ grid over ±1 with cell `c` empty where `c % every == empty`.
+fn striped_grid(every: usize, empty: usize) -> OccupancyGrid {
+    let config = OccupancyGridParams {
+        resolution: 4,
+        aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
+        density_threshold: 1.0,
+    };
+    let mut grid = OccupancyGrid::new(&config).unwrap();
+    for (c, o) in grid.occupied.iter_mut().enumerate() {
+        *o = c % every != empty;
+    }
+    grid
+}
+
+#[test]
+fn packed_forward_equals_dense_forward() {
+    let m = model(0.1);
+    let points = Tensor::randn(0f32, 1.0, (4, 5, 3), &Device::Cpu).unwrap();
+    let dirs = Tensor::randn(0f32, 1.0, (4, 3), &Device::Cpu).unwrap();
+    let dense = m.forward(&points, &dirs, 0.0).unwrap();
+    let index: Vec<u32> = vec![0, 3, 7, 8, 19];
+    let idx = Tensor::new(index.as_slice(), &Device::Cpu).unwrap();
+    let ray_index: Vec<u32> = index.iter().map(|k| k / 5).collect();
+    let (density, colour) = m
+        .forward_packed(
+            &points
+                .reshape((20, 3))
+                .unwrap()
+                .index_select(&idx, 0)
+                .unwrap(),
+            &Tensor::new(ray_index.as_slice(), &Device::Cpu).unwrap(),
+            &dirs,
+            0.0,
+        )
+        .unwrap();
+    let pick = |t: &Tensor, c: usize| t.reshape((20, c)).unwrap().index_select(&idx, 0).unwrap();
+    assert!(max_diff(&density, &pick(&dense.density, 1)) < 1e-6);
+    assert!(max_diff(&colour, &pick(&dense.feature, 3)) < 1e-6);
+}
+
+#[test]
+fn all_occupied_grid_without_termination_is_dense_rendering() {
+    let m = model(0.3);
+    let sampler = StratifiedSampler::new(24, 2.0, 6.0).unwrap();
+    // Large enough to hold every sample.
+    let config = OccupancyGridParams {
+        resolution: 64,
+        aabb: [-10.0, -10.0, -10.0, 10.0, 10.0, 10.0],
+        density_threshold: 1.0,
+    };
+    let grid = OccupancyGrid::new(&config).unwrap();
+    let renderer = VolumeRenderer::new(1000, false).unwrap();
+    let dense = render(renderer, &field(&m, None), &sampler);
+    let skipped = render(renderer, &field(&m, Some(grid)), &sampler);
+    assert_eq!(skipped.samples.evaluated, skipped.samples.total);
+    assert!(max_diff(&dense.color, &skipped.color) < 1e-6);
+    assert!(max_diff(&dense.depth, &skipped.depth) < 1e-5);
+}
+
+#[test]
+fn early_termination_error_is_bounded_by_its_threshold() {
+    // Dense enough that most rays become opaque inside the aabb.
+    let m = model(8.0);
+    let sampler = StratifiedSampler::new(64, 2.0, 6.0).unwrap();
+    let dense = render(
+        VolumeRenderer::new(1000, false).unwrap(),
+        &field(&m, None),
+        &sampler,
+    );
+    for threshold in [1e-2, 1e-4] {
+        let renderer = VolumeRenderer::new(1000, false)
+            .unwrap()
+            .with_early_termination(threshold)
+            .unwrap();
+        let out = render(renderer, &field(&m, None), &sampler);
+        // Every ray turns opaque within its first 16 samples, so it stops by the end of
+        // the fourth segment (4 + 4 + 8 + 16 of its 64 samples).
+        assert!(
+            out.samples.evaluated <= out.samples.total / 2,
+            "{:?}",
+            out.samples
+        );
+        // Dropped weights sum to at most the transmittance at termination.
+        let colour_error = max_diff(&dense.color, &out.color);
+        assert!(colour_error <= threshold as f32 * 1.001, "{colour_error}");
+        let depth_error = max_diff(&dense.depth, &out.depth);
+        assert!(
+            depth_error <= 6.0 * threshold as f32 * 1.001,
+            "{depth_error}"
+        );
+    }
+}
+
+#[test]
+fn empty_cells_render_as_zero_density() {
+    let m = model(1.0);
+    let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
+    let grid = striped_grid(3, 0);
+    let renderer = VolumeRenderer::new(1000, false).unwrap();
+    let out = render(renderer, &field(&m, Some(grid.clone())), &sampler);
+    assert!(out.samples.evaluated < out.samples.total);
+    // Independent recomputation: dense field, density zeroed outside occupied cells.
+    let samples = sampler.sample(&rays(), None).unwrap();
+    let dense = m.forward(&samples.points, &rays().directions, 0.0).unwrap();
+    let points = samples
+        .points
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+    let mask: Vec<f32> = points
+        .chunks_exact(3)
+        .map(|p| f32::from(u8::from(grid.is_occupied([p[0], p[1], p[2]]))))
+        .collect();
+    let mask = Tensor::from_vec(mask, samples.lengths.shape(), &Device::Cpu).unwrap();
+    let density = dense.density.mul(&mask).unwrap();
+    let Composited { color, depth, .. } =
+        composite(&density, &dense.feature, &samples.lengths).unwrap();
+    assert!(max_diff(&color, &out.color) < 1e-6);
+    assert!(max_diff(&depth, &out.depth) < 1e-5);
+}
+
+#[test]
+fn marching_keeps_exactly_the_samples_in_occupied_cells() {
+    use rand::{Rng, SeedableRng};
+    // A 32³ grid over ±1.5 (4³ blocks): occupied cells scattered inside a ball, so most
+    // blocks are empty and whole blocks are skipped.
+    let config = OccupancyGridParams {
+        resolution: 32,
+        aabb: [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5],
+        density_threshold: 1.0,
+    };
+    let mut grid = OccupancyGrid::new(&config).unwrap();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+    for (c, o) in grid.occupied.iter_mut().enumerate() {
+        let [x, y, z] = [c / 1024, (c / 32) % 32, c % 32].map(|v| v as f32 - 15.5);
+        *o = x * x + y * y + z * z < 100.0 && rng.random::<f32>() < 0.3;
+    }
+    assert!(grid.empty_blocks().empty.iter().any(|e| *e));
+    let f = field(&model(1.0).detached(), Some(grid.clone()));
+    let cam = crate::core::camera::surround_cameras(4.0, 3, glam::DVec3::Z, 2.0)[1];
+    let rays = Rays::for_image(&cam, 24, 20, &Device::Cpu).unwrap();
+    let sampler = StratifiedSampler::new(96, 2.0, 6.0).unwrap();
+    for jitter in [false, true] {
+        let lengths = if jitter {
+            sampler.compact_lengths(&rays, Some(&mut rng)).unwrap()
+        } else {
+            sampler.compact_lengths(&rays, None).unwrap()
+        };
+        let packed = evaluate_packed(&f, 0.0, &rays, &lengths).unwrap();
+        // Every sample materialised and tested on its own.
+        let dense_lengths = lengths.broadcast_as((rays.len(), 96, 1)).unwrap();
+        let points = sample_points(&rays.origins, &rays.directions, &dense_lengths)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        let expected: Vec<u32> = (0..points.len() / 3)
+            .filter(|&k| grid.is_occupied([points[3 * k], points[3 * k + 1], points[3 * k + 2]]))
+            .map(|k| k as u32)
+            .collect();
+        assert!(!expected.is_empty());
+        let mut got = packed.index.clone();
+        got.sort_unstable();
+        assert_eq!(got, expected, "jitter {jitter}");
+        assert!(
+            packed.counts.examined < packed.counts.total / 2,
+            "{:?}",
+            packed.counts
+        );
+    }
+}
+
+#[test]
+fn packed_compositing_equals_the_dense_scatter_bit_for_bit() {
+    let m = model(2.0);
+    let sampler = StratifiedSampler::new(48, 2.0, 6.0).unwrap();
+    let grid = striped_grid(5, 0);
+    let f = field(&m.detached(), Some(grid));
+    let samples = sampler.sample(&rays(), None).unwrap();
+    for termination in [0.0, 1e-2] {
+        let packed = evaluate_packed(&f, termination, &rays(), &samples.lengths).unwrap();
+        assert!(!packed.tracks_gradient());
+        let (direct, dense) = composited_packed_and_dense(packed, &samples.lengths);
+        for (what, a, b) in [
+            ("colour", &direct.color, &dense.color),
+            ("depth", &direct.depth, &dense.depth),
+            ("opacity", &direct.opacity, &dense.opacity),
+        ] {
+            assert_eq!(max_diff(a, b), 0.0, "{what}, termination {termination}");
+        }
+    }
+}
+
+/// The packed values composited straight ([`PackedSamples::composite`]) and after
+/// scattering them into dense tensors ([`composite`]).
+fn composited_packed_and_dense(
+    packed: PackedSamples,
+    lengths: &Tensor,
+) -> (Composited, Composited) {
+    let direct = packed.composite(lengths).unwrap();
+    let dense = packed.scatter(&Device::Cpu).unwrap();
+    let dense = composite(&dense.density, &dense.feature, lengths).unwrap();
+    (direct, dense)
+}
+
+#[test]
+fn packed_compositing_gradients_equal_the_dense_paths() {
+    let state = {
+        let cfg = NerfParams {
+            n_harmonic_functions_xyz: 3,
+            n_harmonic_functions_dir: 2,
+            n_hidden_neurons_xyz: 16,
+            n_hidden_neurons_dir: 8,
+            n_layers_xyz: 2,
+            append_xyz: vec![1],
+        };
+        crate::field::nerf::NerfState::seeded(&cfg, 5, &Device::Cpu).unwrap()
+    };
+    let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
+    let grid = striped_grid(4, 1);
+    let f = field(&state.model, Some(grid));
+    let samples = sampler.sample(&rays(), None).unwrap();
+    let packed = evaluate_packed(&f, 1e-3, &rays(), &samples.lengths).unwrap();
+    assert!(packed.tracks_gradient());
+    let (direct, dense) = composited_packed_and_dense(packed, &samples.lengths);
+    let weight = Tensor::randn(0f32, 1.0, direct.color.shape(), &Device::Cpu).unwrap();
+    let loss = |out: &Composited| {
+        let l = (out.color.mul(&weight).unwrap().sum_all().unwrap()
+            + out.depth.sum_all().unwrap().affine(0.1, 0.0).unwrap())
+        .unwrap();
+        (l + out.opacity.sum_all().unwrap())
+            .unwrap()
+            .backward()
+            .unwrap()
+    };
+    let (ga, gb) = (loss(&direct), loss(&dense));
+    for (name, var) in crate::field::trainable::named_vars(&state.varmap) {
+        let (a, b) = (ga.get(&var).unwrap(), gb.get(&var).unwrap());
+        crate::core::compare::assert_close(a, b, 1e-5, &name);
+    }
+}
