@@ -61,7 +61,16 @@ impl DataConfig {
             }
         };
         let scaled = |v: usize| ((v as f64 / factor).round() as usize).max(1);
-        Ok((scaled(w), scaled(h)))
+        let (w, h) = (scaled(w), scaled(h));
+        let most = super::limits::IMAGE_SIDE;
+        if w > most || h > most {
+            anyhow::bail!(
+                "data.downscale={factor}: {} is {w}x{h} at that scale, more than {most} pixels \
+                 on a side; use a larger factor",
+                first.file_path.display()
+            );
+        }
+        Ok((w, h))
     }
 }
 
@@ -158,5 +167,42 @@ impl Config {
     /// [`DataConfig::dataset_stem`].
     pub fn dataset_stem(&self) -> String {
         self.data.dataset_stem()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn downscale_gives_the_photos_size_over_n_within_the_limit() {
+        let (dir, json) = crate::io::test_files::temp_file("transforms.json");
+        let frame = |z: f64| {
+            format!(
+                r#"{{"file_path": "a.jpg", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,{z}],[0,0,0,1]]}}"#
+            )
+        };
+        std::fs::write(
+            &json,
+            format!(
+                r#"{{"fl_x": 9e4, "cx": 5e4, "cy": 3e4, "w": 100000, "h": 60000, "frames": [{}, {}]}}"#,
+                frame(4.0),
+                frame(5.0)
+            ),
+        )
+        .unwrap();
+        let mut data = DataConfig {
+            image_size: [8, 8],
+            dataset_name: None,
+            data_dir: None,
+            cameras: None,
+            downscale: None,
+        };
+        assert_eq!(data.dataset_image_size(dir.path()).unwrap(), (8, 8));
+        data.downscale = Some(50.0);
+        assert_eq!(data.dataset_image_size(dir.path()).unwrap(), (2000, 1200));
+        data.downscale = Some(2.0);
+        let err = data.dataset_image_size(dir.path()).unwrap_err().to_string();
+        assert!(err.contains("50000x30000") && err.contains("4096"), "{err}");
     }
 }
