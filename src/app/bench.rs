@@ -7,7 +7,7 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-pub use crate::app::bench_ngp::Throughput;
+pub use crate::app::bench_ngp::{RowGroup, Throughput};
 use crate::app::config::{Config, TrainingConfig};
 use crate::app::scene::render_views;
 use crate::core::camera::PerspectiveCamera;
@@ -237,12 +237,35 @@ pub struct BenchReport {
 /// Runs every benchmark that applies to `config`. The box render's error column is the largest
 /// colour and depth difference of its frame 0 against the float64 recomputation
 /// ([`crate::eval::reference`]).
+/// `only` picks groups of rows (all when empty).
 pub fn run_benchmarks(
     config: &Config,
     repeats: usize,
     lego: Option<&LegoBench>,
+    only: &[RowGroup],
     device: &Device,
 ) -> Result<BenchReport> {
+    let wants = |g: RowGroup| only.is_empty() || only.contains(&g);
+    let mut results = Vec::new();
+    if wants(RowGroup::Base) {
+        results = base_rows(config, repeats, lego, device)?;
+    }
+    if let Some(lego) = lego {
+        results.extend(crate::app::bench_ngp::hash_grid_rows(lego, only, device)?);
+    }
+    Ok(BenchReport {
+        machine: machine_info(),
+        results,
+    })
+}
+
+/// The rows before the hash-grid ones ([`RowGroup::Base`]).
+fn base_rows(
+    config: &Config,
+    repeats: usize,
+    lego: Option<&LegoBench>,
+    device: &Device,
+) -> Result<Vec<BenchResult>> {
     let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
     let volume = config.sdf_volume()?;
     let cam = config.surround_cameras()[0];
@@ -283,13 +306,7 @@ pub fn run_benchmarks(
         repeats,
         device,
     )?);
-    if let Some(lego) = lego {
-        results.extend(crate::app::bench_ngp::hash_grid_rows(lego, device)?);
-    }
-    Ok(BenchReport {
-        machine: machine_info(),
-        results,
-    })
+    Ok(results)
 }
 
 /// NeRF throughput with the homework model (seeded initial weights; timing does not depend on
@@ -373,6 +390,9 @@ pub struct LegoBench {
     /// CI-sized: the whole-command rows are left out, the hash-grid rows take fewer steps
     /// and repeats.
     pub quick: bool,
+    /// Timed steps of each hash-grid training row (`None`: 24 at the shipped samples per step,
+    /// 4 at 2^18, 2 when `quick`).
+    pub train_steps: Option<usize>,
 }
 
 /// The `lego` render config with every acceleration off: dense rendering as the homework.

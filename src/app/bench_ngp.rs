@@ -98,12 +98,12 @@ pub struct GemmRates {
 }
 
 impl GemmRates {
-    /// A throughput of `gflops` with its fractions of these rates.
-    fn throughput(&self, gflops: f64) -> Throughput {
+    /// A throughput of `gflops` with its fractions of `rates` (none without them).
+    fn throughput(rates: Option<&Self>, gflops: f64) -> Throughput {
         Throughput {
             gflops,
-            fraction_of_mlp_gemm: Some(gflops / self.mlp),
-            fraction_of_square_gemm: Some(gflops / self.square),
+            fraction_of_mlp_gemm: rates.map(|r| gflops / r.mlp),
+            fraction_of_square_gemm: rates.map(|r| gflops / r.square),
             ..Throughput::default()
         }
     }
@@ -321,7 +321,7 @@ pub fn bench_ngp_training(
     data_dir: &Path,
     samples_per_step: Option<usize>,
     steps: StepCounts,
-    gemm: &GemmRates,
+    gemm: Option<&GemmRates>,
     device: &Device,
 ) -> Result<BenchResult> {
     let overrides: Vec<String> = samples_per_step
@@ -406,7 +406,7 @@ pub fn bench_ngp_training(
         drawn_samples_per_second: Some(per_s(counts.total)),
         evaluated_samples_per_second: Some(evaluated),
         flop_per_evaluated_sample: Some(flops.train_per_sample()),
-        ..gemm.throughput(gflops)
+        ..GemmRates::throughput(gemm, gflops)
     };
     let timed = runs.len().max(1);
     let target_text = target.map_or("the config's rays".to_string(), |t| format!("{t}"));
@@ -439,7 +439,7 @@ pub fn bench_ngp_render_400(
     checkpoint: &Path,
     data_dir: &Path,
     views: usize,
-    gemm: &GemmRates,
+    gemm: Option<&GemmRates>,
     device: &Device,
 ) -> Result<BenchResult> {
     let config = Config::load("lego_ngp_400", &[])?;
@@ -488,7 +488,7 @@ pub fn bench_ngp_render_400(
         drawn_samples_per_second: Some(counts.total as f64 / total),
         evaluated_samples_per_second: Some(evaluated),
         flop_per_evaluated_sample: Some(flops.forward_per_sample),
-        ..gemm.throughput(gflops)
+        ..GemmRates::throughput(gemm, gflops)
     };
     let evaluated_pct = 100.0 * counts.evaluated_fraction();
     let error = match truth {
@@ -512,16 +512,44 @@ pub fn bench_ngp_render_400(
     })
 }
 
+/// Groups of `nerf bench` rows (`--only`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RowGroup {
+    /// The rows before the hash-grid ones: the box, its fit, the NeRF step and frames, the
+    /// trained NeRF and the 128x128 hash-grid model.
+    Base,
+    /// The f32 matrix-multiply rates (without them, the hash-grid rows have no fractions).
+    Matmul,
+    /// Hash-grid training at the shipped samples per step.
+    NgpTrain,
+    /// Hash-grid training at 2^18 samples per step.
+    NgpTrainLarge,
+    /// A 400x400 frame of the shipped lego_ngp_400.
+    #[value(name = "ngp-render-400")]
+    NgpRender400,
+}
+
 /// Samples per step of the larger hash-grid training row (2^18).
 pub const LARGE_SAMPLES_PER_STEP: usize = 1 << 18;
 
 /// The matrix-multiply rows and every hash-grid row that `lego` allows: the training rows
 /// need the lego dataset, the 400×400 row the `lego_ngp_400` checkpoint (each is skipped with
 /// a note when missing). `lego.quick`: fewer repeats and steps, a smaller square product.
-pub fn hash_grid_rows(lego: &LegoBench, device: &Device) -> Result<Vec<BenchResult>> {
+pub fn hash_grid_rows(
+    lego: &LegoBench,
+    only: &[RowGroup],
+    device: &Device,
+) -> Result<Vec<BenchResult>> {
+    let wants = |g: RowGroup| only.is_empty() || only.contains(&g);
     let (repeats, square) = if lego.quick { (2, 512) } else { (5, 1024) };
-    let (mut rows, rates) = bench_gemm(repeats, square);
-    let (shipped, large) = if lego.quick {
+    let (mut rows, rates) = if wants(RowGroup::Matmul) {
+        let (rows, rates) = bench_gemm(repeats, square);
+        (rows, Some(rates))
+    } else {
+        (Vec::new(), None)
+    };
+    let rates = rates.as_ref();
+    let (mut shipped, mut large) = if lego.quick {
         let s = StepCounts {
             warmup: 2,
             timed: 2,
@@ -539,37 +567,42 @@ pub fn hash_grid_rows(lego: &LegoBench, device: &Device) -> Result<Vec<BenchResu
             },
         )
     };
-    if lego.data_dir.join("transforms_train.json").is_file() {
-        rows.push(bench_ngp_training(
-            &lego.data_dir,
-            None,
-            shipped,
-            &rates,
-            device,
-        )?);
-        rows.push(bench_ngp_training(
-            &lego.data_dir,
-            Some(LARGE_SAMPLES_PER_STEP),
-            large,
-            &rates,
-            device,
-        )?);
-    } else {
+    if let Some(n) = lego.train_steps {
+        (shipped.timed, large.timed) = (n, n);
+    }
+    let training = [
+        (RowGroup::NgpTrain, None, shipped),
+        (RowGroup::NgpTrainLarge, Some(LARGE_SAMPLES_PER_STEP), large),
+    ];
+    let training: Vec<_> = training.into_iter().filter(|t| wants(t.0)).collect();
+    let has_data = lego.data_dir.join("transforms_train.json").is_file();
+    if has_data {
+        for (_, samples, steps) in training {
+            rows.push(bench_ngp_training(
+                &lego.data_dir,
+                samples,
+                steps,
+                rates,
+                device,
+            )?);
+        }
+    } else if !training.is_empty() {
         crate::core::term::note(&format!(
             "skipping the hash-grid training benchmark: no lego training split in {}",
             lego.data_dir.display()
         ));
     }
     let checkpoint = Config::load("lego_ngp_400", &[])?.checkpoint(None);
-    if checkpoint.is_file() {
+    let render = wants(RowGroup::NgpRender400);
+    if render && checkpoint.is_file() {
         rows.push(bench_ngp_render_400(
             &checkpoint,
             &lego.data_dir,
             lego.views,
-            &rates,
+            rates,
             device,
         )?);
-    } else {
+    } else if render {
         crate::core::term::note(&format!(
             "skipping the 400x400 hash-grid benchmark: checkpoint {} not found",
             checkpoint.display()
@@ -597,9 +630,10 @@ mod tests {
             mlp: 100.0,
             square: 200.0,
         };
-        let t = rates.throughput(50.0);
+        let t = GemmRates::throughput(Some(&rates), 50.0);
         assert_eq!(t.fraction_of_mlp_gemm, Some(0.5));
         assert_eq!(t.fraction_of_square_gemm, Some(0.25));
         assert!(t.describe().contains("50.0% of the MLP-shaped gemm"));
+        assert_eq!(GemmRates::throughput(None, 50.0).fraction_of_mlp_gemm, None);
     }
 }

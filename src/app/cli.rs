@@ -338,6 +338,14 @@ pub struct BenchArgs {
     /// whole-command rows, a few hash-grid training steps and a smaller square matmul.
     #[arg(long)]
     pub quick: bool,
+    /// Timed steps of each hash-grid training row (default: 24 at the shipped samples per
+    /// step, 4 at 2^18; 2 with --quick).
+    #[arg(long, value_parser = at_least_one)]
+    pub train_steps: Option<usize>,
+    /// Only these groups of rows (repeat or separate with commas; all when not given).
+    /// Without matmul, the hash-grid rows give no fraction of the matmul rate.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub only: Vec<crate::app::bench::RowGroup>,
 }
 
 /// `nerf report`.
