@@ -67,3 +67,24 @@ fn bench_quick_has_matmul_and_hash_grid_rows_with_positive_rates() {
         positive(r, "fraction_of_square_gemm");
     }
 }
+
+#[test]
+fn bench_only_runs_the_groups_asked_for() {
+    let o = nerf_ok(&[
+        "bench", "--config", "box", "--quick", "--json", "--only", "matmul",
+    ]);
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let names: Vec<&str> = report["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names.len(), 3, "{names:?}");
+    assert!(
+        names.iter().all(|n| n.starts_with("f32 matmul")),
+        "{names:?}"
+    );
+    let o = common::nerf(&["bench", "--config", "box", "--only", "no-such-rows"]);
+    assert_eq!(o.status.code(), Some(2));
+}
