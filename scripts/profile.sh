@@ -66,8 +66,12 @@ record() { # NAME ARGS...
 record train bench --config box --only ngp-train --train-steps "$steps"
 record render bench --config box --only ngp-render-400 --views "$views"
 
-python3 "$root/scripts/perf_stages.py" "hash-grid training, $steps steps of nerf_lego_ngp" <"$out/train.txt"
+# The binary is given so that closures run on rayon's workers (whose stacks do not show who
+# started them) are placed by its static call graph.
+python3 "$root/scripts/perf_stages.py" "hash-grid training, $steps steps of nerf_lego_ngp" "$bin" \
+    <"$out/train.txt" | tee "$out/train.stages"
 echo
-python3 "$root/scripts/perf_stages.py" "hash-grid 400x400 frames of lego_ngp_400, $views views" <"$out/render.txt"
+python3 "$root/scripts/perf_stages.py" "hash-grid 400x400 frames of lego_ngp_400, $views views" "$bin" \
+    <"$out/render.txt" | tee "$out/render.stages"
 echo
 echo "profiles: $out/{train,render}.data (perf report -i FILE --no-children --sort symbol)"
