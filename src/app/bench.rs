@@ -391,7 +391,7 @@ pub struct LegoBench {
     /// and repeats.
     pub quick: bool,
     /// Timed steps of each hash-grid training row (`None`: 24 at the shipped samples per step,
-    /// 4 at 2^18, 2 when `quick`).
+    /// 8 at 2^18, 2 when `quick`).
     pub train_steps: Option<usize>,
 }
 

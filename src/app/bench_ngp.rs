@@ -313,8 +313,9 @@ pub struct StepCounts {
 /// termination, the rays of each step adapted to evaluate about `samples_per_step` samples;
 /// the config's 16384 when `None`), starting from the shipped hash-grid checkpoint and its
 /// occupancy grid when it exists (the grid as it is late in training; else from seeded
-/// weights with every cell occupied). The grid is updated every `update_interval` steps as in
-/// training, inside the timed steps. `steps.warmup` untimed steps first (the first ones jump
+/// weights with every cell occupied). The grid is updated every `update_interval` (8) steps
+/// counted from the first warm-up step, as in training and inside the timed steps (the
+/// default step counts time one update per 8 steps). `steps.warmup` untimed steps first (the first ones jump
 /// the ray count to the target), then `steps.timed` timed ones; the row's seconds are the
 /// mean step and its throughput is over all timed steps.
 pub fn bench_ngp_training(
@@ -563,7 +564,7 @@ pub fn hash_grid_rows(
             },
             StepCounts {
                 warmup: 3,
-                timed: 4,
+                timed: 8,
             },
         )
     };

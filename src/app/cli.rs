@@ -339,7 +339,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub quick: bool,
     /// Timed steps of each hash-grid training row (default: 24 at the shipped samples per
-    /// step, 4 at 2^18; 2 with --quick).
+    /// step, 8 at 2^18; 2 with --quick).
     #[arg(long, value_parser = at_least_one)]
     pub train_steps: Option<usize>,
     /// Only these groups of rows (repeat or separate with commas; all when not given).
