@@ -7,6 +7,7 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
+pub use crate::app::bench_ngp::{RowGroup, Throughput};
 use crate::app::config::{Config, TrainingConfig};
 use crate::app::scene::render_views;
 use crate::core::camera::PerspectiveCamera;
@@ -30,6 +31,10 @@ pub struct BenchResult {
     pub pytorch_seconds: Option<f64>,
     /// Error of this run against a reference computation, with its unit, when measured.
     pub error: Option<String>,
+    /// Samples, rays and FLOP per second, with the fraction of the machine's matrix-multiply
+    /// rate, for the rows that measure them ([`crate::app::bench_ngp`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub throughput: Option<Throughput>,
 }
 
 /// The PyTorch CPU reference figures of the speed issue (2-core machine), for exactly the work
@@ -130,6 +135,7 @@ pub fn bench_sdf_render(
                 render.sampler.samples_per_ray(),
             )),
             error: None,
+            throughput: None,
         },
         frames,
     ))
@@ -157,6 +163,7 @@ pub fn bench_box_command(config: &Config, repeats: usize, device: &Device) -> Re
         runs,
         pytorch_seconds: pytorch_seconds(ReferenceWork::Box(n, w, h, s)),
         error: None,
+        throughput: None,
     })
 }
 
@@ -214,6 +221,7 @@ pub fn bench_train_box(repeats: usize, device: &Device) -> Result<BenchResult> {
             sampler.samples_per_ray(),
         )),
         error: None,
+        throughput: None,
     })
 }
 
@@ -229,12 +237,35 @@ pub struct BenchReport {
 /// Runs every benchmark that applies to `config`. The box render's error column is the largest
 /// colour and depth difference of its frame 0 against the float64 recomputation
 /// ([`crate::eval::reference`]).
+/// `only` picks groups of rows (all when empty).
 pub fn run_benchmarks(
     config: &Config,
     repeats: usize,
     lego: Option<&LegoBench>,
+    only: &[RowGroup],
     device: &Device,
 ) -> Result<BenchReport> {
+    let wants = |g: RowGroup| only.is_empty() || only.contains(&g);
+    let mut results = Vec::new();
+    if wants(RowGroup::Base) {
+        results = base_rows(config, repeats, lego, device)?;
+    }
+    if let Some(lego) = lego {
+        results.extend(crate::app::bench_ngp::hash_grid_rows(lego, only, device)?);
+    }
+    Ok(BenchReport {
+        machine: machine_info(),
+        results,
+    })
+}
+
+/// The rows before the hash-grid ones ([`RowGroup::Base`]).
+fn base_rows(
+    config: &Config,
+    repeats: usize,
+    lego: Option<&LegoBench>,
+    device: &Device,
+) -> Result<Vec<BenchResult>> {
     let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
     let volume = config.sdf_volume()?;
     let cam = config.surround_cameras()[0];
@@ -255,8 +286,10 @@ pub fn run_benchmarks(
         max_abs(&frames[0].color.data, &colors),
         max_abs(&frames[0].depth, &depths)
     ));
-    let whole = bench_box_command(config, repeats, device)?;
-    let mut results = vec![result, whole];
+    let mut results = vec![result];
+    if !lego.is_some_and(|l| l.quick) {
+        results.push(bench_box_command(config, repeats, device)?);
+    }
     results.push(bench_train_box(repeats, device)?);
     if let Some(lego) = lego {
         if lego.checkpoint.is_file() {
@@ -273,10 +306,7 @@ pub fn run_benchmarks(
         repeats,
         device,
     )?);
-    Ok(BenchReport {
-        machine: machine_info(),
-        results,
-    })
+    Ok(results)
 }
 
 /// NeRF throughput with the homework model (seeded initial weights; timing does not depend on
@@ -330,6 +360,7 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
                 sampler.samples_per_ray(),
             )),
             error: None,
+            throughput: None,
         },
         BenchResult {
             name: "NeRF render".into(),
@@ -341,6 +372,7 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             runs: frame_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, sampler.samples_per_ray())),
             error: None,
+            throughput: None,
         },
     ])
 }
@@ -355,6 +387,12 @@ pub struct LegoBench {
     pub data_dir: std::path::PathBuf,
     /// Views to render (the first of the test split).
     pub views: usize,
+    /// CI-sized: the whole-command rows are left out, the hash-grid rows take fewer steps
+    /// and repeats.
+    pub quick: bool,
+    /// Timed steps of each hash-grid training row (`None`: 24 at the shipped samples per step,
+    /// 8 at 2^18, 2 when `quick`).
+    pub train_steps: Option<usize>,
 }
 
 /// The `lego` render config with every acceleration off: dense rendering as the homework.
@@ -503,7 +541,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
         ),
     };
     let points = fast_config.sampler.n_pts_per_ray;
-    let mut rows = ngp_rows(&cameras, truth.as_deref(), device)?;
+    let mut rows = ngp_rows(&cameras, truth.as_deref(), lego.quick, device)?;
     rows.splice(0..0, [
         BenchResult {
             name: "trained NeRF render, dense".into(),
@@ -512,6 +550,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
             runs: dense_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             error: Some(dense_error),
+            throughput: None,
         },
         BenchResult {
             name: "trained NeRF render, occupancy grid + early termination".into(),
@@ -522,17 +561,19 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
             runs: fast_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             error: Some(fast_error),
+            throughput: None,
         },
     ]);
     Ok(rows)
 }
 
 /// The shipped hash-grid model ([`crate::app::config::SHIPPED_NGP_CHECKPOINT`], config
-/// `lego_ngp`), when present: a frame of each camera, and the whole `nerf render` command
-/// (20 surround views and the GIF, into a temporary directory).
+/// `lego_ngp`), when present: a frame of each camera, and (unless `quick`) the whole
+/// `nerf render` command (20 surround views and the GIF, into a temporary directory).
 fn ngp_rows(
     cameras: &[PerspectiveCamera],
     truth: Option<&[RgbImage]>,
+    quick: bool,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
     let checkpoint = std::path::Path::new(crate::app::config::SHIPPED_NGP_CHECKPOINT);
@@ -558,6 +599,18 @@ fn ngp_rows(
         ),
         None => format!("field at {evaluated:.1}% of samples"),
     };
+    let frame_row = BenchResult {
+        name: "hash-grid render (lego_ngp), grid + early termination".into(),
+        work: format!("1 frame {w}x{h} x {points} points (mean of {n})"),
+        seconds: mean(&run.runs),
+        runs: run.runs,
+        pytorch_seconds: None,
+        error: Some(error),
+        throughput: None,
+    };
+    if quick {
+        return Ok(vec![frame_row]);
+    }
     let dir = std::env::temp_dir().join(format!("nerf-bench-ngp-{}", std::process::id()));
     let timed = time_runs(2, || {
         crate::app::scene::render_nerf_scene(&config, checkpoint, &dir, false, device)
@@ -566,14 +619,7 @@ fn ngp_rows(
     let (command_runs, _) = timed?;
     let poses = config.cameras.n_poses;
     Ok(vec![
-        BenchResult {
-            name: "hash-grid render (lego_ngp), grid + early termination".into(),
-            work: format!("1 frame {w}x{h} x {points} points (mean of {n})"),
-            seconds: mean(&run.runs),
-            runs: run.runs,
-            pytorch_seconds: None,
-            error: Some(error),
-        },
+        frame_row,
         BenchResult {
             name: "hash-grid render command (lego_ngp)".into(),
             work: format!(
@@ -583,6 +629,7 @@ fn ngp_rows(
             runs: command_runs,
             pytorch_seconds: None,
             error: None,
+            throughput: None,
         },
     ])
 }
@@ -594,20 +641,23 @@ pub fn format_table(report: &BenchReport) -> String {
         "machine: {} | threads: {} | profile: {}\n\n",
         m.cpu, m.threads, m.profile
     );
-    s += "| benchmark | work | time (s) | PyTorch CPU (s) | ratio | error |\n|---|---|---|---|---|---|\n";
+    s += "| benchmark | work | time (s) | PyTorch CPU (s) | ratio | error | throughput |\n|---|---|---|---|---|---|---|\n";
     for r in &report.results {
         let (pt, ratio) = match r.pytorch_seconds {
             Some(p) => (format!("{p:.3}"), format!("{:.2}x", r.seconds / p)),
             None => ("-".into(), "-".into()),
         };
         s += &format!(
-            "| {} | {} | {:.3} | {} | {} | {} |\n",
+            "| {} | {} | {:.3} | {} | {} | {} | {} |\n",
             r.name,
             r.work,
             r.seconds,
             pt,
             ratio,
-            r.error.as_deref().unwrap_or("-")
+            r.error.as_deref().unwrap_or("-"),
+            r.throughput
+                .as_ref()
+                .map_or_else(|| "-".to_string(), Throughput::describe)
         );
     }
     s
@@ -616,6 +666,44 @@ pub fn format_table(report: &BenchReport) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn table_has_a_throughput_column() {
+        let row = |throughput| BenchResult {
+            name: "row".into(),
+            work: "work".into(),
+            seconds: 1.0,
+            runs: vec![1.0],
+            pytorch_seconds: None,
+            error: None,
+            throughput,
+        };
+        let report = BenchReport {
+            machine: machine_info(),
+            results: vec![
+                row(None),
+                row(Some(Throughput {
+                    evaluated_samples_per_second: Some(2.5e6),
+                    gflops: 40.0,
+                    fraction_of_mlp_gemm: Some(0.4),
+                    ..Throughput::default()
+                })),
+            ],
+        };
+        let table = format_table(&report);
+        assert!(table.contains("| error | throughput |"), "{table}");
+        assert!(table.contains("| - | - |\n"), "{table}");
+        assert!(
+            table.contains(
+                "2.50M evaluated samples/s; 40.0 GFLOP/s = 40.0% of the MLP-shaped gemm |"
+            ),
+            "{table}"
+        );
+        // JSON leaves the field out of rows without it.
+        let json = serde_json::to_value(&report).unwrap();
+        assert!(json["results"][0].get("throughput").is_none());
+        assert_eq!(json["results"][1]["throughput"]["gflops"], 40.0);
+    }
 
     #[test]
     fn pytorch_figures_apply_only_to_the_work_they_timed() {

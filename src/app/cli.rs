@@ -307,7 +307,10 @@ pub struct ImportTorchArgs {
 #[command(
     after_help = "--config is the SDF scene to time (e.g. box); the NeRF rows use the \
                   built-in nerf_lego and lego configs, at the work of the PyTorch figures. The trained-NeRF rows render \
-                  --checkpoint and are skipped when it is missing."
+                  --checkpoint and are skipped when it is missing. The hash-grid rows train \
+                  nerf_lego_ngp (from the shipped checkpoints/ngp_lego.safetensors when present) \
+                  on the --data-dir lego, render lego_ngp_400 at 400x400, and give their \
+                  GFLOP/s as a fraction of the f32 matmul rate measured in the same run."
 )]
 pub struct BenchArgs {
     /// The SDF scene's config and its overrides.
@@ -331,6 +334,18 @@ pub struct BenchArgs {
     /// Test views rendered for the trained-NeRF benchmark.
     #[arg(long, default_value_t = 5, value_parser = at_least_one)]
     pub views: usize,
+    /// CI-sized run: one repeat and one view (in place of --repeats and --views), no
+    /// whole-command rows, a few hash-grid training steps and a smaller square matmul.
+    #[arg(long)]
+    pub quick: bool,
+    /// Timed steps of each hash-grid training row (default: 24 at the shipped samples per
+    /// step, 8 at 2^18; 2 with --quick).
+    #[arg(long, value_parser = at_least_one)]
+    pub train_steps: Option<usize>,
+    /// Only these groups of rows (repeat or separate with commas; all when not given).
+    /// Without matmul, the hash-grid rows give no fraction of the matmul rate.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub only: Vec<crate::app::bench::RowGroup>,
 }
 
 /// `nerf report`.

@@ -232,9 +232,13 @@ pub fn bench(args: BenchArgs, device: &Device) -> Result<()> {
     let lego = crate::app::bench::LegoBench {
         checkpoint: lego_config.checkpoint(args.checkpoint.checkpoint.as_deref()),
         data_dir: jobs::data_dir_for(&lego_config, args.data.data_dir),
-        views: args.views,
+        views: if args.quick { 1 } else { args.views },
+        quick: args.quick,
+        train_steps: args.train_steps,
     };
-    let report = crate::app::bench::run_benchmarks(&config, args.repeats, Some(&lego), device)?;
+    let repeats = if args.quick { 1 } else { args.repeats };
+    let report =
+        crate::app::bench::run_benchmarks(&config, repeats, Some(&lego), &args.only, device)?;
     if args.json {
         say(&serde_json::to_string_pretty(&report)?)
     } else {
