@@ -7,35 +7,15 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-pub use crate::app::bench_ngp::{RowGroup, Throughput};
+pub use crate::app::bench_ngp::RowGroup;
+pub use crate::app::bench_row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
 use crate::app::config::{Config, TrainingConfig};
 use crate::app::scene::render_views;
 use crate::core::camera::PerspectiveCamera;
 use crate::core::image::RgbImage;
-use crate::core::metrics::{fastest, mean, mean_psnr, time_runs};
+use crate::core::metrics::{fastest, mean, time_runs};
 use crate::render::view::{render_view, Pipeline, RenderedView};
 use crate::train::model::{Optimizer, TrainModel};
-
-/// One benchmark result.
-#[derive(Debug, Clone, Serialize)]
-pub struct BenchResult {
-    /// Name of the benchmark, e.g. `box render`.
-    pub name: String,
-    /// What was timed, in words.
-    pub work: String,
-    /// Best wall-clock seconds over the repeats.
-    pub seconds: f64,
-    /// Every repeat's seconds.
-    pub runs: Vec<f64>,
-    /// PyTorch CPU figure for the same work on the reference 2-core machine, when known.
-    pub pytorch_seconds: Option<f64>,
-    /// Error of this run against a reference computation, with its unit, when measured.
-    pub error: Option<String>,
-    /// Samples, rays and FLOP per second, with the fraction of the machine's matrix-multiply
-    /// rate, for the rows that measure them ([`crate::app::bench_ngp`]).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub throughput: Option<Throughput>,
-}
 
 /// The PyTorch CPU reference figures of the speed issue (2-core machine), for exactly the work
 /// they timed, else `None`: a ratio against different work would mean nothing.
@@ -92,11 +72,6 @@ pub fn machine_info() -> MachineInfo {
         },
         cpu,
     }
-}
-
-/// Mean over views of the PSNR of each frame's colour against its image.
-pub fn mean_psnr_of_views(frames: &[RenderedView], images: &[RgbImage]) -> f64 {
-    mean_psnr(&frames.iter().map(|f| &f.color).collect::<Vec<_>>(), images)
 }
 
 /// Times the box render (all surround views of `config`) `repeats` times and returns the best
@@ -375,24 +350,6 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             throughput: None,
         },
     ])
-}
-
-/// What the trained-NeRF benchmark renders: a checkpoint, and the lego test split when
-/// available (otherwise the surround views, compared with the dense render only).
-#[derive(Debug, Clone)]
-pub struct LegoBench {
-    /// Trained NeRF checkpoint to render.
-    pub checkpoint: std::path::PathBuf,
-    /// Lego dataset directory (for the test split's cameras and images).
-    pub data_dir: std::path::PathBuf,
-    /// Views to render (the first of the test split).
-    pub views: usize,
-    /// CI-sized: the whole-command rows are left out, the hash-grid rows take fewer steps
-    /// and repeats.
-    pub quick: bool,
-    /// Timed steps of each hash-grid training row (`None`: 24 at the shipped samples per step,
-    /// 8 at 2^18, 2 when `quick`).
-    pub train_steps: Option<usize>,
 }
 
 /// The `lego` render config with every acceleration off: dense rendering as the homework.

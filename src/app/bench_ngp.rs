@@ -11,11 +11,11 @@ use anyhow::Result;
 use candle_core::Device;
 use rand::SeedableRng;
 use rayon::prelude::*;
-use serde::Serialize;
 
-use crate::app::bench::{mean_psnr_of_views, BenchResult, LegoBench};
+use crate::app::bench_row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
 use crate::app::config::implicit_function::ImplicitFunctionConfig;
 use crate::app::config::Config;
+use crate::core::frame_camera::FrameCamera;
 use crate::core::metrics::fastest;
 use crate::field::ngp::{GEO_FEATURES, HIDDEN, SH_DIM};
 use crate::io::dataset::{Dataset, Split};
@@ -29,64 +29,6 @@ use crate::train::step::{train_step, TrainRng};
 /// Rows per task of the MLP-shaped product timed with one `gemm` call per task on the calling
 /// thread, as the fused NGP MLP ([`crate::kernels::ngp_mlp`]) runs it.
 const MLP_ROWS_PER_TASK: usize = 256;
-
-/// Throughput of a row: what it processed per second and how many floating-point operations
-/// per second that is, against the matrix-multiply rate measured in the same run.
-#[derive(Debug, Clone, Default, Serialize, PartialEq)]
-pub struct Throughput {
-    /// Rays per second, when the row renders or trains on rays.
-    pub rays_per_second: Option<f64>,
-    /// Samples drawn per second (rays × samples per ray).
-    pub drawn_samples_per_second: Option<f64>,
-    /// Samples at which the field was evaluated, per second.
-    pub evaluated_samples_per_second: Option<f64>,
-    /// The FLOP count of one evaluated sample the row's GFLOP/s assume ([`NgpFlops`]).
-    pub flop_per_evaluated_sample: Option<f64>,
-    /// Useful floating-point operations per second, in 10^9.
-    pub gflops: f64,
-    /// `gflops` over the MLP-shaped matrix product's rate (65536×64 by 64×64).
-    pub fraction_of_mlp_gemm: Option<f64>,
-    /// `gflops` over the large square matrix product's rate.
-    pub fraction_of_square_gemm: Option<f64>,
-}
-
-impl Throughput {
-    /// One line for the table, e.g. `1.2M evaluated samples/s, …; 60 GFLOP/s = 40% of the
-    /// MLP gemm`.
-    pub fn describe(&self) -> String {
-        let mut parts = Vec::new();
-        let si = |v: f64| {
-            if v >= 1e6 {
-                format!("{:.2}M", v / 1e6)
-            } else if v >= 1e3 {
-                format!("{:.1}k", v / 1e3)
-            } else {
-                format!("{v:.0}")
-            }
-        };
-        if let Some(v) = self.evaluated_samples_per_second {
-            parts.push(format!("{} evaluated samples/s", si(v)));
-        }
-        if let Some(v) = self.drawn_samples_per_second {
-            parts.push(format!("{} drawn samples/s", si(v)));
-        }
-        if let Some(v) = self.rays_per_second {
-            parts.push(format!("{} rays/s", si(v)));
-        }
-        let mut rate = format!("{:.1} GFLOP/s", self.gflops);
-        if let Some(f) = self.fraction_of_mlp_gemm {
-            rate += &format!(" = {:.1}% of the MLP-shaped gemm", 100.0 * f);
-        }
-        if let Some(f) = self.fraction_of_square_gemm {
-            rate += &format!(" ({:.1}% of the square)", 100.0 * f);
-        }
-        if parts.is_empty() {
-            rate
-        } else {
-            format!("{}; {rate}", parts.join(", "))
-        }
-    }
-}
 
 /// The matrix-multiply rates measured in this run (GFLOP/s).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -455,12 +397,20 @@ pub fn bench_ngp_render_400(
         Some(views),
     ) {
         Ok(d) => (
-            d.frames.iter().map(|f| f.camera).collect::<Vec<_>>(),
+            d.frames
+                .iter()
+                .map(|f| f.camera.clone())
+                .collect::<Vec<_>>(),
             Some(d.images),
             "test views",
         ),
         Err(_) => (
-            config.surround_cameras().into_iter().take(views).collect(),
+            config
+                .surround_cameras()
+                .into_iter()
+                .take(views)
+                .map(FrameCamera::from)
+                .collect(),
             None,
             "surround views",
         ),
@@ -514,7 +464,8 @@ pub fn bench_ngp_render_400(
 }
 
 /// Groups of `nerf bench` rows (`--only`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum RowGroup {
     /// The rows before the hash-grid ones: the box, its fit, the NeRF step and frames, the
     /// trained NeRF and the 128x128 hash-grid model.
@@ -526,7 +477,7 @@ pub enum RowGroup {
     /// Hash-grid training at 2^18 samples per step.
     NgpTrainLarge,
     /// A 400x400 frame of the shipped lego_ngp_400.
-    #[value(name = "ngp-render-400")]
+    #[cfg_attr(feature = "cli", value(name = "ngp-render-400"))]
     NgpRender400,
 }
 

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod bench_ngp;
+pub mod bench_row;
 pub mod camera_path;
 #[cfg(feature = "cli")]
 pub mod cli;

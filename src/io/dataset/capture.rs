@@ -12,10 +12,11 @@
 //! name, every 8th (index % 8 == 0, from 0) held out as `test` (and `val`), the rest `train`,
 //! as mip-NeRF 360 and nerfstudio evaluate, unless the files name the splits themselves.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{bail, Result};
 
+pub use super::capture_frame::{CaptureFrame, CaptureFrames};
 use super::normalize::SceneTransform;
 use super::transforms::{Frame, Split};
 use crate::core::camera_colmap::ColmapCamera;
@@ -63,25 +64,6 @@ impl SceneFormat {
             SceneFormat::Colmap => "COLMAP",
         }
     }
-}
-
-/// One photograph of a capture and its camera, in the capture's own world frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CaptureFrame {
-    /// The image file.
-    pub file_path: PathBuf,
-    /// Its camera.
-    pub camera: ColmapCamera,
-}
-
-/// A capture's frames with their split named by the files, when they name it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CaptureFrames {
-    /// Every frame.
-    pub frames: Vec<CaptureFrame>,
-    /// The split of each frame when the files say (nerfstudio's `{train,val,test}_filenames`);
-    /// `None`: the every-8th holdout.
-    pub splits: Option<Vec<Split>>,
 }
 
 /// A capture's split in the normalised frame, and the normalisation applied.

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{anyhow, Result};
 
-use super::capture::{CaptureFrame, CaptureFrames};
+use super::capture_frame::{CaptureFrame, CaptureFrames};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
 use crate::io::colmap::find_model;
 

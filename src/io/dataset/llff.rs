@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Result};
 
-use super::capture::{CaptureFrame, CaptureFrames};
+use super::capture_frame::{CaptureFrame, CaptureFrames};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
 use crate::io::bounded_read::read_regular_file;
 use crate::io::npy::{parse_npy_header, MAX_HEADER_BYTES};

@@ -13,6 +13,7 @@
 //! look along +Z with +Y up and +X left (see [`crate::core::camera`]).
 
 pub mod capture;
+pub mod capture_frame;
 pub mod colmap_scene;
 pub mod frame_image;
 pub mod llff;

@@ -11,7 +11,7 @@ use std::path::{Component, Path, PathBuf};
 use anyhow::{anyhow, bail, Result};
 use serde::Deserialize;
 
-use super::capture::{CaptureFrame, CaptureFrames};
+use super::capture_frame::{CaptureFrame, CaptureFrames};
 use super::transforms::Split;
 use crate::core::camera_colmap::{ColmapCamera, NerfstudioIntrinsics};
 use crate::io::bounded_read::read_regular_file;
