@@ -39,7 +39,7 @@ pub struct Throughput {
     pub drawn_samples_per_second: Option<f64>,
     /// Samples at which the field was evaluated, per second.
     pub evaluated_samples_per_second: Option<f64>,
-    /// The FLOP count of one evaluated sample the row's GFLOP/s assume ([`NgpFlops`]).
+    /// The FLOP count of one evaluated sample the row's GFLOP/s assume ([`crate::app::bench_ngp::NgpFlops`]).
     pub flop_per_evaluated_sample: Option<f64>,
     /// Useful floating-point operations per second, in 10^9.
     pub gflops: f64,

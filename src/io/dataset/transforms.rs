@@ -223,7 +223,7 @@ pub fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
 }
 
 /// Parses the text of a `transforms_{split}.json` (read from `path`, named in errors) into
-/// frames whose image paths are relative to `data_dir`; see [`read_split`].
+/// frames whose image paths are relative to `data_dir`; see [`super::read_split`].
 pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Frame>> {
     let mut de = serde_json::Deserializer::from_slice(bytes);
     let file: TransformsFile = serde_path_to_error::deserialize(&mut de)
