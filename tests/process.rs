@@ -106,14 +106,27 @@ fn failed_stage_and_nothing_registered_are_one_line_errors() {
     assert_eq!(common::sorted_names(&out.join("images")).len(), 4);
 }
 
-/// Whether COLMAP runs here (else the end-to-end test is skipped, saying so).
-fn colmap_installed() -> bool {
+/// Whether COLMAP runs here (`colmap` on PATH, or `$NERF_COLMAP`); else a visible skip, and
+/// a failure under `CI=true` (`.ci/install` installs Debian's package), as for Chromium.
+fn colmap_installed(test: &str) -> bool {
+    use std::io::Write;
     let program = std::env::var_os("NERF_COLMAP").unwrap_or_else(|| "colmap".into());
-    Command::new(program)
+    let runs = Command::new(&program)
         .arg("help")
         .env("QT_QPA_PLATFORM", "offscreen")
         .output()
-        .is_ok()
+        .is_ok();
+    if !runs {
+        let why = format!(
+            "COLMAP not found ({} does not run; sudo apt-get install colmap, or run .ci/install)",
+            program.to_string_lossy()
+        );
+        if std::env::var("CI").is_ok_and(|v| v == "true") {
+            panic!("{test}: {why}, and CI must have it");
+        }
+        let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {why}");
+    }
+    runs
 }
 
 /// Lego's training views as (image name, OpenGL camera → world rotation, centre).
@@ -152,8 +165,7 @@ fn colmap_recovers_lego_cameras() {
     let Some(lego) = common::lego_dir("colmap_recovers_lego_cameras") else {
         return;
     };
-    if !colmap_installed() {
-        eprintln!("skipping colmap_recovers_lego_cameras: COLMAP is not installed (sudo apt-get install colmap)");
+    if !colmap_installed("colmap_recovers_lego_cameras") {
         return;
     }
     // The 24 views nearest r_0's (within about 47°): lego's 100 views spread over a hemisphere
