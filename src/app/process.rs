@@ -615,7 +615,7 @@ mod tests {
         let m = opengl_camera_to_world(&pose);
         let rows = [m[0], m[1], m[2]];
         let back = ColmapPose::from_opengl_camera_to_world(rows);
-        assert!((back.rotation - pose.rotation).abs().max_element() < 1e-12);
+        assert!(back.rotation.abs_diff_eq(pose.rotation, 1e-12));
         assert!((back.translation - pose.translation).abs().max_element() < 1e-12);
         assert_eq!(m[3], [0.0, 0.0, 0.0, 1.0]);
     }
