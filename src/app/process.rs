@@ -420,6 +420,16 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
                 images.as_os_str(),
                 "--output_path".as_ref(),
                 sparse.as_os_str(),
+                // Thresholds below COLMAP's defaults (100, 30, 16°, 0.25): with them the 100
+                // lego views (few features each) register 100 of 100 instead of 10.
+                "--Mapper.init_min_num_inliers".as_ref(),
+                "30".as_ref(),
+                "--Mapper.abs_pose_min_num_inliers".as_ref(),
+                "15".as_ref(),
+                "--Mapper.init_min_tri_angle".as_ref(),
+                "4".as_ref(),
+                "--Mapper.abs_pose_min_inlier_ratio".as_ref(),
+                "0.1".as_ref(),
             ],
             n,
         ),
