@@ -108,6 +108,10 @@ pub enum Command {
     /// pan) and the HTTP API it uses: GET
     /// /render.png?eye=x,y,z&at=x,y,z&up=x,y,z&focal=F&width=W&height=H.
     View(ViewArgs),
+    /// Photos to a trainable capture: copies them to OUT/images, runs COLMAP (feature
+    /// extraction, matching, mapping; logs in OUT/colmap) and writes OUT/transforms.json
+    /// (nerfstudio's format) for `nerf train --config nerf_scene --data-dir OUT`.
+    Process(ProcessArgs),
     /// Take a scene out as files: a coloured mesh, a point cloud, or depth maps.
     Export {
         /// What to export.
@@ -286,6 +290,41 @@ pub struct EvalArgs {
     /// black (the homework's); the same as `renderer.white_background=True`.
     #[arg(long)]
     pub white: bool,
+}
+
+/// `nerf process`.
+#[derive(Args, Debug)]
+pub struct ProcessArgs {
+    /// The folder of photos (PNG and JPEG, subfolders included, sorted by path).
+    #[arg(long)]
+    pub images: PathBuf,
+    /// The capture folder to write: images/, colmap/ (the database, the sparse models and
+    /// each stage's log) and transforms.json. It must not hold an earlier run's outputs.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// How COLMAP pairs images: exhaustive (every pair), sequential (neighbours in name
+    /// order, for video frames), or auto (exhaustive up to 100 images).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub matcher: MatcherArg,
+}
+
+/// `--matcher`.
+#[allow(missing_docs)] // each value is what the option's help says
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum MatcherArg {
+    Auto,
+    Exhaustive,
+    Sequential,
+}
+
+impl From<MatcherArg> for crate::app::process::Matcher {
+    fn from(m: MatcherArg) -> Self {
+        match m {
+            MatcherArg::Auto => Self::Auto,
+            MatcherArg::Exhaustive => Self::Exhaustive,
+            MatcherArg::Sequential => Self::Sequential,
+        }
+    }
 }
 
 /// `nerf import-torch`.

@@ -9,8 +9,8 @@ use anyhow::Result;
 use candle_core::Device;
 
 use crate::app::cli::{
-    BenchArgs, ConfigArgs, EvalArgs, ExportCommand, ExportViewsArgs, ImportTorchArgs, RenderArgs,
-    ReportArgs, RunArgs, SplitArg, TargetsArgs, TrainArgs, TrainingArgs, ViewArgs,
+    BenchArgs, ConfigArgs, EvalArgs, ExportCommand, ExportViewsArgs, ImportTorchArgs, ProcessArgs,
+    RenderArgs, ReportArgs, RunArgs, SplitArg, TargetsArgs, TrainArgs, TrainingArgs, ViewArgs,
 };
 use crate::app::config::Config;
 use crate::app::export::ViewSelection;
@@ -352,4 +352,31 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
             ))
         }
     }
+}
+
+/// `nerf process`: photos to a capture through COLMAP ([`crate::app::process::process`]);
+/// prints what it wrote, how many images registered and the command that trains on it.
+pub fn process(args: ProcessArgs) -> Result<()> {
+    let options = crate::app::process::ProcessOptions {
+        images: args.images,
+        out: args.out,
+        matcher: args.matcher.into(),
+    };
+    let summary = crate::app::process::process(&options)?;
+    let times: Vec<String> = summary
+        .stages
+        .iter()
+        .map(|s| format!("{} {:.1} s", s.stage, s.seconds))
+        .collect();
+    say(&format!(
+        "wrote {} ({} of {} images registered; COLMAP: {})",
+        summary.transforms.display(),
+        summary.registered,
+        summary.images,
+        times.join(", ")
+    ))?;
+    say(&format!(
+        "train on it: nerf train --config nerf_scene --data-dir {}",
+        options.out.display()
+    ))
 }

@@ -14,6 +14,7 @@ pub mod export;
 pub mod export_model;
 pub mod jobs;
 pub mod messages;
+pub mod process;
 #[cfg(feature = "cli")]
 pub mod report;
 pub mod scene;
