@@ -78,7 +78,8 @@ fn read_rows(path: &Path) -> Result<Vec<[f64; 17]>> {
         other => bail!("{}: dtype {other}, not float64 or float32", path.display()),
     };
     let data = &bytes[npy.data_offset..];
-    if data.len() as u64 != n * 17 * item as u64 {
+    let expected = n.checked_mul(17 * item as u64);
+    if expected != Some(data.len() as u64) {
         bail!(
             "{}: {} data bytes for shape ({n}, 17)",
             path.display(),

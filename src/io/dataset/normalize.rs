@@ -1,9 +1,10 @@
 //! Scene normalisation for captures, whose world frame is whatever structure from motion
-//! chose: the cameras are oriented (their mean up vector becomes world +z), centred (the
-//! per-axis median of the camera centres goes to the origin) and scaled (the farthest camera
-//! that is not an outlier lands at distance 1), as nerfstudio's `auto_orient_and_center_poses`
-//! and `auto_scale_poses` do, with medians in place of means so that a few outlier cameras do
-//! not move the scene.
+//! chose: the cameras are oriented (their mean up vector becomes world +z), centred (the point
+//! their optical axes converge on goes to the origin, or, when they do not converge, as in a
+//! forward-facing capture, the per-axis median of the camera centres) and scaled (the farthest
+//! camera that is not an outlier lands at distance 1), as nerfstudio's
+//! `auto_orient_and_center_poses` ("up", "focus" or "poses") and `auto_scale_poses` do, with a
+//! median and an outlier cut so that a few stray cameras do not move the scene.
 
 use anyhow::{bail, Result};
 use glam::{DMat3, DVec3};
@@ -51,7 +52,10 @@ impl SceneTransform {
         };
         let centers: Vec<DVec3> = poses.iter().map(|p| rotation * p.center()).collect();
         let median_of = |k: usize| median(centers.iter().map(|c| c[k]).collect());
-        let center_rotated = DVec3::new(median_of(0), median_of(1), median_of(2));
+        let center_rotated = match focus_point(poses) {
+            Some(focus) => rotation * focus,
+            None => DVec3::new(median_of(0), median_of(1), median_of(2)),
+        };
         let distances: Vec<f64> = centers
             .iter()
             .map(|c| (*c - center_rotated).length())
@@ -87,6 +91,36 @@ impl SceneTransform {
             translation: self.scale * (pose.rotation * self.center + pose.translation),
         }
     }
+}
+
+/// Smallest `det(Σ (I − d dᵀ)) / n³` (a product of the normalised eigenvalues, each at most
+/// 1) for which the cameras' optical axes are taken to converge: a ring of cameras gives
+/// about 0.25, parallel axes (a forward-facing capture) 0.
+const MIN_FOCUS_CONDITION: f64 = 1e-3;
+
+/// The point nearest to every camera's optical axis in the least-squares sense (nerfstudio's
+/// "focus" centring): `p = (Σ Mᵢ)⁻¹ Σ Mᵢ cᵢ` with `Mᵢ = I − dᵢ dᵢᵀ`, `cᵢ` the centre and `dᵢ`
+/// the viewing direction. `None` when the axes are (nearly) parallel or the point lies behind
+/// most cameras: the per-axis median of the centres is used then.
+fn focus_point(poses: &[ColmapPose]) -> Option<DVec3> {
+    let (mut a, mut b) = (DMat3::ZERO, DVec3::ZERO);
+    for pose in poses {
+        // The camera's +z (viewing direction) in world space: the third row of R.
+        let d = pose.rotation.row(2).normalize();
+        let m = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += m;
+        b += m * pose.center();
+    }
+    let n = poses.len() as f64;
+    if !(a.determinant() / n.powi(3) > MIN_FOCUS_CONDITION) {
+        return None;
+    }
+    let focus = a.inverse() * b;
+    let in_front = poses
+        .iter()
+        .filter(|p| (focus - p.center()).dot(p.rotation.row(2)) > 0.0)
+        .count();
+    (focus.is_finite() && 2 * in_front > poses.len()).then_some(focus)
 }
 
 /// The rotation taking unit vector `from` to unit vector `to` (Rodrigues; a half turn about
@@ -194,6 +228,35 @@ mod tests {
             assert!((q - d * q.dot(d)).length() < 1e-7);
             assert!(after.validate().is_ok());
         }
+    }
+
+    #[test]
+    fn converging_cameras_centre_on_their_focus_and_parallel_ones_on_their_median() {
+        // Cameras on a ring about (5, −2, 1), all looking at (5, −2, 0.2), below the ring's
+        // plane: the focus, not the ring's centre, goes to the origin.
+        let target = DVec3::new(5.0, -2.0, 0.2);
+        let poses: Vec<ColmapPose> = (0..8)
+            .map(|i| {
+                let a = i as f64 / 8.0 * std::f64::consts::TAU;
+                let eye = DVec3::new(5.0 + 2.0 * a.cos(), -2.0 + 2.0 * a.sin(), 1.0);
+                look_at(eye, target, DVec3::Z)
+            })
+            .collect();
+        let t = SceneTransform::from_poses(&poses).unwrap();
+        assert!(
+            t.apply_point(target).length() < 1e-9,
+            "{}",
+            t.apply_point(target)
+        );
+        // A forward-facing row of cameras, all looking along +y: no focus, the median centre.
+        let row: Vec<ColmapPose> = (0..5)
+            .map(|i| {
+                let eye = DVec3::new(i as f64, 0.0, 0.0);
+                look_at(eye, eye + DVec3::Y, DVec3::Z)
+            })
+            .collect();
+        let t = SceneTransform::from_poses(&row).unwrap();
+        assert!(t.apply_point(DVec3::new(2.0, 0.0, 0.0)).length() < 1e-9);
     }
 
     #[test]
