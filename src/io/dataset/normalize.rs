@@ -93,8 +93,8 @@ impl SceneTransform {
     }
 }
 
-/// Smallest `det(Σ (I − d dᵀ)) / n³` (a product of the normalised eigenvalues, each at most
-/// 1) for which the cameras' optical axes are taken to converge: a ring of cameras gives
+/// Smallest `det(Σ (I − d dᵀ)) / n³` (a product of the normalised eigenvalues, none above
+/// one) for which the cameras' optical axes are taken to converge: a ring of cameras gives
 /// about 0.25, parallel axes (a forward-facing capture) 0.
 const MIN_FOCUS_CONDITION: f64 = 1e-3;
 
@@ -112,7 +112,8 @@ fn focus_point(poses: &[ColmapPose]) -> Option<DVec3> {
         b += m * pose.center();
     }
     let n = poses.len() as f64;
-    if !(a.determinant() / n.powi(3) > MIN_FOCUS_CONDITION) {
+    let condition = a.determinant() / n.powi(3);
+    if condition.is_nan() || condition <= MIN_FOCUS_CONDITION {
         return None;
     }
     let focus = a.inverse() * b;
