@@ -31,6 +31,10 @@ pub const COLMAP_ENV: &str = "NERF_COLMAP";
 /// Fewest registered images written as a capture.
 pub const MIN_REGISTERED: usize = 3;
 
+/// Runs of COLMAP's mapper at most: a run that registers under half of the photos is
+/// repeated with another `--random_seed`, the best model kept.
+pub const MAPPER_ATTEMPTS: u64 = 3;
+
 /// Above this many images, [`Matcher::Auto`] matches sequentially instead of exhaustively.
 pub const EXHAUSTIVE_MAX_IMAGES: usize = 100;
 
@@ -420,17 +424,10 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
                 images.as_os_str(),
                 "--output_path".as_ref(),
                 sparse.as_os_str(),
-                // Thresholds below COLMAP's defaults (100, 30, 16°, 0.25): with them the 100
-                // lego views (few features each) register 100 of 100 instead of 10.
-                "--Mapper.init_min_num_inliers".as_ref(),
-                "30".as_ref(),
-                "--Mapper.abs_pose_min_num_inliers".as_ref(),
-                "15".as_ref(),
-                "--Mapper.init_min_tri_angle".as_ref(),
-                "4".as_ref(),
-                "--Mapper.abs_pose_min_inlier_ratio".as_ref(),
-                "0.1".as_ref(),
-            ],
+            ]
+            .into_iter()
+            .chain(MAPPER_THRESHOLDS.iter().map(|a| a.as_ref()))
+            .collect(),
             n,
         ),
     ];
@@ -451,6 +448,12 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         times.push(StageTime { stage, seconds });
     }
 
+    retry_mapper(
+        &program,
+        &colmap,
+        &stages_mapper_args(&database, &images),
+        n,
+    )?;
     let mapper_log = colmap.join("mapper.log");
     let too_few = |registered: usize| {
         anyhow!(
@@ -487,6 +490,86 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         transforms: transforms_path,
         stages: times,
     })
+}
+
+/// The mapper's thresholds, below COLMAP's defaults (100, 30, 16°, 0.25): with them the 100
+/// lego views (few features each) register 100 of 100 instead of 10.
+const MAPPER_THRESHOLDS: [&str; 8] = [
+    "--Mapper.init_min_num_inliers",
+    "30",
+    "--Mapper.abs_pose_min_num_inliers",
+    "15",
+    "--Mapper.init_min_tri_angle",
+    "4",
+    "--Mapper.abs_pose_min_inlier_ratio",
+    "0.1",
+];
+
+/// The mapper's inputs: the database and the images.
+fn stages_mapper_args(database: &Path, images: &Path) -> Vec<std::ffi::OsString> {
+    vec![
+        "--database_path".into(),
+        database.into(),
+        "--image_path".into(),
+        images.into(),
+    ]
+}
+
+/// Images registered by the model COLMAP wrote under `dir` (0 when there is none).
+fn registered_in(dir: &Path) -> usize {
+    if crate::io::colmap::find_model_folder(dir).is_none() {
+        return 0;
+    }
+    crate::io::colmap::find_model(dir).map_or(0, |(_, m)| m.images.len())
+}
+
+/// COLMAP's incremental mapper picks its initial pair by RANSAC on its own threads: on photos
+/// with few features one run can end with no model where the next registers most of them.
+/// While the model in `colmap/sparse` registers under half of the `n` photos, the mapper runs
+/// again with another `--random_seed` (at most [`MAPPER_ATTEMPTS`] runs in all) into a folder
+/// of its own, and the best model is kept as `colmap/sparse`. Each run's log is
+/// `colmap/mapper_seed<k>.log`.
+fn retry_mapper(
+    program: &Path,
+    colmap: &Path,
+    inputs: &[std::ffi::OsString],
+    n: usize,
+) -> Result<()> {
+    let sparse = colmap.join("sparse");
+    let mut best = registered_in(&sparse);
+    for seed in 1..MAPPER_ATTEMPTS {
+        if 2 * best >= n {
+            break;
+        }
+        log::info!(
+            "COLMAP registered {best} of {n} images: running the mapper again (seed {seed})"
+        );
+        let attempt = colmap.join(format!("sparse_seed{seed}"));
+        std::fs::create_dir_all(&attempt)
+            .with_context(|| format!("cannot create {}", attempt.display()))?;
+        let seed_text = seed.to_string();
+        let mut args: Vec<&std::ffi::OsStr> = inputs.iter().map(|a| a.as_os_str()).collect();
+        args.extend([std::ffi::OsStr::new("--output_path"), attempt.as_os_str()]);
+        args.extend([
+            std::ffi::OsStr::new("--random_seed"),
+            std::ffi::OsStr::new(&seed_text),
+        ]);
+        args.extend(MAPPER_THRESHOLDS.iter().map(std::ffi::OsStr::new));
+        let log = colmap.join(format!("mapper_seed{seed}.log"));
+        run_stage(program, "mapper", &args, &log, n as u64)?;
+        let registered = registered_in(&attempt);
+        if registered > best {
+            std::fs::remove_dir_all(&sparse)
+                .with_context(|| format!("cannot remove {}", sparse.display()))?;
+            std::fs::rename(&attempt, &sparse)
+                .with_context(|| format!("cannot move {} into place", attempt.display()))?;
+            best = registered;
+        } else {
+            std::fs::remove_dir_all(&attempt)
+                .with_context(|| format!("cannot remove {}", attempt.display()))?;
+        }
+    }
+    Ok(())
 }
 
 /// Nerfstudio's camera → world matrix (4×4, row by row, OpenGL camera axes: +x right, +y up,
