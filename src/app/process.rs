@@ -384,6 +384,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     let n = names.len();
     let matcher = matcher.command(n);
     let blocks = n.div_ceil(EXHAUSTIVE_BLOCK).pow(2);
+    let mapper_inputs = mapper_inputs(&database, &images);
     let stages: [(&'static str, Vec<&std::ffi::OsStr>, usize); 3] = [
         (
             "feature_extractor",
@@ -417,17 +418,12 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         ),
         (
             "mapper",
-            vec![
-                "--database_path".as_ref(),
-                database.as_os_str(),
-                "--image_path".as_ref(),
-                images.as_os_str(),
-                "--output_path".as_ref(),
-                sparse.as_os_str(),
-            ]
-            .into_iter()
-            .chain(MAPPER_THRESHOLDS.iter().map(|a| a.as_ref()))
-            .collect(),
+            mapper_inputs
+                .iter()
+                .map(|a| a.as_os_str())
+                .chain(["--output_path".as_ref(), sparse.as_os_str()])
+                .chain(MAPPER_THRESHOLDS.iter().map(|a| a.as_ref()))
+                .collect(),
             n,
         ),
     ];
@@ -448,12 +444,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         times.push(StageTime { stage, seconds });
     }
 
-    retry_mapper(
-        &program,
-        &colmap,
-        &stages_mapper_args(&database, &images),
-        n,
-    )?;
+    retry_mapper(&program, &colmap, &mapper_inputs, n)?;
     let mapper_log = colmap.join("mapper.log");
     let too_few = |registered: usize| {
         anyhow!(
@@ -506,7 +497,7 @@ const MAPPER_THRESHOLDS: [&str; 8] = [
 ];
 
 /// The mapper's inputs: the database and the images.
-fn stages_mapper_args(database: &Path, images: &Path) -> Vec<std::ffi::OsString> {
+fn mapper_inputs(database: &Path, images: &Path) -> Vec<std::ffi::OsString> {
     vec![
         "--database_path".into(),
         database.into(),

@@ -93,7 +93,7 @@ pub fn render_views_in_bands(
     band: usize,
     device: &Device,
 ) -> Result<Vec<RenderedView>> {
-    let band = (pipeline.renderer).rays_per_band(pipeline.field, pipeline.sampler, band);
+    let band = pipeline.rays_per_band(band);
     let bar = progress_bar(cameras.len() as u64, "rendering");
     let frames = cameras
         .iter()

@@ -42,9 +42,7 @@ pub fn depth_points(
         renderer: &black,
         ..*pipeline
     };
-    let band = black
-        .renderer
-        .rays_per_band(black.field, black.sampler, band);
+    let band = black.rays_per_band(band);
     let mut cloud = ColoredPoints::default();
     for pixels in pixel_bands(size.0 * size.1, band) {
         let rays = band_rays(camera, size, pixels, device)?;

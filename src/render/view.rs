@@ -58,8 +58,14 @@ impl<'a> Pipeline<'a> {
     /// The rays per band that [`render_view`] uses: whole chunks, about
     /// [`crate::render::bands::BAND_RAYS`] rays.
     pub fn band_rays(&self) -> usize {
+        self.rays_per_band(crate::render::bands::BAND_RAYS)
+    }
+
+    /// Rays per band of about `max_rays`, a whole number of this pipeline's chunks
+    /// ([`VolumeRenderer::rays_per_band`]).
+    pub fn rays_per_band(&self, max_rays: usize) -> usize {
         self.renderer
-            .rays_per_band(self.field, self.sampler, crate::render::bands::BAND_RAYS)
+            .rays_per_band(self.field, self.sampler, max_rays)
     }
 }
 
