@@ -19,6 +19,7 @@ pub mod bias;
 pub mod composite;
 pub mod cpu_kernel;
 pub mod gemm;
+pub mod hash_block;
 pub mod hash_grid;
 pub mod ngp_mlp;
 pub mod sample_points;

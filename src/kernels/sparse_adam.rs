@@ -287,6 +287,28 @@ fn update_tensor_ops(
     Ok(())
 }
 
+/// `rows` split by block of [`ROWS_PER_TASK`] rows, in their order within each block: slices of
+/// `rows` when it is sorted (as a fused encoding's gradient gives them), else a counting sort.
+fn row_blocks(rows: &[u32], n_blocks: usize) -> Vec<std::borrow::Cow<'_, [u32]>> {
+    let block = |r: u32| r as usize / ROWS_PER_TASK;
+    if rows.is_sorted() {
+        let mut out = Vec::with_capacity(n_blocks);
+        let mut rest = rows;
+        for b in 0..n_blocks {
+            let end = rest.partition_point(|&r| block(r) <= b);
+            let (this, next) = rest.split_at(end);
+            out.push(this.into());
+            rest = next;
+        }
+        return out;
+    }
+    let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); n_blocks];
+    for &r in rows {
+        buckets[block(r)].push(r);
+    }
+    buckets.into_iter().map(Into::into).collect()
+}
+
 /// The fused in-place update of the touched rows.
 struct Update<'a> {
     /// `m`, `v` and the step counts (the op is called through `&self`).
@@ -317,10 +339,7 @@ impl InplaceOp1 for Update<'_> {
         // Rows bucketed by block of ROWS_PER_TASK (a counting sort), so that each task owns
         // its block's slice of the parameter and state.
         let n_blocks = steps.len().div_ceil(ROWS_PER_TASK);
-        let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); n_blocks];
-        for &r in self.rows {
-            buckets[r as usize / ROWS_PER_TASK].push(r);
-        }
+        let buckets = row_blocks(self.rows, n_blocks);
         let AdamConstants {
             lr,
             beta1: b1,
@@ -347,7 +366,7 @@ impl InplaceOp1 for Update<'_> {
             .enumerate()
             .for_each(|(block, ((((p, m), v), steps), rows))| {
                 let first = block * ROWS_PER_TASK;
-                for &r in rows {
+                for &r in rows.iter() {
                     let local = r as usize - first;
                     steps[local] += 1;
                     let (bias1, bias2_sqrt) = corrections[steps[local] as usize];
@@ -375,7 +394,8 @@ mod tests {
 
     #[test]
     fn fused_update_matches_its_tensor_op_twin() {
-        let (r, f) = (40, 3);
+        // More rows than one fused task's block, so that rows fall in several blocks.
+        let (r, f) = (ROWS_PER_TASK * 2 + 40, 3);
         let mut rng = rand::rngs::StdRng::seed_from_u64(9);
         let mut random =
             |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random::<f32>() - 0.5).collect() };
@@ -401,12 +421,15 @@ mod tests {
         };
         let mut touched = vec![false; r];
         for step in 0..6u32 {
-            // Overlapping row sets, in a scrambled order, so that rows reach different counts;
-            // every seventh row is never touched.
-            let rows: Vec<u32> = (0..r as u32)
+            // Overlapping row sets, so that rows reach different counts; every seventh row is
+            // never touched. Sorted on even steps (the fused path slices them by block),
+            // scrambled on odd ones (it sorts them into blocks).
+            let mut rows: Vec<u32> = (0..r as u32)
                 .filter(|i| (i + step) % 3 != 0 && i % 7 != 0)
-                .rev()
                 .collect();
+            if step % 2 == 1 {
+                rows.reverse();
+            }
             for &row in &rows {
                 touched[row as usize] = true;
             }
@@ -425,7 +448,10 @@ mod tests {
         close(&fv, &tv, "second moment");
         assert_eq!(fs.to_vec1::<u32>().unwrap(), ts.to_vec1::<u32>().unwrap());
         // Rows never touched are exactly as they were.
-        assert_eq!(touched.iter().filter(|t| !**t).count(), 6);
+        assert_eq!(
+            touched.iter().filter(|t| !**t).count(),
+            (0..r).filter(|i| i % 7 == 0).count()
+        );
         let after = twin_table.as_tensor().to_vec2::<f32>().unwrap();
         for (row, was) in init.chunks(f).enumerate().filter(|(i, _)| !touched[*i]) {
             assert_eq!(after[row], was, "untouched row {row} moved");
