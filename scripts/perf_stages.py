@@ -52,7 +52,7 @@ STAGES = [
     ("optimiser (sparse Adam on the table, Adam on the MLPs)",
      re.compile(r"sparse_adam|train::adam|Optimizer::step")),
     ("hash encoding (forward and table gradient)",
-     re.compile(r"hash_grid|Ngp::encode|sh_encode|sh_basis")),
+     re.compile(r"hash_grid|hash_block|Ngp::encode|sh_encode|sh_basis")),
     ("MLP gemm (matrix products)", re.compile(r"gemm")),
     ("MLP other (bias, activations, packing)",
      re.compile(r"ngp_mlp|kernels::bias|field::ngp|trunc_exp")),
