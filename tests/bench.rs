@@ -41,6 +41,14 @@ fn bench_quick_has_matmul_and_hash_grid_rows_with_positive_rates() {
     for r in &matmul {
         positive(r, "gflops");
     }
+    // The memory rows: one level's table and all 16 levels' (rates only: no timing asserted).
+    let reads = rows(&report, "random row reads");
+    assert_eq!(reads.len(), 2, "{report}");
+    assert!(reads[0]["name"].as_str().unwrap().contains("2 MiB"));
+    assert!(reads[1]["name"].as_str().unwrap().contains("32 MiB"));
+    for r in &reads {
+        positive(r, "row_reads_per_second");
+    }
     let Some(_) = lego_dir("bench_quick_has_matmul_and_hash_grid_rows_with_positive_rates") else {
         return;
     };

@@ -472,6 +472,8 @@ pub enum RowGroup {
     Base,
     /// The f32 matrix-multiply rates (without them, the hash-grid rows have no fractions).
     Matmul,
+    /// Random row reads from hash tables of one and of 16 levels.
+    Memory,
     /// Hash-grid training at the shipped samples per step.
     NgpTrain,
     /// Hash-grid training at 2^18 samples per step.
@@ -501,6 +503,9 @@ pub fn hash_grid_rows(
         (Vec::new(), None)
     };
     let rates = rates.as_ref();
+    if wants(RowGroup::Memory) {
+        rows.extend(crate::app::bench_memory::bench_table_reads(repeats));
+    }
     let (mut shipped, mut large) = if lego.quick {
         let s = StepCounts {
             warmup: 2,

@@ -41,7 +41,10 @@ pub struct Throughput {
     pub evaluated_samples_per_second: Option<f64>,
     /// The FLOP count of one evaluated sample the row's GFLOP/s assume ([`crate::app::bench_ngp::NgpFlops`]).
     pub flop_per_evaluated_sample: Option<f64>,
-    /// Useful floating-point operations per second, in 10^9.
+    /// Random table rows read per second ([`crate::app::bench_memory`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub row_reads_per_second: Option<f64>,
+    /// Useful floating-point operations per second, in 10^9 (0 for rows that count none).
     pub gflops: f64,
     /// `gflops` over the MLP-shaped matrix product's rate (65536×64 by 64×64).
     pub fraction_of_mlp_gemm: Option<f64>,
@@ -55,7 +58,9 @@ impl Throughput {
     pub fn describe(&self) -> String {
         let mut parts = Vec::new();
         let si = |v: f64| {
-            if v >= 1e6 {
+            if v >= 1e9 {
+                format!("{:.2}G", v / 1e9)
+            } else if v >= 1e6 {
                 format!("{:.2}M", v / 1e6)
             } else if v >= 1e3 {
                 format!("{:.1}k", v / 1e3)
@@ -71,6 +76,12 @@ impl Throughput {
         }
         if let Some(v) = self.rays_per_second {
             parts.push(format!("{} rays/s", si(v)));
+        }
+        if let Some(v) = self.row_reads_per_second {
+            parts.push(format!("{} random row reads/s", si(v)));
+        }
+        if self.gflops == 0.0 && !parts.is_empty() {
+            return parts.join(", ");
         }
         let mut rate = format!("{:.1} GFLOP/s", self.gflops);
         if let Some(f) = self.fraction_of_mlp_gemm {

@@ -1,6 +1,7 @@
 //! The application layer: config files, jobs, bench and report.
 
 pub mod bench;
+pub mod bench_memory;
 pub mod bench_ngp;
 pub mod bench_row;
 pub mod camera_path;
