@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DQuat, DVec3};
 use nerf::core::camera_model::CameraModel;
+use nerf::io::checkpoint;
 use nerf::io::dataset::{read_capture_split, Dataset, SceneFormat, Split};
 
 const FRAMES: usize = 16;
@@ -54,6 +55,22 @@ fn lego(test: &str) -> Option<Lego> {
 }
 
 impl Lego {
+    /// The first `n` views only.
+    fn first(&self, n: usize) -> Lego {
+        let views = self.views[..n]
+            .iter()
+            .map(|v| View {
+                image: v.image.clone(),
+                c2w: v.c2w,
+            })
+            .collect();
+        Lego {
+            views,
+            fov: self.fov,
+            size: self.size,
+        }
+    }
+
     /// Focal length in pixels: half the width over tan(fov / 2).
     fn focal_px(&self) -> f64 {
         0.5 * self.size.0 as f64 / (0.5 * self.fov).tan()
@@ -307,4 +324,105 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     args.push("data.downscale=0.5");
     let err = common::one_line_error(&common::nerf(&args));
     assert!(err.contains("data.downscale"), "{err}");
+}
+
+/// The bytes of every file in `dir`, by name.
+fn files_of(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    common::sorted_names(dir)
+        .into_iter()
+        .map(|n| {
+            let bytes = std::fs::read(dir.join(&n)).unwrap();
+            (n, bytes)
+        })
+        .collect()
+}
+
+#[test]
+fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
+    let test = "the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in";
+    let Some(lego) = lego(test) else { return };
+    let root = tempfile::tempdir().unwrap();
+    let full = root.path().join("full");
+    write_colmap_text(&lego, &full);
+    // The first 9 photos only: the same held-out frames (frame_00 and frame_08), but the
+    // cameras give another normalisation.
+    let subset = root.path().join("subset");
+    write_colmap_text(&lego.first(9), &subset);
+    let trained_in = read_capture_split(&full, SceneFormat::Colmap, Split::Test)
+        .unwrap()
+        .transform;
+    let recomputed = read_capture_split(&subset, SceneFormat::Colmap, Split::Test)
+        .unwrap()
+        .transform;
+    assert!(!trained_in.agrees_with(&recomputed, 1e-3));
+
+    let ckpt = root.path().join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let overrides = [
+        "data.image_size=[24,24]",
+        "training.num_epochs=2",
+        "training.eval_views=0",
+        "sampler.n_pts_per_ray=32",
+        &ckpt_arg,
+    ];
+    let mut args = vec!["train", "--config", "nerf_scene", "--data-dir"];
+    args.push(full.to_str().unwrap());
+    args.extend(overrides);
+    common::nerf_ok(&args);
+    // Stored exactly.
+    let meta = checkpoint::read_metadata(&ckpt).unwrap();
+    assert_eq!(
+        checkpoint::scene_transform_of(&meta, &ckpt).unwrap(),
+        Some(trained_in)
+    );
+
+    // The library: the subset's cameras in the stored frame are the full capture's.
+    let load = |dir: &Path, stored| {
+        Dataset::load_first_with(dir, Split::Test, (24, 24), false, None, stored).unwrap()
+    };
+    let reference = load(&full, None);
+    let moved = load(&subset, Some(trained_in));
+    let cameras = |d: &Dataset| {
+        d.frames
+            .iter()
+            .map(|f| f.camera.clone())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(cameras(&moved), cameras(&reference));
+    assert_ne!(cameras(&load(&subset, None)), cameras(&reference));
+    let n = moved.normalisation.unwrap();
+    assert!(n.applied == trained_in && !n.is_from_cameras());
+
+    // The command: eval of the subset renders what eval of the full capture renders, and
+    // says which normalisation it used.
+    let eval = |dir: &Path, checkpoint: &Path, saved: &Path| {
+        let mut args = vec!["eval", "--config", "nerf_scene", "--split", "test"];
+        args.extend(["--data-dir", dir.to_str().unwrap()]);
+        args.extend(["--checkpoint", checkpoint.to_str().unwrap()]);
+        args.extend(["--save-images", saved.to_str().unwrap()]);
+        args.extend(overrides);
+        common::stderr(&common::nerf_ok(&args))
+    };
+    let (on_full, on_subset) = (root.path().join("a"), root.path().join("b"));
+    let log = eval(&full, &ckpt, &on_full);
+    assert!(!log.contains("not the one these cameras give"), "{log}");
+    let log = eval(&subset, &ckpt, &on_subset);
+    assert!(
+        log.contains("using the scene normalisation stored in"),
+        "{log}"
+    );
+    assert_eq!(files_of(&on_full).len(), 2);
+    assert_eq!(files_of(&on_subset), files_of(&on_full));
+    // Without the stored transform (a checkpoint from before it was stored), the subset's
+    // recomputed frame renders other images: the check above can tell them apart.
+    let (tensors, mut info) = checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
+    info.scene_transform = None;
+    let old = root.path().join("old.safetensors");
+    let mut tensors: Vec<_> = tensors.into_iter().collect();
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    checkpoint::save(&old, &tensors, info).unwrap();
+    let recomputed_images = root.path().join("c");
+    let log = eval(&subset, &old, &recomputed_images);
+    assert!(log.contains("stores no scene normalisation"), "{log}");
+    assert_ne!(files_of(&recomputed_images), files_of(&on_full));
 }

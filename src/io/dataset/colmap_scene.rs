@@ -1,12 +1,13 @@
 //! A COLMAP capture: the sparse model that [`crate::io::colmap::find_model`] finds (the one
 //! with the most registered images when there are several) and its photos in `images/`
-//! (subfolders allowed, as COLMAP's image names carry them).
+//! (subfolders allowed, as COLMAP's image names carry them), with masks in `masks/` when that
+//! folder is there ([`mask_in_folder`]).
 
 use std::path::Path;
 
 use anyhow::{anyhow, Result};
 
-use super::capture_frame::{CaptureFrame, CaptureFrames};
+use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
 use crate::io::colmap::find_model;
 
@@ -28,6 +29,7 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
             Ok(CaptureFrame {
                 file_path: images.join(&image.name),
                 camera,
+                mask_path: mask_in_folder(dir, Path::new(&image.name)),
             })
         })
         .collect::<Result<Vec<_>>>()?;
