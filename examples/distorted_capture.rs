@@ -82,10 +82,12 @@ impl Render {
     }
 }
 
-/// OpenCV world → camera pose of an OpenGL camera → world matrix.
+/// OpenCV world → camera pose of an OpenGL camera → world matrix (the renders' matrices are
+/// single precision: the rotation is made exactly orthonormal through its quaternion).
 fn opencv_pose(c2w: &[[f64; 4]; 4]) -> ColmapPose {
     let col = |j: usize| DVec3::new(c2w[0][j], c2w[1][j], c2w[2][j]);
     let rotation = DMat3::from_cols(col(0), -col(1), -col(2)).transpose();
+    let rotation = DMat3::from_quat(DQuat::from_mat3(&rotation).normalize());
     ColmapPose {
         rotation,
         translation: -(rotation * col(3)),

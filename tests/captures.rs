@@ -326,6 +326,17 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     assert!(err.contains("data.downscale"), "{err}");
 }
 
+/// The one `error:` line of a run that failed with status 1 (a capture's loader logs what it
+/// read on the lines before it), without a panic.
+fn error_line(o: &std::process::Output) -> String {
+    let log = common::stderr(o);
+    assert_eq!(o.status.code(), Some(1), "{log}");
+    assert!(!log.contains("panicked"), "{log}");
+    let errors: Vec<&str> = log.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(errors.len(), 1, "{log}");
+    errors[0].to_string()
+}
+
 /// The bytes of every file in `dir`, by name.
 fn files_of(dir: &Path) -> Vec<(String, Vec<u8>)> {
     common::sorted_names(dir)
@@ -413,6 +424,26 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     );
     assert_eq!(files_of(&on_full).len(), 2);
     assert_eq!(files_of(&on_subset), files_of(&on_full));
+    // export reads the views in the stored frame too.
+    let export = |dir: &Path, out: &Path| {
+        let mut args = vec![
+            "export",
+            "depth",
+            "--config",
+            "nerf_scene",
+            "--split",
+            "test",
+        ];
+        args.extend(["--data-dir", dir.to_str().unwrap()]);
+        args.extend(["--checkpoint", ckpt.to_str().unwrap()]);
+        args.extend(["--out", out.to_str().unwrap()]);
+        args.extend(overrides);
+        common::nerf_ok(&args);
+        files_of(out)
+    };
+    let depth = export(&full, &root.path().join("depth_a"));
+    assert_eq!(depth.len(), 4);
+    assert_eq!(export(&subset, &root.path().join("depth_b")), depth);
     // Without the stored transform (a checkpoint from before it was stored), the subset's
     // recomputed frame renders other images: the check above can tell them apart.
     let (tensors, mut info) = checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
@@ -425,4 +456,134 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     let log = eval(&subset, &old, &recomputed_images);
     assert!(log.contains("stores no scene normalisation"), "{log}");
     assert_ne!(files_of(&recomputed_images), files_of(&on_full));
+}
+
+/// Masks for every frame of the capture in `dir` (the left `cut` columns ignored), written as
+/// `masks/frame_NN.png` of `size`; `paint` also paints the ignored part of each photo magenta.
+fn write_masks(dir: &Path, frames: usize, size: (u32, u32), cut: u32, paint: bool) {
+    std::fs::create_dir_all(dir.join("masks")).unwrap();
+    for i in 0..frames {
+        let name = format!("frame_{i:02}.png");
+        let mask = image::GrayImage::from_fn(size.0, size.1, |x, _| {
+            image::Luma([if x < cut { 0 } else { 255 }])
+        });
+        mask.save(dir.join("masks").join(&name)).unwrap();
+        if paint {
+            let photo = dir.join("images").join(&name);
+            let mut rgba = image::open(&photo).unwrap().to_rgba8();
+            for (x, _, p) in rgba.enumerate_pixels_mut() {
+                if x < cut {
+                    *p = image::Rgba([255, 0, 255, 255]);
+                }
+            }
+            rgba.save(&photo).unwrap();
+        }
+    }
+}
+
+/// Adds `mask_path: masks/<photo name>` to every frame of `dir/transforms.json`.
+fn add_mask_paths(dir: &Path) {
+    let path = dir.join("transforms.json");
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    for frame in json["frames"].as_array_mut().unwrap() {
+        let name = frame["file_path"]
+            .as_str()
+            .unwrap()
+            .replace("images/", "masks/");
+        frame["mask_path"] = serde_json::json!(name);
+    }
+    std::fs::write(&path, json.to_string()).unwrap();
+}
+
+#[test]
+fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
+    let test = "masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named";
+    let Some(lego) = lego(test) else { return };
+    let root = tempfile::tempdir().unwrap();
+    let cut = lego.size.0 / 2;
+    // nerfstudio: mask_path per frame.
+    let ns = root.path().join("nerfstudio");
+    write_nerfstudio(&lego, &ns);
+    write_masks(&ns, FRAMES, lego.size, cut, false);
+    add_mask_paths(&ns);
+    // COLMAP: masks/ beside images/, and the ignored halves of the photos painted over.
+    let painted = root.path().join("colmap");
+    write_colmap_text(&lego, &painted);
+    write_masks(&painted, FRAMES, lego.size, cut, true);
+    for dir in [&ns, &painted] {
+        let data = Dataset::load(dir, Split::Test, 20, 10, false).unwrap();
+        assert_eq!(data.masks.len(), 2);
+        let used = data.mask(0).unwrap().used();
+        // 20 columns, the left 10 ignored, and the one next to them, whose colour the
+        // resize mixes from both sides, may be too; the same on every row.
+        let first = (0..20).position(|x| used[x]).unwrap();
+        assert!((10..=11).contains(&first), "{used:?}");
+        assert!((0..200).all(|p| used[p] == (p % 20 >= first)), "{used:?}");
+    }
+
+    let ckpt = root.path().join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let overrides = [
+        "data.image_size=[24,24]",
+        "training.num_epochs=1",
+        "training.eval_views=0",
+        "sampler.n_pts_per_ray=32",
+        &ckpt_arg,
+    ];
+    let run = |command: &str, dir: &Path| {
+        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
+        args.push(dir.to_str().unwrap());
+        args.extend(overrides);
+        if command == "eval" {
+            args.extend(["--split", "test"]);
+        }
+        common::nerf(&args)
+    };
+    assert!(run("train", &painted).status.success());
+    // PSNR is over the used pixels: the painted halves change nothing.
+    let psnr_of = |o: std::process::Output| {
+        assert!(o.status.success(), "{}", common::stderr(&o));
+        let out = String::from_utf8_lossy(&o.stdout).to_string();
+        let at = out.find("PSNR mean ").unwrap() + "PSNR mean ".len();
+        out[at..].split_whitespace().next().unwrap().to_string()
+    };
+    let plain = root.path().join("plain");
+    write_colmap_text(&lego, &plain);
+    write_masks(&plain, FRAMES, lego.size, cut, false);
+    let on_painted = psnr_of(run("eval", &painted));
+    assert_eq!(on_painted, psnr_of(run("eval", &plain)));
+    // Without the masks the magenta halves are scored, and the PSNR falls.
+    std::fs::remove_dir_all(painted.join("masks")).unwrap();
+    let unmasked: f64 = psnr_of(run("eval", &painted)).parse().unwrap();
+    assert!(
+        unmasked < on_painted.parse::<f64>().unwrap() - 1.0,
+        "{unmasked}"
+    );
+
+    // A mask of another size, and a missing one: one line naming the file; nothing written.
+    let fresh = root.path().join("fresh.safetensors");
+    let fresh_arg = format!("training.checkpoint_path={}", fresh.display());
+    let bad_size = plain.join("masks").join("frame_03.png");
+    image::GrayImage::new(7, 5).save(&bad_size).unwrap();
+    let missing = plain.join("masks").join("frame_05.png");
+    for (file, says) in [(&bad_size, "is 7x5"), (&missing, "")] {
+        let mut args = vec!["train", "--config", "nerf_scene", "--data-dir"];
+        args.push(plain.to_str().unwrap());
+        args.extend([
+            "data.image_size=[24,24]",
+            "training.num_epochs=1",
+            &fresh_arg,
+        ]);
+        if file == &missing {
+            std::fs::copy(&missing, &bad_size).unwrap();
+            std::fs::remove_file(&missing).unwrap();
+        }
+        let err = error_line(&common::nerf(&args));
+        assert!(
+            err.contains(&file.display().to_string()) && err.contains(says),
+            "{err}"
+        );
+        assert!(!fresh.exists());
+    }
 }

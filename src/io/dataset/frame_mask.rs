@@ -42,8 +42,9 @@ impl PixelMask {
 }
 
 /// The mask at `path` for `image` (whose file is `source_size` pixels), resized to `width ×
-/// height`: a pixel of the resized mask is used when at least half of what it is resampled
-/// from is (the flags as 0 and 1, resized with the filter the images use). One-line errors
+/// height`: a pixel of the resized image is used only when no ignored pixel of the photo
+/// enters its colour (the flags as 0 and 1, resized with the filter the images use, must stay
+/// 1), so that what an ignored region holds never reaches training or the score. One-line errors
 /// name the file: unreadable, not a PNG, not the image's size, or ignoring every pixel.
 pub fn load_mask(
     path: &Path,
@@ -94,7 +95,7 @@ pub fn load_mask(
         imageops::resize(&buffer, w, h, FilterType::Triangle)
             .into_raw()
             .into_iter()
-            .map(|f| f >= 0.5)
+            .map(|f| f >= 1.0 - 1e-5)
             .collect()
     };
     let mask = PixelMask::from_flags(used);
@@ -120,7 +121,7 @@ mod tests {
     }
 
     #[test]
-    fn zero_is_ignored_and_resizing_keeps_the_majority() {
+    fn zero_is_ignored_and_a_resized_pixel_touched_by_an_ignored_one_is_ignored() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("m.png");
         // The left quarter ignored, the rest used (any non-zero value).
@@ -130,11 +131,13 @@ mod tests {
         assert_eq!(full.used_pixels().len(), 24);
         assert!(!full.used()[1] && full.used()[2] && !full.used()[9]);
         let half = load_mask(&path, image, (8, 4), (4, 2)).unwrap();
+        // Column 1 averages source columns 1 to 4 (the triangle filter's support at half
+        // size): column 1 is ignored, so it is too.
         assert_eq!(
             half.used(),
-            &[false, true, true, true, false, true, true, true]
+            &[false, false, true, true, false, false, true, true]
         );
-        assert_eq!(half.used_pixels(), &[1, 2, 3, 5, 6, 7]);
+        assert_eq!(half.used_pixels(), &[2, 3, 6, 7]);
     }
 
     #[test]
