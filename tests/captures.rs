@@ -587,3 +587,41 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
         assert!(!fresh.exists());
     }
 }
+
+#[test]
+fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model() {
+    let test = "one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model";
+    let Some(lego) = lego(test) else { return };
+    let root = tempfile::tempdir().unwrap();
+    let text = root.path().join("text");
+    write_colmap_text(&lego, &text);
+    let binary = root.path().join("binary");
+    lego.copy_images(&binary);
+    let (_, model) = nerf::io::colmap::find_model(&text).unwrap();
+    nerf::io::colmap::write_binary(&binary.join("sparse").join("0"), &model).unwrap();
+    assert!(binary.join("sparse/0/images.bin").is_file());
+    let ckpt = root.path().join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let overrides = [
+        "data.image_size=[24,24]",
+        "training.num_epochs=1",
+        "training.eval_views=0",
+        "sampler.n_pts_per_ray=32",
+        &ckpt_arg,
+    ];
+    let run = |command: &str, dir: &Path, extra: &[&str]| {
+        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
+        args.push(dir.to_str().unwrap());
+        args.extend(overrides);
+        args.extend(extra);
+        common::nerf_ok(&args)
+    };
+    run("train", &text, &[]);
+    let (a, b) = (root.path().join("a"), root.path().join("b"));
+    for (dir, saved) in [(&text, &a), (&binary, &b)] {
+        let saved = saved.to_str().unwrap();
+        run("eval", dir, &["--split", "test", "--save-images", saved]);
+    }
+    assert_eq!(files_of(&a).len(), 2);
+    assert_eq!(files_of(&a), files_of(&b));
+}
