@@ -176,9 +176,14 @@ fn write_llff(lego: &Lego, dir: &Path) {
         }
         values.extend([2.0, 6.0]);
     }
+    std::fs::write(dir.join("poses_bounds.npy"), npy_rows(&values)).unwrap();
+}
+
+/// A float64 `.npy` file of shape `(N, 17)` holding `values` row by row.
+fn npy_rows(values: &[f64]) -> Vec<u8> {
     let header = format!(
         "{{'descr': '<f8', 'fortran_order': False, 'shape': ({}, 17), }}",
-        lego.views.len()
+        values.len() / 17
     );
     let pad = 64 - (10 + header.len() + 1) % 64;
     let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
@@ -189,7 +194,7 @@ fn write_llff(lego: &Lego, dir: &Path) {
     for v in values {
         bytes.extend(v.to_le_bytes());
     }
-    std::fs::write(dir.join("poses_bounds.npy"), bytes).unwrap();
+    bytes
 }
 
 /// Reads the capture in `dir` as `format` and checks every split's cameras against the lego
@@ -624,4 +629,181 @@ fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model(
     }
     assert_eq!(files_of(&a).len(), 2);
     assert_eq!(files_of(&a), files_of(&b));
+}
+
+/// Replaces `from` by `to` in the text file `path` (once, which must match).
+fn edit(path: &Path, from: &str, to: &str) {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.contains(from), "{}: no {from}", path.display());
+    std::fs::write(path, text.replacen(from, to, 1)).unwrap();
+}
+
+#[test]
+fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
+    let test = "each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written";
+    let Some(lego) = lego(test) else { return };
+    let lego = lego.first(4);
+    let root = tempfile::tempdir().unwrap();
+    // A way to break a capture, returning the file the error must name.
+    type Breakage = fn(&Path) -> PathBuf;
+    // What is broken, how, and what the error must also say.
+    type Case<'a> = (&'a str, Breakage, &'a str);
+    // A format's writer.
+    type Writer = fn(&Lego, &Path);
+    let missing_images: Breakage = |d| {
+        std::fs::remove_dir_all(d.join("images")).unwrap();
+        d.join("images")
+    };
+    fn absent_image(d: &Path) -> PathBuf {
+        let photo = d.join("images").join("frame_02.png");
+        std::fs::remove_file(&photo).unwrap();
+        photo
+    }
+    let colmap: [Case; 5] = [
+        ("missing images/", missing_images, ""),
+        (
+            "unknown camera model",
+            |d| {
+                let cameras = d.join("sparse").join("0").join("cameras.txt");
+                // COLMAP's FOV model (fx fy cx cy omega), which no loader here supports.
+                let text = std::fs::read_to_string(&cameras).unwrap();
+                let line = text.lines().find(|l| l.contains("PINHOLE")).unwrap();
+                let fov = format!("{} 0.1", line.replace("PINHOLE", "FOV"));
+                std::fs::write(&cameras, text.replacen(line, &fov, 1)).unwrap();
+                cameras
+            },
+            "FOV",
+        ),
+        ("image listed but absent", absent_image, ""),
+        (
+            "NaN pose",
+            |d| {
+                let images = d.join("sparse").join("0").join("images.txt");
+                let text = std::fs::read_to_string(&images).unwrap();
+                let line = text.lines().find(|l| l.starts_with("2 ")).unwrap();
+                let mut fields: Vec<&str> = line.split(' ').collect();
+                fields[5] = "nan";
+                std::fs::write(&images, text.replacen(line, &fields.join(" "), 1)).unwrap();
+                images
+            },
+            "",
+        ),
+        (
+            "zero registered images",
+            |d| {
+                let images = d.join("sparse").join("0").join("images.txt");
+                std::fs::write(&images, "# no images\n").unwrap();
+                images
+            },
+            "",
+        ),
+    ];
+    let nerfstudio: [Case; 5] = [
+        ("missing images/", missing_images, ""),
+        (
+            "unknown camera model",
+            |d| {
+                let json = d.join("transforms.json");
+                edit(&json, "\"OPENCV\"", "\"EQUIRECTANGULAR\"");
+                json
+            },
+            "EQUIRECTANGULAR",
+        ),
+        ("image listed but absent", absent_image, ""),
+        (
+            "NaN pose",
+            |d| {
+                let json = d.join("transforms.json");
+                let text = std::fs::read_to_string(&json).unwrap();
+                let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+                // Python's json module writes a NaN as the bare token NaN, which JSON lacks.
+                v["frames"][1]["transform_matrix"][0][3] = serde_json::json!("REPLACE");
+                let text = v.to_string().replace("\"REPLACE\"", "NaN");
+                std::fs::write(&json, text).unwrap();
+                json
+            },
+            "transform_matrix",
+        ),
+        (
+            "zero registered images",
+            |d| {
+                let json = d.join("transforms.json");
+                let mut v: serde_json::Value =
+                    serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+                v["frames"] = serde_json::json!([]);
+                std::fs::write(&json, v.to_string()).unwrap();
+                json
+            },
+            "no frames",
+        ),
+    ];
+    let llff: [Case; 4] = [
+        ("missing images/", missing_images, ""),
+        (
+            "image absent",
+            |d| {
+                absent_image(d);
+                d.join("poses_bounds.npy")
+            },
+            "3 images",
+        ),
+        (
+            "NaN pose",
+            |d| {
+                let npy = d.join("poses_bounds.npy");
+                let mut bytes = std::fs::read(&npy).unwrap();
+                // Row 1's first value (rows of 17 float64s end the file).
+                let at = bytes.len() - 3 * 17 * 8;
+                bytes[at..at + 8].copy_from_slice(&f64::NAN.to_le_bytes());
+                std::fs::write(&npy, bytes).unwrap();
+                npy
+            },
+            "",
+        ),
+        (
+            "zero registered images",
+            |d| {
+                for i in 0..4 {
+                    std::fs::remove_file(d.join("images").join(format!("frame_{i:02}.png")))
+                        .unwrap();
+                }
+                let npy = d.join("poses_bounds.npy");
+                std::fs::write(&npy, npy_rows(&[])).unwrap();
+                npy
+            },
+            "",
+        ),
+    ];
+    let writers: [(&str, Writer, &[Case]); 3] = [
+        ("colmap", write_colmap_text, &colmap),
+        ("nerfstudio", write_nerfstudio, &nerfstudio),
+        ("llff", write_llff, &llff),
+    ];
+    for (format, write, breakages) in writers {
+        for (i, (what, breakage, says)) in breakages.iter().enumerate() {
+            let dir = root.path().join(format!("{format}_{i}"));
+            write(&lego, &dir);
+            let named = breakage(&dir);
+            let out = root.path().join(format!("out_{format}_{i}"));
+            let ckpt = format!("training.checkpoint_path={}", out.join("ck").display());
+            let out_dir = out.join("images");
+            let args = [
+                "train",
+                "--config",
+                "nerf_scene",
+                "--data-dir",
+                dir.to_str().unwrap(),
+                "--out-dir",
+                out_dir.to_str().unwrap(),
+                &ckpt,
+            ];
+            let err = error_line(&common::nerf(&args));
+            eprintln!("{format}, {what}: {err}");
+            assert!(
+                err.contains(&named.display().to_string()) && err.contains(says),
+                "{format}, {what}: {err}"
+            );
+            assert!(!out.exists(), "{format}, {what}: wrote {}", out.display());
+        }
+    }
 }

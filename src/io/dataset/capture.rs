@@ -134,9 +134,16 @@ pub fn read_capture_split_with(
         SceneFormat::Blender => bail!("{}: not a capture", dir.display()),
     };
     if frames.is_empty() {
+        // The file that lists the frames (a COLMAP model without images is refused by its
+        // reader, which names its images file).
+        let listing = match format {
+            SceneFormat::Nerfstudio => dir.join("transforms.json"),
+            SceneFormat::Llff => dir.join("poses_bounds.npy"),
+            _ => dir.to_path_buf(),
+        };
         bail!(
             "{}: the {} capture has no frames",
-            dir.display(),
+            listing.display(),
             format.name()
         );
     }

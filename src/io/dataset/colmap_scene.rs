@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, bail, Result};
 
 use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
@@ -15,6 +15,20 @@ use crate::io::colmap::find_model;
 pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let (model_dir, model) = find_model(dir)?;
     let images = dir.join("images");
+    if !images.is_dir() {
+        bail!(
+            "{}: no such folder (a COLMAP capture keeps its photos in images/, beside the \
+             sparse model {})",
+            images.display(),
+            model_dir.display()
+        );
+    }
+    // The file the cameras were read from: binary files win when both are there.
+    let cameras_file = ["cameras.bin", "cameras.txt"]
+        .map(|f| model_dir.join(f))
+        .into_iter()
+        .find(|f| f.is_file())
+        .unwrap_or_else(|| model_dir.join("cameras.txt"));
     let frames = model
         .images
         .iter()
@@ -25,7 +39,14 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
                 .map_err(|e| anyhow!("{}: {e}", what()))?;
             let size = (record.width as usize, record.height as usize);
             let camera = ColmapCamera::from_colmap(&record.model, &record.params, size, pose)
-                .map_err(|e| anyhow!("{}: {e}", what()))?;
+                .map_err(|e| {
+                    anyhow!(
+                        "{}: camera {} (of image {}): {e}",
+                        cameras_file.display(),
+                        record.id,
+                        image.name
+                    )
+                })?;
             Ok(CaptureFrame {
                 file_path: images.join(&image.name),
                 camera,
