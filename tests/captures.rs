@@ -461,6 +461,22 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     let log = eval(&subset, &old, &recomputed_images);
     assert!(log.contains("stores no scene normalisation"), "{log}");
     assert_ne!(files_of(&recomputed_images), files_of(&on_full));
+    // A resumed run on the subset keeps training in the stored frame, and keeps storing it.
+    let mut args = vec!["train", "--config", "nerf_scene", "--data-dir"];
+    args.push(subset.to_str().unwrap());
+    args.extend(overrides);
+    args.push("training.num_epochs=3");
+    let log = common::stderr(&common::nerf_ok(&args));
+    assert!(
+        log.contains("resuming from") && log.contains("using the scene normalisation stored in"),
+        "{log}"
+    );
+    let meta = checkpoint::read_metadata(&ckpt).unwrap();
+    assert_eq!(meta["epoch"], "3");
+    assert_eq!(
+        checkpoint::scene_transform_of(&meta, &ckpt).unwrap(),
+        Some(trained_in)
+    );
 }
 
 /// Masks for every frame of the capture in `dir` (the left `cut` columns ignored), written as
