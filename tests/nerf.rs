@@ -50,6 +50,7 @@ fn box_dataset(config: &Config) -> Dataset {
         frames.push(Frame {
             file_path: PathBuf::from("synthetic"),
             camera: (*cam).into(),
+            mask_path: None,
         });
         images.push(f.color);
     }
@@ -59,6 +60,8 @@ fn box_dataset(config: &Config) -> Dataset {
         transparency: Vec::new(),
         width: 12,
         height: 12,
+        masks: Vec::new(),
+        normalisation: None,
     }
 }
 
@@ -287,6 +290,7 @@ fn checkpoint_round_trips_bit_exactly() {
         step_in_epoch: 3,
         rng_word_pos: 1 << 70,
         rays_per_step: 3000,
+        scene_transform: None,
     };
     checkpoint::save(&path, &checkpoint::model_tensors(&state.varmap), info).unwrap();
     let (loaded, back) = load_nerf(&nerf_cfg, &path).unwrap();

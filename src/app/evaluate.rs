@@ -6,11 +6,13 @@ use anyhow::Result;
 use candle_core::Device;
 
 use crate::app::config::Config;
+use crate::app::scene_frame::{note_scene_frame, stored_transform};
 use crate::eval::evaluate::{evaluate, EvalReport};
 use crate::io::dataset::{Dataset, Split};
 
-/// Loads the checkpoint (the one [`Config::checkpoint`] picks for `checkpoint`) and the split at the config's image size and scores every view (the
-/// first `limit` with a limit); with `save_images`, writes each prediction there.
+/// Loads the checkpoint (the one [`Config::checkpoint`] picks for `checkpoint`) and the split
+/// at the config's image size, a capture in the frame the checkpoint stores, and scores every
+/// view (the first `limit` with a limit); with `save_images`, writes each prediction there.
 pub fn eval_nerf(
     config: &Config,
     checkpoint: Option<&Path>,
@@ -25,16 +27,19 @@ pub fn eval_nerf(
             "implicit_function.type sdf_volume: this command needs a NeRF config (e.g. lego); eval scores a trained field against a dataset"
         );
     }
-    let (w, h) = config.data.dataset_image_size(data_dir)?;
-    let dataset = Dataset::load_first(
+    let size = config.data.dataset_image_size(data_dir)?;
+    let path = config.checkpoint(checkpoint);
+    let stored = stored_transform(&path)?;
+    let dataset = Dataset::load_first_with(
         data_dir,
         split,
-        w,
-        h,
+        size,
         config.renderer.white_background,
         limit,
+        stored,
     )?;
-    let field = config.load_field(&config.checkpoint(checkpoint), device)?;
+    note_scene_frame(data_dir, &path, stored, dataset.normalisation.as_ref());
+    let field = config.load_field(&path, device)?;
     evaluate(
         &config.render_settings()?.with(&*field),
         &dataset,

@@ -10,10 +10,11 @@ use candle_core::{Device, Tensor};
 
 use crate::app::config::{limits, Config, OccupancyGridConfig};
 use crate::app::scene::{load_scene_field, write_all, SceneField, WorkChunks};
+use crate::app::scene_frame::{note_scene_frame, stored_transform};
 use crate::core::frame_camera::FrameCamera;
 use crate::core::marching_cubes::{marching_cubes, TriMesh, VolumeGrid};
 use crate::core::sdf::{sdf_at_density, Sdf, SdfVolume};
-use crate::io::dataset::{read_split, Split};
+use crate::io::dataset::{read_split_with, Split};
 use crate::io::images::{viridis_image, write_npy, write_png};
 use crate::io::output::prepare_out_dir;
 use crate::io::ply::{write_mesh_ply, write_points_ply};
@@ -240,15 +241,17 @@ fn view_size(config: &Config, scene: &SceneField, views: &ViewSelection) -> Resu
     }
 }
 
-/// The named cameras to render: the split's frames (named by image file stem) for a NeRF, the
-/// surround cameras (`view_000`, …) for an SDF scene.
+/// The named cameras to render: the split's frames (named by image file stem; a capture's in
+/// the frame the checkpoint that [`Config::checkpoint`] picks for `checkpoint` stores) for a
+/// NeRF, the surround cameras (`view_000`, …) for an SDF scene.
 fn export_cameras(
     config: &Config,
+    checkpoint: Option<&Path>,
     scene: &SceneField,
     views: &ViewSelection,
 ) -> Result<Vec<(String, FrameCamera)>> {
     let mut cameras: Vec<(String, FrameCamera)> = match scene {
-        SceneField::Nerf(_) => read_split(&views.data_dir, views.split)?
+        SceneField::Nerf(_) => nerf_views(config, checkpoint, views)?
             .into_iter()
             .map(|f| {
                 let name = f
@@ -267,6 +270,19 @@ fn export_cameras(
     };
     cameras.truncate(views.limit.unwrap_or(usize::MAX));
     Ok(cameras)
+}
+
+/// The frames of the selected split, a capture's in the frame the checkpoint stores.
+fn nerf_views(
+    config: &Config,
+    checkpoint: Option<&Path>,
+    views: &ViewSelection,
+) -> Result<Vec<crate::io::dataset::Frame>> {
+    let path = config.checkpoint(checkpoint);
+    let stored = stored_transform(&path)?;
+    let read = read_split_with(&views.data_dir, views.split, stored)?;
+    note_scene_frame(&views.data_dir, &path, stored, read.normalisation.as_ref());
+    Ok(read.frames)
 }
 
 /// Keeps the points inside `aabb` (`[min.., max..]`).
@@ -311,7 +327,7 @@ pub fn export_points(
     check_output_file(out)?;
     let chunks = WorkChunks::from_env()?;
     let scene = load_scene_field(config, checkpoint, device)?;
-    let cameras = export_cameras(config, &scene, views)?;
+    let cameras = export_cameras(config, checkpoint, &scene, views)?;
     let size = view_size(config, &scene, views)?;
     check_point_cloud_size(cameras.len(), size)?;
     let render = config.render_settings()?;
@@ -359,7 +375,7 @@ pub fn export_depth(
     );
     prepare_out_dir(out_dir)?;
     let scene = load_scene_field(config, checkpoint, device)?;
-    let cameras = export_cameras(config, &scene, views)?;
+    let cameras = export_cameras(config, checkpoint, &scene, views)?;
     let render = config.render_settings()?;
     let (w, h) = view_size(config, &scene, views)?;
     let bar = progress_bar(cameras.len() as u64, "depth");

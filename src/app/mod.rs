@@ -19,6 +19,7 @@ pub mod process;
 #[cfg(feature = "cli")]
 pub mod report;
 pub mod scene;
+pub mod scene_frame;
 pub mod train;
 pub mod train_box;
 #[cfg(feature = "cli")]

@@ -10,6 +10,7 @@ use candle_core::Device;
 
 use crate::app::config::Config;
 use crate::app::scene::render_nerf_gif;
+use crate::app::scene_frame::{note_scene_frame, stored_transform};
 use crate::eval::evaluate::evaluate;
 use crate::io::dataset::{Dataset, Split};
 use crate::train::fit::{fit, CheckpointScore, FitOutcome, Hooks, RunLimits, TrainPaths};
@@ -55,7 +56,8 @@ pub fn stop_on_signal() -> Result<&'static AtomicBool> {
     Ok(&STOP)
 }
 
-/// Runs `nerf train` for `config` on the dataset in `data_dir`. `limits` end the run early
+/// Runs `nerf train` for `config` on the dataset in `data_dir` (a capture normalised as its
+/// cameras say, or as the checkpoint a resumed run continues stores). `limits` end the run early
 /// (after writing a checkpoint) after that many epochs or seconds of training in this process;
 /// `stop` ends it after the current step.
 pub fn train_nerf(
@@ -67,12 +69,22 @@ pub fn train_nerf(
     device: &Device,
 ) -> Result<FitOutcome> {
     let settings = config.train_settings()?;
-    let (w, h) = config.data.dataset_image_size(data_dir)?;
+    let size = config.data.dataset_image_size(data_dir)?;
     let white = config.renderer.white_background;
-    let dataset = Dataset::load(data_dir, Split::Train, w, h, white)?;
+    // A resumed run keeps the frame it started in.
+    let stored = match settings.resume {
+        true => stored_transform(&paths.checkpoint)?,
+        false => None,
+    };
+    let dataset = Dataset::load_first_with(data_dir, Split::Train, size, white, None, stored)?;
+    if stored.is_some() {
+        let n = dataset.normalisation.as_ref();
+        note_scene_frame(data_dir, &paths.checkpoint, stored, n);
+    }
+    let frame = dataset.normalisation.map(|n| n.applied);
     let eval_views = config.training()?.eval_views;
     let test = if eval_views > 0 {
-        match Dataset::load(data_dir, Split::Test, w, h, white) {
+        match Dataset::load_first_with(data_dir, Split::Test, size, white, None, frame) {
             Ok(d) => Some(d),
             Err(e) => {
                 crate::core::term::note(&format!("warning: no test-PSNR logging: {e:#}"));

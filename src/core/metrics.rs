@@ -27,6 +27,22 @@ pub fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
     psnr_from_mse(mse)
 }
 
+/// PSNR in dB between two colour images in [0, 1] over the pixels whose `used` flag
+/// (row-major, one per pixel) is set: the mean squared error of those pixels' channels only.
+pub fn psnr_over(a: &RgbImage, b: &RgbImage, used: &[bool]) -> f64 {
+    let (sum, n) = a
+        .data
+        .chunks_exact(3)
+        .zip(b.data.chunks_exact(3))
+        .zip(used)
+        .filter(|(_, &u)| u)
+        .fold((0.0f64, 0usize), |(sum, n), ((x, y), _)| {
+            let e: f64 = x.iter().zip(y).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+            (sum + e, n + 3)
+        });
+    psnr_from_mse(sum / n.max(1) as f64)
+}
+
 /// Side of SSIM's Gaussian window (11, as the SSIM paper and scikit-image with σ 1.5).
 pub const SSIM_WINDOW: usize = 11;
 
@@ -172,7 +188,12 @@ mod tests {
         let a = RgbImage::new(1, 1, vec![0.0, 0.0, 0.0]).unwrap();
         let b = RgbImage::new(1, 1, vec![0.1, 0.1, 0.1]).unwrap();
         assert!((psnr(&a, &b) - 20.0).abs() < 1e-6);
-        assert!((mean_psnr(&[&a], &[b]) - 20.0).abs() < 1e-6);
+        assert!((mean_psnr(&[&a], std::slice::from_ref(&b)) - 20.0).abs() < 1e-6);
+        // Over the used pixels only: the second pixel's error is left out.
+        let a2 = RgbImage::new(2, 1, vec![0.0; 6]).unwrap();
+        let b2 = RgbImage::new(2, 1, vec![0.1, 0.1, 0.1, 0.9, 0.9, 0.9]).unwrap();
+        assert!((psnr_over(&a2, &b2, &[true, false]) - 20.0).abs() < 1e-6);
+        assert!((psnr_over(&a2, &b2, &[true, true]) - psnr(&a2, &b2)).abs() < 1e-12);
         assert_eq!(mean(&[]), 0.0);
     }
 

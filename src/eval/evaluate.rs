@@ -6,7 +6,7 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-use crate::core::metrics::{mean, psnr, ssim, SSIM_WINDOW};
+use crate::core::metrics::{mean, psnr, psnr_over, ssim, SSIM_WINDOW};
 use crate::io::dataset::{Dataset, Split};
 use crate::io::images::write_png;
 use crate::io::output::prepare_out_dir;
@@ -19,10 +19,12 @@ use crate::render::view::{render_view, Pipeline};
 pub struct ViewScore {
     /// Frame name, e.g. `r_0`.
     pub frame: String,
-    /// PSNR in dB of the rendered colour against the ground-truth image.
+    /// PSNR in dB of the rendered colour against the ground-truth image, over the pixels its
+    /// mask uses when the frame has one.
     pub psnr: f64,
     /// SSIM of the rendered colour against the ground-truth image
-    /// ([`crate::core::metrics::ssim`]: 11×11 Gaussian window, data range 1); `None` (JSON
+    /// ([`crate::core::metrics::ssim`]: 11×11 Gaussian window, data range 1), over the whole
+    /// image even when the frame has a mask; `None` (JSON
     /// `null`) for images under 11 pixels on a side, where SSIM's window does not fit.
     pub ssim: Option<f64>,
 }
@@ -85,8 +87,9 @@ fn ssim_fits(size: (usize, usize)) -> bool {
     size.0 >= SSIM_WINDOW && size.1 >= SSIM_WINDOW
 }
 
-/// Renders every view of `dataset` through `pipeline` and scores it; with `save_images`,
-/// writes each prediction as `<frame>.png` there. `limit` evaluates only the first views.
+/// Renders every view of `dataset` through `pipeline` and scores it (PSNR over the pixels a
+/// frame's mask uses, SSIM over the whole image); with `save_images`, writes each whole
+/// prediction as `<frame>.png` there. `limit` evaluates only the first views.
 pub fn evaluate(
     pipeline: &Pipeline,
     dataset: &Dataset,
@@ -104,7 +107,13 @@ pub fn evaluate(
     let mut views = Vec::with_capacity(n);
     let mut render_seconds = 0.0;
     let mut counts = SampleCounts::default();
-    for (frame, truth) in dataset.frames.iter().zip(&dataset.images).take(n) {
+    for (index, (frame, truth)) in dataset
+        .frames
+        .iter()
+        .zip(&dataset.images)
+        .enumerate()
+        .take(n)
+    {
         let t = std::time::Instant::now();
         let predicted = render_view(pipeline, &frame.camera, size, device)?;
         render_seconds += t.elapsed().as_secs_f64();
@@ -118,7 +127,10 @@ pub fn evaluate(
         }
         views.push(ViewScore {
             frame: name,
-            psnr: psnr(&predicted.color, truth),
+            psnr: match dataset.mask(index) {
+                Some(mask) => psnr_over(&predicted.color, truth, mask.used()),
+                None => psnr(&predicted.color, truth),
+            },
             ssim: ssim_fits(size)
                 .then(|| ssim(&predicted.color, truth))
                 .transpose()?,

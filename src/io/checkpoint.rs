@@ -3,7 +3,9 @@
 //! Tensors: the model's parameters under their PyTorch names (`mlp_xyz.mlp.0.0.weight`, …,
 //! see [`crate::field::nerf`]), and for training checkpoints the Adam moments
 //! `adam.exp_avg.<name>` / `adam.exp_avg_sq.<name>`. Metadata: `epoch` (epochs completed),
-//! `adam_step`, `format` = `nerf-candle-1`. A loader that only wants the model ignores `adam.*`.
+//! `adam_step`, `format` = `nerf-candle-1`, and for a model trained on a capture
+//! `scene_transform`, the normalisation its cameras were put in
+//! ([`SceneTransform::to_text`]). A loader that only wants the model ignores `adam.*`.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -12,7 +14,11 @@ use anyhow::{bail, Context, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
+use crate::io::dataset::SceneTransform;
 use crate::io::output::write_atomically;
+
+/// The metadata key of the scene normalisation a model was trained in.
+pub const SCENE_TRANSFORM_KEY: &str = "scene_transform";
 
 /// What a checkpoint holds besides tensors.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -32,6 +38,10 @@ pub struct CheckpointInfo {
     /// Rays of the next step when training adapts them (`training.samples_per_step`; 0 when
     /// it does not).
     pub rays_per_step: usize,
+    /// The normalisation of the capture the model was trained on (`None` for a NeRF-synthetic
+    /// scene, or a checkpoint written before it was stored): evaluating or rendering the
+    /// capture's cameras with this model must put them in this frame.
+    pub scene_transform: Option<SceneTransform>,
 }
 
 /// The largest counts a checkpoint's metadata may hold: far past any real run, and small
@@ -107,7 +117,7 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
             ))
         })
         .collect::<Result<_>>()?;
-    let metadata: HashMap<String, String> = [
+    let mut metadata: HashMap<String, String> = [
         ("epoch".to_string(), info.epoch.to_string()),
         ("adam_step".to_string(), info.adam_step.to_string()),
         (
@@ -120,6 +130,9 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
         ("format".to_string(), "nerf-candle-1".to_string()),
     ]
     .into();
+    if let Some(t) = &info.scene_transform {
+        metadata.insert(SCENE_TRANSFORM_KEY.to_string(), t.to_text());
+    }
     let bytes = safetensors::serialize(views, Some(metadata))?;
     if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
@@ -170,6 +183,7 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
         step_in_epoch: metadata_value(&meta, "step_in_epoch", path)?,
         rng_word_pos: metadata_value(&meta, "rng_word_pos", path)?,
         rays_per_step: metadata_value(&meta, "rays_per_step", path)?,
+        scene_transform: scene_transform_of(&meta, path)?,
     };
     info.validate(path)?;
     let mut tensors = HashMap::new();
@@ -222,6 +236,57 @@ pub fn model_tensors(varmap: &VarMap) -> Vec<(String, Tensor)> {
     v
 }
 
+/// The largest safetensors header [`read_metadata`] reads (safetensors' own limit).
+const MAX_HEADER_BYTES: u64 = 100_000_000;
+
+/// The metadata of the safetensors checkpoint at `path`, read from its header alone (the
+/// tensors are not read). An error names a file that is not safetensors.
+pub fn read_metadata(path: &Path) -> Result<HashMap<String, String>> {
+    use std::io::Read;
+    let corrupt = |why: &str| {
+        anyhow::anyhow!(
+            "checkpoint {} is corrupt or not safetensors: {why}",
+            path.display()
+        )
+    };
+    let mut file = std::fs::File::open(path)
+        .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
+    let mut length = [0u8; 8];
+    file.read_exact(&mut length)
+        .map_err(|_| corrupt("shorter than a header"))?;
+    let length = u64::from_le_bytes(length);
+    if length > MAX_HEADER_BYTES || length > file.metadata()?.len().saturating_sub(8) {
+        return Err(corrupt("its header length does not fit"));
+    }
+    let mut header = vec![0u8; length as usize];
+    file.read_exact(&mut header)
+        .map_err(|_| corrupt("a short header"))?;
+    let header: serde_json::Value =
+        serde_json::from_slice(&header).map_err(|e| corrupt(&e.to_string()))?;
+    let Some(meta) = header.get("__metadata__") else {
+        return Ok(HashMap::new());
+    };
+    serde_json::from_value(meta.clone()).map_err(|e| corrupt(&format!("metadata: {e}")))
+}
+
+/// The scene normalisation stored in the metadata `meta` of the checkpoint at `path`;
+/// `None` when there is none, an error naming the key when it does not read as one.
+pub fn scene_transform_of(
+    meta: &HashMap<String, String>,
+    path: &Path,
+) -> Result<Option<SceneTransform>> {
+    meta.get(SCENE_TRANSFORM_KEY)
+        .map(|text| {
+            SceneTransform::from_text(text).map_err(|e| {
+                anyhow::anyhow!(
+                    "checkpoint {}: bad metadata {SCENE_TRANSFORM_KEY}: {e}",
+                    path.display()
+                )
+            })
+        })
+        .transpose()
+}
+
 /// The metadata entry `key` of the checkpoint at `path` parsed as a `T`, its default (0)
 /// when absent; an error naming the key when it does not parse.
 fn metadata_value<T: std::str::FromStr + Default>(
@@ -234,5 +299,53 @@ fn metadata_value<T: std::str::FromStr + Default>(
         Some(v) => v
             .parse()
             .map_err(|_| anyhow::anyhow!("checkpoint {}: bad metadata {key}", path.display())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{DMat3, DVec3};
+
+    #[test]
+    fn the_scene_transform_is_stored_and_read_back_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ck.safetensors");
+        let w = Tensor::new(&[1.0f32, 2.0], &Device::Cpu).unwrap();
+        let transform = SceneTransform {
+            rotation: DMat3::from_axis_angle(DVec3::new(1.0, 2.0, 3.0).normalize(), 0.7),
+            center: DVec3::new(0.1, -2.0 / 3.0, 5.0),
+            scale: 1.0 / 7.0,
+        };
+        let info = CheckpointInfo {
+            epoch: 3,
+            scene_transform: Some(transform),
+            ..CheckpointInfo::default()
+        };
+        save(&path, &[("w".to_string(), w.clone())], info).unwrap();
+        let (_, read) = load(&path, &Device::Cpu).unwrap();
+        assert_eq!(read, info);
+        let meta = read_metadata(&path).unwrap();
+        assert_eq!(scene_transform_of(&meta, &path).unwrap(), Some(transform));
+        // Without one (a NeRF-synthetic run), none is written or read.
+        save(&path, &[("w".to_string(), w)], CheckpointInfo::default()).unwrap();
+        assert!(!read_metadata(&path)
+            .unwrap()
+            .contains_key(SCENE_TRANSFORM_KEY));
+        assert_eq!(load(&path, &Device::Cpu).unwrap().1.scene_transform, None);
+        // A bad one names the key.
+        let bad: HashMap<String, String> =
+            [(SCENE_TRANSFORM_KEY.to_string(), "1 2 3".to_string())].into();
+        let err = scene_transform_of(&bad, &path).unwrap_err().to_string();
+        assert!(
+            err.contains(SCENE_TRANSFORM_KEY) && err.contains("13"),
+            "{err}"
+        );
+        // A file that is not safetensors is named.
+        std::fs::write(&path, b"hello").unwrap();
+        assert!(read_metadata(&path)
+            .unwrap_err()
+            .to_string()
+            .contains("corrupt"));
     }
 }

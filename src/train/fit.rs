@@ -499,6 +499,12 @@ impl Run<'_> {
         }
     }
 
+    /// The normalisation of the capture trained on, stored with the model so that every later
+    /// use of its cameras puts them where training did.
+    fn scene_transform(&self) -> Option<crate::io::dataset::SceneTransform> {
+        self.dataset.normalisation.map(|n| n.applied)
+    }
+
     /// After epoch `epoch` (0-based): checkpoint, evaluation and preview as scheduled.
     fn after_epoch(&mut self, epoch: usize, mean_loss: f64, hooks: &mut Hooks) -> Result<()> {
         let s = self.settings;
@@ -507,6 +513,7 @@ impl Run<'_> {
             adam_step: self.adam.step_count(),
             wall_seconds: self.wall(),
             rays_per_step: self.rays_to_save(),
+            scene_transform: self.scene_transform(),
             ..CheckpointInfo::default()
         };
         if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
@@ -646,6 +653,7 @@ pub fn fit(
                 step_in_epoch,
                 rng_word_pos,
                 rays_per_step: run.rays_to_save(),
+                scene_transform: run.scene_transform(),
             };
             run.checkpoint()?;
             run.bar.finish_and_clear();

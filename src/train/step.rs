@@ -32,7 +32,9 @@ pub fn logged_psnr(mse: f64) -> f64 {
 /// background, and their transparencies `(B, 1)` (`1 − alpha`; zeros when the dataset has
 /// none). With
 /// `rays_from_all_images`, `batch_size` random pixels of random training images; otherwise
-/// `batch_size` random pixels of image `image_index` (the homework).
+/// `batch_size` random pixels of image `image_index` (the homework). Pixels a frame's mask
+/// ignores are never drawn: with masks, the pixels are drawn uniformly from the used pixels
+/// of all images (of image `image_index`).
 pub fn training_batch(
     dataset: &Dataset,
     batch_size: usize,
@@ -45,14 +47,18 @@ pub fn training_batch(
     let (w, h) = (dataset.width, dataset.height);
     // (image, pixels) groups; rays of one camera are made together.
     let groups: Vec<(usize, Vec<usize>)> = if rays_from_all_images {
-        let mut picks: Vec<(usize, usize)> = (0..batch_size)
-            .map(|_| {
-                (
-                    rng.random_range(0..dataset.images.len()),
-                    rng.random_range(0..w * h),
-                )
-            })
-            .collect();
+        let mut picks: Vec<(usize, usize)> = if dataset.masks.is_empty() {
+            (0..batch_size)
+                .map(|_| {
+                    (
+                        rng.random_range(0..dataset.images.len()),
+                        rng.random_range(0..w * h),
+                    )
+                })
+                .collect()
+        } else {
+            used_pixel_picks(dataset, batch_size, rng)
+        };
         picks.sort_unstable();
         let mut groups: Vec<(usize, Vec<usize>)> = Vec::new();
         for (image, pixel) in picks {
@@ -63,7 +69,17 @@ pub fn training_batch(
         }
         groups
     } else {
-        vec![(image_index, random_pixel_indices(w, h, batch_size, rng))]
+        let pixels = match dataset.mask(image_index) {
+            None => random_pixel_indices(w, h, batch_size, rng),
+            Some(mask) => {
+                let used = mask.used_pixels();
+                rand::seq::index::sample(rng, used.len(), batch_size.min(used.len()))
+                    .into_iter()
+                    .map(|k| used[k] as usize)
+                    .collect()
+            }
+        };
+        vec![(image_index, pixels)]
     };
     let mut origins = Vec::with_capacity(groups.len());
     let mut directions = Vec::with_capacity(groups.len());
@@ -95,6 +111,32 @@ pub fn training_batch(
         Tensor::from_vec(target, (n, 3), device)?,
         Tensor::from_vec(transparency, (n, 1), device)?,
     ))
+}
+
+/// `n` `(image, pixel)` pairs drawn uniformly (with replacement) from the used pixels of all
+/// images: every pixel of an image without a mask, the used ones of a masked image.
+fn used_pixel_picks(dataset: &Dataset, n: usize, rng: &mut TrainRng) -> Vec<(usize, usize)> {
+    use rand::Rng;
+    let all = dataset.width * dataset.height;
+    // ends[i]: used pixels in images 0..=i.
+    let ends: Vec<usize> = (0..dataset.images.len())
+        .scan(0, |total, i| {
+            *total += dataset.mask(i).map_or(all, |m| m.used_pixels().len());
+            Some(*total)
+        })
+        .collect();
+    let total = ends.last().copied().unwrap_or(0);
+    (0..n)
+        .map(|_| {
+            let r = rng.random_range(0..total);
+            let image = ends.partition_point(|&end| end <= r);
+            let k = r - if image == 0 { 0 } else { ends[image - 1] };
+            let pixel = dataset
+                .mask(image)
+                .map_or(k, |m| m.used_pixels()[k] as usize);
+            (image, pixel)
+        })
+        .collect()
 }
 
 /// What one training step does, besides the model: the batch, how rays are drawn and
@@ -159,4 +201,56 @@ pub fn train_step(
     let grads = loss.backward()?;
     optimizer.step(&grads)?;
     Ok((loss.to_scalar::<f32>()? as f64, out.samples))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::image::RgbImage;
+    use crate::io::dataset::PixelMask;
+    use rand::SeedableRng;
+
+    #[test]
+    fn masked_pixels_are_never_drawn_and_used_ones_uniformly() {
+        // Three 2×2 images: the first unmasked, the second using pixel 3 only, the third
+        // pixels 0 and 1: 4 + 1 + 2 used pixels in all.
+        let image = RgbImage::new(2, 2, vec![0.0; 12]).unwrap();
+        let flags = |used: [bool; 4]| Some(PixelMask::from_flags(used.to_vec()));
+        let dataset = Dataset {
+            frames: Vec::new(),
+            images: vec![image; 3],
+            transparency: Vec::new(),
+            width: 2,
+            height: 2,
+            masks: vec![
+                None,
+                flags([false, false, false, true]),
+                flags([true, true, false, false]),
+            ],
+            normalisation: None,
+        };
+        let mut rng = TrainRng::seed_from_u64(7);
+        let n = 70_000;
+        let picks = used_pixel_picks(&dataset, n, &mut rng);
+        let mut counts = [[0usize; 4]; 3];
+        for (image, pixel) in picks {
+            counts[image][pixel] += 1;
+        }
+        assert_eq!(counts[1][..3], [0, 0, 0]);
+        assert_eq!(counts[2][2..], [0, 0]);
+        // Each of the 7 used pixels gets about n / 7 = 10000 draws.
+        let used = [
+            counts[0][0],
+            counts[0][1],
+            counts[0][2],
+            counts[0][3],
+            counts[1][3],
+            counts[2][0],
+            counts[2][1],
+        ];
+        assert!(
+            used.iter().all(|&c| (9_400..10_600).contains(&c)),
+            "{used:?}"
+        );
+    }
 }

@@ -71,11 +71,35 @@ impl SceneFormat {
 pub struct CaptureSplit {
     /// The split's frames, sorted by image path.
     pub frames: Vec<Frame>,
-    /// What was applied to every camera (computed from all frames, so that every split
-    /// shares it).
+    /// What was applied to every camera: the given transform, or else the one computed from
+    /// all frames, so that every split shares it.
     pub transform: SceneTransform,
+    /// The transform the capture's cameras give ([`SceneTransform::from_poses`] of all its
+    /// frames), whether or not it was the one applied; `None` when they give none (one
+    /// camera, say) and a stored transform was applied.
+    pub from_cameras: Option<SceneTransform>,
     /// Frames in the whole capture.
     pub total_frames: usize,
+}
+
+/// The normalisation of a loaded capture: the transform applied to its cameras, and the one
+/// its cameras give, which differ when a stored transform was given (a model trained on
+/// another set of the scene's cameras).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Normalisation {
+    /// Applied to every camera.
+    pub applied: SceneTransform,
+    /// Computed from the capture's own cameras (`None`: they give none, one camera, say).
+    pub from_cameras: Option<SceneTransform>,
+}
+
+impl Normalisation {
+    /// Whether the applied transform is (to `1e-9` in the normalised frame) the one the
+    /// capture's own cameras give.
+    pub fn is_from_cameras(&self) -> bool {
+        self.from_cameras
+            .is_some_and(|c| self.applied.agrees_with(&c, 1e-9))
+    }
 }
 
 /// Whether frame `index` (of the frames sorted by image name) belongs to `split` under the
@@ -88,9 +112,21 @@ pub fn in_holdout_split(index: usize, split: Split) -> bool {
     }
 }
 
-/// `split` of a capture read as `format` from `dir`, normalised. Errors name the directory
-/// and what is missing or wrong; a split with no frames is an error.
+/// `split` of a capture read as `format` from `dir`, normalised by the transform its cameras
+/// give. Errors name the directory and what is missing or wrong; a split with no frames is an
+/// error.
 pub fn read_capture_split(dir: &Path, format: SceneFormat, split: Split) -> Result<CaptureSplit> {
+    read_capture_split_with(dir, format, split, None)
+}
+
+/// [`read_capture_split`] normalised by `stored` when given (the transform a model was trained
+/// in, so that its cameras land where that model's did), else by the one the cameras give.
+pub fn read_capture_split_with(
+    dir: &Path,
+    format: SceneFormat,
+    split: Split,
+    stored: Option<SceneTransform>,
+) -> Result<CaptureSplit> {
     let CaptureFrames { frames, splits } = match format {
         SceneFormat::Nerfstudio => super::nerfstudio::read_frames(dir)?,
         SceneFormat::Llff => super::llff::read_frames(dir)?,
@@ -98,14 +134,27 @@ pub fn read_capture_split(dir: &Path, format: SceneFormat, split: Split) -> Resu
         SceneFormat::Blender => bail!("{}: not a capture", dir.display()),
     };
     if frames.is_empty() {
+        // The file that lists the frames (a COLMAP model without images is refused by its
+        // reader, which names its images file).
+        let listing = match format {
+            SceneFormat::Nerfstudio => dir.join("transforms.json"),
+            SceneFormat::Llff => dir.join("poses_bounds.npy"),
+            _ => dir.to_path_buf(),
+        };
         bail!(
             "{}: the {} capture has no frames",
-            dir.display(),
+            listing.display(),
             format.name()
         );
     }
     let poses: Vec<_> = frames.iter().map(|f| f.camera.pose).collect();
-    let transform = SceneTransform::from_poses(&poses)?;
+    let (transform, from_cameras) = match stored {
+        Some(stored) => (stored, SceneTransform::from_poses(&poses).ok()),
+        None => {
+            let computed = SceneTransform::from_poses(&poses)?;
+            (computed, Some(computed))
+        }
+    };
     let total_frames = frames.len();
     let mut indexed: Vec<(usize, CaptureFrame)> = frames.into_iter().enumerate().collect();
     indexed.sort_by(|a, b| a.1.file_path.cmp(&b.1.file_path));
@@ -124,6 +173,7 @@ pub fn read_capture_split(dir: &Path, format: SceneFormat, split: Split) -> Resu
             Frame {
                 file_path: f.file_path,
                 camera: camera.into(),
+                mask_path: f.mask_path,
             }
         })
         .collect();
@@ -137,6 +187,7 @@ pub fn read_capture_split(dir: &Path, format: SceneFormat, split: Split) -> Resu
     Ok(CaptureSplit {
         frames: chosen,
         transform,
+        from_cameras,
         total_frames,
     })
 }

@@ -3,7 +3,7 @@
 //! [`super::nerfstudio`], [`super::llff`]) produce it; [`super::capture`] normalises and
 //! splits it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use super::transforms::Split;
 use crate::core::camera_colmap::ColmapCamera;
@@ -15,6 +15,8 @@ pub struct CaptureFrame {
     pub file_path: PathBuf,
     /// Its camera.
     pub camera: ColmapCamera,
+    /// Its mask ([`super::frame_mask`]), when it has one.
+    pub mask_path: Option<PathBuf>,
 }
 
 /// A capture's frames with their split named by the files, when they name it.
@@ -25,4 +27,17 @@ pub struct CaptureFrames {
     /// The split of each frame when the files say (nerfstudio's `{train,val,test}_filenames`);
     /// `None`: the every-8th holdout.
     pub splits: Option<Vec<Split>>,
+}
+
+/// The folder of a COLMAP or LLFF capture that holds its masks, beside `images/`.
+pub const MASKS_FOLDER: &str = "masks";
+
+/// The mask of the photo `images/<name>` of the capture in `dir` when the capture has a
+/// `masks/` folder: `masks/<name>` with the extension `.png` (nerfstudio's and instant-ngp's
+/// layout); `None` without the folder. The file must then exist: loading it names it.
+pub fn mask_in_folder(dir: &Path, name: &Path) -> Option<PathBuf> {
+    let folder = dir.join(MASKS_FOLDER);
+    folder
+        .is_dir()
+        .then(|| folder.join(name).with_extension("png"))
 }

@@ -1,12 +1,13 @@
 //! A COLMAP capture: the sparse model that [`crate::io::colmap::find_model`] finds (the one
 //! with the most registered images when there are several) and its photos in `images/`
-//! (subfolders allowed, as COLMAP's image names carry them).
+//! (subfolders allowed, as COLMAP's image names carry them), with masks in `masks/` when that
+//! folder is there ([`mask_in_folder`]).
 
 use std::path::Path;
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, bail, Result};
 
-use super::capture_frame::{CaptureFrame, CaptureFrames};
+use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
 use crate::io::colmap::find_model;
 
@@ -14,6 +15,20 @@ use crate::io::colmap::find_model;
 pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let (model_dir, model) = find_model(dir)?;
     let images = dir.join("images");
+    if !images.is_dir() {
+        bail!(
+            "{}: no such folder (a COLMAP capture keeps its photos in images/, beside the \
+             sparse model {})",
+            images.display(),
+            model_dir.display()
+        );
+    }
+    // The file the cameras were read from: binary files win when both are there.
+    let cameras_file = ["cameras.bin", "cameras.txt"]
+        .map(|f| model_dir.join(f))
+        .into_iter()
+        .find(|f| f.is_file())
+        .unwrap_or_else(|| model_dir.join("cameras.txt"));
     let frames = model
         .images
         .iter()
@@ -24,10 +39,18 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
                 .map_err(|e| anyhow!("{}: {e}", what()))?;
             let size = (record.width as usize, record.height as usize);
             let camera = ColmapCamera::from_colmap(&record.model, &record.params, size, pose)
-                .map_err(|e| anyhow!("{}: {e}", what()))?;
+                .map_err(|e| {
+                    anyhow!(
+                        "{}: camera {} (of image {}): {e}",
+                        cameras_file.display(),
+                        record.id,
+                        image.name
+                    )
+                })?;
             Ok(CaptureFrame {
                 file_path: images.join(&image.name),
                 camera,
+                mask_path: mask_in_folder(dir, Path::new(&image.name)),
             })
         })
         .collect::<Result<Vec<_>>>()?;

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Result};
 
-use super::capture_frame::{CaptureFrame, CaptureFrames};
+use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
 use crate::io::bounded_read::read_regular_file;
 use crate::io::npy::{parse_npy_header, MAX_HEADER_BYTES};
@@ -21,7 +21,8 @@ pub const MAX_LLFF_FRAMES: u64 = 100_000;
 pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let path = dir.join("poses_bounds.npy");
     let rows = read_rows(&path)?;
-    let images = image_files(&dir.join("images"))?;
+    let images_dir = dir.join("images");
+    let images = image_files(&images_dir)?;
     if images.len() != rows.len() {
         bail!(
             "{}: {} poses, but {} has {} images",
@@ -38,7 +39,13 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
         .map(|(i, (row, file_path))| {
             let camera =
                 camera_of_row(row).map_err(|e| anyhow!("{}: row {i}: {e}", path.display()))?;
-            Ok(CaptureFrame { file_path, camera })
+            let name = file_path.strip_prefix(&images_dir).unwrap_or(&file_path);
+            let mask_path = mask_in_folder(dir, name);
+            Ok(CaptureFrame {
+                file_path,
+                camera,
+                mask_path,
+            })
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(CaptureFrames {

@@ -16,6 +16,7 @@ pub mod capture;
 pub mod capture_frame;
 pub mod colmap_scene;
 pub mod frame_image;
+pub mod frame_mask;
 pub mod llff;
 pub mod nerfstudio;
 pub mod normalize;
@@ -27,35 +28,68 @@ use anyhow::{bail, Result};
 use rayon::prelude::*;
 
 use crate::core::image::RgbImage;
+use frame_mask::load_mask;
 
-pub use capture::{read_capture_split, SceneFormat};
+pub use capture::{read_capture_split, read_capture_split_with, Normalisation, SceneFormat};
 pub use frame_image::*;
+pub use frame_mask::PixelMask;
+pub use normalize::SceneTransform;
 pub use transforms::*;
 
 /// The frames of `split` of the scene in `data_dir`, whatever its format
 /// ([`SceneFormat::detect`]): a NeRF-synthetic split as [`read_blender_split`] reads it, or a
-/// capture's, normalised ([`read_capture_split`]; what was applied is logged).
+/// capture's, normalised by the transform its cameras give ([`read_capture_split`]; what was
+/// applied is logged).
 pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
-    match SceneFormat::detect(data_dir) {
-        SceneFormat::Blender => read_blender_split(data_dir, split),
-        format => {
-            let read = read_capture_split(data_dir, format, split)?;
-            let t = read.transform;
-            let c = t.center;
-            log::info!(
-                "{}: {} capture, {} of {} frames in the {split} split; normalised: centre ({:.3}, {:.3}, {:.3}) to the origin, mean camera up to +z, scale {:.4}",
-                data_dir.display(),
-                format.name(),
-                read.frames.len(),
-                read.total_frames,
-                c.x,
-                c.y,
-                c.z,
-                t.scale
-            );
-            Ok(read.frames)
-        }
+    Ok(read_split_with(data_dir, split, None)?.frames)
+}
+
+/// A split's frames and, for a capture, how they were normalised.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SplitFrames {
+    /// The frames, as [`read_split`] orders them.
+    pub frames: Vec<Frame>,
+    /// `None` for a NeRF-synthetic scene, whose frame is used as it is.
+    pub normalisation: Option<Normalisation>,
+}
+
+/// [`read_split`] with a capture normalised by `stored` when given (the transform a model
+/// was trained in: see [`read_capture_split_with`]); a NeRF-synthetic scene is never
+/// normalised, so `stored` does not apply to it.
+pub fn read_split_with(
+    data_dir: &Path,
+    split: Split,
+    stored: Option<SceneTransform>,
+) -> Result<SplitFrames> {
+    let format = SceneFormat::detect(data_dir);
+    if format == SceneFormat::Blender {
+        return Ok(SplitFrames {
+            frames: read_blender_split(data_dir, split)?,
+            normalisation: None,
+        });
     }
+    let read = read_capture_split_with(data_dir, format, split, stored)?;
+    let t = read.transform;
+    let c = t.center;
+    log::info!(
+        "{}: {} capture, {} of {} frames in the {split} split; normalised{}: centre ({:.3}, {:.3}, {:.3}) to the origin, mean camera up to +z, scale {:.4}",
+        data_dir.display(),
+        format.name(),
+        read.frames.len(),
+        read.total_frames,
+        if stored.is_some() { " as given" } else { "" },
+        c.x,
+        c.y,
+        c.z,
+        t.scale
+    );
+    Ok(SplitFrames {
+        frames: read.frames,
+        normalisation: Some(Normalisation {
+            applied: read.transform,
+            from_cameras: read.from_cameras,
+        }),
+    })
 }
 
 /// Where to get the data, appended to errors about a missing scene directory or transforms file.
@@ -78,9 +112,20 @@ pub struct Dataset {
     pub width: usize,
     /// Height of every image, in pixels.
     pub height: usize,
+    /// Per image, which pixels are used ([`frame_mask`]; `None`: all of them); empty when no
+    /// frame has a mask.
+    pub masks: Vec<Option<PixelMask>>,
+    /// How a capture's cameras were normalised (`None` for a NeRF-synthetic scene): a model
+    /// trained on this dataset lives in the frame `normalisation.applied` puts them in.
+    pub normalisation: Option<Normalisation>,
 }
 
 impl Dataset {
+    /// Image `index`'s mask, when it has one.
+    pub fn mask(&self, index: usize) -> Option<&PixelMask> {
+        self.masks.get(index).and_then(Option::as_ref)
+    }
+
     /// Reads a split's cameras ([`read_split`]) and loads every image ([`load_image`]) in
     /// parallel. The first failure is returned, naming its file.
     pub fn load(
@@ -104,13 +149,44 @@ impl Dataset {
         white_background: bool,
         limit: Option<usize>,
     ) -> Result<Self> {
-        let mut frames = read_split(data_dir, split)?;
+        let size = (width, height);
+        Self::load_first_with(data_dir, split, size, white_background, limit, None)
+    }
+
+    /// [`Dataset::load_first`] of `(width, height)` images with a capture normalised by
+    /// `stored` when given ([`read_split_with`]): the transform a model was trained in.
+    pub fn load_first_with(
+        data_dir: &Path,
+        split: Split,
+        (width, height): (usize, usize),
+        white_background: bool,
+        limit: Option<usize>,
+        stored: Option<SceneTransform>,
+    ) -> Result<Self> {
+        let SplitFrames {
+            mut frames,
+            normalisation,
+        } = read_split_with(data_dir, split, stored)?;
         frames.truncate(limit.unwrap_or(frames.len()));
-        let loaded = frames
+        let (loaded, masks): (Vec<LoadedImage>, Vec<Option<PixelMask>>) = frames
             .par_iter()
-            .map(|frame| load_frame_image(&frame.file_path, width, height, white_background))
-            .collect::<Result<Vec<_>>>()?;
+            .map(|frame| {
+                let image = load_frame_image(&frame.file_path, width, height, white_background)?;
+                let mask = frame
+                    .mask_path
+                    .as_ref()
+                    .map(|m| load_mask(m, &frame.file_path, image.source_size, (width, height)))
+                    .transpose()?;
+                Ok((image, mask))
+            })
+            .collect::<Result<Vec<_>>>()?
+            .into_iter()
+            .unzip();
         check_sizes_agree(&frames, &loaded)?;
+        let masks = match masks.iter().any(Option::is_some) {
+            true => masks,
+            false => Vec::new(),
+        };
         let opaque = loaded.iter().filter(|l| !l.has_alpha).count();
         if opaque > 0 {
             log::warn!(
@@ -130,6 +206,8 @@ impl Dataset {
             transparency,
             width,
             height,
+            masks,
+            normalisation,
         })
     }
 }

@@ -1,7 +1,8 @@
 //! A nerfstudio capture: `transforms.json` as `ns-process-data` writes it. Intrinsics
 //! (`camera_model`, `fl_x fl_y cx cy w h`, `k1..k4 p1 p2`) stand at the top or per frame (a
 //! frame's own value wins, nerfstudio's rule); `transform_matrix` is camera → world in OpenGL
-//! axes; `file_path` is relative to the directory. `train_filenames`, `val_filenames` and
+//! axes; `file_path` (and a frame's optional `mask_path`, [`super::frame_mask`]) is relative
+//! to the directory. `train_filenames`, `val_filenames` and
 //! `test_filenames`, when present, name the splits. `applied_transform` is the transform
 //! nerfstudio already applied to the poses: the poses are read as they stand.
 
@@ -82,6 +83,7 @@ impl Intrinsics {
 #[derive(Debug, Deserialize)]
 struct FrameEntry {
     file_path: String,
+    mask_path: Option<String>,
     transform_matrix: Vec<[f64; 4]>,
     #[serde(flatten)]
     intrinsics: Intrinsics,
@@ -134,9 +136,14 @@ pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
                 .map_err(context)?;
             let camera =
                 ColmapCamera::from_nerfstudio([m[0], m[1], m[2]], &intrinsics).map_err(context)?;
+            let mask_path = entry.mask_path.as_deref();
             Ok(CaptureFrame {
                 file_path: relative_path(dir, &entry.file_path).map_err(context)?,
                 camera,
+                mask_path: mask_path
+                    .map(|m| relative_path(dir, m))
+                    .transpose()
+                    .map_err(context)?,
             })
         })
         .collect::<Result<Vec<_>>>()?;

@@ -76,6 +76,71 @@ impl SceneTransform {
         })
     }
 
+    /// The transform as text, for a checkpoint's metadata: the rotation's nine entries row
+    /// by row, the centre's three coordinates and the scale, separated by spaces, each in
+    /// the shortest decimal that reads back to the same `f64` ([`SceneTransform::from_text`]
+    /// restores it exactly).
+    pub fn to_text(&self) -> String {
+        let r = self.rotation.transpose().to_cols_array();
+        r.iter()
+            .chain(&self.center.to_array())
+            .chain(std::iter::once(&self.scale))
+            .map(|v| v.to_string())
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+
+    /// The transform [`SceneTransform::to_text`] wrote; an error saying what is wrong when
+    /// the text is not 13 numbers or not a similarity ([`SceneTransform::validate`]).
+    pub fn from_text(text: &str) -> Result<Self> {
+        let values = text
+            .split_whitespace()
+            .map(|v| v.parse::<f64>())
+            .collect::<std::result::Result<Vec<f64>, _>>()
+            .map_err(|e| anyhow::anyhow!("not a list of numbers ({e})"))?;
+        let Ok(values) = <[f64; 13]>::try_from(values.as_slice()) else {
+            bail!("{} numbers, expected 13", values.len());
+        };
+        let rows: [f64; 9] = values[..9].try_into().expect("9 numbers");
+        let transform = Self {
+            rotation: DMat3::from_cols_array(&rows).transpose(),
+            center: DVec3::new(values[9], values[10], values[11]),
+            scale: values[12],
+        };
+        transform.validate()?;
+        Ok(transform)
+    }
+
+    /// An error unless every number is finite, the scale positive and the rotation a
+    /// rotation (orthonormal, determinant 1, to 1e-6).
+    pub fn validate(&self) -> Result<()> {
+        let finite = self.rotation.is_finite() && self.center.is_finite();
+        if !(finite && self.scale.is_finite() && self.scale > 0.0) {
+            bail!("not finite, or a scale that is not positive");
+        }
+        let off = (self.rotation * self.rotation.transpose() - DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, b| a.max(b.abs()));
+        if off > 1e-6 || (self.rotation.determinant() - 1.0).abs() > 1e-6 {
+            bail!("the rotation is not a rotation");
+        }
+        Ok(())
+    }
+
+    /// Whether `other` puts every point of the cameras' unit ball where this one does, to
+    /// within `tolerance` in the normalised frame: rotations, centres (in normalised units)
+    /// and the log of the scales all agree that closely.
+    pub fn agrees_with(&self, other: &SceneTransform, tolerance: f64) -> bool {
+        let rotation = (self.rotation - other.rotation)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, b| a.max(b.abs()));
+        let center = self.scale * (self.center - other.center).length();
+        let scale = (self.scale / other.scale).ln().abs();
+        rotation <= tolerance && center <= tolerance && scale <= tolerance
+    }
+
     /// A world point in the normalised frame.
     pub fn apply_point(&self, point: DVec3) -> DVec3 {
         self.scale * (self.rotation * (point - self.center))
@@ -266,6 +331,31 @@ mod tests {
         let err = SceneTransform::from_poses(&[pose, pose]).unwrap_err();
         assert!(err.to_string().contains("one point"), "{err}");
         assert!(SceneTransform::from_poses(&[]).is_err());
+    }
+
+    #[test]
+    fn text_round_trips_exactly_and_bad_text_is_refused() {
+        let t = SceneTransform::from_poses(&tilted_ring()).unwrap();
+        let text = t.to_text();
+        assert_eq!(text.split(' ').count(), 13);
+        assert_eq!(SceneTransform::from_text(&text).unwrap(), t);
+        assert!(t.agrees_with(&t, 0.0));
+        let moved = SceneTransform {
+            center: t.center + DVec3::new(0.0, 0.0, 0.01 / t.scale),
+            ..t
+        };
+        assert!(!t.agrees_with(&moved, 1e-3) && t.agrees_with(&moved, 0.02));
+        for (bad, says) in [
+            ("1 0 0 0 1 0 0 0 1 0 0 0", "12 numbers"),
+            ("1 0 0 0 1 0 0 0 1 0 0 0 x", "numbers"),
+            ("1 0 0 0 1 0 0 0 1 0 0 0 0", "scale"),
+            ("1 0 0 0 1 0 0 0 1 NaN 0 0 1", "finite"),
+            ("2 0 0 0 1 0 0 0 1 0 0 0 1", "rotation"),
+            ("-1 0 0 0 1 0 0 0 1 0 0 0 1", "rotation"),
+        ] {
+            let err = SceneTransform::from_text(bad).unwrap_err().to_string();
+            assert!(err.contains(says), "{bad}: {err}");
+        }
     }
 
     #[test]

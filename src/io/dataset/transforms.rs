@@ -70,6 +70,8 @@ pub struct Frame {
     /// The view's camera: pytorch3d's pinhole for the NeRF-synthetic scenes, COLMAP's
     /// conventions (with distortion) for captures.
     pub camera: FrameCamera,
+    /// The frame's mask ([`super::frame_mask`]), when it has one (captures only).
+    pub mask_path: Option<PathBuf>,
 }
 
 /// Converts a Blender camera-to-world matrix to a pytorch3d camera.
@@ -260,6 +262,7 @@ pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Fra
             Ok(Frame {
                 file_path: image_path(data_dir, &entry.file_path),
                 camera: camera.into(),
+                mask_path: None,
             })
         })
         .collect()

@@ -1,0 +1,69 @@
+//! The frame a checkpoint's model lives in, at the commands' edge: a model trained on a
+//! capture stores the capture's normalisation ([`crate::io::checkpoint::SCENE_TRANSFORM_KEY`]),
+//! and `eval`, `export` and a resumed `train` read the capture's cameras in that frame
+//! rather than in the one recomputed from the cameras they were given (which moves when the
+//! cameras differ: a subset, a re-run of structure from motion that kept the same gauge).
+
+use std::path::Path;
+
+use anyhow::Result;
+
+use crate::io::checkpoint::{read_metadata, scene_transform_of};
+use crate::io::checkpoint_file::{detect_format, CheckpointFormat};
+use crate::io::dataset::{Normalisation, SceneTransform};
+
+/// The scene normalisation stored in the checkpoint at `path`; `None` when it stores none
+/// (a NeRF-synthetic model, an older checkpoint, a PyTorch file) or is not a file (loading
+/// the model then says what is wrong with it). An error for a stored transform that does not
+/// read.
+pub fn stored_transform(path: &Path) -> Result<Option<SceneTransform>> {
+    if !path.is_file() || detect_format(path).ok() != Some(CheckpointFormat::Safetensors) {
+        return Ok(None);
+    }
+    scene_transform_of(&read_metadata(path)?, path)
+}
+
+/// Says on stderr how the frame of the data in `data_dir` relates to the checkpoint's: when
+/// the stored transform was applied and differs from the one the cameras give, both; when the
+/// checkpoint stores none for a capture, that the recomputed one is used; when it stores one
+/// for a NeRF-synthetic scene, that it does not apply.
+pub fn note_scene_frame(
+    data_dir: &Path,
+    checkpoint: &Path,
+    stored: Option<SceneTransform>,
+    normalisation: Option<&Normalisation>,
+) {
+    let show = |t: &SceneTransform| {
+        let c = t.center;
+        format!(
+            "centre ({:.4}, {:.4}, {:.4}), scale {:.5}",
+            c.x, c.y, c.z, t.scale
+        )
+    };
+    let note = match (stored, normalisation) {
+        (Some(_), Some(n)) if !n.is_from_cameras() => format!(
+            "note: {}: using the scene normalisation stored in {} ({}), not the one these \
+             cameras give ({})",
+            data_dir.display(),
+            checkpoint.display(),
+            show(&n.applied),
+            n.from_cameras
+                .as_ref()
+                .map_or_else(|| "none: too few cameras".to_string(), show)
+        ),
+        (None, Some(_)) => format!(
+            "note: {} stores no scene normalisation (trained before it was stored, or not on a \
+             capture): the capture {} is normalised from its own cameras",
+            checkpoint.display(),
+            data_dir.display()
+        ),
+        (Some(_), None) => format!(
+            "note: {} was trained on a capture, and stores its normalisation; {} is a \
+             NeRF-synthetic scene, used in its own frame",
+            checkpoint.display(),
+            data_dir.display()
+        ),
+        _ => return,
+    };
+    crate::core::term::note(&note);
+}

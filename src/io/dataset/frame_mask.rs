@@ -1,0 +1,167 @@
+//! A frame's mask: a greyscale PNG of the photo's own size in which 0 marks a pixel to ignore
+//! (a moving person, the photographer's shadow, a region with no valid colour) and any other
+//! value one to use, as nerfstudio reads `mask_path`. Training draws no ray from an ignored
+//! pixel and evaluation scores only the used ones.
+
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Result};
+use image::imageops::{self, FilterType};
+use image::{ImageBuffer, ImageFormat, Luma};
+
+use super::frame_image::{MAX_IMAGE_FILE_BYTES, MAX_SOURCE_IMAGE_SIDE};
+use crate::io::bounded_read::read_regular_file;
+
+/// Which pixels of a `width × height` image are used, as flags and as a list.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PixelMask {
+    /// `width × height` flags, row-major: true for a used pixel.
+    used: Vec<bool>,
+    /// The indices of the used pixels, ascending (what training draws from).
+    used_pixels: Vec<u32>,
+}
+
+impl PixelMask {
+    /// The mask of `used` flags (row-major pixels).
+    pub fn from_flags(used: Vec<bool>) -> Self {
+        let used_pixels = (0..used.len() as u32)
+            .filter(|&p| used[p as usize])
+            .collect();
+        Self { used, used_pixels }
+    }
+
+    /// Row-major flags, true for a used pixel.
+    pub fn used(&self) -> &[bool] {
+        &self.used
+    }
+
+    /// The used pixels' indices, ascending.
+    pub fn used_pixels(&self) -> &[u32] {
+        &self.used_pixels
+    }
+}
+
+/// The mask at `path` for `image` (whose file is `source_size` pixels), resized to `width ×
+/// height`: a pixel of the resized image is used only when no ignored pixel of the photo
+/// enters its colour (the flags as 0 and 1, resized with the filter the images use, must stay
+/// 1), so that what an ignored region holds never reaches training or the score. One-line errors
+/// name the file: unreadable, not a PNG, not the image's size, or ignoring every pixel.
+pub fn load_mask(
+    path: &Path,
+    image: &Path,
+    source_size: (u32, u32),
+    (width, height): (usize, usize),
+) -> Result<PixelMask> {
+    let bytes = read_regular_file(path, "mask", MAX_IMAGE_FILE_BYTES)?;
+    if image::guess_format(&bytes).ok() != Some(ImageFormat::Png) {
+        bail!("mask {} is not a PNG image", path.display());
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_SOURCE_IMAGE_SIDE);
+    limits.max_image_height = Some(MAX_SOURCE_IMAGE_SIDE);
+    let mut reader =
+        image::ImageReader::with_format(std::io::Cursor::new(&bytes), ImageFormat::Png);
+    reader.limits(limits);
+    let decoded = reader.decode().map_err(|e| {
+        anyhow!(
+            "cannot decode mask {}: {}",
+            path.display(),
+            e.to_string().replace('\n', " ")
+        )
+    })?;
+    let (w0, h0) = (decoded.width(), decoded.height());
+    if (w0, h0) != source_size {
+        bail!(
+            "mask {} is {w0}x{h0}, but its image {} is {}x{}: a mask must have its image's size",
+            path.display(),
+            image.display(),
+            source_size.0,
+            source_size.1
+        );
+    }
+    // (H0, W0): 1 for a used pixel, 0 for an ignored one.
+    let flags: Vec<f32> = decoded
+        .to_luma8()
+        .into_raw()
+        .into_iter()
+        .map(|v| if v > 0 { 1.0 } else { 0.0 })
+        .collect();
+    let (w, h) = (width as u32, height as u32);
+    let used: Vec<bool> = if (w0, h0) == (w, h) {
+        flags.iter().map(|&f| f > 0.5).collect()
+    } else {
+        let buffer: ImageBuffer<Luma<f32>, Vec<f32>> = ImageBuffer::from_raw(w0, h0, flags)
+            .ok_or_else(|| anyhow!("cannot decode mask {}: inconsistent size", path.display()))?;
+        imageops::resize(&buffer, w, h, FilterType::Triangle)
+            .into_raw()
+            .into_iter()
+            .map(|f| f >= 1.0 - 1e-5)
+            .collect()
+    };
+    let mask = PixelMask::from_flags(used);
+    if mask.used_pixels.is_empty() {
+        bail!(
+            "mask {} ignores every pixel of {} at {width}x{height}: that image gives no rays \
+             (remove it, or its mask)",
+            path.display(),
+            image.display()
+        );
+    }
+    Ok(mask)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write_mask(path: &Path, w: u32, h: u32, value: impl Fn(u32, u32) -> u8) {
+        image::GrayImage::from_fn(w, h, |x, y| Luma([value(x, y)]))
+            .save(path)
+            .unwrap();
+    }
+
+    #[test]
+    fn zero_is_ignored_and_a_resized_pixel_touched_by_an_ignored_one_is_ignored() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.png");
+        // The left quarter ignored, the rest used (any non-zero value).
+        write_mask(&path, 8, 4, |x, _| if x < 2 { 0 } else { 7 });
+        let image = Path::new("a.jpg");
+        let full = load_mask(&path, image, (8, 4), (8, 4)).unwrap();
+        assert_eq!(full.used_pixels().len(), 24);
+        assert!(!full.used()[1] && full.used()[2] && !full.used()[9]);
+        let half = load_mask(&path, image, (8, 4), (4, 2)).unwrap();
+        // Column 1 averages source columns 1 to 4 (the triangle filter's support at half
+        // size): column 1 is ignored, so it is too.
+        assert_eq!(
+            half.used(),
+            &[false, false, true, true, false, false, true, true]
+        );
+        assert_eq!(half.used_pixels(), &[2, 3, 6, 7]);
+    }
+
+    #[test]
+    fn a_mask_of_another_size_or_all_zero_is_an_error_naming_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.png");
+        write_mask(&path, 8, 4, |_, _| 255);
+        let err = load_mask(&path, Path::new("a.jpg"), (8, 5), (8, 5))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("m.png is 8x4") && err.contains("a.jpg is 8x5") && !err.contains('\n'),
+            "{err}"
+        );
+        write_mask(&path, 8, 4, |_, _| 0);
+        let err = load_mask(&path, Path::new("a.jpg"), (8, 4), (8, 4))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("ignores every pixel"), "{err}");
+        std::fs::write(&path, b"not a png").unwrap();
+        let err = load_mask(&path, Path::new("a.jpg"), (8, 4), (8, 4)).unwrap_err();
+        assert!(err.to_string().contains("not a PNG"), "{err}");
+        let missing = dir.path().join("none.png");
+        let err = load_mask(&missing, Path::new("a.jpg"), (8, 4), (8, 4)).unwrap_err();
+        assert!(err.to_string().contains("none.png"), "{err}");
+    }
+}
