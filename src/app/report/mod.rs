@@ -191,15 +191,21 @@ impl Report {
     }
 }
 
-/// The training logs a report plots by default: the checkpoint's `.log.jsonl` and the
-/// homework-trained model's.
+/// The training logs a report plots by default: the checkpoint's `.log.jsonl`, the
+/// homework-trained model's, the shipped hash-grid model's, and a 2-minute hash-grid run from
+/// scratch (`nerf train --config nerf_lego_ngp --minutes 2`).
 pub fn default_training_logs(checkpoint: &Path) -> Vec<PathBuf> {
     vec![
         checkpoint.with_extension("log.jsonl"),
         PathBuf::from("checkpoints/homework/nerf_lego.log.jsonl"),
         PathBuf::from(crate::app::config::SHIPPED_NGP_CHECKPOINT).with_extension("log.jsonl"),
+        PathBuf::from(TWO_MINUTE_NGP_LOG),
     ]
 }
+
+/// The log of a 2-minute hash-grid training run from scratch, committed beside the shipped
+/// checkpoints.
+pub const TWO_MINUTE_NGP_LOG: &str = "checkpoints/ngp_lego_2min.log.jsonl";
 
 /// Runs every measurement.
 pub fn measure(options: &ReportOptions, device: &Device) -> Result<Report> {
