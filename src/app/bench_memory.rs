@@ -73,7 +73,7 @@ pub fn bench_table_reads(repeats: usize) -> Vec<BenchResult> {
             let table: Vec<[f32; 2]> = (0..rows).map(|i| [i as f32, 1.0]).collect();
             let runs = time_reads(&table, repeats);
             let seconds = fastest(&runs);
-            let mib = rows * 8 >> 20;
+            let mib = (rows * 8) >> 20;
             BenchResult {
                 name: format!("random row reads, {mib} MiB table ({what})"),
                 work: format!(
