@@ -64,7 +64,8 @@ pub fn render_cameras(config: &Config, checkpoint: &Path) -> Result<DefaultViews
         Some(orbit) => orbit,
         None if scene_transform_of(&meta, checkpoint)?.is_some() => {
             crate::core::term::note(&format!(
-                "note: {} was trained on a capture but stores no orbit (written before orbits                  were stored): using a default one in the normalised frame",
+                "note: {} was trained on a capture but stores no orbit (written before orbits \
+                 were stored): using a default one in the normalised frame",
                 checkpoint.display()
             ));
             CaptureOrbit::normalised_default()
@@ -72,7 +73,8 @@ pub fn render_cameras(config: &Config, checkpoint: &Path) -> Result<DefaultViews
         None => return Ok(DefaultViews::surround(config)),
     };
     crate::core::term::note(&format!(
-        "{n_poses} views on the capture's orbit: radius {:.3}, height {:.3} around the z axis,          looking at the origin, NDC focal ({:.3}, {:.3})",
+        "{n_poses} views on the capture's orbit: radius {:.3}, height {:.3} around the z axis, \
+         looking at the origin, NDC focal ({:.3}, {:.3})",
         orbit.radius, orbit.height, orbit.focal[0], orbit.focal[1]
     ));
     Ok(DefaultViews {

@@ -347,7 +347,7 @@ fn marching_a_contracted_grid_keeps_exactly_the_samples_in_occupied_cells() {
     for (c, o) in grid.occupied.iter_mut().enumerate() {
         let [x, y, z] = [c / 4096, (c / 64) % 64, c % 64].map(|v| (v as f32 - 31.5).abs());
         let norm = x.max(y).max(z);
-        *o = (norm < 3.0 || norm > 24.0) && rng.random::<f32>() < 0.3;
+        *o = !(3.0..=24.0).contains(&norm) && rng.random::<f32>() < 0.3;
     }
     let blocks = grid.empty_blocks();
     assert!(blocks.empty.iter().any(|e| *e));
