@@ -391,7 +391,8 @@ pub fn process(args: ProcessArgs) -> Result<()> {
         times.join(", ")
     ))?;
     say(&format!(
-        "train on it: nerf train --config nerf_scene --data-dir {}",
+        "train on it: nerf train --config nerf_scene_unbounded --data-dir {} (photos with \
+         background; nerf_scene for an object whose photos have alpha or masks)",
         options.out.display()
     ))
 }
