@@ -291,6 +291,11 @@ fn checkpoint_round_trips_bit_exactly() {
         rng_word_pos: 1 << 70,
         rays_per_step: 3000,
         scene_transform: None,
+        capture_orbit: Some(nerf::io::dataset::CaptureOrbit {
+            radius: 0.8123,
+            height: -0.25,
+            focal: [2.7777, 1.5],
+        }),
     };
     checkpoint::save(&path, &checkpoint::model_tensors(&state.varmap), info).unwrap();
     let (loaded, back) = load_nerf(&nerf_cfg, &path).unwrap();

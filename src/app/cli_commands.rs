@@ -273,12 +273,27 @@ pub fn view(args: ViewArgs, device: &Device) -> Result<()> {
     let config = args.config.load()?;
     let checkpoint = args.checkpoint.checkpoint.as_deref();
     let scene = crate::app::scene::load_scene_field(&config, checkpoint, device)?;
+    let views = match scene {
+        crate::app::scene::SceneField::Nerf(_) => {
+            crate::app::scene_frame::render_cameras(&config, &config.checkpoint(checkpoint))?
+        }
+        crate::app::scene::SceneField::Sdf { .. } => {
+            crate::app::scene_frame::DefaultViews::surround(&config)
+        }
+    };
     let options = crate::app::view::ViewOptions {
         host: args.host,
         port: args.port,
         header_timeout: std::time::Duration::from_millis(args.header_timeout_ms),
     };
-    crate::app::view::serve(&config, &args.config.config, scene, &options, device)
+    crate::app::view::serve(
+        &config,
+        &args.config.config,
+        scene,
+        &views,
+        &options,
+        device,
+    )
 }
 
 /// The config, and the views an export renders: `split` of the dataset that `--data-dir` (or the config)
@@ -376,7 +391,8 @@ pub fn process(args: ProcessArgs) -> Result<()> {
         times.join(", ")
     ))?;
     say(&format!(
-        "train on it: nerf train --config nerf_scene --data-dir {}",
+        "train on it: nerf train --config nerf_scene_unbounded --data-dir {} (photos with \
+         background; nerf_scene for an object whose photos have alpha or masks)",
         options.out.display()
     ))
 }

@@ -184,8 +184,8 @@ pub enum TrainOutcome {
     Done(Vec<String>),
     /// A signal stopped NeRF training after a step; the checkpoint holds it.
     Stopped {
-        /// Progress at the stop.
-        info: crate::io::checkpoint::CheckpointInfo,
+        /// Progress at the stop (boxed: it is much larger than the other variant).
+        info: Box<crate::io::checkpoint::CheckpointInfo>,
         /// The checkpoint written.
         checkpoint: PathBuf,
     },
@@ -253,7 +253,7 @@ pub fn train(
                     paths.checkpoint.display()
                 )]),
                 FitOutcome::Stopped(info) => TrainOutcome::Stopped {
-                    info,
+                    info: Box::new(info),
                     checkpoint: paths.checkpoint,
                 },
             })

@@ -12,6 +12,7 @@ use crate::field::trainable::BoxedField;
 use crate::io::images::{viridis_image, write_gif, write_npy, write_png, RgbImage};
 use crate::io::output::prepare_out_dir;
 use crate::io::progress::progress_bar;
+use crate::kernels::sample_points::sample_points;
 use crate::render::bands::{band_ndc, band_rays, pixel_bands};
 use crate::render::field::Field;
 use crate::render::pointcloud::{PointSplatter, PointView};
@@ -157,11 +158,11 @@ pub fn point_image(
 ) -> Result<RgbImage> {
     let mut splatter = PointSplatter::new(size, &PointView::default())?;
     // The points every sampler starts from.
-    let sampler = sampler.stratified();
-    let band = (max_points / sampler.n_pts_per_ray).max(1);
+    let band = (max_points / sampler.drawn_per_ray()).max(1);
     for pixels in pixel_bands(width * height, band) {
         let rays = band_rays(camera, (width, height), pixels, device)?;
-        let points = sampler.sample(&rays, None)?.points;
+        let lengths = sampler.lengths(&rays, None)?;
+        let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
         splatter.add(&points.flatten_all()?.to_vec1::<f32>()?);
     }
     splatter.finish()
@@ -336,11 +337,12 @@ pub fn render_nerf_scene(
 ) -> Result<Vec<PathBuf>> {
     let chunks = WorkChunks::from_env()?;
     let field = config.load_field(checkpoint, device)?;
+    let views = crate::app::scene_frame::render_cameras(config, checkpoint)?;
     prepare_out_dir(out_dir)?;
     let render = config.render_settings()?;
     let frames = render_views_in_bands(
         &render.with(&*field),
-        &config.surround_cameras(),
+        &views.cameras,
         config.image_size(),
         chunks.rays,
         device,

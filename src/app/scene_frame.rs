@@ -3,14 +3,18 @@
 //! and `eval`, `export` and a resumed `train` read the capture's cameras in that frame
 //! rather than in the one recomputed from the cameras they were given (which moves when the
 //! cameras differ: a subset, a re-run of structure from motion that kept the same gauge).
+//! `render` and `view` show such a model from the orbit stored beside the transform
+//! ([`render_cameras`]).
 
 use std::path::Path;
 
 use anyhow::Result;
 
-use crate::io::checkpoint::{read_metadata, scene_transform_of};
+use crate::app::config::Config;
+use crate::core::camera::PerspectiveCamera;
+use crate::io::checkpoint::{capture_orbit_of, read_metadata, scene_transform_of};
 use crate::io::checkpoint_file::{detect_format, CheckpointFormat};
-use crate::io::dataset::{Normalisation, SceneTransform};
+use crate::io::dataset::{CaptureOrbit, Normalisation, SceneTransform};
 
 /// The scene normalisation stored in the checkpoint at `path`; `None` when it stores none
 /// (a NeRF-synthetic model, an older checkpoint, a PyTorch file) or is not a file (loading
@@ -21,6 +25,62 @@ pub fn stored_transform(path: &Path) -> Result<Option<SceneTransform>> {
         return Ok(None);
     }
     scene_transform_of(&read_metadata(path)?, path)
+}
+
+/// The views `nerf render` renders and `nerf view` starts from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DefaultViews {
+    /// The cameras.
+    pub cameras: Vec<PerspectiveCamera>,
+    /// The capture orbit they lie on, for a model trained on a capture (`None`: the config's
+    /// surround cameras).
+    pub orbit: Option<CaptureOrbit>,
+}
+
+impl DefaultViews {
+    /// The config's surround cameras (the homework's views).
+    pub fn surround(config: &Config) -> Self {
+        Self {
+            cameras: config.surround_cameras(),
+            orbit: None,
+        }
+    }
+}
+
+/// The views `nerf render` and `nerf view` show the model at `checkpoint` from:
+/// `cameras.n_poses` views on the capture's orbit when the checkpoint was trained on a capture
+/// (the stored [`CaptureOrbit`], or [`CaptureOrbit::normalised_default`] for a capture
+/// checkpoint that stores none), else the config's surround cameras (the homework's). Says on
+/// stderr which, for a capture.
+pub fn render_cameras(config: &Config, checkpoint: &Path) -> Result<DefaultViews> {
+    let n_poses = config.cameras.n_poses;
+    if !checkpoint.is_file()
+        || detect_format(checkpoint).ok() != Some(CheckpointFormat::Safetensors)
+    {
+        return Ok(DefaultViews::surround(config));
+    }
+    let meta = read_metadata(checkpoint)?;
+    let orbit = match capture_orbit_of(&meta, checkpoint)? {
+        Some(orbit) => orbit,
+        None if scene_transform_of(&meta, checkpoint)?.is_some() => {
+            crate::core::term::note(&format!(
+                "note: {} was trained on a capture but stores no orbit (written before orbits \
+                 were stored): using a default one in the normalised frame",
+                checkpoint.display()
+            ));
+            CaptureOrbit::normalised_default()
+        }
+        None => return Ok(DefaultViews::surround(config)),
+    };
+    crate::core::term::note(&format!(
+        "{n_poses} views on the capture's orbit: radius {:.3}, height {:.3} around the z axis, \
+         looking at the origin, NDC focal ({:.3}, {:.3})",
+        orbit.radius, orbit.height, orbit.focal[0], orbit.focal[1]
+    ));
+    Ok(DefaultViews {
+        cameras: orbit.cameras(n_poses),
+        orbit: Some(orbit),
+    })
 }
 
 /// Says on stderr how the frame of the data in `data_dir` relates to the checkpoint's: when

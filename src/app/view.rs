@@ -48,6 +48,7 @@ use hyper_util::service::TowerToHyperService;
 
 use crate::app::config::{limits, Config};
 use crate::app::scene::SceneField;
+use crate::app::scene_frame::DefaultViews;
 use crate::app::view_host::{AllowedHosts, HostRefusal};
 use crate::app::view_queue::{Frame, Job, Outcome, Peer, Queue, QUEUE_CAPACITY};
 use crate::app::view_request::{parse_view_query, ViewDefaults};
@@ -276,19 +277,27 @@ pub struct ViewOptions {
     pub header_timeout: Duration,
 }
 
-/// The config's first surround camera and image size, the view a bare `/render.png` gets.
-fn view_defaults(config: &Config) -> ViewDefaults {
+/// The first of the `views` (the config's surround cameras, or a capture's orbit:
+/// [`crate::app::scene_frame::render_cameras`]) and the config's image size, the view a bare
+/// `/render.png` gets. A capture's orbit looks at the origin with +z up.
+fn view_defaults(config: &Config, views: &DefaultViews) -> ViewDefaults {
     let c = &config.cameras;
-    let eye = config
-        .surround_cameras()
-        .first()
-        .map_or(DVec3::new(0.0, 0.0, c.radius), |cam| cam.center());
+    let capture = views.orbit.is_some();
+    let first = views.cameras.first();
+    let eye = first.map_or(DVec3::new(0.0, 0.0, c.radius), |cam| cam.center());
     let (width, height) = config.image_size();
     ViewDefaults {
         eye,
         at: DVec3::ZERO,
-        up: DVec3::from_array(c.up),
-        focal: c.focal_length,
+        up: if capture {
+            DVec3::Z
+        } else {
+            DVec3::from_array(c.up)
+        },
+        focal: match (capture, first) {
+            (true, Some(cam)) => cam.focal[0],
+            _ => c.focal_length,
+        },
         width,
         height,
     }
@@ -360,18 +369,20 @@ async fn accept_loop(listener: tokio::net::TcpListener, app: Router, header_time
     }
 }
 
-/// `nerf view`: serves the page and the API for `scene` (named `name`) until killed. Prints
+/// `nerf view`: serves the page and the API for `scene` (named `name`) until killed, the
+/// first of `views` its default view. Prints
 /// `nerf view: <name> at http://<address>/` once listening.
 pub fn serve(
     config: &Config,
     name: &str,
     scene: SceneField,
+    views: &DefaultViews,
     options: &ViewOptions,
     device: &Device,
 ) -> Result<()> {
     let listener = bind(options)?;
     let addr = listener.local_addr()?;
-    let defaults = view_defaults(config);
+    let defaults = view_defaults(config, views);
     let queue = Arc::new(Queue::default());
     let worker = Worker {
         scene,

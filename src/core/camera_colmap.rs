@@ -324,8 +324,23 @@ impl ColmapCamera {
                 "unsupported nerfstudio camera_model `{other}` (supported: OPENCV, OPENCV_FISHEYE)"
             ),
         };
+        let mut pose = ColmapPose::from_opengl_camera_to_world(camera_to_world);
+        // transforms.json files hold float32 matrices (nerfstudio's, NeRF-synthetic's): lego's
+        // r_88 is 2e-6 from orthonormal. A rotation that close is replaced by the nearest one
+        // (through its normalised quaternion), keeping the centre; anything farther is left
+        // for `validate` to reject.
+        let r = pose.rotation;
+        let off = (r.transpose() * r - DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .fold(0.0_f64, |worst, v| worst.max(v.abs()));
+        if off < 1e-4 && r.determinant() > 0.0 {
+            let centre = pose.center();
+            pose.rotation = DMat3::from_quat(DQuat::from_mat3(&r).normalize());
+            pose.translation = -(pose.rotation * centre);
+        }
         let camera = Self {
-            pose: ColmapPose::from_opengl_camera_to_world(camera_to_world),
+            pose,
             size: (intrinsics.w, intrinsics.h),
             focal: [intrinsics.fl_x, intrinsics.fl_y],
             principal_point: [intrinsics.cx, intrinsics.cy],

@@ -5,6 +5,7 @@ pub mod camera;
 pub mod camera_colmap;
 pub mod camera_model;
 pub mod compare;
+pub mod contraction;
 pub mod distortion;
 pub mod fastexp;
 pub mod frame_camera;

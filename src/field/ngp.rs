@@ -2,7 +2,9 @@
 //! ([`crate::kernels::hash_grid`]) and two small MLPs.
 //!
 //! * The point is mapped from the field's axis-aligned box to [0, 1]³ and encoded (`L·F`
-//!   features); outside the box the density is 0.
+//!   features); outside the box the density is 0. With a scene contraction
+//!   ([`crate::core::contraction`], `implicit_function.contraction: linf`) the point is
+//!   contracted first and the box is in contracted space (`[-2, 2]³` covers all of space).
 //! * `density_mlp`: Linear(L·F, 64) + ReLU → Linear(64, 16); output 0 is the raw density
 //!   (through [`trunc_exp`], or softplus), outputs 1..16 are 15 geometry features.
 //! * `color_mlp`: Linear(15 + 16, 64) + ReLU → Linear(64, 64) + ReLU → Linear(64, 3) + sigmoid,
@@ -20,6 +22,7 @@ use anyhow::{ensure, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{Init, Linear, VarBuilder, VarMap};
 
+use crate::core::contraction::Contraction;
 use crate::field::nerf::linear;
 use crate::field::trainable::{
     linear_init_bound, named_vars, seed_uniform, BoxedField, DenseGroup, FieldSpec, ParamGroups,
@@ -59,6 +62,8 @@ pub struct NgpParams {
     pub aabb: [[f64; 3]; 2],
     /// The density activation.
     pub density_activation: DensityActivation,
+    /// How world points map into the space `aabb` is in (identity for a bounded scene).
+    pub contraction: Contraction,
 }
 
 impl NgpParams {
@@ -188,9 +193,11 @@ impl Ngp {
         &self.table
     }
 
-    /// `points` `(M, 3)` in world units mapped to [0, 1]³ by the box: `(M, 3)`, and `(M, 1)`
-    /// with 1 inside the box (faces included), 0 outside.
+    /// `points` `(M, 3)` in world units, contracted ([`NgpParams::contraction`]) and mapped
+    /// to [0, 1]³ by the box: `(M, 3)`, and `(M, 1)` with 1 inside the box (faces included),
+    /// 0 outside.
     fn normalise(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
+        let points = &self.params.contraction.contract_tensor(points)?;
         let [lo, hi] = self.params.aabb;
         let dev = points.device();
         let lo_t = Tensor::new(&[lo.map(|v| v as f32)], dev)?.to_dtype(points.dtype())?;
@@ -502,6 +509,7 @@ mod tests {
             },
             aabb: [[-1.5; 3], [1.5; 3]],
             density_activation: DensityActivation::TruncExp,
+            contraction: Contraction::None,
         }
     }
 
@@ -596,5 +604,64 @@ mod tests {
         let names: Vec<String> = varmap.data().lock().unwrap().keys().cloned().collect();
         assert_eq!(names.len(), 1 + 2 * 5, "{names:?}");
         assert!(names.contains(&"encoding.table".to_string()));
+    }
+
+    #[test]
+    fn contracted_field_covers_all_space_and_trains_through_the_contraction() {
+        let varmap = VarMap::new();
+        let dev = Device::Cpu;
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
+        let params = NgpParams {
+            aabb: [[-2.0; 3], [2.0; 3]],
+            contraction: Contraction::LInf,
+            ..small()
+        };
+        let model = Ngp::new(&params, vb).unwrap();
+        // Far points only: outside the unit cube, some hundreds of units away.
+        let far = Tensor::new(
+            &[[3.0f32, 0.5, -1.0], [-40.0, 2.0, 7.0], [0.0, 900.0, -100.0]],
+            &dev,
+        )
+        .unwrap();
+        let sigma = model.density(&far).unwrap();
+        let s = sigma.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert!(s.iter().all(|&v| v > 0.0), "{s:?}");
+        // The same model without contraction holds them outside its box: zero density.
+        let boxed = Ngp {
+            params: NgpParams {
+                contraction: Contraction::None,
+                ..params.clone()
+            },
+            ..model.clone()
+        };
+        let s = boxed.density(&far).unwrap().flatten_all().unwrap();
+        assert!(s.to_vec1::<f32>().unwrap().iter().all(|&v| v == 0.0));
+        // The contracted points are encoded where the f64 contraction puts them: the
+        // encoding of the far points equals the boxed model's encoding of their contraction.
+        let contracted: Vec<f32> = far
+            .to_vec2::<f32>()
+            .unwrap()
+            .iter()
+            .flat_map(|p| {
+                Contraction::LInf
+                    .contract([p[0], p[1], p[2]].map(f64::from))
+                    .map(|v| v as f32)
+            })
+            .collect();
+        let contracted = Tensor::from_vec(contracted, (3, 3), &dev).unwrap();
+        let a = model.encode(&far).unwrap().0;
+        let b = boxed.encode(&contracted).unwrap().0;
+        let diff = crate::core::compare::max_abs_difference(&a, &b).unwrap();
+        assert!(diff < 1e-6, "{diff}");
+        // Gradients reach the hash table from far samples.
+        let grads = sigma.sum_all().unwrap().backward().unwrap();
+        let g = grads
+            .get(model.table())
+            .unwrap()
+            .abs()
+            .unwrap()
+            .sum_all()
+            .unwrap();
+        assert!(g.to_scalar::<f32>().unwrap() > 0.0);
     }
 }

@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use candle_core::Device;
 
+use crate::core::contraction::Contraction;
 use crate::core::rays::Rays;
 use crate::field::nerf::{Nerf, NerfField, NerfParams};
 use crate::kernels::composite::composite;
@@ -88,6 +89,7 @@ fn striped_grid(every: usize, empty: usize) -> OccupancyGrid {
         resolution: 4,
         aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
         density_threshold: 1.0,
+        contraction: Contraction::None,
     };
     let mut grid = OccupancyGrid::new(&config).unwrap();
     for (c, o) in grid.occupied.iter_mut().enumerate() {
@@ -131,6 +133,7 @@ fn all_occupied_grid_without_termination_is_dense_rendering() {
         resolution: 64,
         aabb: [-10.0, -10.0, -10.0, 10.0, 10.0, 10.0],
         density_threshold: 1.0,
+        contraction: Contraction::None,
     };
     let grid = OccupancyGrid::new(&config).unwrap();
     let renderer = VolumeRenderer::new(1000, false).unwrap();
@@ -213,6 +216,7 @@ fn marching_keeps_exactly_the_samples_in_occupied_cells() {
         resolution: 32,
         aabb: [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5],
         density_threshold: 1.0,
+        contraction: Contraction::None,
     };
     let mut grid = OccupancyGrid::new(&config).unwrap();
     let mut rng = rand::rngs::StdRng::seed_from_u64(11);
@@ -323,5 +327,66 @@ fn packed_compositing_gradients_equal_the_dense_paths() {
     for (name, var) in crate::field::trainable::named_vars(&state.varmap) {
         let (a, b) = (ga.get(&var).unwrap(), gb.get(&var).unwrap());
         crate::core::compare::assert_close(a, b, 1e-5, &name);
+    }
+}
+
+#[test]
+fn marching_a_contracted_grid_keeps_exactly_the_samples_in_occupied_cells() {
+    use rand::{Rng, SeedableRng};
+    // A 64³ grid over the contracted cube [-2, 2]³ (blocks of 8 cells: 0.5 wide), occupied
+    // cells scattered over a shell and the centre, so that whole empty blocks inside the unit
+    // cube are skipped and samples far out (up to 100 units) land in the shell.
+    let config = OccupancyGridParams {
+        resolution: 64,
+        aabb: [-2.0, -2.0, -2.0, 2.0, 2.0, 2.0],
+        density_threshold: 1.0,
+        contraction: Contraction::LInf,
+    };
+    let mut grid = OccupancyGrid::new(&config).unwrap();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(12);
+    for (c, o) in grid.occupied.iter_mut().enumerate() {
+        let [x, y, z] = [c / 4096, (c / 64) % 64, c % 64].map(|v| (v as f32 - 31.5).abs());
+        let norm = x.max(y).max(z);
+        *o = !(3.0..=24.0).contains(&norm) && rng.random::<f32>() < 0.3;
+    }
+    let blocks = grid.empty_blocks();
+    assert!(blocks.empty.iter().any(|e| *e));
+    let f = field(&model(1.0).detached(), Some(grid.clone()));
+    // A camera inside the unit cube, as a normalised capture's.
+    let cam = crate::core::camera::surround_cameras(0.9, 3, glam::DVec3::Z, 0.5)[1];
+    let rays = Rays::for_image(&cam, 16, 12, &Device::Cpu).unwrap();
+    let sampler = StratifiedSampler::new(256, 0.02, 100.0).unwrap();
+    for jitter in [false, true] {
+        let lengths = if jitter {
+            sampler.compact_lengths(&rays, Some(&mut rng)).unwrap()
+        } else {
+            sampler.compact_lengths(&rays, None).unwrap()
+        };
+        let packed = evaluate_packed(&f, 0.0, &rays, &lengths).unwrap();
+        let dense_lengths = lengths.broadcast_as((rays.len(), 256, 1)).unwrap();
+        let points = sample_points(&rays.origins, &rays.directions, &dense_lengths)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        let expected: Vec<u32> = (0..points.len() / 3)
+            .filter(|&k| grid.is_occupied([points[3 * k], points[3 * k + 1], points[3 * k + 2]]))
+            .map(|k| k as u32)
+            .collect();
+        // Samples in the shell (far from the unit cube) are among them.
+        assert!(expected.iter().any(|&k| {
+            let p = &points[3 * k as usize..3 * k as usize + 3];
+            p.iter().fold(0f32, |m, v| m.max(v.abs())) > 5.0
+        }));
+        let mut got = packed.index.clone();
+        got.sort_unstable();
+        assert_eq!(got, expected, "jitter {jitter}");
+        // Whole blocks inside the unit cube were passed over without a test.
+        assert!(
+            packed.counts.examined < packed.counts.total,
+            "{:?}",
+            packed.counts
+        );
     }
 }

@@ -5,7 +5,8 @@
 //! `adam.exp_avg.<name>` / `adam.exp_avg_sq.<name>`. Metadata: `epoch` (epochs completed),
 //! `adam_step`, `format` = `nerf-candle-1`, and for a model trained on a capture
 //! `scene_transform`, the normalisation its cameras were put in
-//! ([`SceneTransform::to_text`]). A loader that only wants the model ignores `adam.*`.
+//! ([`SceneTransform::to_text`]), and `capture_orbit`, the views that suit it
+//! ([`CaptureOrbit::to_text`]). A loader that only wants the model ignores `adam.*`.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -14,11 +15,14 @@ use anyhow::{bail, Context, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
-use crate::io::dataset::SceneTransform;
+use crate::io::dataset::{CaptureOrbit, SceneTransform};
 use crate::io::output::write_atomically;
 
 /// The metadata key of the scene normalisation a model was trained in.
 pub const SCENE_TRANSFORM_KEY: &str = "scene_transform";
+
+/// The metadata key of the orbit `nerf render` and `nerf view` show a capture's model from.
+pub const CAPTURE_ORBIT_KEY: &str = "capture_orbit";
 
 /// What a checkpoint holds besides tensors.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -42,6 +46,9 @@ pub struct CheckpointInfo {
     /// scene, or a checkpoint written before it was stored): evaluating or rendering the
     /// capture's cameras with this model must put them in this frame.
     pub scene_transform: Option<SceneTransform>,
+    /// The views around a capture that `nerf render` and `nerf view` default to (`None` for
+    /// a NeRF-synthetic scene, or a checkpoint written before it was stored).
+    pub capture_orbit: Option<CaptureOrbit>,
 }
 
 /// The largest counts a checkpoint's metadata may hold: far past any real run, and small
@@ -133,6 +140,9 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     if let Some(t) = &info.scene_transform {
         metadata.insert(SCENE_TRANSFORM_KEY.to_string(), t.to_text());
     }
+    if let Some(o) = &info.capture_orbit {
+        metadata.insert(CAPTURE_ORBIT_KEY.to_string(), o.to_text());
+    }
     let bytes = safetensors::serialize(views, Some(metadata))?;
     if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
@@ -184,6 +194,7 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
         rng_word_pos: metadata_value(&meta, "rng_word_pos", path)?,
         rays_per_step: metadata_value(&meta, "rays_per_step", path)?,
         scene_transform: scene_transform_of(&meta, path)?,
+        capture_orbit: capture_orbit_of(&meta, path)?,
     };
     info.validate(path)?;
     let mut tensors = HashMap::new();
@@ -280,6 +291,24 @@ pub fn scene_transform_of(
             SceneTransform::from_text(text).map_err(|e| {
                 anyhow::anyhow!(
                     "checkpoint {}: bad metadata {SCENE_TRANSFORM_KEY}: {e}",
+                    path.display()
+                )
+            })
+        })
+        .transpose()
+}
+
+/// The capture orbit stored in the metadata `meta` of the checkpoint at `path`; `None` when
+/// there is none, an error naming the key when it does not read as one.
+pub fn capture_orbit_of(
+    meta: &HashMap<String, String>,
+    path: &Path,
+) -> Result<Option<CaptureOrbit>> {
+    meta.get(CAPTURE_ORBIT_KEY)
+        .map(|text| {
+            CaptureOrbit::from_text(text).map_err(|e| {
+                anyhow::anyhow!(
+                    "checkpoint {}: bad metadata {CAPTURE_ORBIT_KEY}: {e}",
                     path.display()
                 )
             })

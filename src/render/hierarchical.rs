@@ -32,8 +32,16 @@ pub struct CoarseToFineSampler {
 }
 
 impl RaySampler for CoarseToFineSampler {
-    fn stratified(&self) -> &StratifiedSampler {
-        &self.coarse
+    fn drawn_per_ray(&self) -> usize {
+        self.coarse.n_pts_per_ray
+    }
+
+    fn compact_lengths(
+        &self,
+        rays: &Rays,
+        jitter: Option<&mut dyn rand::RngCore>,
+    ) -> Result<Tensor> {
+        self.coarse.compact_lengths(rays, jitter)
     }
 
     fn samples_per_ray(&self) -> usize {

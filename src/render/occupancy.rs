@@ -8,10 +8,19 @@
 //! `σ = −ln(1 − alpha_threshold) / step`. Points outside the bounding box are empty.
 //!
 //! Cells are indexed `(ix · R + iy) · R + iz`, x slowest.
+//!
+//! With a scene contraction ([`Contraction::LInf`], unbounded scenes) the grid's box is in
+//! contracted space, as the field's is: a point is contracted before its cell is looked up,
+//! and a cell is probed at world points (its contracted points mapped back). The whole ray
+//! is then tested sample by sample, and whole empty blocks are skipped only inside the
+//! unit cube, where the contraction is the identity (elsewhere a block is not a box in the
+//! world).
 
 use std::collections::HashMap;
 
 use anyhow::{ensure, Context, Result};
+
+use crate::core::contraction::Contraction;
 use candle_core::{Device, Tensor};
 use rand::Rng;
 
@@ -45,6 +54,8 @@ pub struct OccupancyGrid {
     pub density: Vec<f32>,
     /// `R³` occupancy flags derived from `density`.
     pub occupied: Vec<bool>,
+    /// How world points map into the space of the box (identity for bounded scenes).
+    pub contraction: Contraction,
 }
 
 /// Density at which one step of `step` has opacity `alpha`: `−ln(1 − alpha) / step`.
@@ -62,6 +73,8 @@ pub struct OccupancyGridParams {
     /// Density above which a cell counts as occupied (before the `mean` cap); see
     /// [`density_threshold`].
     pub density_threshold: f64,
+    /// How world points map into the space `aabb` is in (the field's contraction).
+    pub contraction: Contraction,
 }
 
 impl Default for OccupancyGridParams {
@@ -74,6 +87,7 @@ impl Default for OccupancyGridParams {
             resolution,
             aabb,
             density_threshold: density_threshold(0.01, (aabb[3] - aabb[0]) / resolution as f64),
+            contraction: Contraction::None,
         }
     }
 }
@@ -128,6 +142,7 @@ impl OccupancyGrid {
             density_threshold: params.density_threshold as f32,
             density: vec![f32::MAX; r * r * r],
             occupied: vec![true; r * r * r],
+            contraction: params.contraction,
         })
     }
 
@@ -149,10 +164,11 @@ impl OccupancyGrid {
         (x * r + y) * r + z
     }
 
-    /// The integer coordinates `[ix, iy, iz]` of the cell holding `p`, or `None` outside the
-    /// bounding box (or for NaN).
+    /// The integer coordinates `[ix, iy, iz]` of the cell holding world point `p` (contracted
+    /// first when the grid is), or `None` outside the bounding box (or for NaN).
     #[inline]
     pub fn cell_coordinates(&self, p: [f32; 3]) -> Option<[usize; 3]> {
+        let p = self.contraction.contract_f32(p);
         let r = self.resolution;
         let mut cell = [0; 3];
         for k in 0..3 {
@@ -174,8 +190,12 @@ impl OccupancyGrid {
     }
 
     /// The depths `(enter, exit)` between which the ray `origin + t·direction` is inside the
-    /// bounding box (the slab test, in f64), or `None` when it misses the box.
+    /// bounding box (the slab test, in f64), or `None` when it misses the box. With a
+    /// contraction, the whole ray (`(−∞, ∞)`): the contracted box is not a world box.
     pub fn crossing(&self, origin: [f32; 3], direction: [f32; 3]) -> Option<(f64, f64)> {
+        if self.contraction != Contraction::None {
+            return Some((f64::NEG_INFINITY, f64::INFINITY));
+        }
         let (mut enter, mut exit) = (f64::NEG_INFINITY, f64::INFINITY);
         for k in 0..3 {
             let (o, d) = (f64::from(origin[k]), f64::from(direction[k]));
@@ -225,11 +245,24 @@ impl OccupancyGrid {
         if !blocks.empty[(b[0] * n + b[1]) * n + b[2]] {
             return None;
         }
+        let size =
+            |k: usize| f64::from(self.aabb_max[k] - self.aabb_min[k]) / self.resolution as f64;
+        let bounds = |k: usize| {
+            let lo = f64::from(self.aabb_min[k]) + (b[k] * BLOCK) as f64 * size(k);
+            (lo, lo + BLOCK as f64 * size(k))
+        };
+        // Contracted: a block is a world box only inside the unit cube (the identity there).
+        if self.contraction != Contraction::None
+            && !(0..3).all(|k| {
+                let (lo, hi) = bounds(k);
+                lo >= -1.0 && hi <= 1.0
+            })
+        {
+            return None;
+        }
         let (mut enter, mut exit) = (f64::NEG_INFINITY, f64::INFINITY);
         for k in 0..3 {
-            let size = f64::from(self.aabb_max[k] - self.aabb_min[k]) / self.resolution as f64;
-            let lo = f64::from(self.aabb_min[k]) + (b[k] * BLOCK) as f64 * size;
-            let hi = lo + BLOCK as f64 * size;
+            let (lo, hi) = bounds(k);
             let (o, d) = (f64::from(origin[k]), f64::from(direction[k]));
             if d != 0.0 {
                 let (a, c) = ((lo - o) / d, (hi - o) / d);
@@ -245,14 +278,23 @@ impl OccupancyGrid {
         self.occupied.iter().filter(|o| **o).count() as f64 / self.n_cells() as f64
     }
 
-    /// The point at fractional position `u ∈ [0, 1]³` of cell `cell`.
+    /// The world point at fractional position `u ∈ [0, 1]³` of cell `cell` (with a
+    /// contraction, the position is in contracted space and mapped back).
     fn point_in_cell(&self, cell: usize, u: [f32; 3]) -> [f32; 3] {
         let r = self.resolution;
         let i = [cell / (r * r), (cell / r) % r, cell % r];
-        std::array::from_fn(|k| {
+        self.world_point(std::array::from_fn(|k| {
             let size = (self.aabb_max[k] - self.aabb_min[k]) / r as f32;
             self.aabb_min[k] + (i[k] as f32 + u[k]) * size
-        })
+        }))
+    }
+
+    /// The world point of a point `q` of the grid's space (itself without a contraction).
+    fn world_point(&self, q: [f32; 3]) -> [f32; 3] {
+        match self.contraction {
+            Contraction::None => q,
+            c => c.uncontract(q.map(f64::from)).map(|v| v as f32),
+        }
     }
 
     /// Recomputes the flags: occupied where the running density exceeds
@@ -320,10 +362,10 @@ impl OccupancyGrid {
         let corners: Vec<[f32; 3]> = (0..rc * rc * rc)
             .map(|c| {
                 let i = [c / (rc * rc), (c / rc) % rc, c % rc];
-                std::array::from_fn(|k| {
+                grid.world_point(std::array::from_fn(|k| {
                     let size = (grid.aabb_max[k] - grid.aabb_min[k]) / r as f32;
                     grid.aabb_min[k] + i[k] as f32 * size
-                })
+                }))
             })
             .collect();
         let corner_density = evaluate_density(density, &corners, device)?;
@@ -397,6 +439,7 @@ mod tests {
             resolution,
             aabb: [-1.0, -2.0, -1.0, 1.0, 2.0, 3.0],
             density_threshold,
+            contraction: Contraction::None,
         }
     }
 
@@ -480,6 +523,7 @@ mod build_tests {
             resolution: 6,
             aabb: [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5],
             density_threshold,
+            contraction: Contraction::None,
         };
         let centres: Vec<[f32; 3]> = {
             let g = OccupancyGrid::new(&settings(0.0)).unwrap();

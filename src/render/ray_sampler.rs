@@ -2,9 +2,11 @@
 //!
 //! Every sampling strategy implements [`RaySampler`] in a file of its own, as nerfstudio's
 //! `ray_samplers.py` lists its samplers: [`crate::render::sampler::StratifiedSampler`] (the
-//! homework's) and [`crate::render::hierarchical::CoarseToFineSampler`] (pytorch3d's NeRF
-//! project's coarse-to-fine). Each starts from stratified depths; a strategy that places
-//! further depths by looking at the field (coarse-to-fine, a proposal network) does so in
+//! homework's), [`crate::render::hierarchical::CoarseToFineSampler`] (pytorch3d's NeRF
+//! project's coarse-to-fine) and [`crate::render::disparity_sampler::DepthThenDisparitySampler`]
+//! (unbounded scenes: uniform in depth near the cameras, uniform in disparity beyond). Each
+//! draws depths per ray ([`RaySampler::compact_lengths`]); a strategy that places further
+//! depths by looking at the field (coarse-to-fine, a proposal network) does so in
 //! [`RaySampler::refine`], and its depths are then rendered densely.
 
 use anyhow::Result;
@@ -16,12 +18,28 @@ use crate::render::sampler::StratifiedSampler;
 
 /// A sampling strategy for the renderer.
 pub trait RaySampler: std::fmt::Debug + Send + Sync {
-    /// The stratified depths every pass starts from (count and range; jittered in training).
-    fn stratified(&self) -> &StratifiedSampler;
+    /// Depths drawn per ray by [`RaySampler::compact_lengths`] (before any refinement).
+    fn drawn_per_ray(&self) -> usize;
+
+    /// The depths every pass starts from, without repeats: `(1, S, 1)` shared by every ray
+    /// without `jitter`, `(N, S, 1)` per ray with it (training), increasing along each ray,
+    /// in the rays' dtype; `S` = [`RaySampler::drawn_per_ray`].
+    fn compact_lengths(
+        &self,
+        rays: &Rays,
+        jitter: Option<&mut dyn rand::RngCore>,
+    ) -> Result<Tensor>;
+
+    /// [`RaySampler::compact_lengths`] for every ray: `(N, S, 1)`.
+    fn lengths(&self, rays: &Rays, jitter: Option<&mut dyn rand::RngCore>) -> Result<Tensor> {
+        let lengths = self.compact_lengths(rays, jitter)?;
+        let (_, s, _) = lengths.dims3()?;
+        Ok(lengths.broadcast_as((rays.len(), s, 1))?.contiguous()?)
+    }
 
     /// Depths per ray that the renderer composites.
     fn samples_per_ray(&self) -> usize {
-        self.stratified().n_pts_per_ray
+        self.drawn_per_ray()
     }
 
     /// Field evaluations per ray (more than [`RaySampler::samples_per_ray`] when a pass probes
@@ -36,8 +54,8 @@ pub trait RaySampler: std::fmt::Debug + Send + Sync {
         false
     }
 
-    /// The depths to render, `(N, S', 1)`, from the stratified depths `(N, S, 1)` of `rays`:
-    /// the stratified ones themselves unless the strategy refines them using `field`
+    /// The depths to render, `(N, S', 1)`, from the drawn depths `(N, S, 1)` of `rays`:
+    /// the drawn ones themselves unless the strategy refines them using `field`
     /// (detached: no gradient flows into the choice of depths). `jitter`: the training
     /// randomness, `None` when rendering.
     fn refine(
@@ -53,15 +71,35 @@ pub trait RaySampler: std::fmt::Debug + Send + Sync {
 
 /// The homework's stratified sampler: its own depths, unrefined.
 impl RaySampler for StratifiedSampler {
-    fn stratified(&self) -> &StratifiedSampler {
-        self
+    fn drawn_per_ray(&self) -> usize {
+        self.n_pts_per_ray
+    }
+
+    fn compact_lengths(
+        &self,
+        rays: &Rays,
+        jitter: Option<&mut dyn rand::RngCore>,
+    ) -> Result<Tensor> {
+        StratifiedSampler::compact_lengths(self, rays, jitter)
     }
 }
 
 /// A shared sampler is a sampler (configs hand theirs out as `Arc<dyn RaySampler>`).
 impl<S: RaySampler + ?Sized> RaySampler for std::sync::Arc<S> {
-    fn stratified(&self) -> &StratifiedSampler {
-        (**self).stratified()
+    fn drawn_per_ray(&self) -> usize {
+        (**self).drawn_per_ray()
+    }
+
+    fn compact_lengths(
+        &self,
+        rays: &Rays,
+        jitter: Option<&mut dyn rand::RngCore>,
+    ) -> Result<Tensor> {
+        (**self).compact_lengths(rays, jitter)
+    }
+
+    fn lengths(&self, rays: &Rays, jitter: Option<&mut dyn rand::RngCore>) -> Result<Tensor> {
+        (**self).lengths(rays, jitter)
     }
 
     fn samples_per_ray(&self) -> usize {

@@ -90,7 +90,6 @@ impl VolumeRenderer {
         if sampler.refines() {
             return self.render_refined(field, sampler, rays, jitter);
         }
-        let sampler = sampler.stratified();
         if !self.skips_samples(field) {
             let lengths = sampler.lengths(rays, jitter)?;
             if let Some(out) = field.render_fused(rays, &lengths)? {
@@ -120,8 +119,8 @@ impl VolumeRenderer {
         mut jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
         let rng = jitter.as_mut().map(|r| &mut **r as &mut dyn rand::RngCore);
-        let stratified = sampler.stratified().lengths(rays, rng)?;
-        let lengths = sampler.refine(field, rays, stratified, jitter)?;
+        let drawn = sampler.lengths(rays, rng)?;
+        let lengths = sampler.refine(field, rays, drawn, jitter)?;
         let mut out = self.composite_samples(field, rays, lengths)?;
         out.samples = SampleCounts {
             evaluated: rays.len() * sampler.evaluations_per_ray(),
@@ -172,9 +171,9 @@ impl VolumeRenderer {
     pub fn rays_per_chunk(&self, field: &dyn Field, sampler: &dyn RaySampler) -> usize {
         // Samples evaluated at once per ray: a segment when skipping, else all of them.
         let skips = self.skips_samples(field);
-        let stratified = sampler.stratified().n_pts_per_ray;
+        let drawn = sampler.drawn_per_ray();
         let per_ray = if skips {
-            crate::render::skipping::segment_length(stratified, self.early_termination)
+            crate::render::skipping::segment_length(drawn, self.early_termination)
         } else {
             sampler.samples_per_ray()
         };
@@ -183,7 +182,7 @@ impl VolumeRenderer {
             .min((field.max_samples_per_chunk() / per_ray).max(1));
         if skips {
             // A chunk's rays may all stay live to their last sample.
-            rays = rays.min((DRAWN_SAMPLES_PER_CHUNK / stratified).max(1));
+            rays = rays.min((DRAWN_SAMPLES_PER_CHUNK / drawn).max(1));
         }
         rays
     }

@@ -505,6 +505,13 @@ impl Run<'_> {
         self.dataset.normalisation.map(|n| n.applied)
     }
 
+    /// For a capture, the orbit around its training cameras that `render` and `view` show
+    /// the model from (`None` when the cameras give none: all on the z axis).
+    fn capture_orbit(&self) -> Option<crate::io::dataset::CaptureOrbit> {
+        self.dataset.normalisation?;
+        crate::io::dataset::CaptureOrbit::from_frames(&self.dataset.frames).ok()
+    }
+
     /// After epoch `epoch` (0-based): checkpoint, evaluation and preview as scheduled.
     fn after_epoch(&mut self, epoch: usize, mean_loss: f64, hooks: &mut Hooks) -> Result<()> {
         let s = self.settings;
@@ -514,6 +521,7 @@ impl Run<'_> {
             wall_seconds: self.wall(),
             rays_per_step: self.rays_to_save(),
             scene_transform: self.scene_transform(),
+            capture_orbit: self.capture_orbit(),
             ..CheckpointInfo::default()
         };
         if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
@@ -654,6 +662,7 @@ pub fn fit(
                 rng_word_pos,
                 rays_per_step: run.rays_to_save(),
                 scene_transform: run.scene_transform(),
+                capture_orbit: run.capture_orbit(),
             };
             run.checkpoint()?;
             run.bar.finish_and_clear();

@@ -43,6 +43,10 @@ const BUILT_IN: &[(&str, &str)] = &[
         "nerf_scene",
         include_str!("../../../configs/nerf_scene.yaml"),
     ),
+    (
+        "nerf_scene_unbounded",
+        include_str!("../../../configs/nerf_scene_unbounded.yaml"),
+    ),
 ];
 
 /// The text of the config file `path`: a regular file of at most [`MAX_YAML_BYTES`], UTF-8.

@@ -58,6 +58,7 @@ impl NgpConfig {
             },
             aabb: self.aabb,
             density_activation,
+            contraction: self.contraction.0,
         };
         params.validate()?;
         Ok(params)
@@ -65,6 +66,15 @@ impl NgpConfig {
 }
 
 impl Config {
+    /// How the field maps world points into its grid's space (identity but for an `ngp` field
+    /// with `contraction: linf`); the occupancy grid tests points in the same space.
+    pub fn contraction(&self) -> crate::core::contraction::Contraction {
+        match &self.implicit_function {
+            ImplicitFunctionConfig::Ngp(ngp) => ngp.contraction.0,
+            _ => crate::core::contraction::Contraction::None,
+        }
+    }
+
     /// The NeRF's sizes, or an error naming the key when the config describes another field.
     pub fn nerf_params(&self) -> Result<NerfParams> {
         match &self.implicit_function {

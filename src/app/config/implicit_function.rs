@@ -213,6 +213,30 @@ pub struct NgpConfig {
     /// `trunc_exp` (default, instant-ngp) or `softplus` (`density_activation`).
     #[serde(default)]
     pub density_activation: DensityActivationName,
+    /// Scene contraction (`contraction`): `none` (default; the grid covers `aabb` of the
+    /// world) or `linf` (unbounded scenes: points are contracted into `[-2, 2]³` first, and
+    /// `aabb`, like the occupancy grid's, is in contracted space; see
+    /// [`crate::core::contraction`]).
+    #[serde(default)]
+    pub contraction: ContractionName,
+}
+
+/// `implicit_function.contraction` of an `ngp` field.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ContractionName(pub crate::core::contraction::Contraction);
+
+impl<'de> Deserialize<'de> for ContractionName {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        use crate::core::contraction::Contraction;
+        let name = String::deserialize(d)?;
+        match name.as_str() {
+            "none" => Ok(Self(Contraction::None)),
+            "linf" => Ok(Self(Contraction::LInf)),
+            other => Err(serde::de::Error::custom(format!(
+                "unknown `{other}` (expected none or linf)"
+            ))),
+        }
+    }
 }
 
 /// `implicit_function.density_activation` of an `ngp` field: how the raw density becomes σ.

@@ -6,6 +6,7 @@ use serde::Deserialize;
 
 use super::sampler::SamplerConfig;
 use super::Config;
+use crate::core::contraction::Contraction;
 use crate::render::occupancy::{density_threshold, OccupancyGridParams};
 use crate::render::renderer::VolumeRenderer;
 use crate::render::view::RenderSettings;
@@ -108,19 +109,21 @@ impl RendererConfig {
 
 impl OccupancyGridConfig {
     /// The grid, with its density threshold: `alpha_threshold` opacity over one sample step
-    /// of `sampler` ([`SamplerConfig::step`]).
-    pub fn params(&self, sampler: &SamplerConfig) -> OccupancyGridParams {
+    /// of `sampler` ([`SamplerConfig::step`]); its box is in the space `contraction` maps
+    /// world points into (the field's).
+    pub fn params(&self, sampler: &SamplerConfig, contraction: Contraction) -> OccupancyGridParams {
         OccupancyGridParams {
             resolution: self.resolution,
             aabb: self.aabb,
             density_threshold: density_threshold(self.alpha_threshold, sampler.step()),
+            contraction,
         }
     }
 
     /// How training keeps the grid ([`OccupancyGridConfig::params`]) up to date.
-    pub fn schedule(&self, sampler: &SamplerConfig) -> GridSchedule {
+    pub fn schedule(&self, sampler: &SamplerConfig, contraction: Contraction) -> GridSchedule {
         GridSchedule {
-            grid: self.params(sampler),
+            grid: self.params(sampler, contraction),
             update_interval: self.update_interval,
             warmup_steps: self.warmup_steps,
             decay: self.decay,
@@ -147,12 +150,12 @@ impl Config {
     /// ([`OccupancyGridConfig::params`]), or `None` when the config has no grid.
     pub fn occupancy_grid(&self) -> Option<OccupancyGridParams> {
         let g = self.renderer.occupancy_grid.as_ref()?;
-        Some(g.params(&self.sampler))
+        Some(g.params(&self.sampler, self.contraction()))
     }
 
     /// How training keeps the occupancy grid up to date, when the config has one.
     pub fn grid_schedule(&self) -> Option<GridSchedule> {
         let g = self.renderer.occupancy_grid.as_ref()?;
-        Some(g.schedule(&self.sampler))
+        Some(g.schedule(&self.sampler, self.contraction()))
     }
 }

@@ -1,4 +1,5 @@
-//! The `sampler` section and the sampler it describes (stratified, or coarse-to-fine).
+//! The `sampler` section and the sampler it describes (stratified, coarse-to-fine, or depth
+//! then disparity for unbounded scenes).
 
 use std::sync::Arc;
 
@@ -6,24 +7,29 @@ use anyhow::Result;
 use serde::Deserialize;
 
 use super::Config;
+use crate::render::disparity_sampler::DepthThenDisparitySampler;
 use crate::render::hierarchical::CoarseToFineSampler;
 use crate::render::ray_sampler::RaySampler;
 use crate::render::sampler::StratifiedSampler;
 
-/// `sampler.type`: the homework's one sampler.
+/// `sampler.type`: the homework's sampler, or one for unbounded scenes.
 #[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
 pub enum SamplerKind {
     /// `stratified`: the homework's `StratifiedRaysampler`.
     #[default]
     Stratified,
+    /// `depth_then_disparity`: `n_pts_per_ray` depths uniform on `[min_depth, max_depth]`,
+    /// then `n_pts_far` uniform in disparity out to `far_depth`
+    /// ([`DepthThenDisparitySampler`]).
+    DepthThenDisparity,
 }
 
 /// The `sampler` section.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SamplerConfig {
-    /// `sampler.type`: only `stratified` (the default).
+    /// `sampler.type`: `stratified` (the default) or `depth_then_disparity`.
     #[serde(rename = "type", default)]
     pub kind: SamplerKind,
     /// Samples per ray (`sampler.n_pts_per_ray`, 1 to [`super::limits::PTS_PER_RAY`]).
@@ -38,12 +44,40 @@ pub struct SamplerConfig {
     /// termination.
     #[serde(default)]
     pub n_pts_per_ray_fine: usize,
+    /// With `type: depth_then_disparity`: samples per ray uniform in disparity beyond
+    /// `max_depth` (`sampler.n_pts_far`, at least 1 there; 0 otherwise).
+    #[serde(default)]
+    pub n_pts_far: usize,
+    /// With `type: depth_then_disparity`: the far plane, where the last disparity bin ends
+    /// (`sampler.far_depth`, default 1000).
+    #[serde(default = "default_far_depth")]
+    pub far_depth: f64,
+}
+
+fn default_far_depth() -> f64 {
+    1000.0
 }
 
 impl SamplerConfig {
     /// The sampler: `n_pts_per_ray` stratified depths on `[min_depth, max_depth]`, and, with
     /// `n_pts_per_ray_fine` > 0, that many more drawn from a coarse pass's weights.
     pub fn sampler(&self) -> Result<Arc<dyn RaySampler>> {
+        if self.kind == SamplerKind::DepthThenDisparity {
+            anyhow::ensure!(
+                self.n_pts_per_ray_fine == 0,
+                "sampler.n_pts_per_ray_fine: coarse-to-fine sampling is for type stratified"
+            );
+            return Ok(Arc::new(DepthThenDisparitySampler::new(
+                self.n_pts_per_ray,
+                (self.min_depth, self.max_depth),
+                self.n_pts_far,
+                self.far_depth,
+            )?));
+        }
+        anyhow::ensure!(
+            self.n_pts_far == 0,
+            "sampler.n_pts_far: only with type depth_then_disparity"
+        );
         let stratified = self.stratified()?;
         Ok(match self.n_pts_per_ray_fine {
             0 => Arc::new(stratified),
@@ -54,13 +88,22 @@ impl SamplerConfig {
         })
     }
 
+    /// Samples drawn per ray before any refinement (`n_pts_per_ray`, plus `n_pts_far` for
+    /// `depth_then_disparity`).
+    pub fn drawn_per_ray(&self) -> usize {
+        match self.kind {
+            SamplerKind::Stratified => self.n_pts_per_ray,
+            SamplerKind::DepthThenDisparity => self.n_pts_per_ray + self.n_pts_far,
+        }
+    }
+
     /// The stratified depths alone (the SDF fit and the float64 reference sample only these).
     pub fn stratified(&self) -> Result<StratifiedSampler> {
         StratifiedSampler::new(self.n_pts_per_ray, self.min_depth, self.max_depth)
     }
 
     /// One sample step: the spacing of `n_pts_per_ray` depths over `[min_depth, max_depth]`
-    /// (at least 1e-6).
+    /// (at least 1e-6); for `depth_then_disparity`, the step of its near, uniform part.
     pub fn step(&self) -> f64 {
         let n = self.n_pts_per_ray.max(2) - 1;
         ((self.max_depth - self.min_depth) / n as f64).max(1e-6)

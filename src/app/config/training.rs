@@ -138,6 +138,6 @@ impl Config {
         } else {
             limits::BATCH_SAMPLES
         };
-        Ok(budget / self.sampler.n_pts_per_ray.max(1))
+        Ok(budget / self.sampler.drawn_per_ray().max(1))
     }
 }

@@ -36,12 +36,16 @@ impl Config {
             self.sampler.n_pts_per_ray,
             limits::PTS_PER_RAY,
         )?;
-        if self.sampler.n_pts_per_ray_fine > limits::PTS_PER_RAY {
-            bail!(
-                "sampler.n_pts_per_ray_fine: must be at most {} (got {})",
-                limits::PTS_PER_RAY,
-                self.sampler.n_pts_per_ray_fine
-            );
+        for (key, n) in [
+            (
+                "sampler.n_pts_per_ray_fine",
+                self.sampler.n_pts_per_ray_fine,
+            ),
+            ("sampler.n_pts_far", self.sampler.n_pts_far),
+        ] {
+            if n > limits::PTS_PER_RAY {
+                bail!("{key}: must be at most {} (got {n})", limits::PTS_PER_RAY);
+            }
         }
         self.validate_renderer()?;
         self.validate_sampler()?;
@@ -97,6 +101,8 @@ impl Config {
                 self.sampler.max_depth
             );
         }
+        // The sampler itself checks the rest (n_pts_far, far_depth, their type).
+        self.sampler.sampler()?;
         Ok(())
     }
 
@@ -149,12 +155,12 @@ impl Config {
             }
         }
         if let Some(batch) = t.batch_size {
-            let samples =
-                batch.saturating_mul(self.sampler.n_pts_per_ray + self.sampler.n_pts_per_ray_fine);
+            let per_ray = self.sampler.drawn_per_ray() + self.sampler.n_pts_per_ray_fine;
+            let samples = batch.saturating_mul(per_ray);
             if samples > limits::BATCH_SAMPLES {
                 bail!(
                     "training.batch_size: {batch} rays x {} points is {samples} samples per step, more than {}",
-                    self.sampler.n_pts_per_ray + self.sampler.n_pts_per_ray_fine,
+                    per_ray,
                     limits::BATCH_SAMPLES
                 );
             }

@@ -20,6 +20,7 @@ pub mod frame_mask;
 pub mod llff;
 pub mod nerfstudio;
 pub mod normalize;
+pub mod orbit;
 pub mod transforms;
 
 use std::path::{Path, PathBuf};
@@ -34,6 +35,7 @@ pub use capture::{read_capture_split, read_capture_split_with, Normalisation, Sc
 pub use frame_image::*;
 pub use frame_mask::PixelMask;
 pub use normalize::SceneTransform;
+pub use orbit::CaptureOrbit;
 pub use transforms::*;
 
 /// The frames of `split` of the scene in `data_dir`, whatever its format
