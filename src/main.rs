@@ -75,11 +75,17 @@ fn main() -> ExitCode {
                     return ExitCode::from(BROKEN_PIPE_EXIT);
                 }
             }
-            // One line: the chain of causes joined by ": ", each cut to its first line (Candle
-            // appends a backtrace to its errors' text when RUST_BACKTRACE is set).
+            // One line: the chain of causes joined by ": ", each cut to its first non-blank
+            // line (Candle appends a backtrace to its errors' text when RUST_BACKTRACE is set;
+            // some causes' text starts with a line break).
             let causes: Vec<String> = e
                 .chain()
-                .map(|c| c.to_string().lines().next().unwrap_or("").to_string())
+                .filter_map(|c| {
+                    let text = c.to_string();
+                    text.lines()
+                        .find(|l| !l.trim().is_empty())
+                        .map(|l| l.trim().to_string())
+                })
                 .collect();
             nerf::core::term::note(&format!("error: {}", causes.join(": ")));
             ExitCode::FAILURE
