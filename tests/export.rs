@@ -358,8 +358,12 @@ fn ngp_trains_for_minutes_then_exports_a_half_precision_model_that_evaluates_the
         "--minutes",
         "0.05",
     ]));
-    // Three seconds of training end mid-epoch, in a checkpoint that says so.
-    assert!(out.contains("trained to epoch 0 step"), "{out}");
+    // Three seconds of training end mid-epoch (which epoch depends on the machine's speed),
+    // in a checkpoint that says so: "trained to epoch N step K".
+    assert!(
+        out.lines().any(|l| l.contains("trained to epoch ") && l.contains(" step ")),
+        "{out}"
+    );
     let model = dir.path().join("model.safetensors");
     let out = run(&with(&export_args(
         "model",
