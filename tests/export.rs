@@ -361,7 +361,8 @@ fn ngp_trains_for_minutes_then_exports_a_half_precision_model_that_evaluates_the
     // Three seconds of training end mid-epoch (which epoch depends on the machine's speed),
     // in a checkpoint that says so: "trained to epoch N step K".
     assert!(
-        out.lines().any(|l| l.contains("trained to epoch ") && l.contains(" step ")),
+        out.lines()
+            .any(|l| l.contains("trained to epoch ") && l.contains(" step ")),
         "{out}"
     );
     let model = dir.path().join("model.safetensors");
