@@ -8,7 +8,8 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use glam::{DMat3, DQuat, DVec3};
+use glam::{DMat3, DVec3};
+use nerf::core::camera_alignment::{align_by_orientations, CameraPair};
 use nerf::io::dataset::{read_capture_split, SceneFormat, Split};
 
 /// `nerf process --images IMAGES --out OUT`, with `colmap` (when given) as `NERF_COLMAP`.
@@ -152,14 +153,6 @@ fn rotation_and_centre(m: &serde_json::Value) -> (DMat3, DVec3) {
     (DMat3::from_cols(column(0), column(1), column(2)), column(3))
 }
 
-/// The angle of a rotation matrix, degrees.
-fn angle_degrees(r: DMat3) -> f64 {
-    ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0)
-        .clamp(-1.0, 1.0)
-        .acos()
-        .to_degrees()
-}
-
 #[test]
 fn colmap_recovers_lego_cameras() {
     let Some(lego) = common::lego_dir("colmap_recovers_lego_cameras") else {
@@ -208,41 +201,25 @@ fn colmap_recovers_lego_cameras() {
 
     // Recovered (r) against true (t) cameras: t = A·r for one rotation A, and centres
     // C_t = s·A·C_r + b. A: the mean of the per-camera A_i = R_t·R_rᵀ.
-    let pairs: Vec<_> = frames
+    let pairs: Vec<CameraPair> = frames
         .iter()
         .map(|f| {
             let path = f["file_path"].as_str().unwrap();
             let name = path.strip_prefix("images/").unwrap();
-            let (_, rt, ct) = truth.iter().find(|(n, _, _)| n == name).unwrap();
-            let (rr, cr) = rotation_and_centre(&f["transform_matrix"]);
-            (*rt, *ct, rr, cr)
+            let (_, true_rotation, true_centre) = truth.iter().find(|(n, _, _)| n == name).unwrap();
+            let (rotation, centre) = rotation_and_centre(&f["transform_matrix"]);
+            CameraPair {
+                true_rotation: *true_rotation,
+                true_centre: *true_centre,
+                rotation,
+                centre,
+            }
         })
         .collect();
-    let q0 = DQuat::from_mat3(&(pairs[0].0 * pairs[0].2.transpose()));
-    let sum = pairs
-        .iter()
-        .fold(DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0), |s, p| {
-            let q = DQuat::from_mat3(&(p.0 * p.2.transpose()));
-            s + if q.dot(q0) < 0.0 { -q } else { q }
-        });
-    let a = DMat3::from_quat(sum.normalize());
-    let rotation_errors: Vec<f64> = pairs
-        .iter()
-        .map(|(rt, _, rr, _)| angle_degrees(rt.transpose() * a * *rr))
-        .collect();
-    let n = pairs.len() as f64;
-    let mean_t = pairs.iter().map(|p| p.1).sum::<DVec3>() / n;
-    let mean_r = pairs.iter().map(|p| a * p.3).sum::<DVec3>() / n;
-    let (num, den) = pairs.iter().fold((0.0, 0.0), |(num, den), p| {
-        let (dt, dr) = (p.1 - mean_t, a * p.3 - mean_r);
-        (num + dt.dot(dr), den + dr.length_squared())
-    });
-    let s = num / den;
-    let radius = pairs.iter().map(|p| p.1.length()).sum::<f64>() / n;
-    let centre_errors: Vec<f64> = pairs
-        .iter()
-        .map(|p| (s * (a * p.3 - mean_r) + mean_t - p.1).length() / radius)
-        .collect();
+    let alignment = align_by_orientations(&pairs);
+    let rotation_errors = alignment.rotation_errors_degrees;
+    let radius = pairs.iter().map(|p| p.true_centre.length()).sum::<f64>() / pairs.len() as f64;
+    let centre_errors: Vec<f64> = alignment.centre_errors.iter().map(|e| e / radius).collect();
     let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
     eprintln!(
         "{} registered; rotation error max {:.3}°, centre error max {:.4} of the radius",

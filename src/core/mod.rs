@@ -2,6 +2,7 @@
 
 pub mod allocator;
 pub mod camera;
+pub mod camera_alignment;
 pub mod camera_colmap;
 pub mod camera_model;
 pub mod compare;
