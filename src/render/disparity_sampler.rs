@@ -13,11 +13,12 @@
 //! compact form the skipping pass marches.
 
 use anyhow::{ensure, Result};
-use candle_core::{DType, Tensor};
+use candle_core::Tensor;
 use rand::Rng;
 
 use crate::core::rays::Rays;
 use crate::render::ray_sampler::RaySampler;
+use crate::render::sampler::shared_lengths;
 
 /// Uniform in depth on `[min_depth, max_depth]`, then uniform in disparity on
 /// `[max_depth, far_depth]`.
@@ -142,11 +143,7 @@ impl RaySampler for DepthThenDisparitySampler {
         let device = rays.origins.device();
         let dtype = rays.origins.dtype();
         Ok(match jitter {
-            None if dtype == DType::F64 => Tensor::from_vec(self.depths(), (1, s, 1), device)?,
-            None => {
-                let z: Vec<f32> = self.depths().into_iter().map(|v| v as f32).collect();
-                Tensor::from_vec(z, (1, s, 1), device)?
-            }
+            None => shared_lengths(self.depths(), dtype, device)?,
             Some(rng) => {
                 let n = rays.len();
                 Tensor::from_vec(self.jittered_depths(n, rng), (n, s, 1), device)?
@@ -159,7 +156,7 @@ impl RaySampler for DepthThenDisparitySampler {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use candle_core::Device;
+    use candle_core::{DType, Device};
     use rand::SeedableRng;
 
     fn sampler() -> DepthThenDisparitySampler {

@@ -5,6 +5,22 @@ use candle_core::{DType, Tensor};
 use rand::Rng;
 
 use crate::core::rays::{linspace, Rays};
+
+/// The depths `depths` (`S` of them) shared by every ray, as a `(1, S, 1)` tensor: f64 when
+/// `dtype` is, else f32 (what a sampler's unjittered depths are for rays of that dtype).
+pub fn shared_lengths(
+    depths: Vec<f64>,
+    dtype: DType,
+    device: &candle_core::Device,
+) -> Result<Tensor> {
+    let s = depths.len();
+    Ok(if dtype == DType::F64 {
+        Tensor::from_vec(depths, (1, s, 1), device)?
+    } else {
+        let z: Vec<f32> = depths.into_iter().map(|v| v as f32).collect();
+        Tensor::from_vec(z, (1, s, 1), device)?
+    })
+}
 use crate::kernels::sample_points::sample_points;
 
 /// Sample points along a batch of rays.
@@ -126,11 +142,7 @@ impl StratifiedSampler {
         let device = rays.origins.device();
         let dtype = rays.origins.dtype();
         Ok(match jitter {
-            None if dtype == DType::F64 => Tensor::from_vec(self.depths(), (1, s, 1), device)?,
-            None => {
-                let z: Vec<f32> = self.depths().into_iter().map(|v| v as f32).collect();
-                Tensor::from_vec(z, (1, s, 1), device)?
-            }
+            None => shared_lengths(self.depths(), dtype, device)?,
             Some(rng) => {
                 Tensor::from_vec(self.jittered_depths(n, &mut RngRef(rng)), (n, s, 1), device)?
                     .to_dtype(dtype)?
