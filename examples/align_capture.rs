@@ -50,11 +50,12 @@ fn main() -> Result<()> {
     };
     let truth = cameras(&read_json(&Path::new(lego).join("transforms_train.json"))?)?;
     let found = cameras(&read_json(&Path::new(capture).join("transforms.json"))?)?;
-    let mut pairs: Vec<(DMat3, DVec3, DMat3, DVec3)> = found
+    let mut named: Vec<(&String, (DMat3, DVec3, DMat3, DVec3))> = found
         .iter()
-        .filter_map(|(stem, (rr, cr))| truth.get(stem).map(|(rt, ct)| (*rt, *ct, *rr, *cr)))
+        .filter_map(|(stem, (rr, cr))| truth.get(stem).map(|(rt, ct)| (stem, (*rt, *ct, *rr, *cr))))
         .collect();
-    pairs.sort_by(|a, b| a.1.x.total_cmp(&b.1.x));
+    named.sort_by(|a, b| a.0.cmp(b.0));
+    let (names, pairs): (Vec<&String>, Vec<_>) = named.into_iter().unzip();
     if pairs.len() < 3 {
         bail!("only {} frames match the truth by name", pairs.len());
     }
@@ -93,5 +94,13 @@ fn main() -> Result<()> {
         over(&centres_only),
         over(&centre_errors),
     );
+    let mut worst: Vec<(f64, &String)> = centres_only.iter().cloned().zip(names).collect();
+    worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let listed: Vec<String> = worst
+        .iter()
+        .take(5)
+        .map(|(e, name)| format!("{name} {e:.5}"))
+        .collect();
+    println!("largest centre errors: {}", listed.join(", "));
     Ok(())
 }

@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+pub mod lego_capture;
+
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -324,4 +326,18 @@ pub fn lego_trained(
     let ckpt_dir = dir.path().join(name);
     tiny_train_ok(&ckpt_dir, &data, epochs, checkpoint_interval);
     Some((data, dir, ckpt_dir))
+}
+
+/// The RGBA frames of the GIF at `path`.
+pub fn gif_frames(path: &Path) -> Vec<Vec<u8>> {
+    let mut options = gif::DecodeOptions::new();
+    options.set_color_output(gif::ColorOutput::RGBA);
+    let mut decoder = options
+        .read_info(std::fs::File::open(path).unwrap())
+        .unwrap();
+    let mut frames = Vec::new();
+    while let Some(frame) = decoder.read_next_frame().unwrap() {
+        frames.push(frame.buffer.to_vec());
+    }
+    frames
 }

@@ -1,0 +1,356 @@
+//! Captures as users have them: masks, the text and binary forms of one COLMAP model, and
+//! each loader's bad input, on captures of the first lego training views
+//! (`common::lego_capture`).
+
+mod common;
+
+use common::lego_capture::*;
+
+use std::path::{Path, PathBuf};
+
+use nerf::io::dataset::{Dataset, Split};
+
+/// Masks for every frame of the capture in `dir` (the left `cut` columns ignored), written as
+/// `masks/frame_NN.png` of `size`; `paint` also paints the ignored part of each photo magenta.
+fn write_masks(dir: &Path, frames: usize, size: (u32, u32), cut: u32, paint: bool) {
+    std::fs::create_dir_all(dir.join("masks")).unwrap();
+    for i in 0..frames {
+        let name = format!("frame_{i:02}.png");
+        let mask = image::GrayImage::from_fn(size.0, size.1, |x, _| {
+            image::Luma([if x < cut { 0 } else { 255 }])
+        });
+        mask.save(dir.join("masks").join(&name)).unwrap();
+        if paint {
+            let photo = dir.join("images").join(&name);
+            let mut rgba = image::open(&photo).unwrap().to_rgba8();
+            for (x, _, p) in rgba.enumerate_pixels_mut() {
+                if x < cut {
+                    *p = image::Rgba([255, 0, 255, 255]);
+                }
+            }
+            rgba.save(&photo).unwrap();
+        }
+    }
+}
+
+/// Adds `mask_path: masks/<photo name>` to every frame of `dir/transforms.json`.
+fn add_mask_paths(dir: &Path) {
+    let path = dir.join("transforms.json");
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    for frame in json["frames"].as_array_mut().unwrap() {
+        let name = frame["file_path"]
+            .as_str()
+            .unwrap()
+            .replace("images/", "masks/");
+        frame["mask_path"] = serde_json::json!(name);
+    }
+    std::fs::write(&path, json.to_string()).unwrap();
+}
+
+#[test]
+fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
+    let test = "masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named";
+    let Some(lego) = lego(test) else { return };
+    let root = tempfile::tempdir().unwrap();
+    let cut = lego.size.0 / 2;
+    // nerfstudio: mask_path per frame.
+    let ns = root.path().join("nerfstudio");
+    write_nerfstudio(&lego, &ns);
+    write_masks(&ns, FRAMES, lego.size, cut, false);
+    add_mask_paths(&ns);
+    // COLMAP: masks/ beside images/, and the ignored halves of the photos painted over.
+    let painted = root.path().join("colmap");
+    write_colmap_text(&lego, &painted);
+    write_masks(&painted, FRAMES, lego.size, cut, true);
+    for dir in [&ns, &painted] {
+        let data = Dataset::load(dir, Split::Test, 20, 10, false).unwrap();
+        assert_eq!(data.masks.len(), 2);
+        let used = data.mask(0).unwrap().used();
+        // 20 columns, the left 10 ignored, and the one next to them, whose colour the
+        // resize mixes from both sides, may be too; the same on every row.
+        let first = (0..20).position(|x| used[x]).unwrap();
+        assert!((10..=11).contains(&first), "{used:?}");
+        assert!((0..200).all(|p| used[p] == (p % 20 >= first)), "{used:?}");
+    }
+
+    let ckpt = root.path().join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let overrides = [
+        "data.image_size=[24,24]",
+        "training.num_epochs=1",
+        "training.eval_views=0",
+        "sampler.n_pts_per_ray=32",
+        &ckpt_arg,
+    ];
+    let run = |command: &str, dir: &Path| {
+        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
+        args.push(dir.to_str().unwrap());
+        args.extend(overrides);
+        if command == "eval" {
+            args.extend(["--split", "test"]);
+        }
+        common::nerf(&args)
+    };
+    assert!(run("train", &painted).status.success());
+    // PSNR is over the used pixels: the painted halves change nothing.
+    let psnr_of = |o: std::process::Output| {
+        assert!(o.status.success(), "{}", common::stderr(&o));
+        let out = String::from_utf8_lossy(&o.stdout).to_string();
+        let at = out.find("PSNR mean ").unwrap() + "PSNR mean ".len();
+        out[at..].split_whitespace().next().unwrap().to_string()
+    };
+    let plain = root.path().join("plain");
+    write_colmap_text(&lego, &plain);
+    write_masks(&plain, FRAMES, lego.size, cut, false);
+    let on_painted = psnr_of(run("eval", &painted));
+    assert_eq!(on_painted, psnr_of(run("eval", &plain)));
+    // Without the masks the magenta halves are scored, and the PSNR falls.
+    std::fs::remove_dir_all(painted.join("masks")).unwrap();
+    let unmasked: f64 = psnr_of(run("eval", &painted)).parse().unwrap();
+    assert!(
+        unmasked < on_painted.parse::<f64>().unwrap() - 1.0,
+        "{unmasked}"
+    );
+
+    // A mask of another size, and a missing one: one line naming the file; nothing written.
+    let fresh = root.path().join("fresh.safetensors");
+    let fresh_arg = format!("training.checkpoint_path={}", fresh.display());
+    let bad_size = plain.join("masks").join("frame_03.png");
+    image::GrayImage::new(7, 5).save(&bad_size).unwrap();
+    let missing = plain.join("masks").join("frame_05.png");
+    for (file, says) in [(&bad_size, "is 7x5"), (&missing, "")] {
+        let mut args = vec!["train", "--config", "nerf_scene", "--data-dir"];
+        args.push(plain.to_str().unwrap());
+        args.extend([
+            "data.image_size=[24,24]",
+            "training.num_epochs=1",
+            &fresh_arg,
+        ]);
+        if file == &missing {
+            std::fs::copy(&missing, &bad_size).unwrap();
+            std::fs::remove_file(&missing).unwrap();
+        }
+        let err = error_line(&common::nerf(&args));
+        assert!(
+            err.contains(&file.display().to_string()) && err.contains(says),
+            "{err}"
+        );
+        assert!(!fresh.exists());
+    }
+}
+
+#[test]
+fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model() {
+    let test = "one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model";
+    let Some(lego) = lego(test) else { return };
+    let root = tempfile::tempdir().unwrap();
+    let text = root.path().join("text");
+    write_colmap_text(&lego, &text);
+    let binary = root.path().join("binary");
+    lego.copy_images(&binary);
+    let (_, model) = nerf::io::colmap::find_model(&text).unwrap();
+    nerf::io::colmap::write_binary(&binary.join("sparse").join("0"), &model).unwrap();
+    assert!(binary.join("sparse/0/images.bin").is_file());
+    let ckpt = root.path().join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let overrides = [
+        "data.image_size=[24,24]",
+        "training.num_epochs=1",
+        "training.eval_views=0",
+        "sampler.n_pts_per_ray=32",
+        &ckpt_arg,
+    ];
+    let run = |command: &str, dir: &Path, extra: &[&str]| {
+        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
+        args.push(dir.to_str().unwrap());
+        args.extend(overrides);
+        args.extend(extra);
+        common::nerf_ok(&args)
+    };
+    run("train", &text, &[]);
+    let (a, b) = (root.path().join("a"), root.path().join("b"));
+    for (dir, saved) in [(&text, &a), (&binary, &b)] {
+        let saved = saved.to_str().unwrap();
+        run("eval", dir, &["--split", "test", "--save-images", saved]);
+    }
+    assert_eq!(files_of(&a).len(), 2);
+    assert_eq!(files_of(&a), files_of(&b));
+}
+
+/// Replaces `from` by `to` in the text file `path` (once, which must match).
+fn edit(path: &Path, from: &str, to: &str) {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.contains(from), "{}: no {from}", path.display());
+    std::fs::write(path, text.replacen(from, to, 1)).unwrap();
+}
+
+#[test]
+fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
+    let test = "each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written";
+    let Some(lego) = lego(test) else { return };
+    let lego = lego.first(4);
+    let root = tempfile::tempdir().unwrap();
+    // A way to break a capture, returning the file the error must name.
+    type Breakage = fn(&Path) -> PathBuf;
+    // What is broken, how, and what the error must also say.
+    type Case<'a> = (&'a str, Breakage, &'a str);
+    // A format's writer.
+    type Writer = fn(&Lego, &Path);
+    let missing_images: Breakage = |d| {
+        std::fs::remove_dir_all(d.join("images")).unwrap();
+        d.join("images")
+    };
+    fn absent_image(d: &Path) -> PathBuf {
+        let photo = d.join("images").join("frame_02.png");
+        std::fs::remove_file(&photo).unwrap();
+        photo
+    }
+    let colmap: [Case; 5] = [
+        ("missing images/", missing_images, ""),
+        (
+            "unknown camera model",
+            |d| {
+                let cameras = d.join("sparse").join("0").join("cameras.txt");
+                // COLMAP's FOV model (fx fy cx cy omega), which no loader here supports.
+                let text = std::fs::read_to_string(&cameras).unwrap();
+                let line = text.lines().find(|l| l.contains("PINHOLE")).unwrap();
+                let fov = format!("{} 0.1", line.replace("PINHOLE", "FOV"));
+                std::fs::write(&cameras, text.replacen(line, &fov, 1)).unwrap();
+                cameras
+            },
+            "FOV",
+        ),
+        ("image listed but absent", absent_image, ""),
+        (
+            "NaN pose",
+            |d| {
+                let images = d.join("sparse").join("0").join("images.txt");
+                let text = std::fs::read_to_string(&images).unwrap();
+                let line = text.lines().find(|l| l.starts_with("2 ")).unwrap();
+                let mut fields: Vec<&str> = line.split(' ').collect();
+                fields[5] = "nan";
+                std::fs::write(&images, text.replacen(line, &fields.join(" "), 1)).unwrap();
+                images
+            },
+            "",
+        ),
+        (
+            "zero registered images",
+            |d| {
+                let images = d.join("sparse").join("0").join("images.txt");
+                std::fs::write(&images, "# no images\n").unwrap();
+                images
+            },
+            "",
+        ),
+    ];
+    let nerfstudio: [Case; 5] = [
+        ("missing images/", missing_images, ""),
+        (
+            "unknown camera model",
+            |d| {
+                let json = d.join("transforms.json");
+                edit(&json, "\"OPENCV\"", "\"EQUIRECTANGULAR\"");
+                json
+            },
+            "EQUIRECTANGULAR",
+        ),
+        ("image listed but absent", absent_image, ""),
+        (
+            "NaN pose",
+            |d| {
+                let json = d.join("transforms.json");
+                let text = std::fs::read_to_string(&json).unwrap();
+                let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+                // Python's json module writes a NaN as the bare token NaN, which JSON lacks.
+                v["frames"][1]["transform_matrix"][0][3] = serde_json::json!("REPLACE");
+                let text = v.to_string().replace("\"REPLACE\"", "NaN");
+                std::fs::write(&json, text).unwrap();
+                json
+            },
+            "transform_matrix",
+        ),
+        (
+            "zero registered images",
+            |d| {
+                let json = d.join("transforms.json");
+                let mut v: serde_json::Value =
+                    serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+                v["frames"] = serde_json::json!([]);
+                std::fs::write(&json, v.to_string()).unwrap();
+                json
+            },
+            "no frames",
+        ),
+    ];
+    let llff: [Case; 4] = [
+        ("missing images/", missing_images, ""),
+        (
+            "image absent",
+            |d| {
+                absent_image(d);
+                d.join("poses_bounds.npy")
+            },
+            "3 images",
+        ),
+        (
+            "NaN pose",
+            |d| {
+                let npy = d.join("poses_bounds.npy");
+                let mut bytes = std::fs::read(&npy).unwrap();
+                // Row 1's first value (rows of 17 float64s end the file).
+                let at = bytes.len() - 3 * 17 * 8;
+                bytes[at..at + 8].copy_from_slice(&f64::NAN.to_le_bytes());
+                std::fs::write(&npy, bytes).unwrap();
+                npy
+            },
+            "",
+        ),
+        (
+            "zero registered images",
+            |d| {
+                for i in 0..4 {
+                    std::fs::remove_file(d.join("images").join(format!("frame_{i:02}.png")))
+                        .unwrap();
+                }
+                let npy = d.join("poses_bounds.npy");
+                std::fs::write(&npy, npy_rows(&[])).unwrap();
+                npy
+            },
+            "",
+        ),
+    ];
+    let writers: [(&str, Writer, &[Case]); 3] = [
+        ("colmap", write_colmap_text, &colmap),
+        ("nerfstudio", write_nerfstudio, &nerfstudio),
+        ("llff", write_llff, &llff),
+    ];
+    for (format, write, breakages) in writers {
+        for (i, (what, breakage, says)) in breakages.iter().enumerate() {
+            let dir = root.path().join(format!("{format}_{i}"));
+            write(&lego, &dir);
+            let named = breakage(&dir);
+            let out = root.path().join(format!("out_{format}_{i}"));
+            let ckpt = format!("training.checkpoint_path={}", out.join("ck").display());
+            let out_dir = out.join("images");
+            let args = [
+                "train",
+                "--config",
+                "nerf_scene",
+                "--data-dir",
+                dir.to_str().unwrap(),
+                "--out-dir",
+                out_dir.to_str().unwrap(),
+                &ckpt,
+            ];
+            let err = error_line(&common::nerf(&args));
+            eprintln!("{format}, {what}: {err}");
+            assert!(
+                err.contains(&named.display().to_string()) && err.contains(says),
+                "{format}, {what}: {err}"
+            );
+            assert!(!out.exists(), "{format}, {what}: wrote {}", out.display());
+        }
+    }
+}

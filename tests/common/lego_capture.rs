@@ -1,0 +1,212 @@
+//! Captures of the first lego training views in the formats other NeRF tools read (COLMAP
+//! text, nerfstudio `transforms.json`, LLFF `poses_bounds.npy`), written by hand here,
+//! independent of the loaders, for tests/captures.rs and tests/capture_inputs.rs.
+
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DQuat, DVec3};
+
+pub const FRAMES: usize = 16;
+
+/// One lego training view: image, camera → world (Blender/OpenGL axes), image size.
+pub struct View {
+    pub image: PathBuf,
+    pub c2w: [[f64; 4]; 4],
+}
+
+pub struct Lego {
+    pub views: Vec<View>,
+    pub fov: f64,
+    pub size: (u32, u32),
+}
+
+pub fn lego(test: &str) -> Option<Lego> {
+    let dir = super::lego_dir(test)?;
+    let text = std::fs::read_to_string(dir.join("transforms_train.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let fov = json["camera_angle_x"].as_f64().unwrap();
+    let views: Vec<View> = json["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .take(FRAMES)
+        .map(|f| {
+            let m = f["transform_matrix"].as_array().unwrap();
+            let c2w = std::array::from_fn(|i| {
+                std::array::from_fn(|j| m[i].as_array().unwrap()[j].as_f64().unwrap())
+            });
+            let name = f["file_path"].as_str().unwrap().trim_start_matches("./");
+            View {
+                image: dir.join(format!("{name}.png")),
+                c2w,
+            }
+        })
+        .collect();
+    let size = image::image_dimensions(&views[0].image).unwrap();
+    Some(Lego { views, fov, size })
+}
+
+impl Lego {
+    /// The first `n` views only.
+    pub fn first(&self, n: usize) -> Lego {
+        let views = self.views[..n]
+            .iter()
+            .map(|v| View {
+                image: v.image.clone(),
+                c2w: v.c2w,
+            })
+            .collect();
+        Lego {
+            views,
+            fov: self.fov,
+            size: self.size,
+        }
+    }
+
+    /// Focal length in pixels: half the width over tan(fov / 2).
+    pub fn focal_px(&self) -> f64 {
+        0.5 * self.size.0 as f64 / (0.5 * self.fov).tan()
+    }
+
+    /// `images/frame_NN.png` copies of the views, in `dir`.
+    pub fn copy_images(&self, dir: &Path) -> Vec<String> {
+        std::fs::create_dir_all(dir.join("images")).unwrap();
+        (0..self.views.len())
+            .map(|i| {
+                let name = format!("frame_{i:02}.png");
+                std::fs::copy(&self.views[i].image, dir.join("images").join(&name)).unwrap();
+                name
+            })
+            .collect()
+    }
+}
+
+/// The pixel `(u, v)` (COLMAP's convention, pixel centres at i + 0.5) where the lego view sees
+/// `point`, by pinhole projection in the view's OpenGL camera axes (+x right, +y up, looking
+/// along −z).
+pub fn lego_pixel(view: &View, focal: f64, size: (u32, u32), point: DVec3) -> (f64, f64) {
+    let col = |j: usize| DVec3::new(view.c2w[0][j], view.c2w[1][j], view.c2w[2][j]);
+    let q = point - col(3);
+    let (x, y, z) = (q.dot(col(0)), q.dot(col(1)), q.dot(col(2)));
+    let depth = -z;
+    assert!(depth > 0.0);
+    (
+        size.0 as f64 / 2.0 + focal * x / depth,
+        size.1 as f64 / 2.0 - focal * y / depth,
+    )
+}
+
+/// OpenCV world → camera rotation and translation of a Blender camera → world matrix.
+pub fn opencv_pose(c2w: &[[f64; 4]; 4]) -> (DMat3, DVec3) {
+    let col = |j: usize| DVec3::new(c2w[0][j], c2w[1][j], c2w[2][j]);
+    let c2w_cv = DMat3::from_cols(col(0), -col(1), -col(2));
+    let r = c2w_cv.transpose();
+    (r, -(r * col(3)))
+}
+
+pub fn write_colmap_text(lego: &Lego, dir: &Path) {
+    let names = lego.copy_images(dir);
+    let sparse = dir.join("sparse").join("0");
+    std::fs::create_dir_all(&sparse).unwrap();
+    let (w, h) = lego.size;
+    let f = lego.focal_px();
+    std::fs::write(
+        sparse.join("cameras.txt"),
+        format!(
+            "# one camera\n1 PINHOLE {w} {h} {f} {f} {} {}\n",
+            w as f64 / 2.0,
+            h as f64 / 2.0
+        ),
+    )
+    .unwrap();
+    let mut images = String::from("# images\n");
+    for (i, (view, name)) in lego.views.iter().zip(&names).enumerate() {
+        let (r, t) = opencv_pose(&view.c2w);
+        let q = DQuat::from_mat3(&r);
+        images += &format!(
+            "{} {} {} {} {} {} {} {} 1 {name}\n\n",
+            i + 1,
+            q.w,
+            q.x,
+            q.y,
+            q.z,
+            t.x,
+            t.y,
+            t.z
+        );
+    }
+    std::fs::write(sparse.join("images.txt"), images).unwrap();
+    std::fs::write(sparse.join("points3D.txt"), "# none\n").unwrap();
+}
+
+pub fn write_nerfstudio(lego: &Lego, dir: &Path) {
+    let names = lego.copy_images(dir);
+    let (w, h) = lego.size;
+    let frames: Vec<serde_json::Value> = lego
+        .views
+        .iter()
+        .zip(&names)
+        .map(|(v, name)| serde_json::json!({"file_path": format!("images/{name}"), "transform_matrix": v.c2w}))
+        .collect();
+    let json = serde_json::json!({
+        "camera_model": "OPENCV", "fl_x": lego.focal_px(), "fl_y": lego.focal_px(),
+        "cx": w as f64 / 2.0, "cy": h as f64 / 2.0, "w": w, "h": h, "frames": frames,
+    });
+    std::fs::write(dir.join("transforms.json"), json.to_string()).unwrap();
+}
+
+pub fn write_llff(lego: &Lego, dir: &Path) {
+    lego.copy_images(dir);
+    let (w, h) = lego.size;
+    let mut values = Vec::new();
+    for v in &lego.views {
+        // Columns (down, right, back, centre, hwf) row by row; down = −up.
+        let m = &v.c2w;
+        let hwf = [h as f64, w as f64, lego.focal_px()];
+        for (i, extra) in hwf.iter().enumerate() {
+            values.extend([-m[i][1], m[i][0], m[i][2], m[i][3], *extra]);
+        }
+        values.extend([2.0, 6.0]);
+    }
+    std::fs::write(dir.join("poses_bounds.npy"), npy_rows(&values)).unwrap();
+}
+
+/// A float64 `.npy` file of shape `(N, 17)` holding `values` row by row.
+pub fn npy_rows(values: &[f64]) -> Vec<u8> {
+    let header = format!(
+        "{{'descr': '<f8', 'fortran_order': False, 'shape': ({}, 17), }}",
+        values.len() / 17
+    );
+    let pad = 64 - (10 + header.len() + 1) % 64;
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend(((header.len() + pad + 1) as u16).to_le_bytes());
+    bytes.extend(header.as_bytes());
+    bytes.extend(std::iter::repeat_n(b' ', pad));
+    bytes.push(b'\n');
+    for v in values {
+        bytes.extend(v.to_le_bytes());
+    }
+    bytes
+}
+
+/// The one `error:` line of a run that failed with status 1 (a capture's loader logs what it
+/// read on the lines before it), without a panic.
+pub fn error_line(o: &std::process::Output) -> String {
+    let log = super::stderr(o);
+    assert_eq!(o.status.code(), Some(1), "{log}");
+    assert!(!log.contains("panicked"), "{log}");
+    let errors: Vec<&str> = log.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(errors.len(), 1, "{log}");
+    errors[0].to_string()
+}
+
+/// The bytes of every file in `dir`, by name.
+pub fn files_of(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    super::sorted_names(dir)
+        .into_iter()
+        .map(|n| {
+            let bytes = std::fs::read(dir.join(&n)).unwrap();
+            (n, bytes)
+        })
+        .collect()
+}
