@@ -296,6 +296,14 @@ fn checkpoint_round_trips_bit_exactly() {
             height: -0.25,
             focal: [2.7777, 1.5],
         }),
+        capture_spiral: Some(nerf::io::dataset::CaptureSpiral {
+            centre: glam::DVec3::new(0.1, -0.2, 0.3),
+            forward: glam::DVec3::Y,
+            up: glam::DVec3::Z,
+            radii: [0.4, 0.25, 0.05],
+            focus_distance: 2.5,
+            focal: [1.2, 1.6],
+        }),
     };
     checkpoint::save(&path, &checkpoint::model_tensors(&state.varmap), info).unwrap();
     let (loaded, back) = load_nerf(&nerf_cfg, &path).unwrap();

@@ -3,18 +3,21 @@
 //! and `eval`, `export` and a resumed `train` read the capture's cameras in that frame
 //! rather than in the one recomputed from the cameras they were given (which moves when the
 //! cameras differ: a subset, a re-run of structure from motion that kept the same gauge).
-//! `render` and `view` show such a model from the orbit stored beside the transform
-//! ([`render_cameras`]).
+//! `render` and `view` show such a model from the path stored beside the transform, a spiral
+//! in front of a forward-facing capture or else an orbit ([`render_cameras`]).
 
 use std::path::Path;
 
 use anyhow::Result;
+use glam::DVec3;
 
 use crate::app::config::Config;
 use crate::core::camera::PerspectiveCamera;
-use crate::io::checkpoint::{capture_orbit_of, read_metadata, scene_transform_of};
+use crate::io::checkpoint::{
+    capture_orbit_of, capture_spiral_of, read_metadata, scene_transform_of,
+};
 use crate::io::checkpoint_file::{detect_format, CheckpointFormat};
-use crate::io::dataset::{CaptureOrbit, Normalisation, SceneTransform};
+use crate::io::dataset::{CaptureOrbit, CaptureSpiral, Normalisation, SceneTransform};
 
 /// The scene normalisation stored in the checkpoint at `path`; `None` when it stores none
 /// (a NeRF-synthetic model, an older checkpoint, a PyTorch file) or is not a file (loading
@@ -27,14 +30,82 @@ pub fn stored_transform(path: &Path) -> Result<Option<SceneTransform>> {
     scene_transform_of(&read_metadata(path)?, path)
 }
 
+/// The path a capture's model is shown along: a spiral in front of a forward-facing capture,
+/// an orbit around any other.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CapturePath {
+    /// Around the z axis, looking at the origin.
+    Orbit(CaptureOrbit),
+    /// In front of the cameras, looking at a focus point ahead of them.
+    Spiral(CaptureSpiral),
+}
+
+impl CapturePath {
+    /// `n_poses` views along the path.
+    pub fn cameras(&self, n_poses: usize) -> Vec<PerspectiveCamera> {
+        match self {
+            CapturePath::Orbit(o) => o.cameras(n_poses),
+            CapturePath::Spiral(s) => s.cameras(n_poses),
+        }
+    }
+
+    /// The point every view looks at.
+    pub fn target(&self) -> DVec3 {
+        match self {
+            CapturePath::Orbit(_) => DVec3::ZERO,
+            CapturePath::Spiral(s) => s.focus(),
+        }
+    }
+
+    /// The views' up direction.
+    pub fn up(&self) -> DVec3 {
+        match self {
+            CapturePath::Orbit(_) => DVec3::Z,
+            CapturePath::Spiral(s) => s.up,
+        }
+    }
+
+    /// What `n_poses` views along the path are, for stderr.
+    fn describe(&self, n_poses: usize) -> String {
+        match self {
+            CapturePath::Orbit(o) => format!(
+                "{n_poses} views on the capture's orbit: radius {:.3}, height {:.3} around the \
+                 z axis, looking at the origin, NDC focal ({:.3}, {:.3})",
+                o.radius, o.height, o.focal[0], o.focal[1]
+            ),
+            CapturePath::Spiral(s) => {
+                let (c, f) = (s.centre, s.focus());
+                format!(
+                    "{n_poses} views on a spiral in front of the capture's cameras \
+                     (forward-facing): centre ({:.3}, {:.3}, {:.3}), radii {:.3} across, \
+                     {:.3} up, {:.3} along the view, looking at ({:.3}, {:.3}, {:.3}) {:.3} \
+                     ahead, NDC focal ({:.3}, {:.3})",
+                    c.x,
+                    c.y,
+                    c.z,
+                    s.radii[0],
+                    s.radii[1],
+                    s.radii[2],
+                    f.x,
+                    f.y,
+                    f.z,
+                    s.focus_distance,
+                    s.focal[0],
+                    s.focal[1]
+                )
+            }
+        }
+    }
+}
+
 /// The views `nerf render` renders and `nerf view` starts from.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DefaultViews {
     /// The cameras.
     pub cameras: Vec<PerspectiveCamera>,
-    /// The capture orbit they lie on, for a model trained on a capture (`None`: the config's
+    /// The capture path they lie on, for a model trained on a capture (`None`: the config's
     /// surround cameras).
-    pub orbit: Option<CaptureOrbit>,
+    pub path: Option<CapturePath>,
 }
 
 impl DefaultViews {
@@ -42,16 +113,17 @@ impl DefaultViews {
     pub fn surround(config: &Config) -> Self {
         Self {
             cameras: config.surround_cameras(),
-            orbit: None,
+            path: None,
         }
     }
 }
 
 /// The views `nerf render` and `nerf view` show the model at `checkpoint` from:
-/// `cameras.n_poses` views on the capture's orbit when the checkpoint was trained on a capture
-/// (the stored [`CaptureOrbit`], or [`CaptureOrbit::normalised_default`] for a capture
-/// checkpoint that stores none), else the config's surround cameras (the homework's). Says on
-/// stderr which, for a capture.
+/// `cameras.n_poses` views on the capture's path when the checkpoint was trained on a capture
+/// (the stored [`CaptureSpiral`] of a forward-facing capture, else the stored
+/// [`CaptureOrbit`], or [`CaptureOrbit::normalised_default`] for a capture checkpoint that
+/// stores neither), else the config's surround cameras (the homework's). Says on stderr which,
+/// for a capture.
 pub fn render_cameras(config: &Config, checkpoint: &Path) -> Result<DefaultViews> {
     let n_poses = config.cameras.n_poses;
     if !checkpoint.is_file()
@@ -60,26 +132,25 @@ pub fn render_cameras(config: &Config, checkpoint: &Path) -> Result<DefaultViews
         return Ok(DefaultViews::surround(config));
     }
     let meta = read_metadata(checkpoint)?;
-    let orbit = match capture_orbit_of(&meta, checkpoint)? {
-        Some(orbit) => orbit,
-        None if scene_transform_of(&meta, checkpoint)?.is_some() => {
+    let spiral = capture_spiral_of(&meta, checkpoint)?;
+    let orbit = capture_orbit_of(&meta, checkpoint)?;
+    let path = match (spiral, orbit) {
+        (Some(spiral), _) => CapturePath::Spiral(spiral),
+        (None, Some(orbit)) => CapturePath::Orbit(orbit),
+        (None, None) if scene_transform_of(&meta, checkpoint)?.is_some() => {
             crate::core::term::note(&format!(
                 "note: {} was trained on a capture but stores no orbit (written before orbits \
                  were stored): using a default one in the normalised frame",
                 checkpoint.display()
             ));
-            CaptureOrbit::normalised_default()
+            CapturePath::Orbit(CaptureOrbit::normalised_default())
         }
-        None => return Ok(DefaultViews::surround(config)),
+        (None, None) => return Ok(DefaultViews::surround(config)),
     };
-    crate::core::term::note(&format!(
-        "{n_poses} views on the capture's orbit: radius {:.3}, height {:.3} around the z axis, \
-         looking at the origin, NDC focal ({:.3}, {:.3})",
-        orbit.radius, orbit.height, orbit.focal[0], orbit.focal[1]
-    ));
+    crate::core::term::note(&path.describe(n_poses));
     Ok(DefaultViews {
-        cameras: orbit.cameras(n_poses),
-        orbit: Some(orbit),
+        cameras: path.cameras(n_poses),
+        path: Some(path),
     })
 }
 

@@ -277,25 +277,21 @@ pub struct ViewOptions {
     pub header_timeout: Duration,
 }
 
-/// The first of the `views` (the config's surround cameras, or a capture's orbit:
+/// The first of the `views` (the config's surround cameras, or a capture's orbit or spiral:
 /// [`crate::app::scene_frame::render_cameras`]) and the config's image size, the view a bare
-/// `/render.png` gets. A capture's orbit looks at the origin with +z up.
+/// `/render.png` gets. A capture's orbit looks at the origin with +z up, its spiral at its
+/// focus point with the cameras' mean up.
 fn view_defaults(config: &Config, views: &DefaultViews) -> ViewDefaults {
     let c = &config.cameras;
-    let capture = views.orbit.is_some();
     let first = views.cameras.first();
     let eye = first.map_or(DVec3::new(0.0, 0.0, c.radius), |cam| cam.center());
     let (width, height) = config.image_size();
     ViewDefaults {
         eye,
-        at: DVec3::ZERO,
-        up: if capture {
-            DVec3::Z
-        } else {
-            DVec3::from_array(c.up)
-        },
-        focal: match (capture, first) {
-            (true, Some(cam)) => cam.focal[0],
+        at: views.path.map_or(DVec3::ZERO, |p| p.target()),
+        up: views.path.map_or(DVec3::from_array(c.up), |p| p.up()),
+        focal: match (views.path, first) {
+            (Some(_), Some(cam)) => cam.focal[0],
             _ => c.focal_length,
         },
         width,

@@ -5,8 +5,10 @@
 //! `adam.exp_avg.<name>` / `adam.exp_avg_sq.<name>`. Metadata: `epoch` (epochs completed),
 //! `adam_step`, `format` = `nerf-candle-1`, and for a model trained on a capture
 //! `scene_transform`, the normalisation its cameras were put in
-//! ([`SceneTransform::to_text`]), and `capture_orbit`, the views that suit it
-//! ([`CaptureOrbit::to_text`]). A loader that only wants the model ignores `adam.*`.
+//! ([`SceneTransform::to_text`]), `capture_orbit`, the views that suit it
+//! ([`CaptureOrbit::to_text`]), and for a forward-facing capture `capture_spiral`, the views
+//! that suit it better ([`CaptureSpiral::to_text`]). A loader that only wants the model
+//! ignores `adam.*`.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -15,7 +17,7 @@ use anyhow::{bail, Context, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
-use crate::io::dataset::{CaptureOrbit, SceneTransform};
+use crate::io::dataset::{CaptureOrbit, CaptureSpiral, SceneTransform};
 use crate::io::output::write_atomically;
 
 /// The metadata key of the scene normalisation a model was trained in.
@@ -23,6 +25,10 @@ pub const SCENE_TRANSFORM_KEY: &str = "scene_transform";
 
 /// The metadata key of the orbit `nerf render` and `nerf view` show a capture's model from.
 pub const CAPTURE_ORBIT_KEY: &str = "capture_orbit";
+
+/// The metadata key of the spiral `nerf render` and `nerf view` show a forward-facing
+/// capture's model from, instead of its orbit.
+pub const CAPTURE_SPIRAL_KEY: &str = "capture_spiral";
 
 /// What a checkpoint holds besides tensors.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -49,6 +55,10 @@ pub struct CheckpointInfo {
     /// The views around a capture that `nerf render` and `nerf view` default to (`None` for
     /// a NeRF-synthetic scene, or a checkpoint written before it was stored).
     pub capture_orbit: Option<CaptureOrbit>,
+    /// The spiral in front of a forward-facing capture that `nerf render` and `nerf view`
+    /// default to instead of the orbit (`None` for other scenes, or a checkpoint written
+    /// before spirals were stored).
+    pub capture_spiral: Option<CaptureSpiral>,
 }
 
 /// The largest counts a checkpoint's metadata may hold: far past any real run, and small
@@ -143,6 +153,9 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     if let Some(o) = &info.capture_orbit {
         metadata.insert(CAPTURE_ORBIT_KEY.to_string(), o.to_text());
     }
+    if let Some(s) = &info.capture_spiral {
+        metadata.insert(CAPTURE_SPIRAL_KEY.to_string(), s.to_text());
+    }
     let bytes = safetensors::serialize(views, Some(metadata))?;
     if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
@@ -195,6 +208,7 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
         rays_per_step: metadata_value(&meta, "rays_per_step", path)?,
         scene_transform: scene_transform_of(&meta, path)?,
         capture_orbit: capture_orbit_of(&meta, path)?,
+        capture_spiral: capture_spiral_of(&meta, path)?,
     };
     info.validate(path)?;
     let mut tensors = HashMap::new();
@@ -280,22 +294,30 @@ pub fn read_metadata(path: &Path) -> Result<HashMap<String, String>> {
     serde_json::from_value(meta.clone()).map_err(|e| corrupt(&format!("metadata: {e}")))
 }
 
+/// The value of metadata entry `key` of the checkpoint at `path` read by `parse`; `None`
+/// when there is none, an error naming the key when it does not read.
+fn parsed_metadata<T>(
+    meta: &HashMap<String, String>,
+    key: &str,
+    path: &Path,
+    parse: fn(&str) -> Result<T>,
+) -> Result<Option<T>> {
+    meta.get(key)
+        .map(|text| {
+            parse(text).map_err(|e| {
+                anyhow::anyhow!("checkpoint {}: bad metadata {key}: {e}", path.display())
+            })
+        })
+        .transpose()
+}
+
 /// The scene normalisation stored in the metadata `meta` of the checkpoint at `path`;
 /// `None` when there is none, an error naming the key when it does not read as one.
 pub fn scene_transform_of(
     meta: &HashMap<String, String>,
     path: &Path,
 ) -> Result<Option<SceneTransform>> {
-    meta.get(SCENE_TRANSFORM_KEY)
-        .map(|text| {
-            SceneTransform::from_text(text).map_err(|e| {
-                anyhow::anyhow!(
-                    "checkpoint {}: bad metadata {SCENE_TRANSFORM_KEY}: {e}",
-                    path.display()
-                )
-            })
-        })
-        .transpose()
+    parsed_metadata(meta, SCENE_TRANSFORM_KEY, path, SceneTransform::from_text)
 }
 
 /// The capture orbit stored in the metadata `meta` of the checkpoint at `path`; `None` when
@@ -304,16 +326,16 @@ pub fn capture_orbit_of(
     meta: &HashMap<String, String>,
     path: &Path,
 ) -> Result<Option<CaptureOrbit>> {
-    meta.get(CAPTURE_ORBIT_KEY)
-        .map(|text| {
-            CaptureOrbit::from_text(text).map_err(|e| {
-                anyhow::anyhow!(
-                    "checkpoint {}: bad metadata {CAPTURE_ORBIT_KEY}: {e}",
-                    path.display()
-                )
-            })
-        })
-        .transpose()
+    parsed_metadata(meta, CAPTURE_ORBIT_KEY, path, CaptureOrbit::from_text)
+}
+
+/// The capture spiral stored in the metadata `meta` of the checkpoint at `path`; `None` when
+/// there is none, an error naming the key when it does not read as one.
+pub fn capture_spiral_of(
+    meta: &HashMap<String, String>,
+    path: &Path,
+) -> Result<Option<CaptureSpiral>> {
+    parsed_metadata(meta, CAPTURE_SPIRAL_KEY, path, CaptureSpiral::from_text)
 }
 
 /// The metadata entry `key` of the checkpoint at `path` parsed as a `T`, its default (0)

@@ -512,6 +512,17 @@ impl Run<'_> {
         crate::io::dataset::CaptureOrbit::from_frames(&self.dataset.frames).ok()
     }
 
+    /// For a forward-facing capture, the spiral in front of its training cameras that
+    /// `render` and `view` show the model from instead of the orbit (`None` for any other
+    /// scene).
+    fn capture_spiral(&self) -> Option<crate::io::dataset::CaptureSpiral> {
+        let normalisation = self.dataset.normalisation?;
+        crate::io::dataset::CaptureSpiral::from_frames(
+            &self.dataset.frames,
+            normalisation.depth_bounds,
+        )
+    }
+
     /// After epoch `epoch` (0-based): checkpoint, evaluation and preview as scheduled.
     fn after_epoch(&mut self, epoch: usize, mean_loss: f64, hooks: &mut Hooks) -> Result<()> {
         let s = self.settings;
@@ -522,6 +533,7 @@ impl Run<'_> {
             rays_per_step: self.rays_to_save(),
             scene_transform: self.scene_transform(),
             capture_orbit: self.capture_orbit(),
+            capture_spiral: self.capture_spiral(),
             ..CheckpointInfo::default()
         };
         if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
@@ -663,6 +675,7 @@ pub fn fit(
                 rays_per_step: run.rays_to_save(),
                 scene_transform: run.scene_transform(),
                 capture_orbit: run.capture_orbit(),
+                capture_spiral: run.capture_spiral(),
             };
             run.checkpoint()?;
             run.bar.finish_and_clear();

@@ -80,17 +80,23 @@ pub struct CaptureSplit {
     pub from_cameras: Option<SceneTransform>,
     /// Frames in the whole capture.
     pub total_frames: usize,
+    /// The nearest and farthest scene depth over all the capture's frames, in the normalised
+    /// frame's units, when every frame gives bounds ([`CaptureFrame::depth_bounds`]).
+    pub depth_bounds: Option<[f64; 2]>,
 }
 
 /// The normalisation of a loaded capture: the transform applied to its cameras, and the one
 /// its cameras give, which differ when a stored transform was given (a model trained on
-/// another set of the scene's cameras).
+/// another set of the scene's cameras); and the scene's depth bounds in the normalised frame
+/// when the capture gives them.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Normalisation {
     /// Applied to every camera.
     pub applied: SceneTransform,
     /// Computed from the capture's own cameras (`None`: they give none, one camera, say).
     pub from_cameras: Option<SceneTransform>,
+    /// The capture's scene depth bounds in the normalised frame ([`CaptureSplit::depth_bounds`]).
+    pub depth_bounds: Option<[f64; 2]>,
 }
 
 impl Normalisation {
@@ -156,6 +162,7 @@ pub fn read_capture_split_with(
         }
     };
     let total_frames = frames.len();
+    let depth_bounds = scene_depth_bounds(&frames, transform.scale);
     let mut indexed: Vec<(usize, CaptureFrame)> = frames.into_iter().enumerate().collect();
     indexed.sort_by(|a, b| a.1.file_path.cmp(&b.1.file_path));
     let chosen: Vec<Frame> = indexed
@@ -189,7 +196,19 @@ pub fn read_capture_split_with(
         transform,
         from_cameras,
         total_frames,
+        depth_bounds,
     })
+}
+
+/// The smallest near and largest far bound of `frames`, times `scale` (a similarity scales
+/// depths along every ray by its scale); `None` unless every frame has bounds.
+fn scene_depth_bounds(frames: &[CaptureFrame], scale: f64) -> Option<[f64; 2]> {
+    frames
+        .iter()
+        .try_fold([f64::INFINITY, 0.0], |[near, far], f| {
+            let [n, x] = f.depth_bounds?;
+            Some([near.min(n * scale), far.max(x * scale)])
+        })
 }
 
 #[cfg(test)]

@@ -17,6 +17,9 @@ pub struct CaptureFrame {
     pub camera: ColmapCamera,
     /// Its mask ([`super::frame_mask`]), when it has one.
     pub mask_path: Option<PathBuf>,
+    /// The nearest and farthest depth of the scene this camera sees, in the capture's own
+    /// units, when the capture's files give them (LLFF's bounds).
+    pub depth_bounds: Option<[f64; 2]>,
 }
 
 /// A capture's frames with their split named by the files, when they name it.

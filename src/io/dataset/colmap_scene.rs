@@ -51,6 +51,7 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
                 file_path: images.join(&image.name),
                 camera,
                 mask_path: mask_in_folder(dir, Path::new(&image.name)),
+                depth_bounds: None,
             })
         })
         .collect::<Result<Vec<_>>>()?;

@@ -3,7 +3,9 @@
 //! by row, then the near and far depth bounds: the first three columns are the
 //! camera → world rotation with LLFF's axes (down, right, backwards), the fourth the camera
 //! centre, the fifth `[height, width, focal]` in pixels of the full-size photos. The bounds
-//! are not used (the scene is normalised by its cameras, [`super::normalize`]).
+//! do not normalise the scene (its cameras do, [`super::normalize`]); they place the focus
+//! of the spiral that `render` and `view` show a forward-facing capture from
+//! ([`super::spiral`]).
 
 use std::path::{Path, PathBuf};
 
@@ -45,6 +47,7 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
                 file_path,
                 camera,
                 mask_path,
+                depth_bounds: depth_bounds_of_row(row),
             })
         })
         .collect::<Result<Vec<_>>>()?;
@@ -66,6 +69,13 @@ pub fn camera_of_row(row: &[f64; 17]) -> Result<ColmapCamera> {
     let size = (w as usize, h as usize);
     let pose = ColmapPose::from_opengl_camera_to_world(opengl);
     ColmapCamera::from_colmap("PINHOLE", &[f, f, w / 2.0, h / 2.0], size, pose)
+}
+
+/// The near and far depth bounds of a `poses_bounds.npy` row; `None` unless `0 < near ≤ far`
+/// (tools that know no bounds write zeros).
+pub fn depth_bounds_of_row(row: &[f64; 17]) -> Option<[f64; 2]> {
+    let (near, far) = (row[15], row[16]);
+    (near > 0.0 && far >= near).then_some([near, far])
 }
 
 /// The rows of an `(N, 17)` little-endian float64 or float32 array.

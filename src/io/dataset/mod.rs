@@ -21,6 +21,7 @@ pub mod llff;
 pub mod nerfstudio;
 pub mod normalize;
 pub mod orbit;
+pub mod spiral;
 pub mod transforms;
 
 use std::path::{Path, PathBuf};
@@ -36,6 +37,7 @@ pub use frame_image::*;
 pub use frame_mask::PixelMask;
 pub use normalize::SceneTransform;
 pub use orbit::CaptureOrbit;
+pub use spiral::CaptureSpiral;
 pub use transforms::*;
 
 /// The frames of `split` of the scene in `data_dir`, whatever its format
@@ -90,6 +92,7 @@ pub fn read_split_with(
         normalisation: Some(Normalisation {
             applied: read.transform,
             from_cameras: read.from_cameras,
+            depth_bounds: read.depth_bounds,
         }),
     })
 }

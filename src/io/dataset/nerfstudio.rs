@@ -144,6 +144,7 @@ pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
                     .map(|m| relative_path(dir, m))
                     .transpose()
                     .map_err(context)?,
+                depth_bounds: None,
             })
         })
         .collect::<Result<Vec<_>>>()?;

@@ -52,7 +52,11 @@ impl SceneTransform {
         };
         let centers: Vec<DVec3> = poses.iter().map(|p| rotation * p.center()).collect();
         let median_of = |k: usize| median(centers.iter().map(|c| c[k]).collect());
-        let center_rotated = match focus_point(poses) {
+        let axes: Vec<(DVec3, DVec3)> = poses
+            .iter()
+            .map(|p| (p.center(), p.rotation.row(2)))
+            .collect();
+        let center_rotated = match focus_of_axes(&axes) {
             Some(focus) => rotation * focus,
             None => DVec3::new(median_of(0), median_of(1), median_of(2)),
         };
@@ -164,29 +168,29 @@ impl SceneTransform {
 const MIN_FOCUS_CONDITION: f64 = 1e-3;
 
 /// The point nearest to every camera's optical axis in the least-squares sense (nerfstudio's
-/// "focus" centring): `p = (Σ Mᵢ)⁻¹ Σ Mᵢ cᵢ` with `Mᵢ = I − dᵢ dᵢᵀ`, `cᵢ` the centre and `dᵢ`
-/// the viewing direction. `None` when the axes are (nearly) parallel or the point lies behind
-/// most cameras: the per-axis median of the centres is used then.
-fn focus_point(poses: &[ColmapPose]) -> Option<DVec3> {
+/// "focus" centring): `p = (Σ Mᵢ)⁻¹ Σ Mᵢ cᵢ` with `Mᵢ = I − dᵢ dᵢᵀ`, each axis given as its
+/// camera centre `cᵢ` and viewing direction `dᵢ` (any length). `None` when the axes are
+/// (nearly) parallel or the point lies behind most cameras: the normaliser uses the per-axis
+/// median of the centres then, and the spiral path another focus depth.
+pub fn focus_of_axes(axes: &[(DVec3, DVec3)]) -> Option<DVec3> {
     let (mut a, mut b) = (DMat3::ZERO, DVec3::ZERO);
-    for pose in poses {
-        // The camera's +z (viewing direction) in world space: the third row of R.
-        let d = pose.rotation.row(2).normalize();
+    for (centre, direction) in axes {
+        let d = direction.normalize();
         let m = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
         a += m;
-        b += m * pose.center();
+        b += m * *centre;
     }
-    let n = poses.len() as f64;
+    let n = axes.len() as f64;
     let condition = a.determinant() / n.powi(3);
     if condition.is_nan() || condition <= MIN_FOCUS_CONDITION {
         return None;
     }
     let focus = a.inverse() * b;
-    let in_front = poses
+    let in_front = axes
         .iter()
-        .filter(|p| (focus - p.center()).dot(p.rotation.row(2)) > 0.0)
+        .filter(|(centre, direction)| (focus - *centre).dot(*direction) > 0.0)
         .count();
-    (focus.is_finite() && 2 * in_front > poses.len()).then_some(focus)
+    (focus.is_finite() && 2 * in_front > axes.len()).then_some(focus)
 }
 
 /// The rotation taking unit vector `from` to unit vector `to` (Rodrigues; a half turn about

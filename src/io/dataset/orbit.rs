@@ -25,6 +25,22 @@ pub struct CaptureOrbit {
     pub focal: [f64; 2],
 }
 
+/// The mean NDC focal lengths `[f_x, f_y]` of `frames`' cameras: a pinhole frame's own, a
+/// capture camera's pixel focal over half its image width and height (`[0, 0]` for no frames).
+pub fn mean_ndc_focal(frames: &[Frame]) -> [f64; 2] {
+    let n = frames.len() as f64;
+    frames.iter().fold([0.0; 2], |sum, f| {
+        let f = match &f.camera {
+            FrameCamera::Pinhole(c) => c.focal,
+            FrameCamera::Colmap(c) => [
+                c.focal[0] / (0.5 * c.size.0 as f64),
+                c.focal[1] / (0.5 * c.size.1 as f64),
+            ],
+        };
+        [sum[0] + f[0] / n, sum[1] + f[1] / n]
+    })
+}
+
 impl CaptureOrbit {
     /// The orbit for a normalised capture whose frames are `frames`: the mean horizontal
     /// distance and height of their centres, and their mean NDC focal lengths (a pinhole
@@ -36,20 +52,10 @@ impl CaptureOrbit {
         let centres: Vec<DVec3> = frames.iter().map(|f| f.camera.center()).collect();
         let radius = centres.iter().map(|c| c.x.hypot(c.y)).sum::<f64>() / n;
         let height = centres.iter().map(|c| c.z).sum::<f64>() / n;
-        let focal = frames.iter().fold([0.0; 2], |sum, f| {
-            let f = match &f.camera {
-                FrameCamera::Pinhole(c) => c.focal,
-                FrameCamera::Colmap(c) => [
-                    c.focal[0] / (0.5 * c.size.0 as f64),
-                    c.focal[1] / (0.5 * c.size.1 as f64),
-                ],
-            };
-            [sum[0] + f[0] / n, sum[1] + f[1] / n]
-        });
         let orbit = Self {
             radius,
             height,
-            focal,
+            focal: mean_ndc_focal(frames),
         };
         orbit.validate()?;
         Ok(orbit)
