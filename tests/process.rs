@@ -1,6 +1,6 @@
 //! `nerf process`: its one-line errors (no photos, COLMAP missing, a failed stage, nothing
-//! registered; made with a stand-in `colmap` script where COLMAP's own behaviour is not the
-//! point), and a real COLMAP run on 24 lego training views whose recovered cameras must agree
+//! registered) and its choice among mapper runs, made with a stand-in `colmap` script where
+//! COLMAP's own behaviour is not the point, and a real COLMAP run on 24 lego training views whose recovered cameras must agree
 //! with lego's true cameras up to a similarity transform.
 
 mod common;
@@ -190,10 +190,14 @@ fn colmap_recovers_lego_cameras() {
     assert_eq!(json["camera_model"], "OPENCV");
     let frames = json["frames"].as_array().unwrap();
     assert!(frames.len() >= 15, "{} of 24 registered", frames.len());
+    // Frames are the kept mapper run's registered images, less any the other runs disputed.
+    let (_, model) = nerf::io::colmap::find_model(&out.join("colmap")).unwrap();
+    let registered = model.images.len();
     assert!(
-        stdout.contains(&format!("{} of 24 images registered", frames.len())),
+        stdout.contains(&format!("{registered} of 24 images registered")),
         "{stdout}"
     );
+    assert!(frames.len() <= registered, "{stdout}");
     let train = read_capture_split(&out, SceneFormat::Nerfstudio, Split::Train).unwrap();
     let test = read_capture_split(&out, SceneFormat::Nerfstudio, Split::Test).unwrap();
     assert_eq!(train.total_frames, frames.len());
@@ -229,4 +233,113 @@ fn colmap_recovers_lego_cameras() {
     );
     assert!(max(&rotation_errors) < 1.5, "{rotation_errors:?}");
     assert!(max(&centre_errors) < 0.02, "{centre_errors:?}");
+}
+
+/// COLMAP text models of `names` seen from a ring of cameras (radius 4, height 2), one per
+/// seed under `dir/seed<k>`: seed 0 has `flipped` at its mirror place across the ring's axis,
+/// the others are exact in gauges of their own (scaled and shifted).
+fn ring_models(dir: &Path, names: &[String], flipped: &str, seeds: u64) -> PathBuf {
+    let models = dir.join("models");
+    for seed in 0..seeds {
+        let folder = models.join(format!("seed{seed}"));
+        std::fs::create_dir_all(&folder).unwrap();
+        std::fs::write(folder.join("cameras.txt"), "1 SIMPLE_PINHOLE 8 8 10 4 4\n").unwrap();
+        std::fs::write(folder.join("points3D.txt"), "# no points\n").unwrap();
+        let mut images = String::new();
+        for (i, name) in names.iter().enumerate() {
+            let a = i as f64 * std::f64::consts::TAU / names.len() as f64;
+            let mut c = DVec3::new(4.0 * a.cos(), 4.0 * a.sin(), 2.0);
+            if seed == 0 && name == flipped {
+                c = DVec3::new(-c.x, -c.y, c.z);
+            }
+            let c = (1.0 + seed as f64) * c + DVec3::new(seed as f64, 0.5, -1.0);
+            // Identity rotation: the translation is -C.
+            images += &format!("{} 1 0 0 0 {} {} {} 1 {name}\n\n", i + 1, -c.x, -c.y, -c.z);
+        }
+        std::fs::write(folder.join("images.txt"), images).unwrap();
+    }
+    models
+}
+
+#[test]
+fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let photos = photos(dir.path(), 8);
+    let names: Vec<String> = (0..8).map(|i| format!("p{i}.png")).collect();
+    let models = ring_models(dir.path(), &names, "p3.png", 3);
+    // A COLMAP whose mapper copies the prepared model of its --random_seed, and whose
+    // refinement stages copy their input model.
+    let colmap = fake_colmap(
+        dir.path(),
+        &format!(
+            "stage=$1; input=; out=; seed=\nwhile [ $# -gt 0 ]; do case \"$1\" in --input_path) input=\"$2\";; --output_path) out=\"$2\";; --random_seed) seed=\"$2\";; esac; shift; done\ncase $stage in mapper) mkdir -p \"$out/0\" && cp {}/seed$seed/* \"$out/0/\";; point_filtering|bundle_adjuster) cp \"$input\"/* \"$out/\";; esac",
+            models.display()
+        ),
+    );
+    let frames_of = |out: &Path| -> Vec<String> {
+        let text = std::fs::read_to_string(out.join("transforms.json")).unwrap();
+        let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        json["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f["file_path"].as_str().unwrap().to_string())
+            .collect()
+    };
+
+    // Three runs: seed 0 flipped p3; seeds 1 and 2 agree, one of them is kept, nothing is
+    // left out, and the other runs' models are gone.
+    let out = dir.path().join("three");
+    let o = process(&photos, &out, Some(&colmap));
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("8 of 8 images registered;") && stdout.contains("3 mapper runs"),
+        "{stdout}"
+    );
+    assert_eq!(frames_of(&out).len(), 8);
+    let kept = std::fs::read_to_string(out.join("colmap/sparse/0/images.txt")).unwrap();
+    assert_ne!(
+        kept,
+        std::fs::read_to_string(models.join("seed0/images.txt")).unwrap()
+    );
+    let colmap_dir = common::sorted_names(&out.join("colmap"));
+    assert!(
+        !colmap_dir.iter().any(|n| n.starts_with("sparse_seed")),
+        "{colmap_dir:?}"
+    );
+    for seed in 0..3 {
+        assert!(
+            colmap_dir.contains(&format!("mapper_seed{seed}.log")),
+            "{colmap_dir:?}"
+        );
+    }
+
+    // Two runs that disagree on p3: whichever is kept, p3 is left out and named.
+    let out = dir.path().join("two");
+    let mut command = Command::new(env!("CARGO_BIN_EXE_nerf"));
+    let o = command
+        .args(["process", "--mapper-runs", "2", "--images"])
+        .arg(&photos)
+        .arg("--out")
+        .arg(&out)
+        .env("NERF_COLMAP", &colmap)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("8 of 8 images registered, 1 of them left out")
+            && stdout.contains("p3.png"),
+        "{stdout}"
+    );
+    let frames = frames_of(&out);
+    assert_eq!(frames.len(), 7);
+    assert!(!frames.contains(&"images/p3.png".to_string()), "{frames:?}");
+
+    // Bad mapping options are usage errors.
+    for bad in [["--mapper-runs", "0"], ["--max-reprojection-error", "-1"]] {
+        let o = common::nerf(&[&["process", "--images", "x", "--out", "y"][..], &bad[..]].concat());
+        assert_eq!(o.status.code(), Some(2), "{}", common::stderr(&o));
+    }
 }

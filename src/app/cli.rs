@@ -306,6 +306,23 @@ pub struct ProcessArgs {
     /// order, for video frames), or auto (exhaustive up to 100 images).
     #[arg(long, value_enum, default_value = "auto")]
     pub matcher: MatcherArg,
+    /// Runs of COLMAP's mapper, each with its own random seed: the run the others agree with
+    /// best is kept, and images the others place elsewhere are left out (1 to 10).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=10))]
+    pub mapper_runs: u64,
+    /// After mapping, observations further than this many pixels from their point's
+    /// projection are dropped and the cameras adjusted again (the mapper itself keeps
+    /// COLMAP's 4 px; raise this for blurred or rolling-shutter photos).
+    #[arg(long, default_value_t = 1.5, value_parser = positive_pixels)]
+    pub max_reprojection_error: f64,
+}
+
+/// A finite number of pixels above 0.
+fn positive_pixels(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("{text:?} is not a positive number of pixels")),
+    }
 }
 
 /// `--matcher`.

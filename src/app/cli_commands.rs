@@ -376,6 +376,10 @@ pub fn process(args: ProcessArgs) -> Result<()> {
         images: args.images,
         out: args.out,
         matcher: args.matcher.into(),
+        mapping: crate::app::process_mapper::MappingOptions {
+            runs: args.mapper_runs,
+            max_reprojection_error: args.max_reprojection_error,
+        },
     };
     let summary = crate::app::process::process(&options)?;
     let times: Vec<String> = summary
@@ -383,12 +387,25 @@ pub fn process(args: ProcessArgs) -> Result<()> {
         .iter()
         .map(|s| format!("{} {:.1} s", s.stage, s.seconds))
         .collect();
+    let left_out = match summary.left_out.len() {
+        0 => String::new(),
+        k => format!(
+            ", {k} of them left out: the mapper runs placed them apart ({})",
+            summary
+                .left_out
+                .iter()
+                .map(|(name, _)| name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
     say(&format!(
-        "wrote {} ({} of {} images registered; COLMAP: {})",
+        "wrote {} ({} of {} images registered{left_out}; COLMAP: {}, {} mapper runs)",
         summary.transforms.display(),
         summary.registered,
         summary.images,
-        times.join(", ")
+        times.join(", "),
+        summary.mapper_runs.len()
     ))?;
     say(&format!(
         "train on it: nerf train --config nerf_scene_unbounded --data-dir {} (photos with \

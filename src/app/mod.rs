@@ -9,6 +9,7 @@ pub mod camera_path;
 pub mod cli;
 #[cfg(feature = "cli")]
 pub mod cli_commands;
+pub mod colmap_run;
 pub mod config;
 pub mod evaluate;
 pub mod export;
@@ -16,6 +17,7 @@ pub mod export_model;
 pub mod jobs;
 pub mod messages;
 pub mod process;
+pub mod process_mapper;
 #[cfg(feature = "cli")]
 pub mod report;
 pub mod scene;

@@ -1,39 +1,30 @@
 //! `nerf process --images DIR --out OUT`: a folder of photos to a trainable capture through
 //! structure from motion. The photos (PNG and JPEG, sorted, subfolders included) are copied to
 //! `OUT/images`; COLMAP's command line runs feature extraction, matching and mapping into
-//! `OUT/colmap` (each stage's output in `OUT/colmap/<stage>.log`); the model with the most
-//! registered images is picked and written as nerfstudio's `OUT/transforms.json`, which
-//! `--data-dir OUT` then trains on.
+//! `OUT/colmap` (each stage's output in `OUT/colmap/<stage>.log`). The mapper runs several
+//! times ([`crate::app::process_mapper`]): the run the others agree with best is kept, its
+//! model with the most registered images is written as nerfstudio's `OUT/transforms.json`
+//! (less any image the other runs place elsewhere), which `--data-dir OUT` then trains on.
 //!
 //! COLMAP is Debian's `colmap` package (`sudo apt-get install colmap`), run as a program
 //! (`colmap` on `PATH`, or the executable named by `NERF_COLMAP`), not the `pycolmap` wheel:
 //! its command line is stable across releases, it extracts SIFT features on the CPU (no GPU or
 //! display needed, with `QT_QPA_PLATFORM=offscreen`), and it puts no Python in the path.
 
-use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Command, ExitStatus, Stdio};
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Map, Value};
 
+use crate::app::colmap_run::{check_colmap, colmap_program, last_line, run_stage};
+use crate::app::process_mapper::{MapperRun, MappingOptions};
 use crate::core::camera_colmap::{ColmapCameraModel, ColmapPose};
 use crate::core::distortion::LensDistortion;
 use crate::io::colmap::{ColmapCamera, ColmapModel};
 use crate::io::progress::progress_bar;
 
-/// The environment variable naming the COLMAP executable (default: `colmap` on `PATH`).
-pub const COLMAP_ENV: &str = "NERF_COLMAP";
-
 /// Fewest registered images written as a capture.
 pub const MIN_REGISTERED: usize = 3;
-
-/// Runs of COLMAP's mapper at most: a run that registers under half of the photos is
-/// repeated with another `--random_seed`, the best model kept.
-pub const MAPPER_ATTEMPTS: u64 = 3;
 
 /// Above this many images, [`Matcher::Auto`] matches sequentially instead of exhaustively.
 pub const EXHAUSTIVE_MAX_IMAGES: usize = 100;
@@ -78,6 +69,8 @@ pub struct ProcessOptions {
     pub out: PathBuf,
     /// How images are paired for matching.
     pub matcher: Matcher,
+    /// How the mapper runs.
+    pub mapping: MappingOptions,
 }
 
 /// How long one COLMAP stage ran.
@@ -94,8 +87,15 @@ pub struct StageTime {
 pub struct ProcessSummary {
     /// Photos found and copied.
     pub images: usize,
-    /// Images in the chosen model (the frames of `transforms.json`).
+    /// Images in the chosen model.
     pub registered: usize,
+    /// Images of the chosen model left out of `transforms.json` because the other mapper
+    /// runs placed them elsewhere, with that disagreement (fraction of the camera spread).
+    pub left_out: Vec<(String, f64)>,
+    /// The frames of `transforms.json`: `registered` less `left_out`.
+    pub frames: usize,
+    /// Each mapper run.
+    pub mapper_runs: Vec<MapperRun>,
     /// The chosen COLMAP model's folder.
     pub model_dir: PathBuf,
     /// The `transforms.json` written.
@@ -160,44 +160,6 @@ fn is_image_name(path: &Path) -> bool {
         .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
 }
 
-/// The COLMAP executable: `$NERF_COLMAP` when set, else `colmap` (looked up on `PATH`).
-pub fn colmap_program() -> PathBuf {
-    std::env::var_os(COLMAP_ENV)
-        .filter(|v| !v.is_empty())
-        .map_or_else(|| PathBuf::from("colmap"), PathBuf::from)
-}
-
-/// A COLMAP command with its environment: no display (`QT_QPA_PLATFORM=offscreen`), no input.
-fn colmap_command(program: &Path, stage: &str) -> Command {
-    let mut command = Command::new(program);
-    command
-        .arg(stage)
-        .env("QT_QPA_PLATFORM", "offscreen")
-        .stdin(Stdio::null());
-    command
-}
-
-/// Checks that `program` runs (`colmap help`); the one-line error says that COLMAP is
-/// missing and how to install it.
-pub fn check_colmap(program: &Path) -> Result<()> {
-    let run = colmap_command(program, "help")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status();
-    match run {
-        Ok(_) => Ok(()),
-        Err(e) => {
-            let which = match std::env::var_os(COLMAP_ENV).filter(|v| !v.is_empty()) {
-                Some(_) => format!("{COLMAP_ENV}={}", program.display()),
-                None => format!("`{}` on PATH", program.display()),
-            };
-            bail!(
-                "COLMAP is missing: cannot run {which} ({e}); install it with `sudo apt-get install colmap` (Debian/Ubuntu) or set {COLMAP_ENV} to the colmap executable"
-            )
-        }
-    }
-}
-
 /// The outputs of an earlier run in `out` that [`process`] refuses to replace.
 fn earlier_outputs(out: &Path) -> Vec<&'static str> {
     ["transforms.json", "images", "colmap"]
@@ -233,119 +195,8 @@ pub fn copy_images(from: &Path, names: &[PathBuf], to: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Progress a line of COLMAP's output reports: `(done, of)` steps, where `of` is `None` when
-/// the line does not say it. Feature extraction: `Processed file [i/N]`; exhaustive matching:
-/// `Matching block [a/A, b/B]`; sequential matching: `Matching image [i/N]`; mapping:
-/// `Registering image #id (n)` (n images registered so far) and the initial pair (2).
-pub fn stage_progress(line: &str) -> Option<(u64, Option<u64>)> {
-    let bracket = |rest: &str| -> Option<Vec<(u64, u64)>> {
-        let inner = rest.trim_start().strip_prefix('[')?.split(']').next()?;
-        inner
-            .split(',')
-            .map(|part| {
-                let (i, n) = part.trim().split_once('/')?;
-                Some((i.trim().parse().ok()?, n.trim().parse().ok()?))
-            })
-            .collect()
-    };
-    let line = line.trim();
-    if let Some(rest) = line
-        .strip_prefix("Processed file")
-        .or_else(|| line.strip_prefix("Matching image"))
-    {
-        let &[(i, n)] = bracket(rest)?.as_slice() else {
-            return None;
-        };
-        return Some((i, Some(n)));
-    }
-    if let Some(rest) = line.strip_prefix("Matching block") {
-        let &[(a, na), (b, nb)] = bracket(rest)?.as_slice() else {
-            return None;
-        };
-        return Some(((a.saturating_sub(1)) * nb + b, Some(na * nb)));
-    }
-    if let Some(rest) = line.strip_prefix("Registering image #") {
-        let count = rest.split_once('(')?.1.split_once(')')?.0;
-        return Some((count.trim().parse().ok()?, None));
-    }
-    line.starts_with("Initializing with image pair")
-        .then_some((2, None))
-}
-
-/// Runs `colmap <stage> <args>` with its stdout and stderr written to `log`, a progress bar
-/// of `steps` steps named after the stage fed from its output ([`stage_progress`]), and
-/// returns its exit status and the seconds it ran. An error when it cannot start.
-fn run_stage(
-    program: &Path,
-    stage: &'static str,
-    args: &[&std::ffi::OsStr],
-    log: &Path,
-    steps: u64,
-) -> Result<(ExitStatus, f64)> {
-    let start = Instant::now();
-    let file = File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
-    let writer = Arc::new(Mutex::new(BufWriter::new(file)));
-    let mut child = colmap_command(program, stage)
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .map_err(|e| anyhow!("cannot run COLMAP's {stage} ({}): {e}", program.display()))?;
-    let bar = progress_bar(steps.max(1), &format!("COLMAP {stage}"));
-    let done = Arc::new(Mutex::new(0u64));
-    let readers: Vec<Box<dyn Read + Send>> = vec![
-        Box::new(child.stdout.take().expect("piped stdout")),
-        Box::new(child.stderr.take().expect("piped stderr")),
-    ];
-    let threads: Vec<_> = readers
-        .into_iter()
-        .map(|stream| {
-            let (writer, bar, done) = (writer.clone(), bar.clone(), done.clone());
-            std::thread::spawn(move || {
-                for line in BufReader::new(stream).split(b'\n').map_while(|l| l.ok()) {
-                    let mut w = writer.lock().unwrap_or_else(|e| e.into_inner());
-                    let _ = w.write_all(&line).and_then(|()| w.write_all(b"\n"));
-                    drop(w);
-                    if let Some((now, _)) = stage_progress(&String::from_utf8_lossy(&line)) {
-                        let mut done = done.lock().unwrap_or_else(|e| e.into_inner());
-                        let now = now.min(steps);
-                        if now > *done {
-                            bar.inc(now - *done);
-                            *done = now;
-                        }
-                    }
-                }
-            })
-        })
-        .collect();
-    let status = child.wait();
-    for t in threads {
-        let _ = t.join();
-    }
-    bar.finish_and_clear();
-    let flushed = writer.lock().unwrap_or_else(|e| e.into_inner()).flush();
-    let status = status.with_context(|| format!("COLMAP's {stage} did not finish"))?;
-    flushed.with_context(|| format!("cannot write {}", log.display()))?;
-    Ok((status, start.elapsed().as_secs_f64()))
-}
-
-/// The last line of `log` that is not blank, for an error message.
-fn last_line(log: &Path) -> String {
-    std::fs::read(log)
-        .map(|bytes| {
-            String::from_utf8_lossy(&bytes)
-                .lines()
-                .rev()
-                .map(str::trim)
-                .find(|l| !l.is_empty())
-                .unwrap_or("")
-                .to_string()
-        })
-        .unwrap_or_default()
-}
-
 /// Runs the whole pipeline of the module doc: lists and copies the photos, runs COLMAP's
-/// three stages, picks the model with the most registered images and writes
+/// feature extraction and matching, maps ([`crate::app::process_mapper::map`]), and writes
 /// `OUT/transforms.json` (atomically, last, so a failed run leaves none). One-line errors:
 /// no photos, COLMAP missing, an earlier run's outputs in `OUT`, a stage that failed (naming
 /// its log), fewer than [`MIN_REGISTERED`] images registered, a camera model nerfstudio
@@ -355,6 +206,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         images: source,
         out,
         matcher,
+        mapping,
     } = options;
     let names = list_images(source, Some(out))?;
     let program = colmap_program();
@@ -369,9 +221,8 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     }
     let images = out.join("images");
     let colmap = out.join("colmap");
-    let sparse = colmap.join("sparse");
-    std::fs::create_dir_all(&sparse)
-        .with_context(|| format!("cannot create {}", sparse.display()))?;
+    std::fs::create_dir_all(&colmap)
+        .with_context(|| format!("cannot create {}", colmap.display()))?;
     log::info!(
         "{} photos in {}: copying them to {}",
         names.len(),
@@ -384,8 +235,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     let n = names.len();
     let matcher = matcher.command(n);
     let blocks = n.div_ceil(EXHAUSTIVE_BLOCK).pow(2);
-    let mapper_inputs = mapper_inputs(&database, &images);
-    let stages: [(&'static str, Vec<&std::ffi::OsStr>, usize); 3] = [
+    let stages: [(&'static str, Vec<&std::ffi::OsStr>, usize); 2] = [
         (
             "feature_extractor",
             vec![
@@ -416,24 +266,12 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
                 n
             },
         ),
-        (
-            "mapper",
-            mapper_inputs
-                .iter()
-                .map(|a| a.as_os_str())
-                .chain(["--output_path".as_ref(), sparse.as_os_str()])
-                .chain(MAPPER_THRESHOLDS.iter().map(|a| a.as_ref()))
-                .collect(),
-            n,
-        ),
     ];
     let mut times = Vec::new();
     for (stage, args, steps) in stages {
         let log = colmap.join(format!("{stage}.log"));
         let (status, seconds) = run_stage(&program, stage, &args, &log, steps as u64)?;
-        let failed_to_map =
-            stage == "mapper" && crate::io::colmap::find_model_folder(&colmap).is_none();
-        if !status.success() && !failed_to_map {
+        if !status.success() {
             bail!(
                 "COLMAP's {stage} failed ({status}): see {} (its last line: {})",
                 log.display(),
@@ -444,32 +282,60 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         times.push(StageTime { stage, seconds });
     }
 
-    retry_mapper(&program, &colmap, &mapper_inputs, n)?;
-    let mapper_log = colmap.join("mapper.log");
+    let mapping =
+        crate::app::process_mapper::map(&program, &colmap, &database, &images, n, mapping)?;
+    times.push(StageTime {
+        stage: "mapper",
+        seconds: mapping.runs.iter().map(|r| r.seconds).sum(),
+    });
+    times.push(StageTime {
+        stage: "refinement",
+        seconds: mapping.refine_seconds,
+    });
+    let mapper_log = crate::app::process_mapper::run_log(&colmap, 0);
     let too_few = |registered: usize| {
         anyhow!(
             "COLMAP registered {registered} of {n} images; at least {MIN_REGISTERED} are needed: take photos with more overlap and texture (see {})",
             mapper_log.display()
         )
     };
-    let (model_dir, model) = match crate::io::colmap::find_model_folder(&colmap) {
-        Some(_) => crate::io::colmap::find_model(&colmap)?,
-        None => return Err(too_few(0)),
-    };
+    if mapping.chosen.is_none() {
+        return Err(too_few(0));
+    }
+    let (model_dir, mut model) = crate::io::colmap::find_model(&colmap)?;
     let registered = model.images.len();
     if registered < MIN_REGISTERED {
         return Err(too_few(registered));
+    }
+    if !mapping.outliers.is_empty() {
+        let listed: Vec<String> = mapping
+            .outliers
+            .iter()
+            .map(|(name, d)| format!("{name} ({:.1}%)", 100.0 * d))
+            .collect();
+        log::warn!(
+            "the mapper runs placed {} of the kept run's images elsewhere (by a median of, as a share of the camera spread): {}; they are left out of transforms.json",
+            listed.len(),
+            listed.join(", ")
+        );
+        model
+            .images
+            .retain(|image| !mapping.outliers.iter().any(|(name, _)| name == &image.name));
+    }
+    let frames = model.images.len();
+    if frames < MIN_REGISTERED {
+        return Err(too_few(frames));
     }
     let transforms = transforms_json(&model)?;
     let text = serde_json::to_string_pretty(&transforms)? + "\n";
     let transforms_path = out.join("transforms.json");
     crate::io::output::write_text(&transforms_path, &text)?;
-    let left_out = n - registered.min(n);
+    let unregistered = n - registered.min(n);
     log::info!(
         "COLMAP registered {registered} of {n} images (model {}){}",
         model_dir.display(),
-        if left_out > 0 {
-            format!("; the {left_out} it did not register are left out of transforms.json")
+        if unregistered > 0 {
+            format!("; the {unregistered} it did not register are left out of transforms.json")
         } else {
             String::new()
         }
@@ -477,90 +343,13 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     Ok(ProcessSummary {
         images: n,
         registered,
+        left_out: mapping.outliers,
+        frames,
+        mapper_runs: mapping.runs,
         model_dir,
         transforms: transforms_path,
         stages: times,
     })
-}
-
-/// The mapper's thresholds, below COLMAP's defaults (100, 30, 16°, 0.25): with them the 100
-/// lego views (few features each) register 100 of 100 instead of 10.
-const MAPPER_THRESHOLDS: [&str; 8] = [
-    "--Mapper.init_min_num_inliers",
-    "30",
-    "--Mapper.abs_pose_min_num_inliers",
-    "15",
-    "--Mapper.init_min_tri_angle",
-    "4",
-    "--Mapper.abs_pose_min_inlier_ratio",
-    "0.1",
-];
-
-/// The mapper's inputs: the database and the images.
-fn mapper_inputs(database: &Path, images: &Path) -> Vec<std::ffi::OsString> {
-    vec![
-        "--database_path".into(),
-        database.into(),
-        "--image_path".into(),
-        images.into(),
-    ]
-}
-
-/// Images registered by the model COLMAP wrote under `dir` (0 when there is none).
-fn registered_in(dir: &Path) -> usize {
-    if crate::io::colmap::find_model_folder(dir).is_none() {
-        return 0;
-    }
-    crate::io::colmap::find_model(dir).map_or(0, |(_, m)| m.images.len())
-}
-
-/// COLMAP's incremental mapper picks its initial pair by RANSAC on its own threads: on photos
-/// with few features one run can end with no model where the next registers most of them.
-/// While the model in `colmap/sparse` registers under half of the `n` photos, the mapper runs
-/// again with another `--random_seed` (at most [`MAPPER_ATTEMPTS`] runs in all) into a folder
-/// of its own, and the best model is kept as `colmap/sparse`. Each run's log is
-/// `colmap/mapper_seed<k>.log`.
-fn retry_mapper(
-    program: &Path,
-    colmap: &Path,
-    inputs: &[std::ffi::OsString],
-    n: usize,
-) -> Result<()> {
-    let sparse = colmap.join("sparse");
-    let mut best = registered_in(&sparse);
-    for seed in 1..MAPPER_ATTEMPTS {
-        if 2 * best >= n {
-            break;
-        }
-        log::info!(
-            "COLMAP registered {best} of {n} images: running the mapper again (seed {seed})"
-        );
-        let attempt = colmap.join(format!("sparse_seed{seed}"));
-        std::fs::create_dir_all(&attempt)
-            .with_context(|| format!("cannot create {}", attempt.display()))?;
-        let seed_text = seed.to_string();
-        let mut args: Vec<&std::ffi::OsStr> = inputs.iter().map(|a| a.as_os_str()).collect();
-        args.extend([std::ffi::OsStr::new("--output_path"), attempt.as_os_str()]);
-        args.extend([
-            std::ffi::OsStr::new("--random_seed"),
-            std::ffi::OsStr::new(&seed_text),
-        ]);
-        args.extend(MAPPER_THRESHOLDS.iter().map(std::ffi::OsStr::new));
-        let log = colmap.join(format!("mapper_seed{seed}.log"));
-        run_stage(program, "mapper", &args, &log, n as u64)?;
-        let registered = registered_in(&attempt);
-        if registered > best {
-            std::fs::remove_dir_all(&sparse)
-                .with_context(|| format!("cannot remove {}", sparse.display()))?;
-            std::fs::rename(&attempt, &sparse)
-                .with_context(|| format!("cannot move {} into place", attempt.display()))?;
-            best = registered;
-        } else {
-            std::fs::remove_dir_all(&attempt)
-                .with_context(|| format!("cannot remove {}", attempt.display()))?;
-        }
-    }
-    Ok(())
 }
 
 /// Nerfstudio's camera → world matrix (4×4, row by row, OpenGL camera axes: +x right, +y up,
@@ -673,25 +462,6 @@ pub fn transforms_json(model: &ColmapModel) -> Result<Value> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn progress_lines() {
-        assert_eq!(stage_progress("Processed file [3/24]"), Some((3, Some(24))));
-        assert_eq!(
-            stage_progress("Matching block [2/3, 1/3] in 4.5s"),
-            Some((4, Some(9)))
-        );
-        assert_eq!(
-            stage_progress("Matching image [7/120]"),
-            Some((7, Some(120)))
-        );
-        assert_eq!(stage_progress("Registering image #18 (4)"), Some((4, None)));
-        assert_eq!(
-            stage_progress("Initializing with image pair #20 and #10"),
-            Some((2, None))
-        );
-        assert_eq!(stage_progress("  Features:        1281"), None);
-    }
 
     #[test]
     fn camera_to_world_round_trips() {
