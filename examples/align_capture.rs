@@ -50,26 +50,25 @@ fn main() -> Result<()> {
     };
     let truth = cameras(&read_json(&Path::new(lego).join("transforms_train.json"))?)?;
     let found = cameras(&read_json(&Path::new(capture).join("transforms.json"))?)?;
-    let mut named: Vec<(&String, (DMat3, DVec3, DMat3, DVec3))> = found
+    let mut named: Vec<(&String, CameraPair)> = found
         .iter()
-        .filter_map(|(stem, (rr, cr))| truth.get(stem).map(|(rt, ct)| (stem, (*rt, *ct, *rr, *cr))))
+        .filter_map(|(stem, (rotation, centre))| {
+            truth.get(stem).map(|(true_rotation, true_centre)| {
+                let pair = CameraPair {
+                    true_rotation: *true_rotation,
+                    true_centre: *true_centre,
+                    rotation: *rotation,
+                    centre: *centre,
+                };
+                (stem, pair)
+            })
+        })
         .collect();
     named.sort_by(|a, b| a.0.cmp(b.0));
-    let (names, pairs): (Vec<&String>, Vec<_>) = named.into_iter().unzip();
+    let (names, pairs): (Vec<&String>, Vec<CameraPair>) = named.into_iter().unzip();
     if pairs.len() < 3 {
         bail!("only {} frames match the truth by name", pairs.len());
     }
-    let pairs: Vec<CameraPair> = pairs
-        .into_iter()
-        .map(
-            |(true_rotation, true_centre, rotation, centre)| CameraPair {
-                true_rotation,
-                true_centre,
-                rotation,
-                centre,
-            },
-        )
-        .collect();
     let radius = truth.values().map(|(_, c)| c.length()).sum::<f64>() / truth.len() as f64;
     let n = pairs.len() as f64;
     let by_orientation = align_by_orientations(&pairs);

@@ -141,7 +141,8 @@ pub fn map(
     n: usize,
     options: &MappingOptions,
 ) -> Result<Mapping> {
-    if options.runs == 0 || !(options.max_reprojection_error > 0.0) {
+    let pixels = options.max_reprojection_error;
+    if options.runs == 0 || !pixels.is_finite() || pixels <= 0.0 {
         bail!(
             "the mapper needs at least one run and a positive reprojection error (got {} runs, {} px)",
             options.runs,
