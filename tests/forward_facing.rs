@@ -8,9 +8,7 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
-use std::process::{Command, Stdio};
 
 use glam::DVec3;
 use nerf::core::camera::PerspectiveCamera;
@@ -86,24 +84,6 @@ fn camera_centres() -> Vec<DVec3> {
         .collect()
 }
 
-/// A float64 `.npy` file of shape `(N, 17)` holding `values` row by row.
-fn npy_rows(values: &[f64]) -> Vec<u8> {
-    let header = format!(
-        "{{'descr': '<f8', 'fortran_order': False, 'shape': ({}, 17), }}",
-        values.len() / 17
-    );
-    let pad = 64 - (10 + header.len() + 1) % 64;
-    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
-    bytes.extend(((header.len() + pad + 1) as u16).to_le_bytes());
-    bytes.extend(header.as_bytes());
-    bytes.extend(std::iter::repeat_n(b' ', pad));
-    bytes.push(b'\n');
-    for v in values {
-        bytes.extend(v.to_le_bytes());
-    }
-    bytes
-}
-
 /// The LLFF capture in `dir`: `images/frame_NN.png` ray-cast from each camera (looking along
 /// −z, +y up, COLMAP's pixel centres at `i + 0.5`), and `poses_bounds.npy` with each
 /// camera's pose and the nearest and farthest sphere depth as its bounds.
@@ -142,7 +122,11 @@ fn write_capture(dir: &Path) {
         let far = depths.map(|(d, r)| d + r).fold(0.0, f64::max);
         rows.extend([near, far]);
     }
-    std::fs::write(dir.join("poses_bounds.npy"), npy_rows(&rows)).unwrap();
+    std::fs::write(
+        dir.join("poses_bounds.npy"),
+        common::lego_capture::npy_rows(&rows),
+    )
+    .unwrap();
 }
 
 /// Per view, the fraction of the pixels of a `size` picture that see a sphere, the spheres
@@ -191,40 +175,6 @@ fn rendered_coverage(dir: &Path) -> Vec<f64> {
             lit as f64 / (values.len() / 3) as f64
         })
         .collect()
-}
-
-/// `/info.json` of `nerf view ARGS…` on a free port (the server is killed after).
-fn view_info(args: &[&str]) -> serde_json::Value {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_nerf"))
-        .args(["view", "--port", "0"])
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .split("http://")
-        .nth(1)
-        .and_then(|rest| rest.split('/').next())
-        .unwrap_or_else(|| panic!("no address in {line:?}"))
-        .to_string();
-    let mut stream = std::net::TcpStream::connect(&addr).unwrap();
-    write!(
-        stream,
-        "GET /info.json HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut bytes = Vec::new();
-    stream.read_to_end(&mut bytes).unwrap();
-    let _ = child.kill();
-    let _ = child.wait();
-    let body = String::from_utf8_lossy(&bytes).to_string();
-    let json = body.split("\r\n\r\n").nth(1).expect("no body");
-    serde_json::from_str(json).unwrap()
 }
 
 fn vector(value: &serde_json::Value) -> DVec3 {
@@ -356,7 +306,7 @@ fn a_forward_facing_capture_renders_and_views_from_a_spiral_that_sees_the_scene(
     // view: starts from the first spiral view, looking at the focus with the spiral's up.
     let mut args = vec!["--config", "nerf_scene"];
     args.extend(overrides);
-    let info = view_info(&args);
+    let info = common::view_info(&args);
     let first = spiral.cameras(VIEWS)[0].center();
     assert!((vector(&info["eye"]) - first).length() < 1e-9, "{info}");
     assert!(

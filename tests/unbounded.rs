@@ -6,9 +6,7 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
-use std::process::{Command, Stdio};
 
 use nerf::io::checkpoint::{capture_orbit_of, read_metadata};
 use nerf::io::dataset::{read_capture_split, CaptureOrbit, SceneFormat, Split};
@@ -42,40 +40,6 @@ fn write_capture(lego: &Path, dir: &Path) {
         "cx": w as f64 / 2.0, "cy": h as f64 / 2.0, "w": w, "h": h, "frames": frames,
     });
     std::fs::write(dir.join("transforms.json"), capture.to_string()).unwrap();
-}
-
-/// `/info.json` of `nerf view ARGS…` on a free port (the server is killed after).
-fn view_info(args: &[&str]) -> serde_json::Value {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_nerf"))
-        .args(["view", "--port", "0"])
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .split("http://")
-        .nth(1)
-        .and_then(|rest| rest.split('/').next())
-        .unwrap_or_else(|| panic!("no address in {line:?}"))
-        .to_string();
-    let mut stream = std::net::TcpStream::connect(&addr).unwrap();
-    write!(
-        stream,
-        "GET /info.json HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut bytes = Vec::new();
-    stream.read_to_end(&mut bytes).unwrap();
-    let _ = child.kill();
-    let _ = child.wait();
-    let body = String::from_utf8_lossy(&bytes).to_string();
-    let json = body.split("\r\n\r\n").nth(1).expect("no body");
-    serde_json::from_str(json).unwrap()
 }
 
 #[test]
@@ -157,7 +121,7 @@ fn an_unbounded_capture_trains_evaluates_and_renders_and_views_from_its_orbit() 
     // view: its default camera is the first orbit view, +z up, with the orbit's focal length.
     let mut args = config.to_vec();
     args.extend(overrides);
-    let info = view_info(&args);
+    let info = common::view_info(&args);
     let eye = expected.cameras(4)[0].center();
     let got: Vec<f64> = info["eye"]
         .as_array()

@@ -125,11 +125,7 @@ impl CaptureOrbit {
     /// Reads [`CaptureOrbit::to_text`]; an error for anything but four numbers that
     /// [`CaptureOrbit::validate`] accepts.
     pub fn from_text(text: &str) -> Result<Self> {
-        let values: Vec<f64> = text
-            .split_whitespace()
-            .map(str::parse)
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|e| anyhow::anyhow!("not a number list ({e})"))?;
+        let values = number_list(text)?;
         let [radius, height, fx, fy] = values[..] else {
             bail!(
                 "expected 4 numbers (radius height f_x f_y), got {}",
@@ -144,6 +140,15 @@ impl CaptureOrbit {
         orbit.validate()?;
         Ok(orbit)
     }
+}
+
+/// The numbers of a metadata text (whitespace-separated); an error naming the first that
+/// does not parse.
+pub(crate) fn number_list(text: &str) -> Result<Vec<f64>> {
+    text.split_whitespace()
+        .map(str::parse)
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| anyhow::anyhow!("not a number list ({e})"))
 }
 
 #[cfg(test)]

@@ -265,11 +265,7 @@ impl CaptureSpiral {
     /// Reads [`CaptureSpiral::to_text`]; an error for anything but 15 numbers that
     /// [`CaptureSpiral::validate`] accepts.
     pub fn from_text(text: &str) -> Result<Self> {
-        let values: Vec<f64> = text
-            .split_whitespace()
-            .map(str::parse)
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|e| anyhow::anyhow!("not a number list ({e})"))?;
+        let values = super::orbit::number_list(text)?;
         let Ok(v) = <[f64; 15]>::try_from(values.as_slice()) else {
             bail!(
                 "expected 15 numbers (centre, forward, up, radii, focus distance, f_x f_y), \
