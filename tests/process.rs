@@ -297,6 +297,7 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
         stdout.contains("8 of 8 images registered;") && stdout.contains("3 mapper runs"),
         "{stdout}"
     );
+    assert!(stdout.contains("train on it:"), "{stdout}");
     assert_eq!(frames_of(&out).len(), 8);
     let kept = std::fs::read_to_string(out.join("colmap/sparse/0/images.txt")).unwrap();
     assert_ne!(
@@ -336,6 +337,24 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
     let frames = frames_of(&out);
     assert_eq!(frames.len(), 7);
     assert!(!frames.contains(&"images/p3.png".to_string()), "{frames:?}");
+
+    // Photos on white: the hint says to train with a white background.
+    let white = dir.path().join("white");
+    std::fs::create_dir_all(&white).unwrap();
+    for name in &names {
+        image::RgbImage::from_pixel(8, 8, image::Rgb([255, 255, 255]))
+            .save(white.join(name))
+            .unwrap();
+    }
+    let out = dir.path().join("on_white");
+    let o = process(&white, &out, Some(&colmap));
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("plain white (100% of border pixels)")
+            && stdout.contains("renderer.white_background=True"),
+        "{stdout}"
+    );
 
     // Bad mapping options are usage errors.
     for bad in [["--mapper-runs", "0"], ["--max-reprojection-error", "-1"]] {

@@ -407,9 +407,21 @@ pub fn process(args: ProcessArgs) -> Result<()> {
         times.join(", "),
         summary.mapper_runs.len()
     ))?;
-    say(&format!(
-        "train on it: nerf train --config nerf_scene_unbounded --data-dir {} (photos with \
-         background; nerf_scene for an object whose photos have alpha or masks)",
-        options.out.display()
-    ))
+    let white = summary
+        .white_border
+        .filter(|&f| f >= crate::io::dataset::backdrop::WHITE_FRACTION);
+    match white {
+        Some(fraction) => say(&format!(
+            "the photos' borders are plain white ({:.0}% of border pixels): train and evaluate \
+             with renderer.white_background=True, e.g. nerf train --config nerf_scene_unbounded \
+             --data-dir {} renderer.white_background=True",
+            100.0 * fraction,
+            options.out.display()
+        )),
+        None => say(&format!(
+            "train on it: nerf train --config nerf_scene_unbounded --data-dir {} (photos with \
+             background; nerf_scene for an object whose photos have alpha or masks)",
+            options.out.display()
+        )),
+    }
 }

@@ -96,6 +96,10 @@ pub struct ProcessSummary {
     pub frames: usize,
     /// Each mapper run.
     pub mapper_runs: Vec<MapperRun>,
+    /// The fraction of the registered photos' border pixels that are white
+    /// ([`crate::io::dataset::backdrop::white_border_fraction`]); `None` when they could not
+    /// be read.
+    pub white_border: Option<f64>,
     /// The chosen COLMAP model's folder.
     pub model_dir: PathBuf,
     /// The `transforms.json` written.
@@ -326,6 +330,14 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     if frames < MIN_REGISTERED {
         return Err(too_few(frames));
     }
+    let kept: Vec<PathBuf> = model
+        .images
+        .iter()
+        .map(|i| PathBuf::from(&i.name))
+        .collect();
+    let white_border = crate::io::dataset::backdrop::white_border_fraction(&images, &kept)
+        .map_err(|e| log::warn!("cannot judge the photos' backdrop: {e:#}"))
+        .ok();
     let transforms = transforms_json(&model)?;
     let text = serde_json::to_string_pretty(&transforms)? + "\n";
     let transforms_path = out.join("transforms.json");
@@ -346,6 +358,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         left_out: mapping.outliers,
         frames,
         mapper_runs: mapping.runs,
+        white_border,
         model_dir,
         transforms: transforms_path,
         stages: times,

@@ -12,6 +12,7 @@
 //! Blender / OpenGL cameras look along their −Z axis with +Y up and +X right; pytorch3d cameras
 //! look along +Z with +Y up and +X left (see [`crate::core::camera`]).
 
+pub mod backdrop;
 pub mod capture;
 pub mod capture_frame;
 pub mod colmap_scene;
