@@ -76,13 +76,7 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
 
     let ckpt = root.path().join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = [
-        "data.image_size=[24,24]",
-        "training.num_epochs=1",
-        "training.eval_views=0",
-        "sampler.n_pts_per_ray=32",
-        &ckpt_arg,
-    ];
+    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
     let run = |command: &str, dir: &Path| {
         let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
         args.push(dir.to_str().unwrap());
@@ -154,13 +148,7 @@ fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model(
     assert!(binary.join("sparse/0/images.bin").is_file());
     let ckpt = root.path().join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = [
-        "data.image_size=[24,24]",
-        "training.num_epochs=1",
-        "training.eval_views=0",
-        "sampler.n_pts_per_ray=32",
-        &ckpt_arg,
-    ];
+    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
     let run = |command: &str, dir: &Path, extra: &[&str]| {
         let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
         args.push(dir.to_str().unwrap());

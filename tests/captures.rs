@@ -102,13 +102,7 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
         .all(|im| im.width == 20 && im.height == 20));
     let ckpt = root.path().join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = [
-        "data.image_size=[24,24]",
-        "training.num_epochs=1",
-        "training.eval_views=0",
-        "sampler.n_pts_per_ray=32",
-        &ckpt_arg,
-    ];
+    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
     let dir_arg = capture.to_str().unwrap();
     let mut args = vec!["train", "--config", "nerf_scene", "--data-dir", dir_arg];
     args.extend(overrides);
@@ -171,13 +165,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
 
     let ckpt = root.path().join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = [
-        "data.image_size=[24,24]",
-        "training.num_epochs=2",
-        "training.eval_views=0",
-        "sampler.n_pts_per_ray=32",
-        &ckpt_arg,
-    ];
+    let overrides = tiny_scene_overrides("training.num_epochs=2", &ckpt_arg);
     let mut args = vec!["train", "--config", "nerf_scene", "--data-dir"];
     args.push(full.to_str().unwrap());
     args.extend(overrides);
