@@ -105,6 +105,22 @@ fn failed_stage_and_nothing_registered_are_one_line_errors() {
     assert!(err.contains("COLMAP registered 0 of 4 images"), "{err}");
     assert!(!out.join("transforms.json").exists());
     assert_eq!(common::sorted_names(&out.join("images")).len(), 4);
+
+    // A COLMAP whose mapper registers 2 of the 4, and whose refinement would fail: too few
+    // registered is what is said (the refinement is not run on so small a model).
+    let two: Vec<String> = (0..2).map(|i| format!("p{i}.png")).collect();
+    let models = ring_models(&dir.path().join("two"), &two, "none", 3);
+    let small = fake_colmap(
+        dir.path(),
+        &format!(
+            "stage=$1; out=; seed=\nwhile [ $# -gt 0 ]; do case \"$1\" in --output_path) out=\"$2\";; --random_seed) seed=\"$2\";; esac; shift; done\ncase $stage in mapper) mkdir -p \"$out/0\" && cp {}/seed$seed/* \"$out/0/\";; point_filtering|bundle_adjuster) echo refinement ran >&2; exit 1;; esac",
+            models.display()
+        ),
+    );
+    let out = dir.path().join("out3");
+    let err = last_line_error(&process(&photos, &out, Some(&small)));
+    assert!(err.contains("COLMAP registered 2 of 4 images"), "{err}");
+    assert!(!out.join("transforms.json").exists());
 }
 
 /// Whether COLMAP runs here (`colmap` on PATH, or `$NERF_COLMAP`); else a visible skip, and

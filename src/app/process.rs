@@ -23,8 +23,7 @@ use crate::core::distortion::LensDistortion;
 use crate::io::colmap::{ColmapCamera, ColmapModel};
 use crate::io::progress::progress_bar;
 
-/// Fewest registered images written as a capture.
-pub const MIN_REGISTERED: usize = 3;
+pub use crate::app::process_mapper::MIN_REGISTERED;
 
 /// Above this many images, [`Matcher::Auto`] matches sequentially instead of exhaustively.
 pub const EXHAUSTIVE_MAX_IMAGES: usize = 100;

@@ -45,6 +45,10 @@ pub const OUTLIER_FRACTION: f64 = 0.05;
 /// left two runs, one of them with a bent stretch (a camera 4.4% off), and no majority.
 pub const MAX_EXTRA_RUNS: u64 = 3;
 
+/// Fewest registered images written as a capture (a kept model with fewer is not refined:
+/// `bundle_adjuster` has too little to work on, and the capture is refused anyway).
+pub const MIN_REGISTERED: usize = 3;
+
 /// Comparable runs wanted for a majority to decide between them.
 pub const MAJORITY_RUNS: u64 = 3;
 
@@ -250,7 +254,11 @@ pub fn map(
     );
     let seeds: Vec<u64> = runs.iter().map(|r| r.seed).collect();
     keep_run(colmap, &seeds, runs[agreed.chosen].seed)?;
-    let refine_seconds = refine(program, colmap, options.max_reprojection_error)?;
+    let refine_seconds = if runs[agreed.chosen].registered >= MIN_REGISTERED {
+        refine(program, colmap, options.max_reprojection_error)?
+    } else {
+        0.0
+    };
     Ok(Mapping {
         runs,
         chosen: Some(agreed.chosen),
