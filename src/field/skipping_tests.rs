@@ -207,6 +207,29 @@ fn empty_cells_render_as_zero_density() {
     assert!(max_diff(&depth, &out.depth) < 1e-5);
 }
 
+/// Every one of the rays' `n` samples per ray materialised and tested against `grid` on its
+/// own: the samples' points `(R·n·3)` flattened, and the indices (ray-major) of those in
+/// occupied cells. `lengths` is `(1, n, 1)` or `(R, n, 1)`.
+fn occupied_samples(
+    grid: &OccupancyGrid,
+    rays: &Rays,
+    lengths: &Tensor,
+    n: usize,
+) -> (Vec<f32>, Vec<u32>) {
+    let dense_lengths = lengths.broadcast_as((rays.len(), n, 1)).unwrap();
+    let points = sample_points(&rays.origins, &rays.directions, &dense_lengths)
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+    let occupied = (0..points.len() / 3)
+        .filter(|&k| grid.is_occupied([points[3 * k], points[3 * k + 1], points[3 * k + 2]]))
+        .map(|k| k as u32)
+        .collect();
+    (points, occupied)
+}
+
 #[test]
 fn marching_keeps_exactly_the_samples_in_occupied_cells() {
     use rand::{Rng, SeedableRng};
@@ -237,17 +260,7 @@ fn marching_keeps_exactly_the_samples_in_occupied_cells() {
         };
         let packed = evaluate_packed(&f, 0.0, &rays, &lengths).unwrap();
         // Every sample materialised and tested on its own.
-        let dense_lengths = lengths.broadcast_as((rays.len(), 96, 1)).unwrap();
-        let points = sample_points(&rays.origins, &rays.directions, &dense_lengths)
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1::<f32>()
-            .unwrap();
-        let expected: Vec<u32> = (0..points.len() / 3)
-            .filter(|&k| grid.is_occupied([points[3 * k], points[3 * k + 1], points[3 * k + 2]]))
-            .map(|k| k as u32)
-            .collect();
+        let (_, expected) = occupied_samples(&grid, &rays, &lengths, 96);
         assert!(!expected.is_empty());
         let mut got = packed.index.clone();
         got.sort_unstable();
@@ -363,17 +376,7 @@ fn marching_a_contracted_grid_keeps_exactly_the_samples_in_occupied_cells() {
             sampler.compact_lengths(&rays, None).unwrap()
         };
         let packed = evaluate_packed(&f, 0.0, &rays, &lengths).unwrap();
-        let dense_lengths = lengths.broadcast_as((rays.len(), 256, 1)).unwrap();
-        let points = sample_points(&rays.origins, &rays.directions, &dense_lengths)
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1::<f32>()
-            .unwrap();
-        let expected: Vec<u32> = (0..points.len() / 3)
-            .filter(|&k| grid.is_occupied([points[3 * k], points[3 * k + 1], points[3 * k + 2]]))
-            .map(|k| k as u32)
-            .collect();
+        let (points, expected) = occupied_samples(&grid, &rays, &lengths, 256);
         // Samples in the shell (far from the unit cube) are among them.
         assert!(expected.iter().any(|&k| {
             let p = &points[3 * k as usize..3 * k as usize + 3];
