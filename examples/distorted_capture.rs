@@ -16,8 +16,12 @@
 //! structure from motion leaves them) and written as a COLMAP model, `OUT/sparse/0/` (text,
 //! or binary with `--binary`), with the photos in `OUT/images/r_NNN.png`.
 //!
+//! With `--white` the photos are composited on white and written as JPEGs without alpha
+//! (`r_NNN.jpg`, quality 95), as a camera photographing the object on a white backdrop would
+//! take them: the fixture of the white-backdrop criterion of nerf_scene (docs/own-scene.md).
+//!
 //! Run: `cargo run --release --example distorted_capture -- LEGO_DIR OUT [--size N]
-//! [--pinhole] [--binary]` (LEGO_DIR: the NeRF-synthetic lego, `../shared/data/lego`).
+//! [--pinhole] [--binary] [--white]` (LEGO_DIR: the NeRF-synthetic lego, `../shared/data/lego`).
 
 use std::path::{Path, PathBuf};
 
@@ -151,7 +155,7 @@ fn main() -> Result<()> {
         .map(|(_, a)| a)
         .collect();
     let [lego, out] = positional[..] else {
-        bail!("usage: distorted_capture LEGO_DIR OUT [--size N] [--pinhole] [--binary]");
+        bail!("usage: distorted_capture LEGO_DIR OUT [--size N] [--pinhole] [--binary] [--white]");
     };
     let side: usize = match args.iter().position(|a| a == "--size") {
         Some(i) => args.get(i + 1).context("--size N")?.parse()?,
@@ -207,8 +211,25 @@ fn main() -> Result<()> {
                 byte(alpha),
             ];
         }
-        let name = format!("{stem}.png");
-        photo.save(images_dir.join(&name))?;
+        let name = match flag("--white") {
+            true => {
+                let name = format!("{stem}.jpg");
+                let on_white = image::RgbImage::from_fn(side as u32, side as u32, |x, y| {
+                    let [r, g, b, a] = photo.get_pixel(x, y).0.map(|v| v as f32 / 255.0);
+                    let over = |c: f32| ((c * a + 1.0 - a) * 255.0).round() as u8;
+                    image::Rgb([over(r), over(g), over(b)])
+                });
+                let file = std::fs::File::create(images_dir.join(&name))?;
+                let mut jpeg = image::codecs::jpeg::JpegEncoder::new_with_quality(file, 95);
+                jpeg.encode_image(&on_white)?;
+                name
+            }
+            false => {
+                let name = format!("{stem}.png");
+                photo.save(images_dir.join(&name))?;
+                name
+            }
+        };
         let moved = regauge(&pose, gauge);
         let q = DQuat::from_mat3(&moved.rotation);
         images.push(ColmapImage {

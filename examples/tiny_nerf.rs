@@ -79,6 +79,7 @@ fn main() -> Result<()> {
         let rays = Rays {
             origins: Tensor::cat(&origins, 0)?,
             directions: Tensor::cat(&directions, 0)?,
+            camera_index: None,
         };
         let target = Tensor::from_vec(target, (rays.len(), 3), &device)?;
 

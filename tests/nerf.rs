@@ -304,6 +304,8 @@ fn checkpoint_round_trips_bit_exactly() {
             focus_distance: 2.5,
             focal: [1.2, 1.6],
         }),
+        background: Some([0.1, 0.5, 1.0]),
+        image_size: Some((320, 180)),
     };
     checkpoint::save(&path, &checkpoint::model_tensors(&state.varmap), info).unwrap();
     let (loaded, back) = load_nerf(&nerf_cfg, &path).unwrap();

@@ -239,6 +239,7 @@ fn rays_along_each_axis_with_signed_zeros_hit_the_box_where_expected() {
     let rays = Rays {
         origins: Tensor::from_vec(origins, (n, 3), &Device::Cpu).unwrap(),
         directions: Tensor::from_vec(directions, (n, 3), &Device::Cpu).unwrap(),
+        camera_index: None,
     };
     let out = VolumeRenderer::new(4096, false)
         .unwrap()

@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use crate::app::scene_frame::adopt_stored_settings;
 use anyhow::Result;
 use candle_core::Device;
 
@@ -108,8 +109,10 @@ pub fn run(args: RunArgs, device: &Device) -> Result<()> {
 
 /// `nerf render`: the surround views (or a camera path) into the output directory.
 pub fn render(args: RenderArgs, device: &Device) -> Result<()> {
-    let config = args.config.load()?;
+    let mut config = args.config.load()?;
     let checkpoint = args.checkpoint.checkpoint.as_deref();
+    let path = config.checkpoint(checkpoint);
+    adopt_stored_settings(&mut config, &path, true)?;
     let out_dir = &args.out.out_dir;
     let written = match &args.camera_path {
         Some(path) => {
@@ -189,6 +192,8 @@ pub fn targets(args: TargetsArgs, device: &Device) -> Result<()> {
 /// `nerf eval`: PSNR and SSIM over a split, as a summary or JSON.
 pub fn eval(args: EvalArgs, device: &Device) -> Result<()> {
     let mut config = args.config.load()?;
+    let path = config.checkpoint(args.checkpoint.checkpoint.as_deref());
+    adopt_stored_settings(&mut config, &path, false)?;
     if args.white {
         config.renderer.white_background = true;
     }
@@ -270,8 +275,10 @@ pub fn report(args: ReportArgs, device: &Device) -> Result<()> {
 
 /// `nerf view`: serves until killed.
 pub fn view(args: ViewArgs, device: &Device) -> Result<()> {
-    let config = args.config.load()?;
+    let mut config = args.config.load()?;
     let checkpoint = args.checkpoint.checkpoint.as_deref();
+    let path = config.checkpoint(checkpoint);
+    adopt_stored_settings(&mut config, &path, true)?;
     let scene = crate::app::scene::load_scene_field(&config, checkpoint, device)?;
     let views = match scene {
         crate::app::scene::SceneField::Nerf(_) => {

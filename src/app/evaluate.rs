@@ -5,7 +5,7 @@ use std::path::Path;
 use anyhow::Result;
 use candle_core::Device;
 
-use crate::app::config::Config;
+use crate::app::config::{Config, SizeUse};
 use crate::app::scene_frame::{note_scene_frame, stored_transform};
 use crate::eval::evaluate::{evaluate, EvalReport};
 use crate::io::dataset::{Dataset, Split};
@@ -27,7 +27,7 @@ pub fn eval_nerf(
             "implicit_function.type sdf_volume: this command needs a NeRF config (e.g. lego); eval scores a trained field against a dataset"
         );
     }
-    let size = config.data.dataset_image_size(data_dir)?;
+    let size = config.data.dataset_image_size(data_dir, SizeUse::Scoring)?;
     let path = config.checkpoint(checkpoint);
     let stored = stored_transform(&path)?;
     let dataset = Dataset::load_first_with(

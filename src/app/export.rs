@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::{bail, ensure, Context, Result};
 use candle_core::{Device, Tensor};
 
-use crate::app::config::{limits, Config, OccupancyGridConfig};
+use crate::app::config::{limits, Config, OccupancyGridConfig, SizeUse};
 use crate::app::scene::{load_scene_field, write_all, SceneField, WorkChunks};
 use crate::app::scene_frame::{note_scene_frame, stored_transform};
 use crate::core::frame_camera::FrameCamera;
@@ -236,7 +236,9 @@ pub struct ViewSelection {
 /// SDF scene.
 fn view_size(config: &Config, scene: &SceneField, views: &ViewSelection) -> Result<(usize, usize)> {
     match scene {
-        SceneField::Nerf(_) => config.data.dataset_image_size(&views.data_dir),
+        SceneField::Nerf(_) => config
+            .data
+            .dataset_image_size(&views.data_dir, SizeUse::Scoring),
         SceneField::Sdf { .. } => Ok(config.image_size()),
     }
 }

@@ -11,10 +11,11 @@ use std::path::Path;
 use anyhow::Result;
 use glam::DVec3;
 
-use crate::app::config::Config;
+use crate::app::config::{BackgroundConfig, Config};
 use crate::core::camera::PerspectiveCamera;
 use crate::io::checkpoint::{
-    capture_orbit_of, capture_spiral_of, read_metadata, scene_transform_of,
+    background_of, capture_orbit_of, capture_spiral_of, image_size_of, read_metadata,
+    scene_transform_of,
 };
 use crate::io::checkpoint_file::{detect_format, CheckpointFormat};
 use crate::io::dataset::{CaptureOrbit, CaptureSpiral, Normalisation, SceneTransform};
@@ -28,6 +29,35 @@ pub fn stored_transform(path: &Path) -> Result<Option<SceneTransform>> {
         return Ok(None);
     }
     scene_transform_of(&read_metadata(path)?, path)
+}
+
+/// What a command that shows or scores the model at `checkpoint` takes from it into
+/// `config`: with `renderer.background: auto`, the background training stored; with
+/// `image_size_too` and no `data.image_size`, the training images' size (renders of other
+/// views: `render`, `view`). Nothing for a file that is not one of our checkpoints (loading
+/// the model then says what is wrong with it).
+pub fn adopt_stored_settings(
+    config: &mut Config,
+    checkpoint: &Path,
+    image_size_too: bool,
+) -> Result<()> {
+    if !checkpoint.is_file()
+        || detect_format(checkpoint).ok() != Some(CheckpointFormat::Safetensors)
+    {
+        return Ok(());
+    }
+    let meta = read_metadata(checkpoint)?;
+    if config.renderer.background_is_auto() {
+        if let Some(c) = background_of(&meta, checkpoint)? {
+            config.renderer.background = Some(BackgroundConfig::Colour(c));
+        }
+    }
+    if image_size_too && config.data.image_size.is_none() {
+        if let Some((w, h)) = image_size_of(&meta, checkpoint)? {
+            config.data.image_size = Some([w, h]);
+        }
+    }
+    Ok(())
 }
 
 /// The path a capture's model is shown along: a spiral in front of a forward-facing capture,

@@ -8,12 +8,16 @@ use std::sync::atomic::AtomicBool;
 use anyhow::{bail, Result};
 use candle_core::Device;
 
-use crate::app::config::Config;
+use crate::app::config::{Config, SizeUse};
 use crate::app::scene::render_nerf_gif;
 use crate::app::scene_frame::{note_scene_frame, stored_transform};
+use crate::core::image::colour_name;
 use crate::eval::evaluate::evaluate;
+use crate::io::dataset::backdrop::backdrop_colour;
 use crate::io::dataset::{Dataset, Split};
+use crate::render::renderer::BLACK;
 use crate::train::fit::{fit, CheckpointScore, FitOutcome, Hooks, RunLimits, TrainPaths};
+use crate::train::step::StepSettings;
 
 /// Refuses to start a fresh run over an existing checkpoint (`training.resume: False`) unless
 /// `overwrite`; with it, removes the old checkpoint and log together, so that the new run's
@@ -68,8 +72,10 @@ pub fn train_nerf(
     stop: Option<&AtomicBool>,
     device: &Device,
 ) -> Result<FitOutcome> {
-    let settings = config.train_settings()?;
-    let size = config.data.dataset_image_size(data_dir)?;
+    let mut settings = config.train_settings()?;
+    let size = config
+        .data
+        .dataset_image_size(data_dir, SizeUse::Training)?;
     let white = config.renderer.white_background;
     // A resumed run keeps the frame it started in.
     let stored = match settings.resume {
@@ -80,6 +86,12 @@ pub fn train_nerf(
     if stored.is_some() {
         let n = dataset.normalisation.as_ref();
         note_scene_frame(data_dir, &paths.checkpoint, stored, n);
+    }
+    if let Some(sized) = settings.model.for_training_images(dataset.images.len()) {
+        settings.model = sized;
+    }
+    if config.renderer.background_is_auto() {
+        choose_background(&mut settings.step, &dataset, data_dir);
     }
     let frame = dataset.normalisation.map(|n| n.applied);
     let eval_views = config.training()?.eval_views;
@@ -94,7 +106,8 @@ pub fn train_nerf(
     } else {
         None
     };
-    let render = config.render_settings()?;
+    let mut render = config.render_settings()?;
+    render.renderer.background = settings.step.renderer.background;
     let mut hooks = Hooks::default();
     if let Some(test) = &test {
         hooks.evaluate = Some(Box::new(move |field| {
@@ -111,4 +124,37 @@ pub fn train_nerf(
         render_nerf_gif(config, field, &gif, device)
     }));
     fit(&settings, &dataset, paths, limits, stop, hooks, device)
+}
+
+/// `renderer.background: auto` at training: photos with alpha are trained on a random colour
+/// per step (their own background stays the loader's, white or black); photos without are
+/// trained on the colour of the plain backdrop their borders show
+/// ([`crate::io::dataset::backdrop::backdrop_colour`]), else on black (a scene with no
+/// backdrop: what lies beyond is the contracted far field's). Says what it chose.
+fn choose_background(step: &mut StepSettings, dataset: &Dataset, data_dir: &Path) {
+    let has_alpha = dataset
+        .transparency
+        .iter()
+        .any(|t| t.iter().any(|&v| v > 0.0));
+    let (background, why) = if has_alpha {
+        step.random_background = true;
+        (
+            step.renderer.background,
+            "the photos have alpha: a random background colour per step".to_string(),
+        )
+    } else {
+        match backdrop_colour(&dataset.images) {
+            Some(c) => (c, "the photos' borders show a plain backdrop".to_string()),
+            None => (
+                BLACK,
+                "no plain backdrop in the photos' borders".to_string(),
+            ),
+        }
+    };
+    step.renderer.background = background;
+    crate::core::term::note(&format!(
+        "{}: background {} ({why}); stored in the checkpoint for eval, render and view",
+        data_dir.display(),
+        colour_name(background)
+    ));
 }

@@ -42,3 +42,13 @@ impl RgbImage {
         self.data.iter().map(|&v| to_byte(v)).collect()
     }
 }
+
+/// `white`, `black`, or `rgb(r, g, b)` in bytes: how a background colour (RGB in [0, 1]) is
+/// named in messages.
+pub fn colour_name(rgb: [f32; 3]) -> String {
+    match rgb {
+        [1.0, 1.0, 1.0] => "white".to_string(),
+        [0.0, 0.0, 0.0] => "black".to_string(),
+        [r, g, b] => format!("rgb({}, {}, {})", to_byte(r), to_byte(g), to_byte(b)),
+    }
+}

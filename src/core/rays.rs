@@ -40,9 +40,21 @@ pub struct Rays {
     pub origins: Tensor,
     /// `(N, 3)` f32 unit directions.
     pub directions: Tensor,
+    /// `(N,)` u32: the training camera (image) each ray comes from, for fields with parts
+    /// learnt per image (appearance); `None` for rays of any other camera.
+    pub camera_index: Option<Tensor>,
 }
 
 impl Rays {
+    /// Rays from `origins` and unit `directions`, both `(N, 3)`, of no training camera.
+    pub fn new(origins: Tensor, directions: Tensor) -> Self {
+        Self {
+            origins,
+            directions,
+            camera_index: None,
+        }
+    }
+
     /// Rays through the given NDC points.
     ///
     /// `ndc_points`: N points `(x, y)`; returns origins and directions of shape `(N, 3)`.
@@ -62,6 +74,7 @@ impl Rays {
         Ok(Self {
             origins: Tensor::from_vec(origins, (n, 3), device)?,
             directions: Tensor::from_vec(directions, (n, 3), device)?,
+            camera_index: None,
         })
     }
 
@@ -115,6 +128,7 @@ impl Rays {
         Ok(Self {
             origins: Tensor::from_vec(origins, (n, 3), device)?,
             directions: Tensor::from_vec(directions, (n, 3), device)?,
+            camera_index: None,
         })
     }
 
@@ -124,6 +138,7 @@ impl Rays {
         Ok(Self {
             origins: self.origins.to_dtype(dtype)?,
             directions: self.directions.to_dtype(dtype)?,
+            camera_index: self.camera_index.clone(),
         })
     }
 
@@ -142,6 +157,10 @@ impl Rays {
         Ok(Self {
             origins: self.origins.narrow(0, start, len)?,
             directions: self.directions.narrow(0, start, len)?,
+            camera_index: match &self.camera_index {
+                Some(c) => Some(c.narrow(0, start, len)?),
+                None => None,
+            },
         })
     }
 }

@@ -40,8 +40,8 @@ pub struct EvalReport {
     pub height: usize,
     /// Samples per ray.
     pub n_pts_per_ray: usize,
-    /// Whether prediction and ground truth were composited on white (else black).
-    pub white_background: bool,
+    /// The colour prediction and ground truth were composited on (RGB in [0, 1]).
+    pub background: [f32; 3],
     /// Mean seconds to render one view.
     pub seconds_per_view: f64,
     /// Fraction of drawn samples at which the field was evaluated (1 when dense).
@@ -70,7 +70,7 @@ impl EvalReport {
             self.width,
             self.height,
             self.n_pts_per_ray,
-            if self.white_background { "white" } else { "black" },
+            crate::core::image::colour_name(self.background),
             self.mean_psnr,
             self.min_psnr,
             self.max_psnr,
@@ -144,7 +144,7 @@ pub fn evaluate(
         width: size.0,
         height: size.1,
         n_pts_per_ray: pipeline.sampler.samples_per_ray(),
-        white_background: pipeline.renderer.white_background,
+        background: pipeline.renderer.background,
         seconds_per_view: render_seconds / n.max(1) as f64,
         evaluated_fraction: counts.evaluated_fraction(),
         mean_psnr: mean(&values),

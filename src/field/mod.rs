@@ -1,5 +1,6 @@
 //! The fields: SDF volumes, the NeRF MLP and the hash-grid (Instant-NGP-class) field.
 
+pub mod appearance;
 pub mod nerf;
 pub mod ngp;
 

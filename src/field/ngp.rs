@@ -23,6 +23,7 @@ use candle_core::{DType, Device, Tensor};
 use candle_nn::{Init, Linear, VarBuilder, VarMap};
 
 use crate::core::contraction::Contraction;
+use crate::field::appearance::{Appearance, AppearanceParams};
 use crate::field::nerf::linear;
 use crate::field::trainable::{
     linear_init_bound, named_vars, seed_uniform, BoxedField, DenseGroup, FieldSpec, ParamGroups,
@@ -64,6 +65,9 @@ pub struct NgpParams {
     pub density_activation: DensityActivation,
     /// How world points map into the space `aabb` is in (identity for a bounded scene).
     pub contraction: Contraction,
+    /// A vector learnt per training image, added into the colour MLP
+    /// ([`crate::field::appearance`]); `None`: no per-image appearance.
+    pub appearance: Option<AppearanceParams>,
 }
 
 impl NgpParams {
@@ -148,6 +152,7 @@ pub struct Ngp {
     table: Tensor,
     density: [Linear; 2],
     color: [Linear; 3],
+    appearance: Option<Appearance>,
     /// Where the fused encoding leaves the table's gradient, when training with the sparse
     /// optimiser ([`Ngp::with_table_gradient`]).
     gradient: Option<Arc<TableGradient>>,
@@ -177,6 +182,10 @@ impl Ngp {
                 new_linear(HIDDEN, HIDDEN, c.pp("2"))?,
                 new_linear(HIDDEN, 3, c.pp("4"))?,
             ],
+            appearance: match &params.appearance {
+                Some(a) => Appearance::new(a, HIDDEN, &vb)?,
+                None => None,
+            },
             gradient: None,
         })
     }
@@ -233,12 +242,16 @@ impl Ngp {
     }
 
     /// The per-ray part of the colour MLP's first layer: the SH of `directions` `(N, 3)` times
-    /// its direction columns, plus its bias: `(N, 64)`.
-    fn per_ray(&self, directions: &Tensor) -> Result<Tensor> {
+    /// its direction columns, plus its bias, plus the appearance term of each ray's training
+    /// image `camera_index` `(N,)` u32 (of the mean image without): `(N, 64)`.
+    fn per_ray(&self, directions: &Tensor, camera_index: Option<&Tensor>) -> Result<Tensor> {
         let w_sh = self.color[0].weight().narrow(1, GEO_FEATURES, SH_DIM)?;
         let mut per_ray = sh_encode(directions)?.matmul(&w_sh.t()?)?;
         if let Some(b) = self.color[0].bias() {
             per_ray = per_ray.broadcast_add(b)?;
+        }
+        if let Some(appearance) = &self.appearance {
+            per_ray = per_ray.broadcast_add(&appearance.per_ray(camera_index)?)?;
         }
         Ok(per_ray)
     }
@@ -287,13 +300,23 @@ impl Ngp {
     }
 
     /// Density `(N, S, 1)` and colour `(N, S, 3)` at `points` `(N, S, 3)` of rays with unit
-    /// `directions` `(N, 3)`.
-    pub fn forward(&self, points: &Tensor, directions: &Tensor) -> Result<FieldOutput> {
+    /// `directions` `(N, 3)` from training images `camera_index` `(N,)` u32 (`None`: rays of
+    /// no training image).
+    pub fn forward(
+        &self,
+        points: &Tensor,
+        directions: &Tensor,
+        camera_index: Option<&Tensor>,
+    ) -> Result<FieldOutput> {
         let (n, s, _) = points.dims3()?;
         let ray_index: Vec<u32> = (0..(n * s) as u32).map(|i| i / s as u32).collect();
         let ray_index = Tensor::from_vec(ray_index, n * s, points.device())?;
-        let (sigma, rgb) =
-            self.forward_packed(&points.reshape((n * s, 3))?, &ray_index, directions)?;
+        let (sigma, rgb) = self.forward_packed(
+            &points.reshape((n * s, 3))?,
+            &ray_index,
+            directions,
+            camera_index,
+        )?;
         Ok(FieldOutput {
             density: sigma.reshape((n, s, 1))?,
             feature: rgb.reshape((n, s, 3))?,
@@ -301,12 +324,14 @@ impl Ngp {
     }
 
     /// Density `(M, 1)` and colour `(M, 3)` at `points` `(M, 3)` drawn from N rays:
-    /// `ray_index` `(M,)` u32 names each sample's ray in `directions` `(N, 3)`.
+    /// `ray_index` `(M,)` u32 names each sample's ray in `directions` `(N, 3)` and, when
+    /// given, in `camera_index` `(N,)` u32 (the training image of each ray).
     pub fn forward_packed(
         &self,
         points: &Tensor,
         ray_index: &Tensor,
         directions: &Tensor,
+        camera_index: Option<&Tensor>,
     ) -> Result<(Tensor, Tensor)> {
         let (enc, inside) = self.encode(points)?;
         // The per-ray part only for the rays that have samples here (a segment of a skipping
@@ -322,11 +347,15 @@ impl Ngp {
                 .collect();
             let dev = directions.device();
             let n_used = used.len();
-            let directions = directions.index_select(&Tensor::from_vec(used, n_used, dev)?, 0)?;
+            let used = Tensor::from_vec(used, n_used, dev)?;
+            let directions = directions.index_select(&used, 0)?;
+            let cameras = camera_index.map(|c| c.index_select(&used, 0)).transpose()?;
             let local_t = Tensor::from_vec(local.clone(), rays.len(), dev)?;
-            self.mlps(&enc, &self.per_ray(&directions)?, (&local_t, &local))?
+            let per_ray = self.per_ray(&directions, cameras.as_ref())?;
+            self.mlps(&enc, &per_ray, (&local_t, &local))?
         } else {
-            self.mlps(&enc, &self.per_ray(directions)?, (ray_index, &rays))?
+            let per_ray = self.per_ray(directions, camera_index)?;
+            self.mlps(&enc, &per_ray, (ray_index, &rays))?
         };
         let sigma = self.activate(&out.narrow(1, 0, 1)?, &inside)?;
         Ok((sigma, out.narrow(1, 1, 3)?.contiguous()?))
@@ -345,6 +374,7 @@ impl Ngp {
             table: self.table.detach(),
             density: self.density.clone().map(|l| detach(&l)),
             color: self.color.clone().map(|l| detach(&l)),
+            appearance: self.appearance.as_ref().map(Appearance::detached),
             gradient: None,
         }
     }
@@ -357,6 +387,9 @@ pub struct NgpField {
     pub model: Ngp,
     /// The occupancy grid used to skip empty space, if any.
     pub occupancy: Option<Arc<OccupancyGrid>>,
+    /// `(N,)` u32: the training image of each ray of the batch this field renders
+    /// ([`Field::for_cameras`]); `None`: rays of no training image.
+    pub camera_index: Option<Tensor>,
 }
 
 impl Field for NgpField {
@@ -366,7 +399,8 @@ impl Field for NgpField {
         _deltas: &Tensor,
         directions: &Tensor,
     ) -> Result<FieldOutput> {
-        self.model.forward(&samples.points, directions)
+        self.model
+            .forward(&samples.points, directions, self.camera_index.as_ref())
     }
 
     fn supports_packed(&self) -> bool {
@@ -379,7 +413,18 @@ impl Field for NgpField {
         ray_index: &Tensor,
         directions: &Tensor,
     ) -> Result<(Tensor, Tensor)> {
-        self.model.forward_packed(points, ray_index, directions)
+        self.model
+            .forward_packed(points, ray_index, directions, self.camera_index.as_ref())
+    }
+
+    fn for_cameras(&self, camera_index: &Tensor) -> Result<Option<Box<dyn Field + '_>>> {
+        if self.model.appearance.is_none() {
+            return Ok(None);
+        }
+        Ok(Some(Box::new(NgpField {
+            camera_index: Some(camera_index.clone()),
+            ..self.clone()
+        })))
     }
 
     fn occupancy(&self) -> Option<&OccupancyGrid> {
@@ -415,6 +460,7 @@ impl NgpState {
             .with_table_gradient(gradient.clone());
         let bound = |name: &str, shapes: &_| match name {
             TABLE => 1e-4,
+            crate::field::appearance::EMBEDDING => crate::field::appearance::EMBEDDING_INIT,
             _ => linear_init_bound(name, shapes),
         };
         seed_uniform(&varmap, seed, bound, device)?;
@@ -433,6 +479,14 @@ impl FieldSpec for NgpParams {
 
     fn seeded(&self, seed: u64, device: &Device) -> Result<Box<dyn TrainableField>> {
         Ok(Box::new(NgpState::seeded(self, seed, device)?))
+    }
+
+    fn for_training_images(&self, images: usize) -> Option<Arc<dyn FieldSpec>> {
+        let dim = self.appearance?.dim;
+        Some(Arc::new(NgpParams {
+            appearance: Some(AppearanceParams { dim, images }),
+            ..self.clone()
+        }))
     }
 }
 
@@ -453,6 +507,7 @@ impl TrainableField for NgpState {
         Box::new(NgpField {
             model: self.model.clone(),
             occupancy,
+            camera_index: None,
         })
     }
 
@@ -460,6 +515,7 @@ impl TrainableField for NgpState {
         Box::new(NgpField {
             model: self.model.detached(),
             occupancy,
+            camera_index: None,
         })
     }
 
@@ -521,6 +577,7 @@ mod tests {
             aabb: [[-1.5; 3], [1.5; 3]],
             density_activation: DensityActivation::TruncExp,
             contraction: Contraction::None,
+            appearance: None,
         }
     }
 
@@ -580,12 +637,14 @@ mod tests {
         let dirs = Tensor::randn(0f32, 1.0, (5, 3), &dev).unwrap();
         let dirs = dirs.broadcast_div(&dirs.sqr().unwrap().sum_keepdim(1).unwrap().sqrt().unwrap());
         let dirs = dirs.unwrap();
-        let out = model.forward(&points, &dirs).unwrap();
+        let out = model.forward(&points, &dirs, None).unwrap();
         assert_eq!(out.density.dims(), &[5, 7, 1]);
         assert_eq!(out.feature.dims(), &[5, 7, 3]);
         let flat = points.reshape((35, 3)).unwrap();
         let ray_index = Tensor::from_vec((0..35u32).map(|i| i / 7).collect(), 35, &dev).unwrap();
-        let (sigma, colour) = model.forward_packed(&flat, &ray_index, &dirs).unwrap();
+        let (sigma, colour) = model
+            .forward_packed(&flat, &ray_index, &dirs, None)
+            .unwrap();
         let diff = |a: &Tensor, b: &Tensor| {
             crate::core::compare::max_abs_difference(
                 &a.flatten_all().unwrap(),
@@ -608,6 +667,58 @@ mod tests {
         let names: Vec<String> = varmap.data().lock().unwrap().keys().cloned().collect();
         assert_eq!(names.len(), 1 + 2 * 5, "{names:?}");
         assert!(names.contains(&"encoding.table".to_string()));
+    }
+
+    #[test]
+    fn appearance_moves_colour_per_image_and_trains() {
+        let varmap = VarMap::new();
+        let dev = Device::Cpu;
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
+        let params = NgpParams {
+            appearance: Some(AppearanceParams { dim: 4, images: 3 }),
+            ..small()
+        };
+        let model = Ngp::new(&params, vb).unwrap();
+        let points = Tensor::rand(-1f32, 1.0, (6, 3), &dev).unwrap();
+        let ray_index = Tensor::new(&[0u32, 0, 1, 1, 2, 2], &dev).unwrap();
+        let dirs = Tensor::new(&[[0f32, 0.0, 1.0]; 3], &dev).unwrap();
+        let colour = |cameras: &[u32]| {
+            let c = Tensor::new(cameras, &dev).unwrap();
+            model
+                .forward_packed(&points, &ray_index, &dirs, Some(&c))
+                .unwrap()
+                .1
+        };
+        // The same points seen from other images get other colours; density is untouched.
+        let a = colour(&[0, 0, 0])
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        let b = colour(&[1, 2, 0])
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        assert_eq!(a[12..], b[12..], "rays 2 (image 0 both times) agree");
+        assert!(a[..12].iter().zip(&b[..12]).any(|(x, y)| x != y));
+        // Rays of no image take the mean vector's term, one row for all of them.
+        let (_, mean) = model
+            .forward_packed(&points, &ray_index, &dirs, None)
+            .unwrap();
+        let app = model.appearance.as_ref().unwrap();
+        let term = app.per_ray(None).unwrap();
+        assert_eq!(term.dims(), &[1, HIDDEN]);
+        assert_eq!(mean.dims(), &[6, 3]);
+        // The loss reaches the per-image vectors, only those of the images in the batch.
+        let loss = colour(&[0, 2, 2]).sum_all().unwrap();
+        let grads = loss.backward().unwrap();
+        let vars = varmap.data().lock().unwrap();
+        let e = vars.get(crate::field::appearance::EMBEDDING).unwrap();
+        let g = grads.get(e.as_tensor()).unwrap().to_vec2::<f32>().unwrap();
+        let size = |row: &[f32]| row.iter().map(|v| v.abs()).sum::<f32>();
+        assert!(size(&g[0]) > 0.0 && size(&g[2]) > 0.0);
+        assert_eq!(size(&g[1]), 0.0);
     }
 
     #[test]

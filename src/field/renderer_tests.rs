@@ -39,6 +39,7 @@ fn scene() -> (SdfField, Rays) {
     let rays = Rays {
         origins: Tensor::from_vec(origins, (64, 3), &Device::Cpu).unwrap(),
         directions: Tensor::from_vec(directions, (64, 3), &Device::Cpu).unwrap(),
+        camera_index: None,
     };
     (field, rays)
 }

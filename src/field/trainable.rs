@@ -38,6 +38,13 @@ pub trait FieldSpec: std::fmt::Debug + Send + Sync {
     /// A freshly initialised model, reproducible from `seed`.
     fn seeded(&self, seed: u64, device: &Device) -> Result<Box<dyn TrainableField>>;
 
+    /// The same sizes with parameters for `images` training images (the training set's
+    /// size, or the rows of the per-image table a checkpoint holds); `None` (the default)
+    /// for a kind without per-image parameters.
+    fn for_training_images(&self, _images: usize) -> Option<Arc<dyn FieldSpec>> {
+        None
+    }
+
     /// Every parameter's name and shape in checkpoint order (what a checkpoint of this model
     /// must hold). The default makes a model on the CPU and asks it.
     fn parameter_shapes(&self) -> Result<ParameterShapes> {

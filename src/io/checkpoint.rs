@@ -30,6 +30,15 @@ pub const CAPTURE_ORBIT_KEY: &str = "capture_orbit";
 /// capture's model from, instead of its orbit.
 pub const CAPTURE_SPIRAL_KEY: &str = "capture_spiral";
 
+/// The metadata key of the background colour a model was trained on (`r g b` in [0, 1]).
+pub const BACKGROUND_KEY: &str = "background";
+
+/// The metadata key of the image size a model was trained at (`width height`).
+pub const IMAGE_SIZE_KEY: &str = "image_size";
+
+/// The largest side a stored training image size may have.
+pub const MAX_STORED_SIDE: usize = 1 << 16;
+
 /// What a checkpoint holds besides tensors.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct CheckpointInfo {
@@ -59,6 +68,12 @@ pub struct CheckpointInfo {
     /// default to instead of the orbit (`None` for other scenes, or a checkpoint written
     /// before spirals were stored).
     pub capture_spiral: Option<CaptureSpiral>,
+    /// The colour training composited onto (`None` in a checkpoint written before it was
+    /// stored): what `renderer.background: auto` renders on.
+    pub background: Option<[f32; 3]>,
+    /// The training images' size (`None` in a checkpoint written before it was stored): what
+    /// renders of a config without `data.image_size` take.
+    pub image_size: Option<(usize, usize)>,
 }
 
 /// The largest counts a checkpoint's metadata may hold: far past any real run, and small
@@ -156,6 +171,12 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     if let Some(s) = &info.capture_spiral {
         metadata.insert(CAPTURE_SPIRAL_KEY.to_string(), s.to_text());
     }
+    if let Some([r, g, b]) = info.background {
+        metadata.insert(BACKGROUND_KEY.to_string(), format!("{r} {g} {b}"));
+    }
+    if let Some((w, h)) = info.image_size {
+        metadata.insert(IMAGE_SIZE_KEY.to_string(), format!("{w} {h}"));
+    }
     let bytes = safetensors::serialize(views, Some(metadata))?;
     if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
@@ -209,6 +230,8 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
         scene_transform: scene_transform_of(&meta, path)?,
         capture_orbit: capture_orbit_of(&meta, path)?,
         capture_spiral: capture_spiral_of(&meta, path)?,
+        background: background_of(&meta, path)?,
+        image_size: image_size_of(&meta, path)?,
     };
     info.validate(path)?;
     let mut tensors = HashMap::new();
@@ -340,6 +363,41 @@ pub fn capture_spiral_of(
 
 /// The metadata entry `key` of the checkpoint at `path` parsed as a `T`, its default (0)
 /// when absent; an error naming the key when it does not parse.
+/// The stored background colour (three numbers in [0, 1]), if any.
+pub fn background_of(meta: &HashMap<String, String>, path: &Path) -> Result<Option<[f32; 3]>> {
+    parsed_metadata(meta, BACKGROUND_KEY, path, |text| {
+        let v: Vec<f32> = text
+            .split_whitespace()
+            .map(|t| t.parse::<f32>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|_| anyhow::anyhow!("expected three numbers in [0, 1]"))?;
+        match v[..] {
+            [r, g, b] if v.iter().all(|c| (0.0..=1.0).contains(c)) => Ok([r, g, b]),
+            _ => bail!("expected three numbers in [0, 1]"),
+        }
+    })
+}
+
+/// The stored training image size (two whole numbers, 1 to [`MAX_STORED_SIDE`]), if any.
+pub fn image_size_of(
+    meta: &HashMap<String, String>,
+    path: &Path,
+) -> Result<Option<(usize, usize)>> {
+    parsed_metadata(meta, IMAGE_SIZE_KEY, path, |text| {
+        let v: Vec<usize> = text
+            .split_whitespace()
+            .map(|t| t.parse::<usize>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|_| anyhow::anyhow!("expected a width and a height"))?;
+        match v[..] {
+            [w, h] if (1..=MAX_STORED_SIDE).contains(&w) && (1..=MAX_STORED_SIDE).contains(&h) => {
+                Ok((w, h))
+            }
+            _ => bail!("expected a width and a height, each 1 to {MAX_STORED_SIDE}"),
+        }
+    })
+}
+
 fn metadata_value<T: std::str::FromStr + Default>(
     meta: &HashMap<String, String>,
     key: &str,
@@ -371,6 +429,8 @@ mod tests {
         let info = CheckpointInfo {
             epoch: 3,
             scene_transform: Some(transform),
+            background: Some([0.25, 1.0, 0.0]),
+            image_size: Some((640, 360)),
             ..CheckpointInfo::default()
         };
         save(&path, &[("w".to_string(), w.clone())], info).unwrap();

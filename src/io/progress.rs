@@ -33,7 +33,7 @@ pub struct Progress {
     #[cfg(not(feature = "cli"))]
     counts: std::sync::Arc<std::sync::atomic::AtomicU64>,
     #[cfg(not(feature = "cli"))]
-    len: u64,
+    len: std::sync::Arc<std::sync::atomic::AtomicU64>,
     /// Plain lines when no bar is drawn (only for [`progress_bar`]).
     plain: Option<Arc<PlainLines>>,
 }
@@ -59,7 +59,7 @@ impl Progress {
             let _ = what;
             Self {
                 counts: Default::default(),
-                len,
+                len: std::sync::Arc::new(len.into()),
                 plain: None,
             }
         }
@@ -115,6 +115,15 @@ impl Progress {
         }
     }
 
+    /// Sets the steps in all (a run whose length is known only as it goes: one that trains
+    /// for a time).
+    pub fn set_length(&self, len: u64) {
+        #[cfg(feature = "cli")]
+        self.bar.set_length(len);
+        #[cfg(not(feature = "cli"))]
+        self.len.store(len, std::sync::atomic::Ordering::Relaxed);
+    }
+
     /// Steps done so far.
     pub fn position(&self) -> u64 {
         #[cfg(feature = "cli")]
@@ -135,7 +144,7 @@ impl Progress {
         }
         #[cfg(not(feature = "cli"))]
         {
-            self.len
+            self.len.load(std::sync::atomic::Ordering::Relaxed)
         }
     }
 

@@ -35,7 +35,7 @@ pub fn depth_points(
     camera.validate()?;
     // On black, so that dividing by the opacity recovers the colour.
     let black = VolumeRenderer {
-        white_background: false,
+        background: crate::render::renderer::BLACK,
         ..*pipeline.renderer
     };
     let black = Pipeline {

@@ -239,6 +239,7 @@ mod tests {
         let rays64 = Rays {
             origins: rays.origins.to_dtype(DType::F64).unwrap(),
             directions: rays.directions.to_dtype(DType::F64).unwrap(),
+            camera_index: None,
         };
         let z64 = s.compact_lengths(&rays64, None).unwrap();
         assert_eq!(z64.dtype(), DType::F64);

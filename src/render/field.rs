@@ -70,6 +70,13 @@ pub trait Field {
         anyhow::bail!("this field is evaluated densely only (no packed evaluation)")
     }
 
+    /// The same field for rays of the training cameras `camera_index` `(N,)` u32 (one per
+    /// ray of the batch it will see), for a field with parts learnt per training image
+    /// (appearance); `None` (the default) when it has none, and the field is used as it is.
+    fn for_cameras(&self, _camera_index: &Tensor) -> Result<Option<Box<dyn Field + '_>>> {
+        Ok(None)
+    }
+
     /// Where the field can have density, when it keeps an occupancy grid (samples elsewhere
     /// are skipped when the field supports [`Field::evaluate_packed`]).
     fn occupancy(&self) -> Option<&OccupancyGrid> {

@@ -22,6 +22,11 @@ use crate::render::skipping::SampleCounts;
 /// march state and, at worst, evaluated values, well under 1 GiB).
 pub const DRAWN_SAMPLES_PER_CHUNK: usize = 1 << 23;
 
+/// A white background.
+pub const WHITE: [f32; 3] = [1.0; 3];
+/// A black background (the homework's default).
+pub const BLACK: [f32; 3] = [0.0; 3];
+
 /// What the renderer produces for a batch of N rays.
 #[derive(Debug, Clone)]
 pub struct RenderOutput {
@@ -40,8 +45,9 @@ pub struct RenderOutput {
 pub struct VolumeRenderer {
     /// Rays rendered per chunk (the homework's `renderer.chunk_size`, at least 1).
     pub chunk_size: usize,
-    /// Composite onto white (`colour + 1 − opacity`) instead of black.
-    pub white_background: bool,
+    /// The colour behind the scene: each ray's colour is `colour + (1 − opacity) · background`
+    /// (black `[0, 0, 0]` adds nothing).
+    pub background: [f32; 3],
     /// Transmittance below which a ray stops being evaluated (0 = off); see
     /// [`crate::render::skipping`]. Applies to NeRF fields.
     pub early_termination: f64,
@@ -56,9 +62,20 @@ impl VolumeRenderer {
         }
         Ok(Self {
             chunk_size,
-            white_background,
+            background: if white_background { WHITE } else { BLACK },
             early_termination: 0.0,
         })
+    }
+
+    /// The same renderer compositing onto `background` (RGB in [0, 1]).
+    pub fn with_background(mut self, background: [f32; 3]) -> Self {
+        self.background = background;
+        self
+    }
+
+    /// Whether the background is white.
+    pub fn is_white(&self) -> bool {
+        self.background == WHITE
     }
 
     /// The same renderer with early ray termination at transmittance `threshold` (0 = off).
@@ -87,6 +104,11 @@ impl VolumeRenderer {
         rays: &Rays,
         jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<RenderOutput> {
+        let per_camera = match &rays.camera_index {
+            Some(index) => field.for_cameras(index)?,
+            None => None,
+        };
+        let field = per_camera.as_deref().unwrap_or(field);
         if sampler.refines() {
             return self.render_refined(field, sampler, rays, jitter);
         }
@@ -147,15 +169,16 @@ impl VolumeRenderer {
         )
     }
 
-    /// The output, composited onto white (`colour + 1 − opacity`) with `white_background`.
+    /// The output, composited onto the background (`colour + (1 − opacity) · background`).
     fn finish(&self, composited: Composited, samples: SampleCounts) -> Result<RenderOutput> {
         let Composited {
             mut color,
             depth,
             opacity,
         } = composited;
-        if self.white_background {
-            color = color.add(&opacity.affine(-1.0, 1.0)?.broadcast_as(color.shape())?)?;
+        if self.background != BLACK {
+            let b = Tensor::new(&[self.background], color.device())?.to_dtype(color.dtype())?;
+            color = color.add(&opacity.affine(-1.0, 1.0)?.broadcast_mul(&b)?)?;
         }
         Ok(RenderOutput {
             color,

@@ -88,7 +88,7 @@ pub fn surface_colors(
     let sampler = StratifiedSampler::new(n_samples, 0.0, 2.0 * offset as f64)?;
     // On black, so that dividing by the opacity recovers the surface colour.
     let black = VolumeRenderer {
-        white_background: false,
+        background: crate::render::renderer::BLACK,
         ..*renderer
     };
     let band = black.rays_per_band(field, &sampler, band);
@@ -105,6 +105,7 @@ pub fn surface_colors(
         let rays = Rays {
             origins: Tensor::from_vec(origins, (n, 3), device)?,
             directions: Tensor::from_vec(directions, (n, 3), device)?,
+            camera_index: None,
         };
         let out = black.render(field, &sampler, &rays, None)?;
         let color = out.color.flatten_all()?.to_vec1::<f32>()?;

@@ -83,6 +83,15 @@ pub struct TrainSettings {
     pub samples_per_step: Option<usize>,
     /// The most rays an adapted step may take (each draws all its samples before skipping).
     pub max_rays: usize,
+    /// Follow the time budget ([`time_learning_rate`]): with a time limit the run ignores
+    /// `num_epochs` and decays the learning rate over the time; without, over the epochs.
+    pub time_schedule: bool,
+}
+
+/// The learning rate after `progress` (0 to 1, clamped) of a run that follows its time budget:
+/// `lr · gamma^progress`, from `lr` at the start to `lr · gamma` at the end.
+pub fn time_learning_rate(lr: f64, gamma: f64, progress: f64) -> f64 {
+    lr * gamma.powf(progress.clamp(0.0, 1.0))
 }
 
 /// The rays of the next step when each step should evaluate about `target` samples and the
@@ -440,6 +449,25 @@ impl Run<'_> {
     /// One training step on image `image`: grid update, Adam step, log line, progress.
     fn step(&mut self, epoch: usize, image: usize, rng: &mut TrainRng) -> Result<f64> {
         self.update_grid(rng)?;
+        if self.settings.time_schedule {
+            let s = self.settings;
+            let progress = match self.seconds {
+                Some(limit) => (self.wall() - self.wall_offset) / limit.max(1e-9),
+                None => {
+                    let done = self.adam.step_count() as f64 / self.dataset.images.len() as f64;
+                    done / s.num_epochs.max(1) as f64
+                }
+            };
+            self.adam
+                .set_lr(time_learning_rate(s.lr, s.lr_scheduler_gamma, progress));
+            if let Some(limit) = self.seconds {
+                // Steps so far plus those the time left holds at the pace so far.
+                let done = self.bar.position().max(1);
+                let spent = (self.wall() - self.wall_offset).max(1e-9);
+                let left = (limit - spent).max(0.0) * done as f64 / spent;
+                self.bar.set_length(done + left.round() as u64);
+            }
+        }
         let mut step_settings = self.settings.step.clone();
         step_settings.batch_size = self.rays;
         let (loss, samples) = train_step(
@@ -534,6 +562,8 @@ impl Run<'_> {
             scene_transform: self.scene_transform(),
             capture_orbit: self.capture_orbit(),
             capture_spiral: self.capture_spiral(),
+            background: Some(self.settings.step.renderer.background),
+            image_size: Some((self.dataset.width, self.dataset.height)),
             ..CheckpointInfo::default()
         };
         if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
@@ -618,7 +648,14 @@ pub fn fit(
 ) -> Result<FitOutcome> {
     crate::core::allocator::ensure_allocator_tuned();
     let (state, adam, info) = start_or_resume(settings, paths, dataset.images.len(), device)?;
-    if info.epoch >= settings.num_epochs {
+    // A run that follows its time budget trains for its time whatever num_epochs says
+    // (up to the most epochs a checkpoint may record).
+    let timed = settings.time_schedule && limits.seconds.is_some();
+    let num_epochs = match timed {
+        true => checkpoint::metadata_limits::EPOCHS as usize,
+        false => settings.num_epochs,
+    };
+    if info.epoch >= num_epochs {
         // A run killed while rewriting its final checkpoint leaves a temporary file; nothing
         // else will clean it up here.
         remove_stale_temp_files(&paths.checkpoint);
@@ -627,7 +664,7 @@ pub fn fit(
         return Ok(FitOutcome::Finished(info));
     }
     let log = prepare_outputs(settings, paths, info.adam_step)?;
-    let remaining = settings.num_epochs - info.epoch;
+    let remaining = num_epochs - info.epoch;
     let planned = limits.epochs.map_or(remaining, |s| s.min(remaining));
     let n_images = dataset.images.len();
     let mut run = Run {
@@ -641,8 +678,12 @@ pub fn fit(
         log,
         pending: Vec::new(),
         // Its own plain lines (step, loss, time left), not the bar's.
+        // A timed run's length is re-estimated as it goes.
         bar: crate::io::progress::Progress::new(
-            (planned * n_images - info.step_in_epoch) as u64,
+            match timed {
+                true => n_images as u64,
+                false => (planned * n_images - info.step_in_epoch) as u64,
+            },
             "training",
         ),
         start: Instant::now(),
@@ -676,6 +717,8 @@ pub fn fit(
                 scene_transform: run.scene_transform(),
                 capture_orbit: run.capture_orbit(),
                 capture_spiral: run.capture_spiral(),
+                background: Some(run.settings.step.renderer.background),
+                image_size: Some((run.dataset.width, run.dataset.height)),
             };
             run.checkpoint()?;
             run.bar.finish_and_clear();

@@ -88,7 +88,7 @@ pub fn batch_loss(
     target: &Tensor,
 ) -> Result<Tensor> {
     let lengths = settings.sampler.lengths(rays, None)?;
-    let white = settings.renderer.white_background;
+    let white = settings.renderer.is_white();
     if let Some(loss) = model.fused_mse(rays, &lengths, target, white)? {
         return Ok(loss);
     }

@@ -65,9 +65,17 @@ impl TrainModel {
         path: &Path,
         device: &Device,
     ) -> Result<LoadedCheckpoint> {
-        let field = spec.seeded(0, device)?;
-        let expected = field.parameter_shapes();
+        let mut field = spec.seeded(0, device)?;
+        let mut expected = field.parameter_shapes();
         let (tensors, info) = checkpoint_file::load(path, &expected, device)?;
+        // Per-image parameters are sized by the images the checkpoint was trained on.
+        let images = tensors
+            .get(crate::field::appearance::EMBEDDING)
+            .and_then(|t| t.dims().first().copied());
+        if let Some(sized) = images.and_then(|n| spec.for_training_images(n)) {
+            field = sized.seeded(0, device)?;
+            expected = field.parameter_shapes();
+        }
         crate::field::trainable::load_parameters(
             field.varmap(),
             &expected,

@@ -28,7 +28,7 @@ pub fn logged_psnr(mse: f64) -> f64 {
     psnr_from_mse(mse.max(1e-12))
 }
 
-/// A training batch: rays `(B, 3)`, their target colours `(B, 3)` on the dataset's
+/// A training batch: rays `(B, 3)` (each with the index of its image as its camera), their target colours `(B, 3)` on the dataset's
 /// background, and their transparencies `(B, 1)` (`1 − alpha`; zeros when the dataset has
 /// none). With
 /// `rays_from_all_images`, `batch_size` random pixels of random training images; otherwise
@@ -83,12 +83,14 @@ pub fn training_batch(
     };
     let mut origins = Vec::with_capacity(groups.len());
     let mut directions = Vec::with_capacity(groups.len());
+    let mut camera_index: Vec<u32> = Vec::with_capacity(batch_size);
     let mut target: Vec<f32> = Vec::with_capacity(3 * batch_size);
     let mut transparency: Vec<f32> = Vec::with_capacity(batch_size);
     for (image, pixels) in &groups {
         let rays = Rays::for_pixels(&dataset.frames[*image].camera, w, h, pixels, device)?;
         origins.push(rays.origins);
         directions.push(rays.directions);
+        camera_index.extend(std::iter::repeat_n(*image as u32, pixels.len()));
         let data = &dataset.images[*image].data;
         target.extend(
             pixels
@@ -107,6 +109,7 @@ pub fn training_batch(
         Rays {
             origins: Tensor::cat(&origins, 0)?,
             directions: Tensor::cat(&directions, 0)?,
+            camera_index: Some(Tensor::from_vec(camera_index, n, device)?),
         },
         Tensor::from_vec(target, (n, 3), device)?,
         Tensor::from_vec(transparency, (n, 1), device)?,
@@ -183,9 +186,9 @@ pub fn train_step(
         let n = rays.len();
         let b: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>()).collect();
         let b = Tensor::from_vec(b, (n, 3), device)?;
-        let dataset_bg = if renderer.white_background { 1.0 } else { 0.0 };
-        target = target.add(&transparency.broadcast_mul(&b.affine(1.0, -dataset_bg)?)?)?;
-        renderer.white_background = false;
+        let dataset_bg = Tensor::new(&[renderer.background], device)?;
+        target = target.add(&transparency.broadcast_mul(&b.broadcast_sub(&dataset_bg)?)?)?;
+        renderer.background = crate::render::renderer::BLACK;
         Some(b)
     } else {
         None

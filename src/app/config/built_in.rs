@@ -44,8 +44,13 @@ const BUILT_IN: &[(&str, &str)] = &[
         include_str!("../../../configs/nerf_scene.yaml"),
     ),
     (
+        "nerf_scene_bounded",
+        include_str!("../../../configs/nerf_scene_bounded.yaml"),
+    ),
+    // The name nerf_scene had while a bounded config held the other; kept for old commands.
+    (
         "nerf_scene_unbounded",
-        include_str!("../../../configs/nerf_scene_unbounded.yaml"),
+        include_str!("../../../configs/nerf_scene.yaml"),
     ),
 ];
 

@@ -16,6 +16,7 @@ use super::implicit_function::{
 use super::messages::plural;
 use super::Config;
 use crate::core::sdf::{Sdf, SdfVolume};
+use crate::field::appearance::AppearanceParams;
 use crate::field::nerf::NerfParams;
 use crate::field::ngp::NgpParams;
 use crate::field::sdf::{SdfField, SdfModel, SdfTrainable};
@@ -59,6 +60,12 @@ impl NgpConfig {
             aabb: self.aabb,
             density_activation,
             contraction: self.contraction.0,
+            // The number of images is the training set's, known when it is loaded
+            // (FieldSpec::for_training_images) or read from a checkpoint.
+            appearance: (self.appearance_dim > 0).then_some(AppearanceParams {
+                dim: self.appearance_dim,
+                images: 0,
+            }),
         };
         params.validate()?;
         Ok(params)
@@ -311,7 +318,7 @@ mod tests {
         let points = candle_core::Tensor::rand(-1.4f32, 1.4, (50, 3), &dev).unwrap();
         let dirs = candle_core::Tensor::new(&[[0f32, 0.6, 0.8]], &dev).unwrap();
         let rays = candle_core::Tensor::zeros(50, candle_core::DType::U32, &dev).unwrap();
-        let (s0, c0) = model.forward_packed(&points, &rays, &dirs).unwrap();
+        let (s0, c0) = model.forward_packed(&points, &rays, &dirs, None).unwrap();
         let (s1, c1) = field.evaluate_packed(&points, &rays, &dirs).unwrap();
         let diff = crate::core::compare::max_abs_difference;
         assert_eq!(diff(&s0, &s1).unwrap() + diff(&c0, &c1).unwrap(), 0.0);

@@ -219,6 +219,10 @@ pub struct NgpConfig {
     /// [`crate::core::contraction`]).
     #[serde(default)]
     pub contraction: ContractionName,
+    /// Length of the appearance embedding learnt per training image (`appearance_dim`,
+    /// default 0 = none; see [`crate::field::appearance`]).
+    #[serde(default)]
+    pub appearance_dim: usize,
 }
 
 /// `implicit_function.contraction` of an `ngp` field.

@@ -36,14 +36,16 @@ use messages::{blame, from_value, one_line};
 pub use built_in::config_text;
 pub use cameras::CamerasConfig;
 pub use checkpoint_paths::{HOMEWORK_CHECKPOINT, SHIPPED_CHECKPOINT, SHIPPED_NGP_CHECKPOINT};
-pub use data::{DataCameraConfig, DataCameras, DataConfig};
+pub use data::{
+    photo_scale_factor, DataCameraConfig, DataCameras, DataConfig, SizeUse, DEFAULT_PIXEL_BUDGET,
+};
 pub use implicit_function::{
     DensityActivationName, FeatureConfig, ImplicitFunctionConfig, ImplicitFunctionKind, NerfConfig,
     NgpConfig, Param, SdfKind, SdfShapeConfig, SdfVolumeConfig,
 };
 pub use messages::{in_user_words, plural};
 pub use overrides::apply_override;
-pub use renderer::{OccupancyGridConfig, RendererConfig, RendererKind};
+pub use renderer::{BackgroundConfig, OccupancyGridConfig, RendererConfig, RendererKind};
 pub use sampler::{SamplerConfig, SamplerKind};
 pub use training::TrainingConfig;
 

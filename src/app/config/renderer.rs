@@ -8,7 +8,7 @@ use super::sampler::SamplerConfig;
 use super::Config;
 use crate::core::contraction::Contraction;
 use crate::render::occupancy::{density_threshold, OccupancyGridParams};
-use crate::render::renderer::VolumeRenderer;
+use crate::render::renderer::{VolumeRenderer, BLACK, WHITE};
 use crate::render::view::RenderSettings;
 use crate::train::fit::GridSchedule;
 
@@ -24,12 +24,54 @@ pub struct RendererConfig {
     /// Composite onto white instead of black (`renderer.white_background`, default false).
     #[serde(default)]
     pub white_background: bool,
+    /// Extension, `renderer.background`: `auto`, `white`, `black` or `[r, g, b]` (in [0, 1]);
+    /// when given it decides the background instead of `white_background`
+    /// ([`BackgroundConfig`]).
+    #[serde(default)]
+    pub background: Option<BackgroundConfig>,
     /// Extension: stop marching a ray once its transmittance falls below this (0 = off, the
     /// homework's dense rendering). Needs a NeRF field.
     #[serde(default)]
     pub early_termination: f64,
     /// Extension: skip samples in empty cells of an occupancy grid (NeRF fields).
     pub occupancy_grid: Option<OccupancyGridConfig>,
+}
+
+/// `renderer.background` (extension): the colour behind the scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum BackgroundConfig {
+    /// `auto`: training picks it from the photos (a random colour per step when they have
+    /// alpha, stored as white; else the colour of a plain backdrop their borders show, else
+    /// black) and stores it in the checkpoint, where eval, render and view read it.
+    Auto,
+    /// A colour, RGB in [0, 1] (`white`, `black` or `[r, g, b]`).
+    Colour([f32; 3]),
+}
+
+impl<'de> Deserialize<'de> for BackgroundConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Name(String),
+            Rgb([f32; 3]),
+        }
+        let bad = || {
+            serde::de::Error::custom(
+                "expected auto, white, black or [r, g, b] with each value in [0, 1]",
+            )
+        };
+        match Raw::deserialize(d).map_err(|_| bad())? {
+            Raw::Name(n) => match n.to_ascii_lowercase().as_str() {
+                "auto" => Ok(Self::Auto),
+                "white" => Ok(Self::Colour(WHITE)),
+                "black" => Ok(Self::Colour(BLACK)),
+                _ => Err(bad()),
+            },
+            Raw::Rgb(c) if c.iter().all(|v| (0.0..=1.0).contains(v)) => Ok(Self::Colour(c)),
+            Raw::Rgb(_) => Err(bad()),
+        }
+    }
 }
 
 /// `renderer.type`: the homework's one renderer.
@@ -102,8 +144,18 @@ impl RendererConfig {
     /// The renderer: chunk size, background, early termination (the occupancy grid belongs to
     /// the field; see [`OccupancyGridConfig::params`]).
     pub fn renderer(&self) -> Result<VolumeRenderer> {
-        VolumeRenderer::new(self.chunk_size, self.white_background)?
-            .with_early_termination(self.early_termination)
+        let renderer = VolumeRenderer::new(self.chunk_size, self.white_background)?
+            .with_early_termination(self.early_termination)?;
+        Ok(match self.background {
+            Some(BackgroundConfig::Colour(c)) => renderer.with_background(c),
+            // Until training or a checkpoint decides it: `white_background`.
+            Some(BackgroundConfig::Auto) | None => renderer,
+        })
+    }
+
+    /// Whether the background is chosen from the photos and stored (`background: auto`).
+    pub fn background_is_auto(&self) -> bool {
+        self.background == Some(BackgroundConfig::Auto)
     }
 }
 

@@ -53,6 +53,23 @@ pub struct TrainingConfig {
     /// (instant-ngp's scheme: many rays once the occupancy grid and early termination leave
     /// few samples per ray); `batch_size` is then the first step's rays. Unset: fixed.
     pub samples_per_step: Option<usize>,
+    /// Extension, `training.schedule`: `epochs` (the homework's: `num_epochs`, the learning
+    /// rate decayed by `lr_scheduler_gamma` every `lr_scheduler_step_size` epochs) or `time`
+    /// (with `--minutes` the run trains for that time whatever `num_epochs` says, and the
+    /// learning rate falls smoothly from `lr` to `lr · lr_scheduler_gamma` over the time;
+    /// without, over the `num_epochs`).
+    pub schedule: Schedule,
+}
+
+/// `training.schedule` (extension): what the run's length and learning-rate decay follow.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Schedule {
+    /// Epochs, as the homework.
+    #[default]
+    Epochs,
+    /// The time budget of `--minutes` (else the epochs).
+    Time,
 }
 
 impl TrainingConfig {
@@ -124,6 +141,7 @@ impl Config {
             grid: self.grid_schedule(),
             samples_per_step: t.samples_per_step,
             max_rays: self.max_rays_per_step()?,
+            time_schedule: t.schedule == Schedule::Time,
         })
     }
 

@@ -19,12 +19,15 @@ fn count_in_range(key: &str, v: usize, max: usize) -> Result<()> {
 impl Config {
     /// Checks every value's range, naming the key of the first bad one.
     pub fn validate(&self) -> Result<()> {
-        let [w, h] = self.data.image_size;
+        let [w, h] = self.data.image_size.unwrap_or([1, 1]);
         if w == 0 || h == 0 || w > limits::IMAGE_SIDE || h > limits::IMAGE_SIDE {
             bail!(
                 "data.image_size: width and height must be 1 to {} (got [{w}, {h}])",
                 limits::IMAGE_SIDE
             );
+        }
+        if self.data.pixel_budget == Some(0) {
+            bail!("data.pixel_budget: must be at least 1 pixel");
         }
         if let Some(d) = self.data.downscale {
             if !(d.is_finite() && (1.0..=64.0).contains(&d)) {
@@ -108,7 +111,7 @@ impl Config {
 
     /// The `cameras` section, and the pixel count of all its frames.
     fn validate_cameras(&self) -> Result<()> {
-        let [w, h] = self.data.image_size;
+        let (w, h) = self.image_size();
         let c = &self.cameras;
         finite("cameras.radius", c.radius)?;
         finite("cameras.focal_length", c.focal_length)?;

@@ -63,7 +63,7 @@ impl BoxRender {
             bail!("the box config's implicit_function is not an sdf_volume");
         };
         volume.beta.val = self.beta;
-        config.data.image_size = [self.size, self.size];
+        config.data.image_size = Some([self.size, self.size]);
         config.sampler.n_pts_per_ray = self.n_pts;
         config.validate()?;
         Ok(config)

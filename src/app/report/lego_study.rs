@@ -115,7 +115,7 @@ impl LegoRender {
             _ => "lego",
         };
         let mut config = Config::load(name, &[])?;
-        config.data.image_size = [self.size, self.size];
+        config.data.image_size = Some([self.size, self.size]);
         config.sampler.n_pts_per_ray = self.n_pts;
         if !self.method.early_termination() {
             config.renderer.early_termination = 0.0;

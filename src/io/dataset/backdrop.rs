@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 
+use crate::core::image::RgbImage;
 use crate::io::dataset::frame_image::load_frame_image;
 
 /// Photos looked at, at most (evenly spaced through the list).
@@ -53,9 +54,96 @@ pub fn white_border_fraction(dir: &Path, photos: &[PathBuf]) -> Result<f64> {
     })
 }
 
+/// A border pixel belongs to a plain backdrop when no channel is further than this (of 1)
+/// from the backdrop's colour: about 15 of 255 levels, room for JPEG noise and vignetting.
+pub const BACKDROP_TOLERANCE: f32 = 0.06;
+
+/// The colour of a plain backdrop behind `images` (each `width × height × 3`, RGB in [0, 1]),
+/// judged by their borders (the outermost ring of pixels, at most [`MAX_PHOTOS`] images,
+/// evenly spaced): the per-channel median of the border pixels, when at least
+/// [`WHITE_FRACTION`] of them lie within [`BACKDROP_TOLERANCE`] of it; `None` for anything
+/// else (a room, a street, a sky: borders of many colours). A channel within the tolerance
+/// of 0 or 1 is snapped there, so a white or black backdrop is exactly white or black.
+pub fn backdrop_colour(images: &[RgbImage]) -> Option<[f32; 3]> {
+    let step = images.len().div_ceil(MAX_PHOTOS).max(1);
+    let mut border: Vec<[f32; 3]> = Vec::new();
+    for image in images.iter().step_by(step) {
+        let (w, h) = (image.width, image.height);
+        for y in 0..h {
+            for x in 0..w {
+                if x != 0 && y != 0 && x + 1 != w && y + 1 != h {
+                    continue;
+                }
+                let i = 3 * (y * w + x);
+                border.push([image.data[i], image.data[i + 1], image.data[i + 2]]);
+            }
+        }
+    }
+    if border.is_empty() {
+        return None;
+    }
+    let median = |c: usize| {
+        let mut v: Vec<f32> = border.iter().map(|p| p[c]).collect();
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    let colour = [median(0), median(1), median(2)];
+    let near = border
+        .iter()
+        .filter(|p| (0..3).all(|c| (p[c] - colour[c]).abs() <= BACKDROP_TOLERANCE))
+        .count();
+    if (near as f64) < WHITE_FRACTION * border.len() as f64 {
+        return None;
+    }
+    Some(colour.map(|v| {
+        if v <= BACKDROP_TOLERANCE {
+            0.0
+        } else if v >= 1.0 - BACKDROP_TOLERANCE {
+            1.0
+        } else {
+            v
+        }
+    }))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A `w × h` image of `backdrop` with a grey object in its middle half; with `noise`,
+    /// every fifth pixel blue (a busy scene).
+    fn loaded(w: usize, h: usize, backdrop: [f32; 3], noise: bool) -> RgbImage {
+        let mut data = Vec::with_capacity(3 * w * h);
+        for y in 0..h {
+            for x in 0..w {
+                let inside = (w / 4..3 * w / 4).contains(&x) && (h / 4..3 * h / 4).contains(&y);
+                data.extend(match (inside, noise && (x * 7 + y * 13) % 5 == 0) {
+                    (true, _) => [0.5, 0.4, 0.3],
+                    (false, true) => [0.1, 0.3, 0.7],
+                    (false, false) => backdrop,
+                });
+            }
+        }
+        RgbImage::new(w, h, data).unwrap()
+    }
+
+    #[test]
+    fn a_plain_backdrop_gives_its_colour_and_a_busy_one_none() {
+        let white = vec![loaded(40, 30, [0.97, 0.99, 1.0], false); 3];
+        assert_eq!(backdrop_colour(&white), Some([1.0, 1.0, 1.0]));
+        let black = vec![loaded(30, 40, [0.02, 0.0, 0.03], false); 2];
+        assert_eq!(backdrop_colour(&black), Some([0.0, 0.0, 0.0]));
+        let green = vec![loaded(20, 20, [0.2, 0.6, 0.3], false)];
+        assert_eq!(backdrop_colour(&green), Some([0.2, 0.6, 0.3]));
+        assert_eq!(backdrop_colour(&[loaded(40, 30, [1.0; 3], true)]), None);
+        assert_eq!(backdrop_colour(&[]), None);
+        // Half the photos on white, half on black: no one backdrop.
+        let mixed = vec![
+            loaded(20, 20, [1.0; 3], false),
+            loaded(20, 20, [0.0; 3], false),
+        ];
+        assert_eq!(backdrop_colour(&mixed), None);
+    }
 
     /// A 100×80 photo: `border` around a grey object covering the middle half.
     fn photo(dir: &Path, name: &str, border: [u8; 3], noise: bool) -> PathBuf {
