@@ -78,7 +78,7 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
     let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
     let run = |command: &str, dir: &Path| {
-        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
+        let mut args = vec![command, "--config", "nerf_scene_bounded", "--data-dir"];
         args.push(dir.to_str().unwrap());
         args.extend(overrides);
         if command == "eval" {
@@ -114,7 +114,7 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
     image::GrayImage::new(7, 5).save(&bad_size).unwrap();
     let missing = plain.join("masks").join("frame_05.png");
     for (file, says) in [(&bad_size, "is 7x5"), (&missing, "")] {
-        let mut args = vec!["train", "--config", "nerf_scene", "--data-dir"];
+        let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
         args.push(plain.to_str().unwrap());
         args.extend([
             "data.image_size=[24,24]",
@@ -150,7 +150,7 @@ fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model(
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
     let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
     let run = |command: &str, dir: &Path, extra: &[&str]| {
-        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
+        let mut args = vec![command, "--config", "nerf_scene_bounded", "--data-dir"];
         args.push(dir.to_str().unwrap());
         args.extend(overrides);
         args.extend(extra);
@@ -325,7 +325,7 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
             let args = [
                 "train",
                 "--config",
-                "nerf_scene",
+                "nerf_scene_bounded",
                 "--data-dir",
                 dir.to_str().unwrap(),
                 "--out-dir",

@@ -104,7 +104,13 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
     let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
     let dir_arg = capture.to_str().unwrap();
-    let mut args = vec!["train", "--config", "nerf_scene", "--data-dir", dir_arg];
+    let mut args = vec![
+        "train",
+        "--config",
+        "nerf_scene_bounded",
+        "--data-dir",
+        dir_arg,
+    ];
     args.extend(overrides);
     let o = common::nerf_ok(&args);
     assert!(ckpt.is_file());
@@ -116,7 +122,7 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let mut args = vec![
         "eval",
         "--config",
-        "nerf_scene",
+        "nerf_scene_bounded",
         "--data-dir",
         dir_arg,
         "--split",
@@ -166,7 +172,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     let ckpt = root.path().join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
     let overrides = tiny_scene_overrides("training.num_epochs=2", &ckpt_arg);
-    let mut args = vec!["train", "--config", "nerf_scene", "--data-dir"];
+    let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
     args.push(full.to_str().unwrap());
     args.extend(overrides);
     common::nerf_ok(&args);
@@ -197,7 +203,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     // The command: eval of the subset renders what eval of the full capture renders, and
     // says which normalisation it used.
     let eval = |dir: &Path, checkpoint: &Path, saved: &Path| {
-        let mut args = vec!["eval", "--config", "nerf_scene", "--split", "test"];
+        let mut args = vec!["eval", "--config", "nerf_scene_bounded", "--split", "test"];
         args.extend(["--data-dir", dir.to_str().unwrap()]);
         args.extend(["--checkpoint", checkpoint.to_str().unwrap()]);
         args.extend(["--save-images", saved.to_str().unwrap()]);
@@ -220,7 +226,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
             "export",
             "depth",
             "--config",
-            "nerf_scene",
+            "nerf_scene_bounded",
             "--split",
             "test",
         ];
@@ -247,7 +253,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     assert!(log.contains("stores no scene normalisation"), "{log}");
     assert_ne!(files_of(&recomputed_images), files_of(&on_full));
     // A resumed run on the subset keeps training in the stored frame, and keeps storing it.
-    let mut args = vec!["train", "--config", "nerf_scene", "--data-dir"];
+    let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
     args.push(subset.to_str().unwrap());
     args.extend(overrides);
     args.push("training.num_epochs=3");

@@ -207,6 +207,7 @@ fn a_forward_facing_capture_renders_and_views_from_a_spiral_that_sees_the_scene(
         "training.eval_views=0",
         "sampler.n_pts_per_ray=64",
         "sampler.max_depth=7",
+        "implicit_function.appearance_dim=0",
         "implicit_function.aabb=[[-3,-3,-3],[3,3,3]]",
         "renderer.occupancy_grid.aabb=[-3,-3,-3,3,3,3]",
         &views_arg,
@@ -215,7 +216,7 @@ fn a_forward_facing_capture_renders_and_views_from_a_spiral_that_sees_the_scene(
     let dir_arg = capture.to_str().unwrap();
     let with = |head: &[&str], extra: &[&str]| -> Vec<String> {
         head.iter()
-            .chain(&["--config", "nerf_scene"])
+            .chain(&["--config", "nerf_scene_bounded"])
             .chain(&overrides)
             .chain(extra)
             .map(|s| s.to_string())
@@ -304,7 +305,7 @@ fn a_forward_facing_capture_renders_and_views_from_a_spiral_that_sees_the_scene(
     assert!(mean(&spiral_true) > 2.0 * mean(&orbit_true));
 
     // view: starts from the first spiral view, looking at the focus with the spiral's up.
-    let mut args = vec!["--config", "nerf_scene"];
+    let mut args = vec!["--config", "nerf_scene_bounded"];
     args.extend(overrides);
     let info = common::view_info(&args);
     let first = spiral.cameras(VIEWS)[0].center();

@@ -741,6 +741,19 @@ mod tests {
     use super::*;
 
     #[test]
+    fn time_learning_rate_falls_from_lr_to_lr_gamma_over_the_budget() {
+        let lr = |p: f64| time_learning_rate(0.01, 0.1, p);
+        assert_eq!(lr(0.0), 0.01);
+        assert!((lr(1.0) - 0.001).abs() < 1e-15);
+        assert!((lr(0.5) - 0.01 * 0.1f64.sqrt()).abs() < 1e-15);
+        // Before the start and past the end it holds its ends.
+        assert_eq!(lr(-3.0), 0.01);
+        assert!((lr(7.0) - 0.001).abs() < 1e-15);
+        let steps: Vec<f64> = (0..=10).map(|k| lr(k as f64 / 10.0)).collect();
+        assert!(steps.windows(2).all(|w| w[1] < w[0]));
+    }
+
+    #[test]
     fn rays_settle_where_the_samples_meet_the_target() {
         // A scene where each ray evaluates 4 samples: 16384 samples need 4096 rays.
         let mut rays = 1024;

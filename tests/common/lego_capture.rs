@@ -211,7 +211,7 @@ pub fn files_of(dir: &Path) -> Vec<(String, Vec<u8>)> {
         .collect()
 }
 
-/// The overrides of a small `nerf_scene` training (24×24 images, 32 samples a ray, no
+/// The overrides of a small `nerf_scene_bounded` training (24×24 images, 32 samples a ray, no
 /// held-out scoring during training) for `epochs` (`training.num_epochs=N`) that writes the
 /// checkpoint `checkpoint` (`training.checkpoint_path=P`).
 pub fn tiny_scene_overrides<'a>(epochs: &'a str, checkpoint: &'a str) -> [&'a str; 5] {

@@ -1,0 +1,168 @@
+//! `nerf_scene` on a capture with nothing set: photos of lego on a white backdrop without
+//! alpha train at their own size under a time budget that outlasts `num_epochs`, the backdrop
+//! colour and training size are stored in the checkpoint, and `eval` scores and writes the
+//! photos' own size under their names on the stored background; a pixel budget scales large
+//! photos down by a whole factor.
+
+mod common;
+
+use std::path::Path;
+
+use common::lego_capture::lego;
+
+const SIDE: u32 = 40;
+
+/// A nerfstudio capture of the first 16 lego views as `SIDE`² JPEGs composited on white (no
+/// alpha), with the true cameras.
+fn white_capture(dir: &Path, test: &str) -> bool {
+    let Some(lego) = lego(test) else {
+        return false;
+    };
+    let lego = lego.first(16);
+    std::fs::create_dir_all(dir.join("images")).unwrap();
+    let scale = SIDE as f64 / lego.size.0 as f64;
+    let frames: Vec<serde_json::Value> = lego
+        .views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let rgba = image::open(&v.image).unwrap().to_rgba8();
+            let small =
+                image::imageops::resize(&rgba, SIDE, SIDE, image::imageops::FilterType::Triangle);
+            let on_white = image::RgbImage::from_fn(SIDE, SIDE, |x, y| {
+                let [r, g, b, a] = small.get_pixel(x, y).0.map(|c| c as f32 / 255.0);
+                let over = |c: f32| ((c * a + 1.0 - a) * 255.0).round() as u8;
+                image::Rgb([over(r), over(g), over(b)])
+            });
+            let name = format!("images/frame_{i:02}.jpg");
+            on_white.save(dir.join(&name)).unwrap();
+            serde_json::json!({"file_path": name, "transform_matrix": v.c2w})
+        })
+        .collect();
+    let f = lego.focal_px() * scale;
+    let json = serde_json::json!({
+        "camera_model": "OPENCV", "fl_x": f, "fl_y": f, "cx": SIDE as f64 / 2.0,
+        "cy": SIDE as f64 / 2.0, "w": SIDE, "h": SIDE, "frames": frames,
+    });
+    std::fs::write(dir.join("transforms.json"), json.to_string()).unwrap();
+    true
+}
+
+fn metadata(path: &Path, key: &str) -> Option<String> {
+    nerf::io::checkpoint::read_metadata(path)
+        .unwrap()
+        .get(key)
+        .cloned()
+}
+
+#[test]
+fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white() {
+    let test = "a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white";
+    let root = tempfile::tempdir().unwrap();
+    let data = root.path().join("white");
+    if !white_capture(&data, test) {
+        return;
+    }
+    let ckpt = root.path().join("ck").join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let data_arg = data.to_str().unwrap();
+    // One epoch is 14 steps of about 20 ms on an idle 2-core machine: the time budget, not
+    // num_epochs, must end the run.
+    let train = common::nerf_ok(&[
+        "train",
+        "--config",
+        "nerf_scene",
+        "--data-dir",
+        data_arg,
+        "--minutes",
+        "0.4",
+        "training.num_epochs=1",
+        "training.eval_views=0",
+        "sampler.n_pts_per_ray=32",
+        &ckpt_arg,
+    ]);
+    let err = common::stderr(&train);
+    assert!(err.contains("background white"), "{err}");
+    assert_eq!(metadata(&ckpt, "background").as_deref(), Some("1 1 1"));
+    assert_eq!(metadata(&ckpt, "image_size").as_deref(), Some("40 40"));
+    let epochs: usize = metadata(&ckpt, "epoch").unwrap().parse().unwrap();
+    assert!(epochs >= 2, "the time budget stopped at epoch {epochs}");
+
+    let renders = root.path().join("renders");
+    let eval = common::nerf_ok(&[
+        "eval",
+        "--config",
+        "nerf_scene",
+        "--data-dir",
+        data_arg,
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--split",
+        "test",
+        "--save-images",
+        renders.to_str().unwrap(),
+        "sampler.n_pts_per_ray=32",
+    ]);
+    let out = String::from_utf8_lossy(&eval.stdout);
+    assert!(
+        out.contains("2 views at 40x40") && out.contains("on white"),
+        "{out}"
+    );
+    // Every 8th photo is held out, written under its own name at its own size.
+    assert_eq!(
+        common::sorted_names(&renders),
+        ["frame_00.png", "frame_08.png"]
+    );
+    let written = image::image_dimensions(renders.join("frame_08.png")).unwrap();
+    assert_eq!(written, (SIDE, SIDE));
+    // Told otherwise, eval renders on black.
+    let black = common::nerf_ok(&[
+        "eval",
+        "--config",
+        "nerf_scene",
+        "--data-dir",
+        data_arg,
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--split",
+        "test",
+        "sampler.n_pts_per_ray=32",
+        "renderer.background=black",
+    ]);
+    assert!(String::from_utf8_lossy(&black.stdout).contains("on black"));
+}
+
+#[test]
+fn a_pixel_budget_scales_the_photos_by_a_whole_factor_and_bad_values_are_named() {
+    let test = "a_pixel_budget_scales_the_photos_by_a_whole_factor_and_bad_values_are_named";
+    let root = tempfile::tempdir().unwrap();
+    let data = root.path().join("white");
+    if !white_capture(&data, test) {
+        return;
+    }
+    let ckpt = root.path().join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let data_arg = data.to_str().unwrap();
+    let train = |extra: &str| {
+        common::nerf(&[
+            "train",
+            "--config",
+            "nerf_scene",
+            "--data-dir",
+            data_arg,
+            "training.num_epochs=1",
+            "training.eval_views=0",
+            "sampler.n_pts_per_ray=32",
+            &ckpt_arg,
+            extra,
+        ])
+    };
+    // 40 × 40 = 1600 pixels over a budget of 400: half size, 20 × 20.
+    let o = train("data.pixel_budget=400");
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    assert_eq!(metadata(&ckpt, "image_size").as_deref(), Some("20 20"));
+    let line = common::one_line_error(&train("data.pixel_budget=0"));
+    assert!(line.contains("data.pixel_budget"), "{line}");
+    let line = common::one_line_error(&train("renderer.background=pink"));
+    assert!(line.contains("renderer.background"), "{line}");
+}
