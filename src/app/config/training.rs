@@ -53,6 +53,10 @@ pub struct TrainingConfig {
     /// (instant-ngp's scheme: many rays once the occupancy grid and early termination leave
     /// few samples per ray); `batch_size` is then the first step's rays. Unset: fixed.
     pub samples_per_step: Option<usize>,
+    /// Extension: weight of mip-NeRF 360's distortion loss, each batch's mean, added to the
+    /// MSE (0 = off, the default; nerfacto uses 0.002). Needs a `stratified` or
+    /// `depth_then_disparity` sampler.
+    pub distortion_loss: f64,
 }
 
 impl TrainingConfig {
@@ -108,6 +112,7 @@ impl Config {
                 density_noise,
                 sampler: self.sampler()?,
                 renderer: self.renderer()?,
+                distortion_loss: t.distortion_loss,
             },
             seed: self.seed,
             num_epochs: req(t.num_epochs, "num_epochs")?,
