@@ -9,6 +9,7 @@ pub mod camera_model;
 pub mod compare;
 pub mod contraction;
 pub mod distortion;
+pub mod distortion_loss;
 pub mod fastexp;
 pub mod frame_camera;
 pub mod image;

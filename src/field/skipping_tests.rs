@@ -393,3 +393,44 @@ fn marching_a_contracted_grid_keeps_exactly_the_samples_in_occupied_cells() {
         );
     }
 }
+
+#[test]
+fn distortion_loss_of_the_packed_and_dense_paths_equals_its_recomputation() {
+    use crate::kernels::distortion_loss::distortion_loss_tensor_ops;
+    use crate::render::ray_sampler::RaySampler;
+    let m = model(1.0);
+    let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
+    let spacing = RaySampler::spacing(&sampler).unwrap();
+    let grid = striped_grid(3, 0);
+    let mut renderer = VolumeRenderer::new(1000, false).unwrap();
+    renderer.distortion_loss = true;
+    // Dense, then packed through the grid (its empty cells as zero density).
+    let dense_out = render(renderer, &field(&m, None), &sampler);
+    let packed_out = render(renderer, &field(&m, Some(grid.clone())), &sampler);
+    assert!(packed_out.samples.evaluated < packed_out.samples.total);
+    let samples = sampler.sample(&rays(), None).unwrap();
+    let dense = m.forward(&samples.points, &rays().directions, 0.0).unwrap();
+    let points = samples
+        .points
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+    let mask: Vec<f32> = points
+        .chunks_exact(3)
+        .map(|p| f32::from(u8::from(grid.is_occupied([p[0], p[1], p[2]]))))
+        .collect();
+    let mask = Tensor::from_vec(mask, samples.lengths.shape(), &Device::Cpu).unwrap();
+    let masked = dense.density.mul(&mask).unwrap();
+    for (out, density) in [(&dense_out, &dense.density), (&packed_out, &masked)] {
+        let want = distortion_loss_tensor_ops(density, &samples.lengths, spacing).unwrap();
+        let got = out.distortion.as_ref().expect("a distortion loss");
+        assert_eq!(got.dims(), &[rays().len(), 1]);
+        assert!(max_diff(got, &want) < 1e-5, "{}", max_diff(got, &want));
+    }
+    // Off unless asked for.
+    renderer.distortion_loss = false;
+    assert!(render(renderer, &field(&m, None), &sampler)
+        .distortion
+        .is_none());
+}

@@ -85,10 +85,10 @@ pub fn composite(density: &Tensor, feature: &Tensor, lengths: &Tensor) -> Result
 
 /// The packed samples of a skipping render grouped by ray: `index` holds the flat sample
 /// index `ray · S + i` of each evaluated sample (any order, no repeats).
-struct PackedRays {
-    n: usize,
+pub(crate) struct PackedRays {
+    pub(crate) n: usize,
     s: usize,
-    index: Vec<u32>,
+    pub(crate) index: Vec<u32>,
     /// Entries of ray `r`: `order[start[r]..start[r + 1]]`, in sample order.
     start: Vec<usize>,
     order: Vec<u32>,
@@ -97,7 +97,7 @@ struct PackedRays {
 }
 
 impl PackedRays {
-    fn new(index: Vec<u32>, lengths: Vec<f32>, (n, s): (usize, usize)) -> Self {
+    pub(crate) fn new(index: Vec<u32>, lengths: Vec<f32>, (n, s): (usize, usize)) -> Self {
         // A counting sort by ray, then sample order within each ray.
         let mut start = vec![0usize; n + 1];
         for &k in &index {
@@ -127,14 +127,14 @@ impl PackedRays {
     }
 
     /// Ray `ray`'s sample lengths, `S`.
-    fn ray_lengths(&self, ray: usize) -> &[f32] {
+    pub(crate) fn ray_lengths(&self, ray: usize) -> &[f32] {
         let row = if self.lengths.len() == self.s { 0 } else { ray };
         &self.lengths[row * self.s..(row + 1) * self.s]
     }
 
     /// Ray `ray`'s entries (sample order) with each one's sample position `i`, spacing `Δ` and
     /// optical depth `τ` from `density`.
-    fn walk<'a>(
+    pub(crate) fn walk<'a>(
         &'a self,
         ray: usize,
         density: &'a [f32],

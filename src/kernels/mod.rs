@@ -18,6 +18,7 @@ use candle_core::{DType, Tensor};
 pub mod bias;
 pub mod composite;
 pub mod cpu_kernel;
+pub mod distortion_loss;
 pub mod gemm;
 pub mod hash_block;
 pub mod hash_grid;

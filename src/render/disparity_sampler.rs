@@ -16,6 +16,7 @@ use anyhow::{ensure, Result};
 use candle_core::Tensor;
 use rand::Rng;
 
+use crate::core::distortion_loss::RaySpacing;
 use crate::core::rays::Rays;
 use crate::render::ray_sampler::RaySampler;
 use crate::render::sampler::shared_lengths;
@@ -149,6 +150,15 @@ impl RaySampler for DepthThenDisparitySampler {
                 Tensor::from_vec(self.jittered_depths(n, rng), (n, s, 1), device)?
                     .to_dtype(dtype)?
             }
+        })
+    }
+
+    fn spacing(&self) -> Option<RaySpacing> {
+        Some(RaySpacing::LinearThenDisparity {
+            near: self.min_depth,
+            switch: self.max_depth,
+            far: self.far_depth,
+            linear_share: self.n_near as f64 / self.n_samples() as f64,
         })
     }
 }

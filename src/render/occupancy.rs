@@ -56,6 +56,9 @@ pub struct OccupancyGrid {
     pub occupied: Vec<bool>,
     /// How world points map into the space of the box (identity for bounded scenes).
     pub contraction: Contraction,
+    /// `R³` flags of cells kept empty whatever the field holds there (the space around the
+    /// training cameras, [`OccupancyGrid::clear_around_cameras`]); empty when there are none.
+    pub kept_empty: Vec<bool>,
 }
 
 /// Density at which one step of `step` has opacity `alpha`: `−ln(1 − alpha) / step`.
@@ -143,6 +146,7 @@ impl OccupancyGrid {
             density: vec![f32::MAX; r * r * r],
             occupied: vec![true; r * r * r],
             contraction: params.contraction,
+            kept_empty: Vec::new(),
         })
     }
 
@@ -298,13 +302,55 @@ impl OccupancyGrid {
     }
 
     /// Recomputes the flags: occupied where the running density exceeds
-    /// `min(density_threshold, mean density)`.
+    /// `min(density_threshold, mean density)`, except in cells kept empty.
     pub fn refresh_occupied(&mut self) {
         let mean = self.density.iter().map(|&d| d as f64).sum::<f64>() / self.n_cells() as f64;
         let threshold = (self.density_threshold as f64).min(mean) as f32;
         for (o, &d) in self.occupied.iter_mut().zip(&self.density) {
             *o = d > threshold;
         }
+        for (o, &kept) in self.occupied.iter_mut().zip(&self.kept_empty) {
+            *o &= !kept;
+        }
+    }
+
+    /// Keeps empty, from now on, every cell whose centre (a world point) lies within
+    /// `fraction · |c|` of a camera centre `c`: the space around each camera, in proportion
+    /// to its distance from the origin, where the normalised scene's centre is (`fraction` in
+    /// [0, 1), so the centre stays clear). The renderer then never samples there, so the
+    /// field cannot explain the backdrop with density in front of the cameras. Their running
+    /// density becomes 0 (so a saved grid keeps them empty) and updates leave them alone.
+    /// Returns how many cells are kept empty.
+    pub fn clear_around_cameras(&mut self, centres: &[[f64; 3]], fraction: f64) -> usize {
+        let n = self.n_cells();
+        if self.kept_empty.len() != n {
+            self.kept_empty = vec![false; n];
+        }
+        if fraction <= 0.0 {
+            return self.kept_empty.iter().filter(|k| **k).count();
+        }
+        // (centre, squared radius) of each camera's ball.
+        let balls: Vec<([f64; 3], f64)> = centres
+            .iter()
+            .map(|c| {
+                (
+                    *c,
+                    (fraction * fraction) * c.iter().map(|v| v * v).sum::<f64>(),
+                )
+            })
+            .collect();
+        for cell in 0..n {
+            let p = self.point_in_cell(cell, [0.5; 3]).map(f64::from);
+            let inside = balls
+                .iter()
+                .any(|(c, r2)| (0..3).map(|k| (p[k] - c[k]).powi(2)).sum::<f64>() < *r2);
+            if inside {
+                self.kept_empty[cell] = true;
+                self.density[cell] = 0.0;
+            }
+        }
+        self.refresh_occupied();
+        self.kept_empty.iter().filter(|k| **k).count()
     }
 
     /// One training-time update (nerfacc's schedule): during warm-up every cell, afterwards the
@@ -326,6 +372,9 @@ impl OccupancyGrid {
             c.extend((0..n / 4).map(|_| rng.random_range(0..n)));
             c
         };
+        if !self.kept_empty.is_empty() {
+            cells.retain(|&c| !self.kept_empty[c]);
+        }
         cells.sort_unstable();
         cells.dedup();
         let points: Vec<[f32; 3]> = cells
@@ -505,6 +554,47 @@ mod tests {
         let back = OccupancyGrid::from_tensor(&cfg, &t).unwrap();
         assert_eq!(back, g);
         assert!(OccupancyGrid::from_tensor(&config(4, 0.5), &t).is_err());
+    }
+}
+
+#[cfg(test)]
+mod clearance_tests {
+    use super::*;
+
+    #[test]
+    fn cells_around_cameras_stay_empty_through_updates_and_a_save() {
+        let params = OccupancyGridParams {
+            resolution: 8,
+            aabb: [-2.0, -2.0, -2.0, 2.0, 2.0, 2.0],
+            density_threshold: 0.5,
+            contraction: Contraction::LInf,
+        };
+        let mut grid = OccupancyGrid::new(&params).unwrap();
+        // A camera 1.5 from the origin: cells within 0.75 of it are kept empty.
+        let camera = [1.5, 0.0, 0.0];
+        let kept = grid.clear_around_cameras(&[camera], 0.5);
+        assert!(kept > 0 && kept < grid.n_cells());
+        for cell in 0..grid.n_cells() {
+            let p = grid.point_in_cell(cell, [0.5; 3]).map(f64::from);
+            let d2: f64 = (0..3).map(|k| (p[k] - camera[k]).powi(2)).sum();
+            assert_eq!(grid.kept_empty[cell], d2 < 0.75 * 0.75, "cell {cell}");
+            assert_eq!(grid.occupied[cell], !grid.kept_empty[cell], "cell {cell}");
+        }
+        // Dense everywhere: every other cell becomes occupied, the kept ones stay empty.
+        let dense = |p: &Tensor| -> Result<Tensor> { Ok(p.ones_like()?.narrow(1, 0, 1)?) };
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+        use rand::SeedableRng;
+        grid.update(&dense, true, 0.9, &mut rng, &Device::Cpu)
+            .unwrap();
+        let occupied = grid.occupied.iter().filter(|o| **o).count();
+        assert_eq!(occupied, grid.n_cells() - kept);
+        // A saved grid read back (as eval reads it) keeps them empty.
+        let back = OccupancyGrid::from_tensor(&params, &grid.to_tensor(&Device::Cpu).unwrap());
+        assert_eq!(back.unwrap().occupied, grid.occupied);
+        // Nothing is cleared at fraction 0.
+        let mut fresh = OccupancyGrid::new(&params).unwrap();
+        assert_eq!(fresh.clear_around_cameras(&[camera], 0.0), 0);
+        assert!(fresh.occupied.iter().all(|o| *o));
     }
 }
 

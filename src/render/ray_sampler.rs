@@ -12,6 +12,7 @@
 use anyhow::Result;
 use candle_core::Tensor;
 
+use crate::core::distortion_loss::RaySpacing;
 use crate::core::rays::Rays;
 use crate::render::field::Field;
 use crate::render::sampler::StratifiedSampler;
@@ -67,6 +68,12 @@ pub trait RaySampler: std::fmt::Debug + Send + Sync {
     ) -> Result<Tensor> {
         Ok(stratified)
     }
+
+    /// The normalised ray distance the distortion loss is measured in: the spacing in which
+    /// this sampler's bins are equal (`None` where it has none, as for refined depths).
+    fn spacing(&self) -> Option<RaySpacing> {
+        None
+    }
 }
 
 /// The homework's stratified sampler: its own depths, unrefined.
@@ -81,6 +88,13 @@ impl RaySampler for StratifiedSampler {
         jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<Tensor> {
         StratifiedSampler::compact_lengths(self, rays, jitter)
+    }
+
+    fn spacing(&self) -> Option<RaySpacing> {
+        (self.min_depth < self.max_depth).then_some(RaySpacing::Linear {
+            near: self.min_depth,
+            far: self.max_depth,
+        })
     }
 }
 
@@ -122,5 +136,9 @@ impl<S: RaySampler + ?Sized> RaySampler for std::sync::Arc<S> {
         jitter: Option<&mut dyn rand::RngCore>,
     ) -> Result<Tensor> {
         (**self).refine(field, rays, stratified, jitter)
+    }
+
+    fn spacing(&self) -> Option<RaySpacing> {
+        (**self).spacing()
     }
 }

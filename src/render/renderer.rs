@@ -7,9 +7,11 @@
 use anyhow::{bail, Result};
 use candle_core::{DType, Tensor};
 
+use crate::core::distortion_loss::RaySpacing;
 use crate::core::rays::Rays;
 use crate::core::volume::deltas;
 use crate::kernels::composite::composite;
+use crate::kernels::distortion_loss::distortion_loss;
 use crate::kernels::sample_points::sample_points;
 use crate::render::field::{Composited, Field};
 use crate::render::ray_sampler::RaySampler;
@@ -38,6 +40,9 @@ pub struct RenderOutput {
     pub opacity: Tensor,
     /// Samples drawn and evaluated (see [`crate::render::skipping`]).
     pub samples: SampleCounts,
+    /// `(N, 1)` each ray's distortion loss ([`crate::core::distortion_loss`]), when the
+    /// renderer computes it ([`VolumeRenderer::distortion_loss`]).
+    pub distortion: Option<Tensor>,
 }
 
 /// The homework's `VolumeRenderer`: renders rays in chunks of `chunk_size`.
@@ -51,6 +56,9 @@ pub struct VolumeRenderer {
     /// Transmittance below which a ray stops being evaluated (0 = off); see
     /// [`crate::render::skipping`]. Applies to NeRF fields.
     pub early_termination: f64,
+    /// Also compute each ray's distortion loss (training with `training.distortion_loss`), in
+    /// the sampler's spacing ([`RaySampler::spacing`]).
+    pub distortion_loss: bool,
 }
 
 impl VolumeRenderer {
@@ -64,6 +72,7 @@ impl VolumeRenderer {
             chunk_size,
             background: if white_background { WHITE } else { BLACK },
             early_termination: 0.0,
+            distortion_loss: false,
         })
     }
 
@@ -109,24 +118,47 @@ impl VolumeRenderer {
             None => None,
         };
         let field = per_camera.as_deref().unwrap_or(field);
+        let spacing = self.distortion_spacing(sampler)?;
         if sampler.refines() {
             return self.render_refined(field, sampler, rays, jitter);
         }
         if !self.skips_samples(field) {
             let lengths = sampler.lengths(rays, jitter)?;
-            if let Some(out) = field.render_fused(rays, &lengths)? {
-                return self.finish(out, SampleCounts::dense(lengths.elem_count()));
+            if spacing.is_none() {
+                if let Some(out) = field.render_fused(rays, &lengths)? {
+                    return self.finish(out, SampleCounts::dense(lengths.elem_count()));
+                }
             }
-            return self.composite_samples(field, rays, lengths);
+            return self.composite_samples(field, rays, lengths, spacing);
         }
         // (1, S, 1) without jitter: no per-ray copies of the same depths.
         let lengths = &sampler.compact_lengths(rays, jitter)?;
         let packed =
             crate::render::skipping::evaluate_packed(field, self.early_termination, rays, lengths)?;
         let counts = packed.counts;
+        let distortion = match spacing {
+            Some(spacing) => Some(packed.distortion(lengths, spacing)?),
+            None => None,
+        };
         // Composited straight from the packed values (the kernel scatters them into dense
         // tensors itself where it runs as tensor ops).
-        self.finish(packed.composite(lengths)?, counts)
+        let out = self.finish(packed.composite(lengths)?, counts)?;
+        Ok(RenderOutput { distortion, ..out })
+    }
+
+    /// The spacing the distortion loss is measured in when the renderer computes it; an error
+    /// when the sampler has none.
+    fn distortion_spacing(&self, sampler: &dyn RaySampler) -> Result<Option<RaySpacing>> {
+        if !self.distortion_loss {
+            return Ok(None);
+        }
+        match sampler.spacing() {
+            Some(spacing) => Ok(Some(spacing)),
+            None => bail!(
+                "training.distortion_loss needs a sampler of type stratified or \
+                 depth_then_disparity (set it to 0 for this one)"
+            ),
+        }
     }
 
     /// Rendering at depths a sampler refines by looking at the field (coarse-to-fine): the
@@ -143,7 +175,7 @@ impl VolumeRenderer {
         let rng = jitter.as_mut().map(|r| &mut **r as &mut dyn rand::RngCore);
         let drawn = sampler.lengths(rays, rng)?;
         let lengths = sampler.refine(field, rays, drawn, jitter)?;
-        let mut out = self.composite_samples(field, rays, lengths)?;
+        let mut out = self.composite_samples(field, rays, lengths, None)?;
         out.samples = SampleCounts {
             evaluated: rays.len() * sampler.evaluations_per_ray(),
             ..SampleCounts::dense(rays.len() * sampler.samples_per_ray())
@@ -151,22 +183,29 @@ impl VolumeRenderer {
         Ok(out)
     }
 
-    /// Dense rendering at `lengths` `(N, S, 1)`: sample points, evaluate the field, composite.
+    /// Dense rendering at `lengths` `(N, S, 1)`: sample points, evaluate the field, composite
+    /// (and the distortion loss in `spacing`, when given).
     fn composite_samples(
         &self,
         field: &dyn Field,
         rays: &Rays,
         lengths: Tensor,
+        spacing: Option<RaySpacing>,
     ) -> Result<RenderOutput> {
         let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
         let samples = RaySamples { points, lengths };
         let deltas = deltas(&samples.lengths)?;
         let out = field.evaluate(&samples, &deltas, &rays.directions)?;
         let composited = composite(&out.density, &out.feature, &samples.lengths)?;
-        self.finish(
+        let distortion = match spacing {
+            Some(spacing) => Some(distortion_loss(&out.density, &samples.lengths, spacing)?),
+            None => None,
+        };
+        let out = self.finish(
             composited,
             SampleCounts::dense(samples.lengths.elem_count()),
-        )
+        )?;
+        Ok(RenderOutput { distortion, ..out })
     }
 
     /// The output, composited onto the background (`colour + (1 − opacity) · background`).
@@ -185,6 +224,7 @@ impl VolumeRenderer {
             depth,
             opacity,
             samples,
+            distortion: None,
         })
     }
 
@@ -259,6 +299,14 @@ impl VolumeRenderer {
                 samples: parts
                     .iter()
                     .fold(SampleCounts::default(), |a, o| a + o.samples),
+                distortion: match parts
+                    .iter()
+                    .map(|o| o.distortion.clone())
+                    .collect::<Option<Vec<_>>>()
+                {
+                    Some(d) => Some(Tensor::cat(&d, 0)?),
+                    None => None,
+                },
             }
         };
         ensure_finite(&out.color, "colour")?;

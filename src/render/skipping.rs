@@ -22,9 +22,11 @@ use anyhow::Result;
 use candle_core::{DType, Tensor};
 use rayon::prelude::*;
 
+use crate::core::distortion_loss::RaySpacing;
 use crate::core::rays::Rays;
 use crate::core::volume::{clamped_optical_depth, spacing};
 use crate::kernels::composite::{composite_packed, Composited, PackedValues};
+use crate::kernels::distortion_loss::distortion_loss_packed;
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::{EmptyBlocks, OccupancyGrid};
 
@@ -385,6 +387,14 @@ impl PackedSamples {
             feature: concat_segments(&self.colours, 3, device)?,
         };
         composite_packed(values, lengths)
+    }
+
+    /// Each ray's distortion loss `(N, 1)` from the packed densities
+    /// ([`distortion_loss_packed`]; differentiable), given `lengths` as
+    /// [`PackedSamples::composite`] takes them, measured in `spacing`.
+    pub fn distortion(&self, lengths: &Tensor, spacing: RaySpacing) -> Result<Tensor> {
+        let density = concat_segments(&self.densities, 1, lengths.device())?;
+        distortion_loss_packed(self.index.clone(), self.rays, &density, lengths, spacing)
     }
 
     /// The values scattered into dense density `(N, S, 1)` and colour `(N, S, 3)`, zeros at

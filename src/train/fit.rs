@@ -51,6 +51,9 @@ pub struct GridSchedule {
     pub warmup_steps: usize,
     /// Decay of each cell's running density maximum per update.
     pub decay: f64,
+    /// Keep empty the cells around each training camera within this fraction of its distance
+    /// from the origin ([`OccupancyGrid::clear_around_cameras`]; 0 = off).
+    pub camera_clearance: f64,
 }
 
 /// Everything a training run needs besides the data: the model's sizes, the schedule and the
@@ -647,7 +650,21 @@ pub fn fit(
     device: &Device,
 ) -> Result<FitOutcome> {
     crate::core::allocator::ensure_allocator_tuned();
-    let (state, adam, info) = start_or_resume(settings, paths, dataset.images.len(), device)?;
+    let (mut state, adam, info) = start_or_resume(settings, paths, dataset.images.len(), device)?;
+    if let (Some(schedule), Some(grid)) = (&settings.grid, state.occupancy.as_mut()) {
+        if schedule.camera_clearance > 0.0 {
+            use crate::core::camera_model::CameraModel;
+            let centres: Vec<[f64; 3]> = (dataset.frames.iter())
+                .map(|f| f.camera.center().to_array())
+                .collect();
+            let kept = grid.clear_around_cameras(&centres, schedule.camera_clearance);
+            log::info!(
+                "occupancy grid: {kept} of {} cells kept empty around the {} training cameras",
+                grid.n_cells(),
+                centres.len()
+            );
+        }
+    }
     // A run that follows its time budget trains for its time whatever num_epochs says
     // (up to the most epochs a checkpoint may record).
     let timed = settings.time_schedule && limits.seconds.is_some();

@@ -158,9 +158,13 @@ pub struct StepSettings {
     pub sampler: std::sync::Arc<dyn RaySampler>,
     /// Renders the batch; its background is the dataset's unless `random_background`.
     pub renderer: VolumeRenderer,
+    /// Weight of mip-NeRF 360's distortion loss, the batch's mean, added to the MSE
+    /// (`training.distortion_loss`; 0 = off).
+    pub distortion_loss: f64,
 }
 
-/// One optimisation step on a [`training_batch`]; returns the MSE and the sample counts.
+/// One optimisation step on a [`training_batch`] (on the MSE, plus the distortion loss when
+/// weighted); returns the MSE and the sample counts.
 pub fn train_step(
     model: &TrainModel,
     settings: &StepSettings,
@@ -180,6 +184,7 @@ pub fn train_step(
     )?;
     let field = model.training_field(settings.density_noise);
     let mut renderer = settings.renderer;
+    renderer.distortion_loss = settings.distortion_loss > 0.0;
     let background = if settings.random_background {
         // b ~ U(0, 1)³ per ray; the target moves from the dataset's background to b.
         use rand::Rng;
@@ -200,10 +205,14 @@ pub fn train_step(
             .add(&out.opacity.affine(-1.0, 1.0)?.broadcast_mul(b)?)?,
         None => out.color,
     };
-    let loss = color.sub(&target)?.sqr()?.mean_all()?;
+    let mse = color.sub(&target)?.sqr()?.mean_all()?;
+    let loss = match &out.distortion {
+        Some(d) => mse.add(&d.mean_all()?.affine(settings.distortion_loss, 0.0)?)?,
+        None => mse.clone(),
+    };
     let grads = loss.backward()?;
     optimizer.step(&grads)?;
-    Ok((loss.to_scalar::<f32>()? as f64, out.samples))
+    Ok((mse.to_scalar::<f32>()? as f64, out.samples))
 }
 
 #[cfg(test)]

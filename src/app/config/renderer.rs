@@ -106,6 +106,10 @@ pub struct OccupancyGridConfig {
     /// Training: decay of each cell's running density maximum per update.
     #[serde(default = "default_decay")]
     pub decay: f64,
+    /// Training: keep empty the cells within this fraction of each training camera's
+    /// distance from the origin around that camera (0 = off, the default; in [0, 1)).
+    #[serde(default)]
+    pub camera_clearance: f64,
 }
 
 impl Default for OccupancyGridConfig {
@@ -117,6 +121,7 @@ impl Default for OccupancyGridConfig {
             update_interval: d16(),
             warmup_steps: d256(),
             decay: default_decay(),
+            camera_clearance: 0.0,
         }
     }
 }
@@ -179,6 +184,7 @@ impl OccupancyGridConfig {
             update_interval: self.update_interval,
             warmup_steps: self.warmup_steps,
             decay: self.decay,
+            camera_clearance: self.camera_clearance,
         }
     }
 }

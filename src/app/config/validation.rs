@@ -179,6 +179,14 @@ impl Config {
                 bail!("{key}: must be at least 1");
             }
         }
+        let weight = t.distortion_loss;
+        finite("training.distortion_loss", weight)?;
+        if weight < 0.0 {
+            bail!("training.distortion_loss: must be non-negative (got {weight})");
+        }
+        if weight > 0.0 && self.sampler.n_pts_per_ray_fine > 0 {
+            bail!("training.distortion_loss needs a sampler of type stratified or depth_then_disparity, not coarse-to-fine (sampler.n_pts_per_ray_fine)");
+        }
         Ok(())
     }
 
@@ -251,6 +259,13 @@ fn validate_occupancy_grid(g: &OccupancyGridConfig) -> Result<()> {
     }
     if g.update_interval == 0 {
         bail!("{key}.update_interval: must be at least 1");
+    }
+    finite(&format!("{key}.camera_clearance"), g.camera_clearance)?;
+    if !(0.0..1.0).contains(&g.camera_clearance) {
+        bail!(
+            "{key}.camera_clearance: must be in [0, 1) (got {})",
+            g.camera_clearance
+        );
     }
     Ok(())
 }
