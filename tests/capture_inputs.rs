@@ -233,7 +233,42 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
             "",
         ),
     ];
-    let nerfstudio: [Case; 5] = [
+    /// Applies `change` to the JSON of `dir/transforms.json`, which it returns.
+    fn edit_json(d: &Path, change: fn(&mut serde_json::Value)) -> PathBuf {
+        let json = d.join("transforms.json");
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        change(&mut v);
+        std::fs::write(&json, v.to_string()).unwrap();
+        json
+    }
+    let nerfstudio: [Case; 8] = [
+        (
+            "one photo listed twice, with two poses",
+            |d| {
+                edit_json(d, |v| {
+                    v["frames"][2]["file_path"] = v["frames"][1]["file_path"].clone()
+                })
+            },
+            "frame 2 lists",
+        ),
+        (
+            "a photo in train_filenames and test_filenames",
+            |d| {
+                edit_json(d, |v| {
+                    let names: Vec<_> =
+                        (0..4).map(|i| format!("images/frame_{i:02}.png")).collect();
+                    v["train_filenames"] = serde_json::json!(names);
+                    v["test_filenames"] = serde_json::json!(["images/frame_02.png"]);
+                })
+            },
+            "images/frame_02.png is in both train_filenames and test_filenames",
+        ),
+        (
+            "a width that is not a whole number of pixels",
+            |d| edit_json(d, |v| v["w"] = serde_json::json!(400.5)),
+            "w = 400.5 is not a whole number of pixels",
+        ),
         ("missing images/", missing_images, ""),
         (
             "unknown camera model",

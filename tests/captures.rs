@@ -269,3 +269,84 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         Some(trained_in)
     );
 }
+
+#[test]
+fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
+    let test = "an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains";
+    let Some(lego) = lego(test) else { return };
+    let root = tempfile::tempdir().unwrap();
+    let ns = root.path().join("nerfstudio");
+    write_nerfstudio(&lego, &ns);
+    // In colmap2nerf's own gauge (centres scaled and moved, scale and offset written), and in
+    // the nerfstudio file's.
+    let moved = root.path().join("ngp_moved");
+    write_colmap2nerf(&lego, &moved, Some((2.5, [0.5, -1.0, 3.0])));
+    let same = root.path().join("ngp");
+    write_colmap2nerf(&lego, &same, None);
+    // The lego projection check holds in the lego world frame, which `same` keeps.
+    check_capture(&lego, &same, SceneFormat::Nerfstudio);
+    for dir in [&moved, &same] {
+        for split in [Split::Train, Split::Test] {
+            let a = read_capture_split(&ns, SceneFormat::Nerfstudio, split).unwrap();
+            let b = read_capture_split(dir, SceneFormat::Nerfstudio, split).unwrap();
+            assert_eq!(a.frames.len(), b.frames.len());
+            for (a, b) in a.frames.iter().zip(&b.frames) {
+                assert_eq!(a.file_path.file_name(), b.file_path.file_name());
+                let (
+                    nerf::core::frame_camera::FrameCamera::Colmap(a),
+                    nerf::core::frame_camera::FrameCamera::Colmap(b),
+                ) = (&a.camera, &b.camera)
+                else {
+                    panic!("a capture's camera is COLMAP's");
+                };
+                assert_eq!(a.size, b.size);
+                assert_eq!(a.distortion, b.distortion);
+                let close = |x: &[f64], y: &[f64], tol: f64| {
+                    x.iter().zip(y).all(|(x, y)| (x - y).abs() <= tol)
+                };
+                assert!(close(&a.focal, &b.focal, 1e-9), "{a:?} {b:?}");
+                assert!(close(&a.principal_point, &b.principal_point, 0.0));
+                let rotation = (a.pose.rotation - b.pose.rotation).to_cols_array();
+                assert!(rotation.iter().all(|v| v.abs() < 1e-9), "{a:?} {b:?}");
+                let moved_by = (a.pose.translation - b.pose.translation).length();
+                assert!(moved_by < 1e-9, "{}: {moved_by}", dir.display());
+            }
+        }
+    }
+
+    // The command: a model trained on the colmap2nerf file renders its held-out views as it
+    // renders the nerfstudio file's (the same cameras, to float64 rounding).
+    let ckpt = root.path().join("scene.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
+    let run = |command: &str, dir: &Path, extra: &[&str]| {
+        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
+        args.push(dir.to_str().unwrap());
+        args.extend(overrides);
+        args.extend(extra);
+        common::stderr(&common::nerf_ok(&args))
+    };
+    let log = run("train", &same, &[]);
+    assert!(log.contains("instant-ngp (transforms.json)"), "{log}");
+    let (a, b) = (root.path().join("a"), root.path().join("b"));
+    for (dir, saved) in [(&same, &a), (&ns, &b)] {
+        let saved = saved.to_str().unwrap();
+        let log = run("eval", dir, &["--split", "test", "--save-images", saved]);
+        assert!(!log.contains("not the one these cameras give"), "{log}");
+    }
+    let (a, b) = (files_of(&a), files_of(&b));
+    assert_eq!(a.len(), 2);
+    for ((name_a, png_a), (name_b, png_b)) in a.iter().zip(&b) {
+        assert_eq!(name_a, name_b);
+        let decode = |png: &[u8]| image::load_from_memory(png).unwrap().to_rgb8();
+        let (x, y) = (decode(png_a), decode(png_b));
+        let worst = x
+            .as_raw()
+            .iter()
+            .zip(y.as_raw())
+            .map(|(p, q)| p.abs_diff(*q))
+            .max()
+            .unwrap();
+        assert!(worst <= 1, "{name_a}: {worst}");
+    }
+}

@@ -327,15 +327,16 @@ impl ColmapCamera {
         let mut pose = ColmapPose::from_opengl_camera_to_world(camera_to_world);
         // transforms.json files hold float32 matrices (nerfstudio's, NeRF-synthetic's): lego's
         // r_88 is 2e-6 from orthonormal. A rotation that close is replaced by the nearest one
-        // (through its normalised quaternion), keeping the centre; anything farther is left
-        // for `validate` to reject.
+        // (through its normalised quaternion), keeping the centre the file gives (its last
+        // column: `pose.center()` of the unsnapped pose is `RᵀR` times it, off by as much as
+        // the rotation is); anything farther is left for `validate` to reject.
         let r = pose.rotation;
         let off = (r.transpose() * r - DMat3::IDENTITY)
             .to_cols_array()
             .iter()
             .fold(0.0_f64, |worst, v| worst.max(v.abs()));
         if off < 1e-4 && r.determinant() > 0.0 {
-            let centre = pose.center();
+            let centre = DVec3::from_array([0, 1, 2].map(|i| camera_to_world[i][3]));
             pose.rotation = DMat3::from_quat(DQuat::from_mat3(&r).normalize());
             pose.translation = -(pose.rotation * centre);
         }
@@ -660,6 +661,22 @@ mod tests {
         assert!((camera.direction_at_pixel(322.5, 238.0) - DVec3::NEG_Z).length() < 1e-15);
         // Image up (smaller v) is world +y.
         assert!(camera.direction_at_pixel(322.5, 0.0).y > 0.0);
+    }
+
+    #[test]
+    fn a_nearly_orthonormal_float32_rotation_keeps_the_files_camera_centre() {
+        // A rotation 1e-6 from orthonormal (the diagonal scaled), far from the origin.
+        let centre = [30.0, -20.0, 50.0];
+        let c2w = [0, 1, 2].map(|i| {
+            let mut row = [0.0; 4];
+            row[i] = 1.0 + 1e-6;
+            row[3] = centre[i];
+            row
+        });
+        let camera = ColmapCamera::from_nerfstudio(c2w, &nerfstudio_intrinsics("OPENCV")).unwrap();
+        let moved = (camera.pose.center() - DVec3::from_array(centre)).length();
+        // RᵀR c would be 2e-6 · |c| ≈ 1.2e-4 away.
+        assert!(moved < 1e-12, "{moved}");
     }
 
     #[test]

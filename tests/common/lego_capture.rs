@@ -223,3 +223,60 @@ pub fn tiny_scene_overrides<'a>(epochs: &'a str, checkpoint: &'a str) -> [&'a st
         checkpoint,
     ]
 }
+
+/// The views as instant-ngp's `scripts/colmap2nerf.py` writes them: `w` and `h` as floats,
+/// both focal forms (`fl_x` and `camera_angle_x`), zero distortion terms, `is_fisheye`,
+/// `aabb_scale`, `./`-prefixed paths and a `sharpness` per frame; odd frames carry their own
+/// intrinsics (as colmap2nerf writes them for several cameras), with the field of view but no
+/// `fl_x`. With `moved = Some((s, o))` every camera centre `p` is written as `s·p + o` (a
+/// gauge of its own, as colmap2nerf's recentring gives) and `scale`, `offset` are written too.
+pub fn write_colmap2nerf(lego: &Lego, dir: &Path, moved: Option<(f64, [f64; 3])>) {
+    let names = lego.copy_images(dir);
+    let (w, h) = (lego.size.0 as f64, lego.size.1 as f64);
+    let f = lego.focal_px();
+    let angle_x = 2.0 * (w / (2.0 * f)).atan();
+    let angle_y = 2.0 * (h / (2.0 * f)).atan();
+    let (s, o) = moved.unwrap_or((1.0, [0.0; 3]));
+    let camera = serde_json::json!({
+        "w": w, "h": h, "cx": w / 2.0, "cy": h / 2.0, "camera_angle_y": angle_y,
+        "camera_angle_x": angle_x, "fovx": angle_x.to_degrees(), "fovy": angle_y.to_degrees(),
+        "k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": 0.0, "p1": 0.0, "p2": 0.0, "is_fisheye": false,
+    });
+    let frames: Vec<serde_json::Value> = lego
+        .views
+        .iter()
+        .zip(&names)
+        .enumerate()
+        .map(|(i, (v, name))| {
+            let mut c2w = v.c2w;
+            for (r, offset) in o.iter().enumerate() {
+                c2w[r][3] = s * c2w[r][3] + offset;
+            }
+            let mut frame = serde_json::json!({
+                "file_path": format!("./images/{name}"), "sharpness": 100.0 + i as f64,
+                "transform_matrix": c2w,
+            });
+            if i % 2 == 1 {
+                frame
+                    .as_object_mut()
+                    .unwrap()
+                    .extend(camera.as_object().unwrap().clone());
+            }
+            frame
+        })
+        .collect();
+    let mut json = camera.clone();
+    let top = json.as_object_mut().unwrap();
+    top.insert("fl_x".into(), serde_json::json!(f));
+    top.insert("fl_y".into(), serde_json::json!(f));
+    top.insert("aabb_scale".into(), serde_json::json!(16));
+    top.insert("frames".into(), serde_json::json!(frames));
+    if moved.is_some() {
+        top.insert("scale".into(), serde_json::json!(s));
+        top.insert("offset".into(), serde_json::json!(o));
+    }
+    let text = serde_json::to_string_pretty(&json).unwrap();
+    // colmap2nerf's Python writes whole floats with their point: `"w": 400.0`.
+    assert!(text.contains(&format!("\"w\": {w:.1}")), "{text}");
+    std::fs::write(dir.join("transforms.json"), text).unwrap();
+}

@@ -3,7 +3,7 @@
 //!
 //! * COLMAP ([`super::colmap_scene`]): a sparse model (`sparse/N/`, `sparse/`, the model
 //!   files at the top, or nerfstudio's `colmap/sparse/N`) and the photos in `images/`;
-//! * nerfstudio ([`super::nerfstudio`]): `transforms.json`;
+//! * nerfstudio or instant-ngp ([`super::nerfstudio`]): `transforms.json`;
 //! * LLFF ([`super::llff`]): `poses_bounds.npy` and `images/`;
 //! * the NeRF-synthetic ("Blender") scenes, `transforms_{split}.json` ([`super::transforms`]).
 //!
@@ -59,7 +59,7 @@ impl SceneFormat {
     pub fn name(self) -> &'static str {
         match self {
             SceneFormat::Blender => "NeRF-synthetic (transforms_{split}.json)",
-            SceneFormat::Nerfstudio => "nerfstudio (transforms.json)",
+            SceneFormat::Nerfstudio => "nerfstudio or instant-ngp (transforms.json)",
             SceneFormat::Llff => "LLFF (poses_bounds.npy)",
             SceneFormat::Colmap => "COLMAP",
         }
@@ -169,7 +169,7 @@ pub fn read_capture_split_with(
         .into_iter()
         .enumerate()
         .filter(|(sorted, (original, _))| match &splits {
-            Some(s) => s[*original] == split,
+            Some(s) => s[*original].contains(&split),
             None => in_holdout_split(*sorted, split),
         })
         .map(|(_, (_, f))| {

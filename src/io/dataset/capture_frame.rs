@@ -27,9 +27,10 @@ pub struct CaptureFrame {
 pub struct CaptureFrames {
     /// Every frame.
     pub frames: Vec<CaptureFrame>,
-    /// The split of each frame when the files say (nerfstudio's `{train,val,test}_filenames`);
-    /// `None`: the every-8th holdout.
-    pub splits: Option<Vec<Split>>,
+    /// The splits each frame is in when the files say (nerfstudio's
+    /// `{train,val,test}_filenames`; a frame may be in `val` and `test`); `None`: the
+    /// every-8th holdout.
+    pub splits: Option<Vec<Vec<Split>>>,
 }
 
 /// The folder of a COLMAP or LLFF capture that holds its masks, beside `images/`.

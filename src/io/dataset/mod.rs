@@ -20,10 +20,12 @@ pub mod frame_image;
 pub mod frame_mask;
 pub mod llff;
 pub mod nerfstudio;
+pub mod ngp_scene;
 pub mod normalize;
 pub mod orbit;
 pub mod spiral;
 pub mod transforms;
+pub mod transforms_intrinsics;
 
 use std::path::{Path, PathBuf};
 

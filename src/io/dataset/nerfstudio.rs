@@ -1,10 +1,13 @@
-//! A nerfstudio capture: `transforms.json` as `ns-process-data` writes it. Intrinsics
-//! (`camera_model`, `fl_x fl_y cx cy w h`, `k1..k4 p1 p2`) stand at the top or per frame (a
-//! frame's own value wins, nerfstudio's rule); `transform_matrix` is camera → world in OpenGL
-//! axes; `file_path` (and a frame's optional `mask_path`, [`super::frame_mask`]) is relative
-//! to the directory. `train_filenames`, `val_filenames` and
+//! A nerfstudio or instant-ngp capture: `transforms.json` as nerfstudio's `ns-process-data`
+//! or instant-ngp's `scripts/colmap2nerf.py` writes it. The intrinsics keys of both tools
+//! ([`super::transforms_intrinsics`]) stand at the top or per frame (a frame's own value
+//! wins); instant-ngp's scene keys (`aabb_scale`, `scale`, `offset`, [`super::ngp_scene`])
+//! are checked and change nothing. `transform_matrix` is camera → world in OpenGL axes;
+//! `file_path` (and a frame's optional `mask_path`, [`super::frame_mask`]) is relative to the
+//! directory, and each photo is listed once. `train_filenames`, `val_filenames` and
 //! `test_filenames`, when present, name the splits. `applied_transform` is the transform
-//! nerfstudio already applied to the poses: the poses are read as they stand.
+//! nerfstudio already applied to the poses: the poses are read as they stand. Keys of neither
+//! camera nor scene (colmap2nerf's per-frame `sharpness`, `fovx`, `up`, …) are ignored.
 
 use std::collections::HashMap;
 use std::path::{Component, Path, PathBuf};
@@ -13,72 +16,14 @@ use anyhow::{anyhow, bail, Result};
 use serde::Deserialize;
 
 use super::capture_frame::{CaptureFrame, CaptureFrames};
+use super::ngp_scene::NgpSceneKeys;
 use super::transforms::Split;
-use crate::core::camera_colmap::{ColmapCamera, NerfstudioIntrinsics};
+use super::transforms_intrinsics::Intrinsics;
+use crate::core::camera_colmap::ColmapCamera;
 use crate::io::bounded_read::read_regular_file;
 
 /// Largest `transforms.json` read.
 pub const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
-
-/// Intrinsics keys, each optional at the top and per frame.
-#[derive(Debug, Clone, Default, Deserialize)]
-struct Intrinsics {
-    camera_model: Option<String>,
-    fl_x: Option<f64>,
-    fl_y: Option<f64>,
-    cx: Option<f64>,
-    cy: Option<f64>,
-    w: Option<usize>,
-    h: Option<usize>,
-    k1: Option<f64>,
-    k2: Option<f64>,
-    k3: Option<f64>,
-    k4: Option<f64>,
-    p1: Option<f64>,
-    p2: Option<f64>,
-}
-
-impl Intrinsics {
-    /// `self`'s values, `top`'s where `self` has none.
-    fn or(&self, top: &Intrinsics) -> Intrinsics {
-        macro_rules! pick {
-            ($($k:ident),*) => { Intrinsics { $($k: self.$k.clone().or(top.$k.clone())),* } };
-        }
-        pick!(
-            camera_model,
-            fl_x,
-            fl_y,
-            cx,
-            cy,
-            w,
-            h,
-            k1,
-            k2,
-            k3,
-            k4,
-            p1,
-            p2
-        )
-    }
-
-    /// The complete intrinsics; an error naming the first missing key.
-    fn complete(self) -> Result<NerfstudioIntrinsics> {
-        let need = |v: Option<f64>, k: &str| v.ok_or_else(|| anyhow!("no {k}"));
-        let fl_x = need(self.fl_x, "fl_x")?;
-        Ok(NerfstudioIntrinsics {
-            camera_model: self.camera_model.unwrap_or_else(|| "OPENCV".into()),
-            fl_x,
-            // nerfstudio reads a missing fl_y as fl_x.
-            fl_y: self.fl_y.unwrap_or(fl_x),
-            cx: need(self.cx, "cx")?,
-            cy: need(self.cy, "cy")?,
-            w: self.w.ok_or_else(|| anyhow!("no w"))?,
-            h: self.h.ok_or_else(|| anyhow!("no h"))?,
-            k: [self.k1, self.k2, self.k3, self.k4].map(|k| k.unwrap_or(0.0)),
-            p: [self.p1, self.p2].map(|p| p.unwrap_or(0.0)),
-        })
-    }
-}
 
 #[derive(Debug, Deserialize)]
 struct FrameEntry {
@@ -93,6 +38,8 @@ struct FrameEntry {
 struct TransformsJson {
     #[serde(flatten)]
     intrinsics: Intrinsics,
+    #[serde(flatten)]
+    ngp: NgpSceneKeys,
     frames: Vec<FrameEntry>,
     train_filenames: Option<Vec<String>>,
     val_filenames: Option<Vec<String>>,
@@ -111,6 +58,10 @@ pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
     let mut de = serde_json::Deserializer::from_slice(bytes);
     let file: TransformsJson = serde_path_to_error::deserialize(&mut de)
         .map_err(|e| anyhow!("cannot parse {}: {e}", path.display()))?;
+    file.intrinsics
+        .check()
+        .and_then(|_| file.ngp.check(file.frames.len()))
+        .map_err(|e| anyhow!("{}: {e}", path.display()))?;
     let frames = file
         .frames
         .iter()
@@ -129,10 +80,10 @@ pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
             if m.iter().flatten().any(|v| !v.is_finite()) {
                 return Err(context(anyhow!("transform_matrix is not finite")));
             }
-            let intrinsics = entry
-                .intrinsics
-                .or(&file.intrinsics)
-                .complete()
+            let own = &entry.intrinsics;
+            let intrinsics = own
+                .check()
+                .and_then(|_| own.resolve(&file.intrinsics))
                 .map_err(context)?;
             let camera =
                 ColmapCamera::from_nerfstudio([m[0], m[1], m[2]], &intrinsics).map_err(context)?;
@@ -148,6 +99,7 @@ pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
             })
         })
         .collect::<Result<Vec<_>>>()?;
+    refuse_duplicates(&frames, path)?;
     let splits = named_splits(&file, &frames, dir, path)?;
     Ok(CaptureFrames { frames, splits })
 }
@@ -170,14 +122,32 @@ fn relative_path(dir: &Path, file_path: &str) -> Result<PathBuf> {
     ))
 }
 
-/// Each frame's split from `{train,val,test}_filenames` when the file has them (a frame in
-/// none of them is an error); `None` otherwise.
+/// An error naming the first frame whose photo an earlier frame already lists (two poses
+/// for one photo would train it twice, as two views).
+fn refuse_duplicates(frames: &[CaptureFrame], path: &Path) -> Result<()> {
+    let mut first_of: HashMap<&Path, usize> = HashMap::new();
+    for (i, frame) in frames.iter().enumerate() {
+        if let Some(first) = first_of.insert(&frame.file_path, i) {
+            bail!(
+                "{}: frame {i} lists {}, as frame {first} does: each photo may be listed once",
+                path.display(),
+                frame.file_path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The splits of each frame from `{train,val,test}_filenames` when the file has them; `None`
+/// otherwise. A frame in none of them is an error, and so is one in `train_filenames` and a
+/// held-out list (it would be scored on a view it was trained on); `val_filenames` and
+/// `test_filenames` may share frames.
 fn named_splits(
     file: &TransformsJson,
     frames: &[CaptureFrame],
     dir: &Path,
     path: &Path,
-) -> Result<Option<Vec<Split>>> {
+) -> Result<Option<Vec<Vec<Split>>>> {
     let lists = [
         (Split::Train, &file.train_filenames),
         (Split::Val, &file.val_filenames),
@@ -186,16 +156,27 @@ fn named_splits(
     if lists.iter().all(|(_, l)| l.is_none()) {
         return Ok(None);
     }
-    let mut split_of: HashMap<PathBuf, Split> = HashMap::new();
+    let mut splits_of: HashMap<PathBuf, Vec<Split>> = HashMap::new();
     for (split, list) in lists {
         for name in list.iter().flatten() {
-            split_of.insert(relative_path(dir, name)?, split);
+            let splits = splits_of.entry(relative_path(dir, name)?).or_default();
+            if !splits.contains(&split) {
+                splits.push(split);
+            }
+            let trained = splits.contains(&Split::Train);
+            if let Some(held_out) = splits.iter().find(|s| trained && **s != Split::Train) {
+                bail!(
+                    "{}: {name} is in both train_filenames and {held_out}_filenames: a \
+                     held-out frame must not be trained on",
+                    path.display()
+                );
+            }
         }
     }
     frames
         .iter()
         .map(|f| {
-            split_of.get(&f.file_path).copied().ok_or_else(|| {
+            splits_of.get(&f.file_path).cloned().ok_or_else(|| {
                 anyhow!(
                     "{}: {} is in none of train_filenames, val_filenames, test_filenames",
                     path.display(),
@@ -246,7 +227,10 @@ mod tests {
         );
         let dir = Path::new("/cap");
         let read = parse(json.as_bytes(), dir, &dir.join("transforms.json")).unwrap();
-        assert_eq!(read.splits, Some(vec![Split::Train, Split::Test]));
+        assert_eq!(
+            read.splits,
+            Some(vec![vec![Split::Train], vec![Split::Test]])
+        );
         let no_focal = format!(
             r#"{{"w": 4, "h": 4, "cx": 2, "cy": 2, "frames": [{}]}}"#,
             frame("a.jpg", "")
@@ -261,5 +245,83 @@ mod tests {
         let escape = format!(r#"{{{TOP}, "frames": [{}]}}"#, frame("../../etc/x.jpg", ""));
         let err = parse(escape.as_bytes(), dir, &dir.join("transforms.json")).unwrap_err();
         assert!(err.to_string().contains("without `..`"), "{err}");
+    }
+
+    #[test]
+    fn a_colmap2nerf_file_loads() {
+        // colmap2nerf.py's output for one PINHOLE camera: floats, aabb_scale, sharpness.
+        let json = format!(
+            r#"{{"camera_angle_x": 1.1760052070951352, "camera_angle_y": 0.9272952180016122,
+            "fl_x": 500.0, "fl_y": 500.0, "k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": 0.0,
+            "p1": 0.0, "p2": 0.0, "is_fisheye": false, "cx": 320.0, "cy": 240.0,
+            "w": 640.0, "h": 480.0, "aabb_scale": 16, "frames": [{}, {}]}}"#,
+            frame("a.jpg", r#", "sharpness": 341.5"#),
+            frame(
+                "b.jpg",
+                r#", "sharpness": 12.25, "w": 320.0, "h": 240.0, "cx": 160.0, "cy": 120.0, "camera_angle_x": 1.5707963267948966"#
+            )
+        );
+        let dir = Path::new("/cap");
+        let read = parse(json.as_bytes(), dir, &dir.join("transforms.json")).unwrap();
+        let [a, b] = [&read.frames[0].camera, &read.frames[1].camera];
+        assert_eq!((a.size, a.focal), ((640, 480), [500.0, 500.0]));
+        // The second frame's own field of view: 90° across 320 px; fl_y from the top.
+        assert_eq!(b.size, (320, 240));
+        assert!(
+            (b.focal[0] - 160.0).abs() < 1e-9 && b.focal[1] == 500.0,
+            "{b:?}"
+        );
+        let bad = json.replacen(r#""aabb_scale": 16"#, r#""aabb_scale": -1"#, 1);
+        let err = parse(bad.as_bytes(), dir, &dir.join("transforms.json")).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "/cap/transforms.json: aabb_scale = -1 is not a positive number"
+        );
+    }
+
+    #[test]
+    fn a_photo_listed_twice_or_trained_and_held_out_is_named() {
+        let dir = Path::new("/cap");
+        let path = dir.join("transforms.json");
+        let twice = format!(
+            r#"{{{TOP}, "frames": [{}, {}, {}]}}"#,
+            frame("a.jpg", ""),
+            frame("b.jpg", ""),
+            frame("a.jpg", "").replace("images/a.jpg", "./images/./a.jpg")
+        );
+        let err = parse(twice.as_bytes(), dir, &path).unwrap_err().to_string();
+        assert_eq!(
+            err,
+            "/cap/transforms.json: frame 2 lists /cap/images/a.jpg, as frame 0 does: each \
+             photo may be listed once"
+        );
+        let splits = |lists: &str| {
+            let json = format!(
+                r#"{{{TOP}, "frames": [{}, {}], {lists}}}"#,
+                frame("a.jpg", ""),
+                frame("b.jpg", "")
+            );
+            parse(json.as_bytes(), dir, &path).map(|r| r.splits.unwrap())
+        };
+        let err = splits(
+            r#""train_filenames": ["images/a.jpg", "images/b.jpg"], "test_filenames": ["images/b.jpg"]"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.starts_with(
+                "/cap/transforms.json: images/b.jpg is in both train_filenames and test_filenames"
+            ),
+            "{err}"
+        );
+        // val and test may share frames.
+        let shared = splits(
+            r#""train_filenames": ["images/a.jpg"], "val_filenames": ["images/b.jpg"], "test_filenames": ["./images/b.jpg"]"#,
+        )
+        .unwrap();
+        assert_eq!(
+            shared,
+            vec![vec![Split::Train], vec![Split::Val, Split::Test]]
+        );
     }
 }
