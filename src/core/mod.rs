@@ -11,6 +11,7 @@ pub mod contraction;
 pub mod distortion;
 pub mod fastexp;
 pub mod frame_camera;
+pub mod frame_selection;
 pub mod image;
 pub mod marching_cubes;
 pub mod marching_tables;
