@@ -294,18 +294,40 @@ pub struct EvalArgs {
 
 /// `nerf process`.
 #[derive(Args, Debug)]
+#[command(group(clap::ArgGroup::new("source").required(true).args(["images", "video"])))]
 pub struct ProcessArgs {
     /// The folder of photos (PNG and JPEG, subfolders included, sorted by path).
     #[arg(long)]
-    pub images: PathBuf,
+    pub images: Option<PathBuf>,
+    /// A video (anything ffmpeg reads): frames spread over the clip, the sharpest of each
+    /// stretch, are written to OUT/images and matched sequentially. Needs ffmpeg (on PATH,
+    /// or NERF_FFMPEG).
+    #[arg(long)]
+    pub video: Option<PathBuf>,
+    /// Frames kept from --video (3 to 2000; default 100).
+    #[arg(long, value_parser = frame_count, conflicts_with = "images")]
+    pub frames: Option<usize>,
     /// The capture folder to write: images/, colmap/ (the database, the sparse models and
     /// each stage's log) and transforms.json. It must not hold an earlier run's outputs.
     #[arg(long)]
     pub out: PathBuf,
     /// How COLMAP pairs images: exhaustive (every pair), sequential (neighbours in name
-    /// order, for video frames), or auto (exhaustive up to 100 images).
+    /// order, for video frames), or auto (sequential for --video; for photos exhaustive up
+    /// to 100 images).
     #[arg(long, value_enum, default_value = "auto")]
     pub matcher: MatcherArg,
+    /// A COLMAP vocabulary tree file (e.g. vocab_tree_flickr100K_words32K.bin from COLMAP's
+    /// site): sequential matching then also looks for loop closures. Debian's colmap ships
+    /// none, so without it there is no loop detection.
+    #[arg(long)]
+    pub vocab_tree: Option<PathBuf>,
+    /// Most SIFT features kept per photo: matching time grows with its square (100 to 65536).
+    #[arg(long, default_value_t = crate::app::process::DEFAULT_MAX_FEATURES, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=65536))]
+    pub max_features: usize,
+    /// Photos whose longer side is larger than this many pixels are downscaled for feature
+    /// extraction (100 to 16384).
+    #[arg(long, default_value_t = crate::app::process::DEFAULT_MAX_IMAGE_SIZE, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=16384))]
+    pub max_image_size: usize,
     /// Runs of COLMAP's mapper, each with its own random seed: the run the others agree with
     /// best is kept, and images the others place elsewhere are left out (1 to 10).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=10))]
@@ -315,6 +337,14 @@ pub struct ProcessArgs {
     /// COLMAP's 4 px; raise this for blurred or rolling-shutter photos).
     #[arg(long, default_value_t = 1.5, value_parser = positive_pixels)]
     pub max_reprojection_error: f64,
+}
+
+/// A number of video frames from 3 to 2000.
+fn frame_count(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(v) if (3..=2000).contains(&v) => Ok(v),
+        _ => Err(format!("{text:?} is not a number of frames from 3 to 2000")),
+    }
 }
 
 /// A finite number of pixels above 0.

@@ -379,10 +379,26 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
 /// `nerf process`: photos to a capture through COLMAP ([`crate::app::process::process`]);
 /// prints what it wrote, how many images registered and the command that trains on it.
 pub fn process(args: ProcessArgs) -> Result<()> {
+    use crate::app::process::Source;
+    let source = match (args.images, args.video) {
+        (Some(images), _) => Source::Images(images),
+        (None, Some(file)) => Source::Video {
+            file,
+            frames: args
+                .frames
+                .unwrap_or(crate::app::video_frames::DEFAULT_FRAMES),
+        },
+        (None, None) => anyhow::bail!("nerf process needs --images DIR or --video FILE"),
+    };
     let options = crate::app::process::ProcessOptions {
-        images: args.images,
+        source,
         out: args.out,
         matcher: args.matcher.into(),
+        vocab_tree: args.vocab_tree,
+        features: crate::app::process::FeatureOptions {
+            max_features: args.max_features,
+            max_image_size: args.max_image_size,
+        },
         mapping: crate::app::process_mapper::MappingOptions {
             runs: args.mapper_runs,
             max_reprojection_error: args.max_reprojection_error,

@@ -24,6 +24,7 @@ pub mod scene;
 pub mod scene_frame;
 pub mod train;
 pub mod train_box;
+pub mod video_frames;
 #[cfg(feature = "cli")]
 pub mod view;
 #[cfg(feature = "cli")]

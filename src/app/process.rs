@@ -1,10 +1,12 @@
-//! `nerf process --images DIR --out OUT`: a folder of photos to a trainable capture through
-//! structure from motion. The photos (PNG and JPEG, sorted, subfolders included) are copied to
-//! `OUT/images`; COLMAP's command line runs feature extraction, matching and mapping into
-//! `OUT/colmap` (each stage's output in `OUT/colmap/<stage>.log`). The mapper runs several
-//! times ([`crate::app::process_mapper`]): the run the others agree with best is kept, its
-//! model with the most registered images is written as nerfstudio's `OUT/transforms.json`
-//! (less any image the other runs place elsewhere), which `--data-dir OUT` then trains on.
+//! `nerf process --images DIR --out OUT` (or `--video FILE`): photos (or frames of a video) to
+//! a trainable capture through structure from motion. The photos (PNG and JPEG, sorted,
+//! subfolders included) are copied to `OUT/images`, or frames chosen from the video
+//! ([`crate::app::video_frames`]) written there; COLMAP's command line runs feature extraction,
+//! matching and mapping into `OUT/colmap` (each stage's output in `OUT/colmap/<stage>.log`).
+//! The mapper runs several times ([`crate::app::process_mapper`]): the run the others agree
+//! with best is kept, its model with the most registered images is written as nerfstudio's
+//! `OUT/transforms.json` (less any image the other runs place elsewhere), which `--data-dir
+//! OUT` then trains on.
 //!
 //! COLMAP is Debian's `colmap` package (`sudo apt-get install colmap`), run as a program
 //! (`colmap` on `PATH`, or the executable named by `NERF_COLMAP`), not the `pycolmap` wheel:
@@ -25,7 +27,8 @@ use crate::io::progress::progress_bar;
 
 pub use crate::app::process_mapper::MIN_REGISTERED;
 
-/// Above this many images, [`Matcher::Auto`] matches sequentially instead of exhaustively.
+/// Above this many images, [`Matcher::Auto`] matches sequentially instead of exhaustively
+/// (a video's frames are always matched sequentially).
 pub const EXHAUSTIVE_MAX_IMAGES: usize = 100;
 
 /// COLMAP's `exhaustive_matcher` matches images in blocks of this many (its default
@@ -38,7 +41,8 @@ const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
 /// How COLMAP pairs images for matching.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Matcher {
-    /// Exhaustive up to [`EXHAUSTIVE_MAX_IMAGES`] images, sequential above.
+    /// Sequential for a video's frames; for photos exhaustive up to [`EXHAUSTIVE_MAX_IMAGES`]
+    /// images, sequential above.
     Auto,
     /// Every pair (`exhaustive_matcher`): quadratic in the number of images.
     Exhaustive,
@@ -48,26 +52,72 @@ pub enum Matcher {
 }
 
 impl Matcher {
-    /// The COLMAP command for `images` images.
-    pub fn command(self, images: usize) -> &'static str {
+    /// The COLMAP command for `images` images (`ordered`: frames of a video, in order).
+    pub fn command(self, images: usize, ordered: bool) -> &'static str {
         match self {
             Matcher::Exhaustive => "exhaustive_matcher",
             Matcher::Sequential => "sequential_matcher",
-            Matcher::Auto if images > EXHAUSTIVE_MAX_IMAGES => "sequential_matcher",
+            Matcher::Auto if ordered || images > EXHAUSTIVE_MAX_IMAGES => "sequential_matcher",
             Matcher::Auto => "exhaustive_matcher",
         }
     }
 }
 
+/// Where the photos come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Source {
+    /// A folder of photos, copied.
+    Images(PathBuf),
+    /// A video, of which `frames` frames are chosen ([`crate::app::video_frames`]).
+    Video {
+        /// The video file.
+        file: PathBuf,
+        /// Frames to keep, at least 3.
+        frames: usize,
+    },
+}
+
+/// How COLMAP extracts SIFT features: matching compares every feature of one image with every
+/// feature of the other, so its time grows with the square of the features kept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FeatureOptions {
+    /// Most features kept per image (`--SiftExtraction.max_num_features`; the largest-scale
+    /// ones are kept).
+    pub max_features: usize,
+    /// Photos larger than this (pixels, the longer side) are downscaled for extraction
+    /// (`--SiftExtraction.max_image_size`).
+    pub max_image_size: usize,
+}
+
+impl Default for FeatureOptions {
+    fn default() -> Self {
+        Self {
+            max_features: DEFAULT_MAX_FEATURES,
+            max_image_size: DEFAULT_MAX_IMAGE_SIZE,
+        }
+    }
+}
+
+/// [`FeatureOptions::max_features`] by default.
+pub const DEFAULT_MAX_FEATURES: usize = 8192;
+
+/// [`FeatureOptions::max_image_size`] by default.
+pub const DEFAULT_MAX_IMAGE_SIZE: usize = 3200;
+
 /// What [`process`] is asked to do.
 #[derive(Debug, Clone)]
 pub struct ProcessOptions {
-    /// The folder of photos.
-    pub images: PathBuf,
+    /// The photos.
+    pub source: Source,
     /// The capture folder written.
     pub out: PathBuf,
     /// How images are paired for matching.
     pub matcher: Matcher,
+    /// A COLMAP vocabulary tree file: with it, sequential matching also detects loops
+    /// (`--SequentialMatching.loop_detection 1`); Debian's colmap ships none.
+    pub vocab_tree: Option<PathBuf>,
+    /// How features are extracted.
+    pub features: FeatureOptions,
     /// How the mapper runs.
     pub mapping: MappingOptions,
 }
@@ -84,8 +134,10 @@ pub struct StageTime {
 /// What [`process`] made.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProcessSummary {
-    /// Photos found and copied.
+    /// Photos found and copied, or frames written from the video.
     pub images: usize,
+    /// For a video, how its frames were chosen.
+    pub video: Option<crate::app::video_frames::FrameChoice>,
     /// Images in the chosen model.
     pub registered: usize,
     /// Images of the chosen model left out of `transforms.json` because the other mapper
@@ -198,22 +250,45 @@ pub fn copy_images(from: &Path, names: &[PathBuf], to: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Runs the whole pipeline of the module doc: lists and copies the photos, runs COLMAP's
-/// feature extraction and matching, maps ([`crate::app::process_mapper::map`]), and writes
-/// `OUT/transforms.json` (atomically, last, so a failed run leaves none). One-line errors:
-/// no photos, COLMAP missing, an earlier run's outputs in `OUT`, a stage that failed (naming
-/// its log), fewer than [`MIN_REGISTERED`] images registered, a camera model nerfstudio
-/// cannot hold.
+/// Runs the whole pipeline of the module doc: lists and copies the photos (or writes the
+/// video's chosen frames), runs COLMAP's feature extraction and matching, maps
+/// ([`crate::app::process_mapper::map`]), and writes `OUT/transforms.json` (atomically, last,
+/// so a failed run leaves none). One-line errors: no photos, not a video, ffmpeg or COLMAP
+/// missing, a vocabulary tree that is not a file, an earlier run's outputs in `OUT`, a stage
+/// that failed (naming its log), fewer than [`MIN_REGISTERED`] images registered, a camera
+/// model nerfstudio cannot hold. Before anything is written, `OUT` is left as it was.
 pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     let ProcessOptions {
-        images: source,
+        source,
         out,
         matcher,
+        vocab_tree,
+        features,
         mapping,
     } = options;
-    let names = list_images(source, Some(out))?;
+    let photos = match source {
+        Source::Images(dir) => Some(list_images(dir, Some(out))?),
+        Source::Video { file, frames } => {
+            if !file.is_file() {
+                bail!("--video {}: not a file", file.display());
+            }
+            if *frames < MIN_REGISTERED {
+                bail!("--frames {frames}: at least {MIN_REGISTERED} frames are needed");
+            }
+            None
+        }
+    };
+    let ffmpeg = crate::app::video_frames::ffmpeg_program();
+    if photos.is_none() {
+        crate::app::video_frames::check_ffmpeg(&ffmpeg)?;
+    }
     let program = colmap_program();
     check_colmap(&program)?;
+    if let Some(tree) = vocab_tree {
+        if !tree.is_file() {
+            bail!("--vocab-tree {}: not a file", tree.display());
+        }
+    }
     let earlier = earlier_outputs(out);
     if !earlier.is_empty() {
         bail!(
@@ -224,20 +299,60 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     }
     let images = out.join("images");
     let colmap = out.join("colmap");
+    let (names, video) = match source {
+        Source::Images(dir) => {
+            let names = photos.unwrap_or_default();
+            log::info!(
+                "{} photos in {}: copying them to {}",
+                names.len(),
+                dir.display(),
+                images.display()
+            );
+            copy_images(dir, &names, &images)?;
+            (names, None)
+        }
+        Source::Video { file, frames } => {
+            let probe = crate::app::video_frames::probe(&ffmpeg, file)?;
+            std::fs::create_dir_all(out)
+                .with_context(|| format!("cannot create {}", out.display()))?;
+            let choice =
+                crate::app::video_frames::extract_frames(&ffmpeg, file, &probe, *frames, &images)?;
+            log::info!(
+                "wrote {} frames of {} to {} (the sharpest of each stretch of {} candidates over {:.1} s)",
+                choice.frames,
+                file.display(),
+                images.display(),
+                choice.candidates,
+                choice.duration
+            );
+            (list_images(&images, None)?, Some(choice))
+        }
+    };
     std::fs::create_dir_all(&colmap)
         .with_context(|| format!("cannot create {}", colmap.display()))?;
-    log::info!(
-        "{} photos in {}: copying them to {}",
-        names.len(),
-        source.display(),
-        images.display()
-    );
-    copy_images(source, &names, &images)?;
 
     let database = colmap.join("database.db");
     let n = names.len();
-    let matcher = matcher.command(n);
+    let matcher = matcher.command(n, video.is_some());
+    let loops: Vec<&std::ffi::OsStr> = match vocab_tree {
+        Some(tree) if matcher == "sequential_matcher" => vec![
+            "--SequentialMatching.loop_detection".as_ref(),
+            "1".as_ref(),
+            "--SequentialMatching.vocab_tree_path".as_ref(),
+            tree.as_os_str(),
+        ],
+        Some(tree) => {
+            log::warn!(
+                "--vocab-tree {} is used by sequential matching only; {matcher} runs without it",
+                tree.display()
+            );
+            Vec::new()
+        }
+        None => Vec::new(),
+    };
     let blocks = n.div_ceil(EXHAUSTIVE_BLOCK).pow(2);
+    let max_features = features.max_features.to_string();
+    let max_image_size = features.max_image_size.to_string();
     let stages: [(&'static str, Vec<&std::ffi::OsStr>, usize); 2] = [
         (
             "feature_extractor",
@@ -252,6 +367,10 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
                 "OPENCV".as_ref(),
                 "--SiftExtraction.use_gpu".as_ref(),
                 "0".as_ref(),
+                "--SiftExtraction.max_num_features".as_ref(),
+                max_features.as_ref(),
+                "--SiftExtraction.max_image_size".as_ref(),
+                max_image_size.as_ref(),
             ],
             n,
         ),
@@ -262,7 +381,10 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
                 database.as_os_str(),
                 "--SiftMatching.use_gpu".as_ref(),
                 "0".as_ref(),
-            ],
+            ]
+            .into_iter()
+            .chain(loops)
+            .collect(),
             if matcher == "exhaustive_matcher" {
                 blocks
             } else {
@@ -353,6 +475,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     );
     Ok(ProcessSummary {
         images: n,
+        video,
         registered,
         left_out: mapping.outliers,
         frames,

@@ -12,6 +12,7 @@ pub mod distortion;
 pub mod distortion_loss;
 pub mod fastexp;
 pub mod frame_camera;
+pub mod frame_selection;
 pub mod image;
 pub mod marching_cubes;
 pub mod marching_tables;

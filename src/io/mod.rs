@@ -3,6 +3,7 @@
 
 pub mod bounded_read;
 pub mod camera_path;
+pub mod camera_truth;
 pub mod checkpoint;
 pub mod checkpoint_file;
 pub mod colmap;
