@@ -373,7 +373,7 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(
         stdout.contains("plain white (100% of border pixels)")
-            && stdout.contains("renderer.white_background=True"),
+            && stdout.contains("nerf train --config nerf_scene --data-dir"),
         "{stdout}"
     );
 

@@ -110,7 +110,7 @@ pub enum Command {
     View(ViewArgs),
     /// Photos to a trainable capture: copies them to OUT/images, runs COLMAP (feature
     /// extraction, matching, mapping; logs in OUT/colmap) and writes OUT/transforms.json
-    /// (nerfstudio's format) for `nerf train --config nerf_scene_unbounded --data-dir OUT`.
+    /// (nerfstudio's format) for `nerf train --config nerf_scene --data-dir OUT`.
     Process(ProcessArgs),
     /// Take a scene out as files: a coloured mesh, a point cloud, or depth maps.
     Export {

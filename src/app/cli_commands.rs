@@ -435,15 +435,13 @@ pub fn process(args: ProcessArgs) -> Result<()> {
         .filter(|&f| f >= crate::io::dataset::backdrop::WHITE_FRACTION);
     match white {
         Some(fraction) => say(&format!(
-            "the photos' borders are plain white ({:.0}% of border pixels): train and evaluate \
-             with renderer.white_background=True, e.g. nerf train --config nerf_scene_unbounded \
-             --data-dir {} renderer.white_background=True",
+            "the photos' borders are plain white ({:.0}% of border pixels), which nerf_scene \
+             detects and renders on: nerf train --config nerf_scene --data-dir {}",
             100.0 * fraction,
             options.out.display()
         )),
         None => say(&format!(
-            "train on it: nerf train --config nerf_scene_unbounded --data-dir {} (photos with \
-             background; nerf_scene for an object whose photos have alpha or masks)",
+            "train on it: nerf train --config nerf_scene --data-dir {}",
             options.out.display()
         )),
     }
