@@ -89,20 +89,19 @@ fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white(
     assert!(epochs >= 2, "the time budget stopped at epoch {epochs}");
 
     let renders = root.path().join("renders");
-    let eval = common::nerf_ok(&[
-        "eval",
-        "--config",
-        "nerf_scene",
-        "--data-dir",
-        data_arg,
-        "--checkpoint",
-        ckpt.to_str().unwrap(),
-        "--split",
-        "test",
-        "--save-images",
-        renders.to_str().unwrap(),
-        "sampler.n_pts_per_ray=32",
-    ]);
+    let ckpt_path = ckpt.to_str().unwrap();
+    let eval_with = |extra: &[&str]| {
+        let head = ["eval", "--config", "nerf_scene", "--data-dir", data_arg];
+        let tail = [
+            "--checkpoint",
+            ckpt_path,
+            "--split",
+            "test",
+            "sampler.n_pts_per_ray=32",
+        ];
+        common::nerf_ok(&[&head[..], &tail[..], extra].concat())
+    };
+    let eval = eval_with(&["--save-images", renders.to_str().unwrap()]);
     let out = String::from_utf8_lossy(&eval.stdout);
     assert!(
         out.contains("2 views at 40x40") && out.contains("on white"),
@@ -116,19 +115,7 @@ fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white(
     let written = image::image_dimensions(renders.join("frame_08.png")).unwrap();
     assert_eq!(written, (SIDE, SIDE));
     // Told otherwise, eval renders on black.
-    let black = common::nerf_ok(&[
-        "eval",
-        "--config",
-        "nerf_scene",
-        "--data-dir",
-        data_arg,
-        "--checkpoint",
-        ckpt.to_str().unwrap(),
-        "--split",
-        "test",
-        "sampler.n_pts_per_ray=32",
-        "renderer.background=black",
-    ]);
+    let black = eval_with(&["renderer.background=black"]);
     assert!(String::from_utf8_lossy(&black.stdout).contains("on black"));
 }
 
