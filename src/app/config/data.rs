@@ -233,7 +233,7 @@ mod tests {
         let (dir, json) = crate::io::test_files::temp_file("transforms.json");
         let frame = |z: f64| {
             format!(
-                r#"{{"file_path": "a.jpg", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,{z}],[0,0,0,1]]}}"#
+                r#"{{"file_path": "{z}.jpg", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,{z}],[0,0,0,1]]}}"#
             )
         };
         std::fs::write(
