@@ -21,6 +21,7 @@ pub mod cpu_kernel;
 pub mod gemm;
 pub mod hash_block;
 pub mod hash_grid;
+pub mod hash_point_gradient;
 pub mod ngp_mlp;
 pub mod sample_points;
 pub mod sdf_ray;
