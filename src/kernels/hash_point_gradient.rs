@@ -11,7 +11,7 @@
 //! Both forms run only when the points are tracked by autograd: ordinary training and
 //! rendering (points from the host, never tracked) pay nothing.
 //!
-//! * Fused: [`point_gradients`] walks the points in parallel, each through every level, and
+//! * Fused: [`point_gradients`] walks blocks of points in parallel, one level at a time, and
 //!   sums `∂w_k/∂p · ⟨grad_l, T[row_k]⟩` over the 8 corners.
 //! * Twin: [`tracked_corner_weights`] builds the trilinear weights as tensor ops on the
 //!   points, so that Candle's autograd differentiates them (their values are exactly the
@@ -22,8 +22,8 @@ use rayon::prelude::*;
 
 use crate::kernels::hash_grid::{HashGridParams, Level};
 
-/// Points per task of [`point_gradients`].
-const POINTS_PER_TASK: usize = 256;
+/// Points per task of [`point_gradients`] (a task walks them one level at a time).
+const POINTS_PER_TASK: usize = 1024;
 
 /// The gradient `(m, 3)` of a loss with respect to `points` `(m, 3)` given its gradient
 /// `grads` `(m, L·f)` with respect to their encoding by `table` (the `(L·T, f)` rows, level
@@ -42,15 +42,18 @@ pub fn point_gradients(
         .zip(points.par_chunks(POINTS_PER_TASK * 3))
         .zip(grads.par_chunks(POINTS_PER_TASK * width))
         .for_each(|((out, points), grads)| {
-            for ((d, q), g) in out
-                .chunks_exact_mut(3)
-                .zip(points.chunks_exact(3))
-                .zip(grads.chunks_exact(width))
-            {
-                for (l, level) in levels.iter().enumerate() {
+            // Level by level, so that the reads stay in one level's slice of the table (as
+            // the fused forward pass walks it).
+            for (l, level) in levels.iter().enumerate() {
+                let table = &table[l * t * f..(l + 1) * t * f];
+                for ((d, q), g) in out
+                    .chunks_exact_mut(3)
+                    .zip(points.chunks_exact(3))
+                    .zip(grads.chunks_exact(width))
+                {
                     let g = &g[l * f..(l + 1) * f];
                     for (row, _, dw) in level.corner_gradients([q[0], q[1], q[2]]) {
-                        let at = (l * t + row as usize) * f;
+                        let at = row as usize * f;
                         let s: f32 = g.iter().zip(&table[at..at + f]).map(|(g, v)| g * v).sum();
                         for a in 0..3 {
                             d[a] += s * dw[a];

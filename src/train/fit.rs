@@ -37,6 +37,7 @@ use crate::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
 use crate::render::field::Field;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
+use crate::train::camera_refinement::{write_poses, CameraRefinement, CameraRefinementMode};
 use crate::train::model::{Optimizer, TrainModel};
 use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings, TrainRng};
 
@@ -83,6 +84,8 @@ pub struct TrainSettings {
     pub samples_per_step: Option<usize>,
     /// The most rays an adapted step may take (each draws all its samples before skipping).
     pub max_rays: usize,
+    /// Whether to refine the training cameras ([`crate::train::camera_refinement`]).
+    pub camera_refinement: CameraRefinementMode,
 }
 
 /// The rays of the next step when each step should evaluate about `target` samples and the
@@ -188,9 +191,10 @@ fn check_resumable(
 fn start_or_resume(
     settings: &TrainSettings,
     paths: &TrainPaths,
-    n_images: usize,
+    dataset: &Dataset,
     device: &Device,
 ) -> Result<(TrainModel, Optimizer, CheckpointInfo)> {
+    let n_images = dataset.images.len();
     let (mut state, tensors, info) = if settings.resume && paths.checkpoint.is_file() {
         let resumed = TrainModel::from_checkpoint(&*settings.model, &paths.checkpoint, device)?;
         check_resumable(&resumed.info, settings, n_images, &paths.checkpoint)?;
@@ -211,6 +215,15 @@ fn start_or_resume(
         state.occupancy = Some(OccupancyGrid::new(&schedule.grid)?);
     }
     let mut adam = Optimizer::new(&state, settings.lr)?;
+    let is_capture = dataset.normalisation.is_some();
+    if settings.camera_refinement.enabled(is_capture) {
+        let mut cameras = CameraRefinement::new(n_images, device)?;
+        if info.adam_step > 0 && !cameras.load_state(&tensors)? {
+            log::info!("the checkpoint holds no camera refinement: refining from zero");
+        }
+        log::info!("refining the {n_images} training cameras (training.camera_refinement)");
+        adam.cameras = Some(cameras);
+    }
     if info.adam_step > 0 {
         adam.load_state(&tensors, info.adam_step)?;
         if let (Some(schedule), Some(saved)) = (&settings.grid, tensors.get(CHECKPOINT_KEY)) {
@@ -360,6 +373,10 @@ impl Run<'_> {
             .and_then(|()| self.log.flush())
             .with_context(|| format!("cannot append to {}", self.paths.log.display()))?;
         self.pending.clear();
+        if let Some(cameras) = &self.adam.cameras {
+            let path = self.paths.checkpoint.with_extension("cameras.json");
+            write_poses(cameras, &self.dataset.frames, &path)?;
+        }
         Ok(())
     }
 
@@ -617,7 +634,7 @@ pub fn fit(
     device: &Device,
 ) -> Result<FitOutcome> {
     crate::core::allocator::ensure_allocator_tuned();
-    let (state, adam, info) = start_or_resume(settings, paths, dataset.images.len(), device)?;
+    let (state, adam, info) = start_or_resume(settings, paths, dataset, device)?;
     if info.epoch >= settings.num_epochs {
         // A run killed while rewriting its final checkpoint leaves a temporary file; nothing
         // else will clean it up here.
@@ -690,6 +707,9 @@ pub fn fit(
     }
     run.checkpoint()?;
     run.bar.finish_and_clear();
+    if let Some(cameras) = &run.adam.cameras {
+        log::info!("{}", cameras.summary()?);
+    }
     Ok(FitOutcome::Finished(run.info))
 }
 

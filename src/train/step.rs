@@ -10,6 +10,7 @@ use crate::io::dataset::Dataset;
 use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::skipping::SampleCounts;
+use crate::train::camera_refinement::CameraRefinement;
 use crate::train::model::{Optimizer, TrainModel};
 
 /// The training loop's random generator: ChaCha12, the generator behind
@@ -40,6 +41,21 @@ pub fn training_batch(
     batch_size: usize,
     rays_from_all_images: bool,
     image_index: usize,
+    rng: &mut TrainRng,
+    device: &Device,
+) -> Result<(Rays, Tensor, Tensor)> {
+    let all = rays_from_all_images;
+    training_batch_refined(dataset, (batch_size, all), image_index, None, rng, device)
+}
+
+/// [`training_batch`] (`(batch_size, rays_from_all_images)`) with each ray moved by its
+/// camera's correction when `cameras` are refined
+/// ([`crate::train::camera_refinement`]; the rays are then tracked by autograd).
+pub fn training_batch_refined(
+    dataset: &Dataset,
+    (batch_size, rays_from_all_images): (usize, bool),
+    image_index: usize,
+    cameras: Option<&CameraRefinement>,
     rng: &mut TrainRng,
     device: &Device,
 ) -> Result<(Rays, Tensor, Tensor)> {
@@ -103,11 +119,19 @@ pub fn training_batch(
         );
     }
     let n = target.len() / 3;
+    let mut rays = Rays {
+        origins: Tensor::cat(&origins, 0)?,
+        directions: Tensor::cat(&directions, 0)?,
+    };
+    if let Some(cameras) = cameras {
+        let image_of_ray: Vec<u32> = groups
+            .iter()
+            .flat_map(|(image, pixels)| std::iter::repeat_n(*image as u32, pixels.len()))
+            .collect();
+        rays = cameras.apply(&rays, &image_of_ray)?;
+    }
     Ok((
-        Rays {
-            origins: Tensor::cat(&origins, 0)?,
-            directions: Tensor::cat(&directions, 0)?,
-        },
+        rays,
         Tensor::from_vec(target, (n, 3), device)?,
         Tensor::from_vec(transparency, (n, 1), device)?,
     ))
@@ -167,11 +191,11 @@ pub fn train_step(
     rng: &mut TrainRng,
     device: &Device,
 ) -> Result<(f64, SampleCounts)> {
-    let (rays, mut target, transparency) = training_batch(
+    let (rays, mut target, transparency) = training_batch_refined(
         dataset,
-        settings.batch_size,
-        settings.rays_from_all_images,
+        (settings.batch_size, settings.rays_from_all_images),
         image_index,
+        optimizer.cameras.as_ref(),
         rng,
         device,
     )?;
