@@ -40,7 +40,7 @@ use crate::train::sparse_adam::SparseAdam;
 pub const CHECKPOINT_KEY: &str = "camera_refinement";
 
 /// The corrections' initial learning rate.
-pub const LEARNING_RATE: f64 = 1e-3;
+pub const LEARNING_RATE: f64 = 3e-4;
 
 /// The corrections' weight decay `λ` (`λ·p` added to their gradient).
 pub const WEIGHT_DECAY: f64 = 1e-2;
