@@ -434,3 +434,62 @@ fn distortion_loss_of_the_packed_and_dense_paths_equals_its_recomputation() {
         .distortion
         .is_none());
 }
+
+#[test]
+fn tracked_rays_get_the_dense_paths_gradient_through_the_packed_pass() {
+    // Every sample evaluated (an all-occupied grid, no termination): the packed pass with
+    // its points formed as tensor ops must give the rays the dense path's gradient, and the
+    // values of the packed pass of untracked rays.
+    let m = model(0.3);
+    let sampler = StratifiedSampler::new(24, 2.0, 6.0).unwrap();
+    let grid = || {
+        let config = OccupancyGridParams {
+            resolution: 64,
+            aabb: [-10.0, -10.0, -10.0, 10.0, 10.0, 10.0],
+            density_threshold: 1.0,
+            contraction: Contraction::None,
+        };
+        Some(OccupancyGrid::new(&config).unwrap())
+    };
+    let renderer = VolumeRenderer::new(1000, false).unwrap();
+    let plain = rays();
+    let origins = candle_core::Var::from_tensor(&plain.origins).unwrap();
+    let directions = candle_core::Var::from_tensor(&plain.directions).unwrap();
+    let tracked = Rays {
+        origins: origins.as_tensor().clone(),
+        directions: directions.as_tensor().clone(),
+    };
+    let untracked = renderer
+        .render(&field(&m, grid()), &sampler, &plain, None)
+        .unwrap();
+    let packed = renderer
+        .render(&field(&m, grid()), &sampler, &tracked, None)
+        .unwrap();
+    // (Not bit for bit: the field's trunk runs as tensor ops on tracked points.)
+    assert!(max_diff(&untracked.color, &packed.color) < 1e-6);
+    let dense = renderer
+        .render(&field(&m, None), &sampler, &tracked, None)
+        .unwrap();
+    let weight = Tensor::randn(0f32, 1.0, packed.color.shape(), &Device::Cpu).unwrap();
+    let grads = |out: &RenderOutput| {
+        let loss = (out.color.mul(&weight).unwrap().sum_all().unwrap()
+            + out.depth.sum_all().unwrap().affine(0.1, 0.0).unwrap())
+        .unwrap();
+        let g = loss.backward().unwrap();
+        let get = |v: &candle_core::Var| g.get(v.as_tensor()).expect("a ray gradient").clone();
+        (get(&origins), get(&directions))
+    };
+    let (packed_o, packed_d) = grads(&packed);
+    let (dense_o, dense_d) = grads(&dense);
+    let size = |t: &Tensor| {
+        t.abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap()
+    };
+    assert!(size(&dense_o) > 1e-3 && size(&dense_d) > 1e-3);
+    crate::core::compare::assert_close(&packed_o, &dense_o, 1e-4, "origins");
+    crate::core::compare::assert_close(&packed_d, &dense_d, 1e-4, "directions");
+}

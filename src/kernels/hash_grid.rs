@@ -22,7 +22,7 @@ use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
-use crate::kernels::{hash_block, use_fused};
+use crate::kernels::{hash_block, hash_point_gradient, use_fused};
 
 /// Points per task of the fused forward pass. A task walks its points one level at a time, so
 /// that its gathers stay in one level's slice of the table (2 MiB at 2^18 rows of 2 features,
@@ -142,6 +142,50 @@ impl Level {
         }
     }
 
+    /// On one axis, the cell holding the coordinate `v` (in [0, 1]; clamped there): the
+    /// lower corner's integer coordinate `c` and the fraction `v·N − c` of the way to the
+    /// upper one.
+    #[inline(always)]
+    pub fn cell(&self, v: f32) -> (u32, f32) {
+        let n = self.resolution;
+        let x = v.clamp(0.0, 1.0) * n as f32;
+        // x ≥ 0 (NaN clamps to NaN and casts to 0), so truncation is the floor, without
+        // a call to libm's floorf (not inlined on a baseline x86-64 build).
+        let c = (x as u32).min(n - 1);
+        (c, x - c as f32)
+    }
+
+    /// `∂ fraction / ∂ v` of [`Level::cell`]: the resolution `N` where `v` is in [0, 1], 0
+    /// where it is clamped (or NaN).
+    #[inline(always)]
+    pub fn cell_slope(&self, v: f32) -> f32 {
+        match (0.0..=1.0).contains(&v) {
+            true => self.resolution as f32,
+            false => 0.0,
+        }
+    }
+
+    /// The 8 corners of the cell holding `p` as [`Level::corners`] gives them (row, weight),
+    /// with each weight's gradient with respect to `p`: on axis `a`,
+    /// `±[Level::cell_slope]·Π_{b≠a} w_b` (+ for the corner on the cell's upper side).
+    pub fn corner_gradients(&self, p: [f32; 3]) -> [(u32, f32, [f32; 3]); 8] {
+        let cells = p.map(|v| self.cell(v));
+        let slope = p.map(|v| self.cell_slope(v));
+        let w = cells.map(|(_, frac)| [1.0 - frac, frac]);
+        let corners = self.corners(p);
+        std::array::from_fn(|k| {
+            let bit = [k & 1, k >> 1 & 1, k >> 2 & 1];
+            let sign = bit.map(|b| if b == 1 { 1.0f32 } else { -1.0 });
+            let (row, weight) = corners[k];
+            let grad = [
+                sign[0] * slope[0] * w[1][bit[1]] * w[2][bit[2]],
+                sign[1] * slope[1] * w[0][bit[0]] * w[2][bit[2]],
+                sign[2] * slope[2] * w[0][bit[0]] * w[1][bit[1]],
+            ];
+            (row, weight, grad)
+        })
+    }
+
     /// The 8 corners of the cell holding `p` (in [0, 1]³; clamped there): each corner's row in
     /// this level's table and its trilinear weight (corner `k` takes bit `a` of `k` on axis `a`).
     pub fn corners(&self, p: [f32; 3]) -> [(u32, f32); 8] {
@@ -152,11 +196,7 @@ impl Level {
         let mut weights = [[0f32; 2]; 3];
         let stride = [1, n + 1, (n + 1) * (n + 1)];
         for a in 0..3 {
-            let x = p[a].clamp(0.0, 1.0) * n as f32;
-            // x ≥ 0 (NaN clamps to NaN and casts to 0), so truncation is the floor, without
-            // a call to libm's floorf (not inlined on a baseline x86-64 build).
-            let c = (x as u32).min(n - 1);
-            let frac = x - c as f32;
+            let (c, frac) = self.cell(p[a]);
             weights[a] = [1.0 - frac, frac];
             terms[a] = if self.dense {
                 [c * stride[a], (c + 1) * stride[a]]
@@ -183,8 +223,9 @@ impl Level {
 }
 
 /// Encodes `points` `(M, 3)` (in [0, 1]³) with `table` `(L·T, F)`: `(M, L·F)`, level-major
-/// (level `l`'s `F` features at columns `l·F..(l+1)·F`). The gradient flows to `table` only.
-/// Fused on the CPU for f32 ([`use_fused`]); [`hash_encode_generic`] elsewhere.
+/// (level `l`'s `F` features at columns `l·F..(l+1)·F`). The gradient flows to `table`, and
+/// to `points` when autograd tracks them ([`crate::kernels::hash_point_gradient`]; computed
+/// only then). Fused on the CPU for f32 ([`use_fused`]); [`hash_encode_generic`] elsewhere.
 ///
 /// With a `sink`, the fused backward pass adds the table gradient there (touched rows only)
 /// instead of returning a dense one through autograd; the twin ignores it.
@@ -202,7 +243,7 @@ pub fn hash_encode(
         });
         let points = points.to_dtype(DType::F32)?.contiguous()?;
         let table = table.contiguous()?;
-        if table.track_op() {
+        if table.track_op() || points.track_op() {
             points.apply_op2(&table, op)
         } else {
             points.apply_op2_no_bwd(&table, &op)
@@ -336,7 +377,9 @@ fn corner_rows(points: &[f32], params: &HashGridParams) -> (Vec<u32>, Vec<f32>) 
 
 /// The tensor-op twin of [`hash_encode`]: `index_select` of the `M·L·8` corner rows of `table`
 /// `(L·T, F)`, weighted and summed per level: `(M, L·F)`; its table gradient is Candle's
-/// `index_add` scatter. Corner rows and weights are computed from `points` `(M, 3)` on the host.
+/// `index_add` scatter. Corner rows and weights are computed from `points` `(M, 3)` on the
+/// host; when autograd tracks the points, the weights are tensor ops on them instead (the
+/// same values; [`hash_point_gradient::tracked_corner_weights`]), so the gradient reaches them.
 pub fn hash_encode_generic(
     points: &Tensor,
     table: &Tensor,
@@ -351,7 +394,11 @@ pub fn hash_encode_generic(
     let (rows, weights) = corner_rows(&p, params);
     let n = rows.len();
     let rows = Tensor::from_vec(rows, n, table.device())?;
-    let weights = Tensor::from_vec(weights, (n, 1), table.device())?.to_dtype(table.dtype())?;
+    let weights = match points.track_op() {
+        true => hash_point_gradient::tracked_corner_weights(points, &p, params)?,
+        false => Tensor::from_vec(weights, (n, 1), table.device())?,
+    }
+    .to_dtype(table.dtype())?;
     let (l, f) = (params.n_levels, params.n_features);
     table
         .index_select(&rows, 0)?
@@ -387,6 +434,10 @@ impl CpuKernel<2> for HashEncode {
         let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
         let pts = points.flatten_all()?.to_vec1::<f32>()?;
         let g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let dpoints = match points.track_op() {
+            true => Some(self.point_gradient(points, table, &pts, &g)?),
+            false => None,
+        };
         if let Some(sink) = &self.sink {
             let mut guard = sink.state.lock().expect("table gradient lock");
             let GradientState {
@@ -402,7 +453,7 @@ impl CpuKernel<2> for HashEncode {
                 .for_each(|(l, ((d, bits), level))| {
                     hash_block::scatter_points((level, l), d, bits, &pts, &g, f)
                 });
-            return Ok([None, None]);
+            return Ok([dpoints, None]);
         }
         let mut dtable = vec![0f32; p.n_rows() * f];
         // One task per level: each writes only its own slice of the table gradient.
@@ -415,7 +466,29 @@ impl CpuKernel<2> for HashEncode {
                 hash_block::scatter_points((level, l), d, &mut touched, &pts, &g, f)
             });
         let dtable = Tensor::from_vec(dtable, table.shape(), table.device())?;
-        Ok([None, Some(dtable)])
+        Ok([dpoints, Some(dtable)])
+    }
+}
+
+impl HashEncode {
+    /// The gradient `(M, 3)` of `points` (`pts` their values) from the output gradient `g`
+    /// ([`hash_point_gradient::point_gradients`]), reading `table` in place.
+    fn point_gradient(
+        &self,
+        points: &Tensor,
+        table: &Tensor,
+        pts: &[f32],
+        g: &[f32],
+    ) -> candle_core::Result<Tensor> {
+        let table = table.contiguous()?;
+        let (storage, layout) = table.storage_and_layout();
+        let candle_core::Storage::Cpu(cpu) = &*storage else {
+            candle_core::bail!("hash-encode: the table must be on the CPU");
+        };
+        let values = crate::kernels::storage::contiguous_f32(cpu, layout, "hash-encode")?;
+        let p = &self.params;
+        let d = hash_point_gradient::point_gradients(&p.levels(), values, pts, g, p.n_features);
+        Tensor::from_vec(d, points.shape(), points.device())
     }
 }
 

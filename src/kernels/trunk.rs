@@ -76,13 +76,15 @@ pub fn pack_parameters(layers: &[Linear]) -> candle_core::Result<Tensor> {
 }
 
 /// The trunk's output `(M, H)` for the embedding `x` `(M, input_dim)`: the fused [`trunk`] where
-/// [`use_fused`] allows, else [`trunk_tensor_ops`].
+/// [`use_fused`] allows, else [`trunk_tensor_ops`]; the twin also when autograd tracks `x`
+/// (points of rays being trained, camera refinement), since the fused backward pass gives
+/// the parameters their gradient but not the input.
 pub fn trunk_forward(
     x: &Tensor,
     layers: &[Linear],
     shape: &TrunkShape,
 ) -> candle_core::Result<Tensor> {
-    if use_fused(x) {
+    if use_fused(x) && !crate::kernels::needs_grad(x) {
         return trunk(x, &pack_parameters(layers)?, shape);
     }
     trunk_tensor_ops(x, layers, shape)

@@ -128,6 +128,9 @@ pub fn evaluate_packed(
     });
     let grid = grid.as_ref();
     let mut marches = start_marches(grid, rays, &lengths, stride, s)?;
+    // Rays whose origins or directions are being trained (camera refinement) get their
+    // evaluated points as tensor ops, so the gradient reaches them.
+    let rays_tracked = rays.origins.track_op() || rays.directions.track_op();
     // A ray is live while its optical depth so far is below −ln(threshold).
     let depth_limit = if early_termination > 0.0 {
         -(early_termination.ln()) as f32
@@ -155,11 +158,12 @@ pub fn evaluate_packed(
             break;
         }
         let m = index.len();
-        let (density, colour) = field.evaluate_packed(
-            &Tensor::from_vec(points, (m, 3), device)?,
-            &Tensor::from_vec(ray_index, m, device)?,
-            &rays.directions,
-        )?;
+        let ray_index = Tensor::from_vec(ray_index, m, device)?;
+        let points = match rays_tracked {
+            true => tracked_points(rays, &ray_index, &index, &lengths, (stride, s))?,
+            false => Tensor::from_vec(points, (m, 3), device)?,
+        };
+        let (density, colour) = field.evaluate_packed(&points, &ray_index, &rays.directions)?;
         if depth_limit.is_finite() {
             let values = density.flatten_all()?.to_vec1::<f32>()?;
             for (&k, &sigma) in index.iter().zip(&values) {
@@ -182,6 +186,34 @@ pub fn evaluate_packed(
         colours,
         counts,
     })
+}
+
+/// The evaluated points `(M, 3)` as tensor ops on the rays, `o[r] + t·d[r]` for each sample
+/// of flat index `ray · S + i` in `index` on ray `r` of `ray_index` `(M,)` (a gather and a
+/// broadcast), so that autograd carries their gradient to `rays`' origins and directions.
+/// `lengths`: ray `r`'s `S` depths start at `r · stride`. The values are the marched points'.
+fn tracked_points(
+    rays: &Rays,
+    ray_index: &Tensor,
+    index: &[u32],
+    lengths: &[f32],
+    (stride, s): (usize, usize),
+) -> Result<Tensor> {
+    let depths: Vec<f32> = index
+        .iter()
+        .map(|&k| {
+            let (ray, i) = (k as usize / s, k as usize % s);
+            lengths[ray * stride + i]
+        })
+        .collect();
+    let depths = Tensor::from_vec(depths, (index.len(), 1), ray_index.device())?;
+    let gather = |t: &Tensor| {
+        t.to_dtype(DType::F32)?
+            .contiguous()?
+            .index_select(ray_index, 0)
+    };
+    let (origins, directions) = (gather(&rays.origins)?, gather(&rays.directions)?);
+    Ok(origins.add(&directions.broadcast_mul(&depths)?)?)
 }
 
 /// One [`RayMarch`] per ray of `rays`; ray `r`'s `s` depths start at `lengths[r · stride]`.

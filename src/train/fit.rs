@@ -37,6 +37,7 @@ use crate::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
 use crate::render::field::Field;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
+use crate::train::camera_refinement::{write_poses, CameraRefinement, CameraRefinementMode};
 use crate::train::model::{Optimizer, TrainModel};
 use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings, TrainRng};
 
@@ -89,6 +90,8 @@ pub struct TrainSettings {
     /// Follow the time budget ([`time_learning_rate`]): with a time limit the run ignores
     /// `num_epochs` and decays the learning rate over the time; without, over the epochs.
     pub time_schedule: bool,
+    /// Whether to refine the training cameras ([`crate::train::camera_refinement`]).
+    pub camera_refinement: CameraRefinementMode,
 }
 
 /// The learning rate after `progress` (0 to 1, clamped) of a run that follows its time budget:
@@ -200,9 +203,10 @@ fn check_resumable(
 fn start_or_resume(
     settings: &TrainSettings,
     paths: &TrainPaths,
-    n_images: usize,
+    dataset: &Dataset,
     device: &Device,
 ) -> Result<(TrainModel, Optimizer, CheckpointInfo)> {
+    let n_images = dataset.images.len();
     let (mut state, tensors, info) = if settings.resume && paths.checkpoint.is_file() {
         let resumed = TrainModel::from_checkpoint(&*settings.model, &paths.checkpoint, device)?;
         check_resumable(&resumed.info, settings, n_images, &paths.checkpoint)?;
@@ -223,6 +227,25 @@ fn start_or_resume(
         state.occupancy = Some(OccupancyGrid::new(&schedule.grid)?);
     }
     let mut adam = Optimizer::new(&state, settings.lr)?;
+    let from_sfm = dataset.normalisation.is_some_and(|n| n.from_sfm);
+    if dataset.normalisation.is_some()
+        && !from_sfm
+        && settings.camera_refinement == CameraRefinementMode::Auto
+    {
+        log::info!(
+            "cameras not refined: the capture shows no structure from motion (no 3D points, \
+             no COLMAP workspace beside it), so they are taken as exact \
+             (training.camera_refinement=on refines them)"
+        );
+    }
+    if settings.camera_refinement.enabled(from_sfm) {
+        let mut cameras = CameraRefinement::new(n_images, device)?;
+        if info.adam_step > 0 && !cameras.load_state(&tensors)? {
+            log::info!("the checkpoint holds no camera refinement: refining from zero");
+        }
+        log::info!("refining the {n_images} training cameras (training.camera_refinement)");
+        adam.cameras = Some(cameras);
+    }
     if info.adam_step > 0 {
         adam.load_state(&tensors, info.adam_step)?;
         if let (Some(schedule), Some(saved)) = (&settings.grid, tensors.get(CHECKPOINT_KEY)) {
@@ -372,6 +395,10 @@ impl Run<'_> {
             .and_then(|()| self.log.flush())
             .with_context(|| format!("cannot append to {}", self.paths.log.display()))?;
         self.pending.clear();
+        if let Some(cameras) = &self.adam.cameras {
+            let path = self.paths.checkpoint.with_extension("cameras.json");
+            write_poses(cameras, &self.dataset.frames, &path)?;
+        }
         Ok(())
     }
 
@@ -583,10 +610,11 @@ impl Run<'_> {
                     score.views
                 )?;
                 self.bar.println(&format!(
-                    "epoch {}: test PSNR {:.2} dB on {} views",
+                    "epoch {}: test PSNR {:.2} dB on {} views at {:.1} min",
                     epoch + 1,
                     score.psnr,
-                    score.views
+                    score.views,
+                    self.info.wall_seconds / 60.0
                 ));
                 self.excluded += t.elapsed().as_secs_f64();
             }
@@ -650,7 +678,7 @@ pub fn fit(
     device: &Device,
 ) -> Result<FitOutcome> {
     crate::core::allocator::ensure_allocator_tuned();
-    let (mut state, adam, info) = start_or_resume(settings, paths, dataset.images.len(), device)?;
+    let (mut state, adam, info) = start_or_resume(settings, paths, dataset, device)?;
     if let (Some(schedule), Some(grid)) = (&settings.grid, state.occupancy.as_mut()) {
         if schedule.camera_clearance > 0.0 {
             use crate::core::camera_model::CameraModel;
@@ -750,6 +778,9 @@ pub fn fit(
     }
     run.checkpoint()?;
     run.bar.finish_and_clear();
+    if let Some(cameras) = &run.adam.cameras {
+        log::info!("{}", cameras.summary()?);
+    }
     Ok(FitOutcome::Finished(run.info))
 }
 

@@ -2,6 +2,7 @@
 //! and the loop, and the SDF volume fit.
 
 pub mod adam;
+pub mod camera_refinement;
 pub mod fit;
 pub mod fit_sdf;
 pub mod model;

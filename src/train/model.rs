@@ -21,6 +21,7 @@ use crate::render::occupancy::{
     grid_for_checkpoint, OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY,
 };
 use crate::train::adam::Adam;
+use crate::train::camera_refinement::CameraRefinement;
 use crate::train::sparse_adam::SparseAdam;
 
 /// A model read from a checkpoint, with everything else the checkpoint holds.
@@ -168,6 +169,9 @@ pub struct Optimizer {
     /// Adam on the dense parameters; its step count is the run's.
     pub dense: Adam,
     tables: Vec<SparseTable>,
+    /// The training cameras' corrections and their own optimiser, when refined.
+    pub cameras: Option<CameraRefinement>,
+    initial_lr: f64,
 }
 
 impl Optimizer {
@@ -190,6 +194,8 @@ impl Optimizer {
         Ok(Self {
             dense: adam,
             tables,
+            cameras: None,
+            initial_lr: lr,
         })
     }
 
@@ -209,6 +215,9 @@ impl Optimizer {
         for t in &mut self.tables {
             t.adam.lr = lr;
         }
+        if let Some(c) = &mut self.cameras {
+            c.set_lr_factor(lr / self.initial_lr);
+        }
     }
 
     /// One update from `grads`.
@@ -224,15 +233,22 @@ impl Optimizer {
                 sink.take(grid, |rows, values| adam.step_rows(values, rows))?;
             }
         }
+        if let Some(c) = &mut self.cameras {
+            c.step(grads)?;
+        }
         Ok(())
     }
 
     /// The optimiser's state by name (see [`Adam::state_tensors`] and
-    /// [`SparseAdam::state_tensors`]).
+    /// [`SparseAdam::state_tensors`]), and the camera corrections with their state when
+    /// refined ([`CameraRefinement::state_tensors`]).
     pub fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
         let mut out = self.dense.state_tensors();
         for t in &self.tables {
             out.extend(t.adam.state_tensors()?);
+        }
+        if let Some(c) = &self.cameras {
+            out.extend(c.state_tensors()?);
         }
         Ok(out)
     }

@@ -10,6 +10,7 @@ use crate::io::dataset::Dataset;
 use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
 use crate::render::skipping::SampleCounts;
+use crate::train::camera_refinement::{tracks_cameras, CameraRefinement};
 use crate::train::model::{Optimizer, TrainModel};
 
 /// The training loop's random generator: ChaCha12, the generator behind
@@ -40,6 +41,21 @@ pub fn training_batch(
     batch_size: usize,
     rays_from_all_images: bool,
     image_index: usize,
+    rng: &mut TrainRng,
+    device: &Device,
+) -> Result<(Rays, Tensor, Tensor)> {
+    let all = rays_from_all_images;
+    training_batch_refined(dataset, (batch_size, all), image_index, None, rng, device)
+}
+
+/// [`training_batch`] (`(batch_size, rays_from_all_images)`) with each ray moved by its
+/// camera's correction when `cameras` are refined
+/// ([`crate::train::camera_refinement`]; the rays are then tracked by autograd).
+pub fn training_batch_refined(
+    dataset: &Dataset,
+    (batch_size, rays_from_all_images): (usize, bool),
+    image_index: usize,
+    cameras: Option<&CameraRefinement>,
     rng: &mut TrainRng,
     device: &Device,
 ) -> Result<(Rays, Tensor, Tensor)> {
@@ -105,12 +121,17 @@ pub fn training_batch(
         );
     }
     let n = target.len() / 3;
+    let mut rays = Rays {
+        origins: Tensor::cat(&origins, 0)?,
+        directions: Tensor::cat(&directions, 0)?,
+        camera_index: None,
+    };
+    if let Some(cameras) = cameras {
+        rays = cameras.apply(&rays, &camera_index)?;
+    }
+    rays.camera_index = Some(Tensor::from_vec(camera_index, n, device)?);
     Ok((
-        Rays {
-            origins: Tensor::cat(&origins, 0)?,
-            directions: Tensor::cat(&directions, 0)?,
-            camera_index: Some(Tensor::from_vec(camera_index, n, device)?),
-        },
+        rays,
         Tensor::from_vec(target, (n, 3), device)?,
         Tensor::from_vec(transparency, (n, 1), device)?,
     ))
@@ -174,14 +195,19 @@ pub fn train_step(
     rng: &mut TrainRng,
     device: &Device,
 ) -> Result<(f64, SampleCounts)> {
-    let (rays, mut target, transparency) = training_batch(
+    let (mut rays, mut target, transparency) = training_batch_refined(
         dataset,
-        settings.batch_size,
-        settings.rays_from_all_images,
+        (settings.batch_size, settings.rays_from_all_images),
         image_index,
+        optimizer.cameras.as_ref(),
         rng,
         device,
     )?;
+    if optimizer.cameras.is_some() && !tracks_cameras(optimizer.step_count()) {
+        // Moved by the corrections, but no camera gradient this step.
+        rays.origins = rays.origins.detach();
+        rays.directions = rays.directions.detach();
+    }
     let field = model.training_field(settings.density_noise);
     let mut renderer = settings.renderer;
     renderer.distortion_loss = settings.distortion_loss > 0.0;

@@ -21,6 +21,11 @@ pub struct Lego {
 }
 
 pub fn lego(test: &str) -> Option<Lego> {
+    lego_views(test, FRAMES)
+}
+
+/// The first `n` (at most 100) lego training views, or a visible skip.
+pub fn lego_views(test: &str, n: usize) -> Option<Lego> {
     let dir = super::lego_dir(test)?;
     let text = std::fs::read_to_string(dir.join("transforms_train.json")).unwrap();
     let json: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -29,7 +34,7 @@ pub fn lego(test: &str) -> Option<Lego> {
         .as_array()
         .unwrap()
         .iter()
-        .take(FRAMES)
+        .take(n)
         .map(|f| {
             let m = f["transform_matrix"].as_array().unwrap();
             let c2w = std::array::from_fn(|i| {
@@ -54,6 +59,61 @@ impl Lego {
             .map(|v| View {
                 image: v.image.clone(),
                 c2w: v.c2w,
+            })
+            .collect();
+        Lego {
+            views,
+            fov: self.fov,
+            size: self.size,
+        }
+    }
+
+    /// The same views with the cameras of the training split (all but every 8th, the
+    /// captures' holdout) each turned by `degrees` about a random axis through its centre and
+    /// moved by `shift` times the farthest camera's distance from the origin in a random
+    /// direction (seeded by `seed`); the held-out cameras stay exact.
+    pub fn perturbed(&self, degrees: f64, shift: f64, seed: u64) -> Lego {
+        let centre = |c2w: &[[f64; 4]; 4]| DVec3::new(c2w[0][3], c2w[1][3], c2w[2][3]);
+        let radius = self
+            .views
+            .iter()
+            .map(|v| centre(&v.c2w).length())
+            .fold(0.0, f64::max);
+        let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+        let mut unit = move || loop {
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                2.0 * (state >> 11) as f64 / (1u64 << 53) as f64 - 1.0
+            };
+            let v = DVec3::new(next(), next(), next());
+            if (0.1..=1.0).contains(&v.length()) {
+                return v.normalize();
+            }
+        };
+        let views = self
+            .views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                let mut c2w = v.c2w;
+                if !i.is_multiple_of(8) {
+                    let turn = DQuat::from_axis_angle(unit(), degrees.to_radians());
+                    let cols: [DVec3; 3] =
+                        std::array::from_fn(|j| turn * DVec3::new(c2w[0][j], c2w[1][j], c2w[2][j]));
+                    for (i, row) in c2w.iter_mut().take(3).enumerate() {
+                        for (v, col) in row.iter_mut().zip(&cols) {
+                            *v = col[i];
+                        }
+                    }
+                    let c = centre(&c2w) + unit() * shift * radius;
+                    (c2w[0][3], c2w[1][3], c2w[2][3]) = (c.x, c.y, c.z);
+                }
+                View {
+                    image: v.image.clone(),
+                    c2w,
+                }
             })
             .collect();
         Lego {

@@ -7,6 +7,7 @@ use anyhow::{anyhow, Context, Result};
 use serde::Deserialize;
 
 use super::Config;
+use crate::train::camera_refinement::CameraRefinementMode;
 use crate::train::fit::TrainSettings;
 use crate::train::fit_sdf::SdfFitSettings;
 use crate::train::step::StepSettings;
@@ -63,6 +64,10 @@ pub struct TrainingConfig {
     /// MSE (0 = off, the default; nerfacto uses 0.002). Needs a `stratified` or
     /// `depth_then_disparity` sampler.
     pub distortion_loss: f64,
+    /// Extension: refine each training camera's pose with the field
+    /// ([`crate::train::camera_refinement`]): `auto` (the default: on for captures, whose
+    /// cameras come from structure from motion, off for NeRF-synthetic scenes), `on` or `off`.
+    pub camera_refinement: CameraRefinementName,
 }
 
 /// `training.schedule` (extension): what the run's length and learning-rate decay follow.
@@ -74,6 +79,45 @@ pub enum Schedule {
     Epochs,
     /// The time budget of `--minutes` (else the epochs).
     Time,
+}
+
+/// `training.camera_refinement`: `auto`, `on` or `off` (`true` and `false` too).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CameraRefinementName(pub CameraRefinementMode);
+
+impl<'de> Deserialize<'de> for CameraRefinementName {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct Mode;
+        impl serde::de::Visitor<'_> for Mode {
+            type Value = CameraRefinementMode;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("auto, on or off")
+            }
+            fn visit_bool<E: serde::de::Error>(
+                self,
+                on: bool,
+            ) -> std::result::Result<Self::Value, E> {
+                Ok(match on {
+                    true => CameraRefinementMode::On,
+                    false => CameraRefinementMode::Off,
+                })
+            }
+            fn visit_str<E: serde::de::Error>(
+                self,
+                name: &str,
+            ) -> std::result::Result<Self::Value, E> {
+                match name {
+                    "auto" => Ok(CameraRefinementMode::Auto),
+                    "on" => Ok(CameraRefinementMode::On),
+                    "off" => Ok(CameraRefinementMode::Off),
+                    other => Err(E::custom(format!(
+                        "unknown `{other}` (expected auto, on or off)"
+                    ))),
+                }
+            }
+        }
+        Ok(Self(d.deserialize_any(Mode)?))
+    }
 }
 
 impl TrainingConfig {
@@ -147,6 +191,7 @@ impl Config {
             samples_per_step: t.samples_per_step,
             max_rays: self.max_rays_per_step()?,
             time_schedule: t.schedule == Schedule::Time,
+            camera_refinement: t.camera_refinement.0,
         })
     }
 

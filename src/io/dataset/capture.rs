@@ -83,6 +83,9 @@ pub struct CaptureSplit {
     /// The nearest and farthest scene depth over all the capture's frames, in the normalised
     /// frame's units, when every frame gives bounds ([`CaptureFrame::depth_bounds`]).
     pub depth_bounds: Option<[f64; 2]>,
+    /// Whether its cameras come from structure from motion
+    /// ([`super::capture_frame::cameras_from_sfm`]).
+    pub from_sfm: bool,
 }
 
 /// The normalisation of a loaded capture: the transform applied to its cameras, and the one
@@ -97,6 +100,9 @@ pub struct Normalisation {
     pub from_cameras: Option<SceneTransform>,
     /// The capture's scene depth bounds in the normalised frame ([`CaptureSplit::depth_bounds`]).
     pub depth_bounds: Option<[f64; 2]>,
+    /// Whether the capture's cameras come from structure from motion
+    /// ([`CaptureSplit::from_sfm`]).
+    pub from_sfm: bool,
 }
 
 impl Normalisation {
@@ -133,7 +139,11 @@ pub fn read_capture_split_with(
     split: Split,
     stored: Option<SceneTransform>,
 ) -> Result<CaptureSplit> {
-    let CaptureFrames { frames, splits } = match format {
+    let CaptureFrames {
+        frames,
+        splits,
+        from_sfm,
+    } = match format {
         SceneFormat::Nerfstudio => super::nerfstudio::read_frames(dir)?,
         SceneFormat::Llff => super::llff::read_frames(dir)?,
         SceneFormat::Colmap => super::colmap_scene::read_frames(dir)?,
@@ -197,6 +207,7 @@ pub fn read_capture_split_with(
         from_cameras,
         total_frames,
         depth_bounds,
+        from_sfm,
     })
 }
 

@@ -31,6 +31,22 @@ pub struct CaptureFrames {
     /// `{train,val,test}_filenames`; a frame may be in `val` and `test`); `None`: the
     /// every-8th holdout.
     pub splits: Option<Vec<Vec<Split>>>,
+    /// Whether the files show the cameras to come from structure from motion
+    /// ([`cameras_from_sfm`]).
+    pub from_sfm: bool,
+}
+
+/// Whether a capture's cameras came from structure from motion, as far as its files show:
+/// the points that SfM triangulates (`has_points`: a COLMAP model with 3D points), or the
+/// COLMAP workspace that `nerf process`, nerfstudio's `ns-process-data` and instant-ngp's
+/// `colmap2nerf.py` leave beside their `transforms.json` (`colmap/`, `colmap_sparse/`,
+/// `colmap_text/`, `sparse/`). Cameras written from a calibration or a renderer come with
+/// neither, and are not refined by `training.camera_refinement: auto`.
+pub fn cameras_from_sfm(dir: &Path, has_points: bool) -> bool {
+    has_points
+        || ["colmap", "colmap_sparse", "colmap_text", "sparse"]
+            .iter()
+            .any(|folder| dir.join(folder).is_dir())
 }
 
 /// The folder of a COLMAP or LLFF capture that holds its masks, beside `images/`.
@@ -44,4 +60,25 @@ pub fn mask_in_folder(dir: &Path, name: &Path) -> Option<PathBuf> {
     folder
         .is_dir()
         .then(|| folder.join(name).with_extension("png"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sfm_cameras_are_told_by_points_or_a_colmap_workspace() {
+        let dir = tempfile::tempdir().unwrap();
+        assert!(!cameras_from_sfm(dir.path(), false));
+        assert!(cameras_from_sfm(dir.path(), true));
+        // A file of that name is not a workspace.
+        std::fs::write(dir.path().join("colmap"), b"").unwrap();
+        assert!(!cameras_from_sfm(dir.path(), false));
+        std::fs::remove_file(dir.path().join("colmap")).unwrap();
+        for folder in ["colmap", "colmap_sparse", "colmap_text", "sparse"] {
+            let d = tempfile::tempdir().unwrap();
+            std::fs::create_dir(d.path().join(folder)).unwrap();
+            assert!(cameras_from_sfm(d.path(), false), "{folder}");
+        }
+    }
 }

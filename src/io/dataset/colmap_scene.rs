@@ -58,5 +58,6 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     Ok(CaptureFrames {
         frames,
         splits: None,
+        from_sfm: !model.points.is_empty(),
     })
 }

@@ -54,6 +54,8 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     Ok(CaptureFrames {
         frames,
         splits: None,
+        // LLFF's poses_bounds.npy is written by its imgs2poses.py from a COLMAP run.
+        from_sfm: true,
     })
 }
 

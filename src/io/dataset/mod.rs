@@ -36,6 +36,7 @@ use crate::core::image::RgbImage;
 use frame_mask::load_mask;
 
 pub use capture::{read_capture_split, read_capture_split_with, Normalisation, SceneFormat};
+pub use capture_frame::cameras_from_sfm;
 pub use frame_image::*;
 pub use frame_mask::PixelMask;
 pub use normalize::SceneTransform;
@@ -96,6 +97,7 @@ pub fn read_split_with(
             applied: read.transform,
             from_cameras: read.from_cameras,
             depth_bounds: read.depth_bounds,
+            from_sfm: read.from_sfm,
         }),
     })
 }

@@ -101,7 +101,12 @@ pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
         .collect::<Result<Vec<_>>>()?;
     refuse_duplicates(&frames, path)?;
     let splits = named_splits(&file, &frames, dir, path)?;
-    Ok(CaptureFrames { frames, splits })
+    let from_sfm = super::capture_frame::cameras_from_sfm(dir, false);
+    Ok(CaptureFrames {
+        frames,
+        splits,
+        from_sfm,
+    })
 }
 
 /// `dir/file_path` for a relative path without `..`; an error otherwise.
