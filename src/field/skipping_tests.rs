@@ -458,6 +458,7 @@ fn tracked_rays_get_the_dense_paths_gradient_through_the_packed_pass() {
     let tracked = Rays {
         origins: origins.as_tensor().clone(),
         directions: directions.as_tensor().clone(),
+        camera_index: None,
     };
     let untracked = renderer
         .render(&field(&m, grid()), &sampler, &plain, None)

@@ -392,6 +392,7 @@ mod tests {
                 &dev,
             )
             .unwrap(),
+            camera_index: None,
         };
         // Zero corrections leave the rays exactly as they are.
         let same = cams.apply(&rays, &[0, 2, 1]).unwrap();
@@ -459,6 +460,7 @@ mod tests {
         let rays = Rays {
             origins: Tensor::zeros((3, 3), DType::F32, &dev).unwrap(),
             directions: Tensor::new(&dirs, &dev).unwrap(),
+            camera_index: None,
         };
         let target = Tensor::from_vec(target.concat(), (3, 3), &dev).unwrap();
         for _ in 0..300 {
@@ -498,6 +500,7 @@ mod tests {
             aabb: [[-2.0; 3], [2.0; 3]],
             density_activation: DensityActivation::TruncExp,
             contraction: Contraction::LInf,
+            appearance: None,
         };
         let state = NgpState::seeded(&params, 3, &dev).unwrap();
         let table = state.varmap.data().lock().unwrap()[TABLE].clone();
@@ -516,6 +519,7 @@ mod tests {
         let field = NgpField {
             model: state.model.clone(),
             occupancy: Some(std::sync::Arc::new(grid)),
+            camera_index: None,
         };
         let renderer = VolumeRenderer::new(4096, false).unwrap();
         assert!(renderer.skips_samples(&field));
