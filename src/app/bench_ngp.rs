@@ -335,7 +335,12 @@ pub fn bench_ngp_training(
                 let ideal = rays as f64 * target as f64 / samples.evaluated.max(1) as f64;
                 (ideal.round() as usize).clamp(64, settings.max_rays.max(64))
             } else {
-                crate::train::fit::next_rays(rays, samples.evaluated, target, settings.max_rays)
+                crate::train::schedule::next_rays(
+                    rays,
+                    samples.evaluated,
+                    target,
+                    settings.max_rays,
+                )
             };
         }
     }

@@ -2,6 +2,7 @@
 //! `NERF_COLMAP` names), checking that it runs, and running one stage with its output written
 //! to a log while a progress bar follows what the stage prints.
 
+use crate::app::external_tool::ExternalTool;
 use std::fs::File;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -9,7 +10,7 @@ use std::process::{Command, ExitStatus, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 
 use crate::io::progress::progress_bar;
 
@@ -36,22 +37,12 @@ fn colmap_command(program: &Path, stage: &str) -> Command {
 /// Checks that `program` runs (`colmap help`); the one-line error says that COLMAP is
 /// missing and how to install it.
 pub fn check_colmap(program: &Path) -> Result<()> {
-    let run = colmap_command(program, "help")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status();
-    match run {
-        Ok(_) => Ok(()),
-        Err(e) => {
-            let which = match std::env::var_os(COLMAP_ENV).filter(|v| !v.is_empty()) {
-                Some(_) => format!("{COLMAP_ENV}={}", program.display()),
-                None => format!("`{}` on PATH", program.display()),
-            };
-            bail!(
-                "COLMAP is missing: cannot run {which} ({e}); install it with `sudo apt-get install colmap` (Debian/Ubuntu) or set {COLMAP_ENV} to the colmap executable"
-            )
-        }
-    }
+    let colmap = ExternalTool {
+        name: "COLMAP",
+        env: COLMAP_ENV,
+        package: "colmap",
+    };
+    colmap.check(colmap_command(program, "help"), program)
 }
 
 /// Progress a line of COLMAP's output reports: `(done, of)` steps, where `of` is `None` when

@@ -14,6 +14,7 @@ pub mod config;
 pub mod evaluate;
 pub mod export;
 pub mod export_model;
+pub mod external_tool;
 pub mod jobs;
 pub mod messages;
 pub mod process;

@@ -8,6 +8,7 @@
 //! memory, and ffmpeg is stopped after twice the candidates asked for, whatever the file says
 //! its length is.
 
+use crate::app::external_tool::ExternalTool;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -50,24 +51,14 @@ pub fn ffmpeg_program() -> PathBuf {
 /// Checks that `program` runs (`ffmpeg -version`); the one-line error says that ffmpeg is
 /// missing and how to install it.
 pub fn check_ffmpeg(program: &Path) -> Result<()> {
-    let run = Command::new(program)
-        .arg("-version")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status();
-    match run {
-        Ok(_) => Ok(()),
-        Err(e) => {
-            let which = match std::env::var_os(FFMPEG_ENV).filter(|v| !v.is_empty()) {
-                Some(_) => format!("{FFMPEG_ENV}={}", program.display()),
-                None => format!("`{}` on PATH", program.display()),
-            };
-            bail!(
-                "ffmpeg is missing: cannot run {which} ({e}); install it with `sudo apt-get install ffmpeg` (Debian/Ubuntu) or set {FFMPEG_ENV} to the ffmpeg executable"
-            )
-        }
-    }
+    let ffmpeg = ExternalTool {
+        name: "ffmpeg",
+        env: FFMPEG_ENV,
+        package: "ffmpeg",
+    };
+    let mut command = Command::new(program);
+    command.arg("-version");
+    ffmpeg.check(command, program)
 }
 
 /// The duration and frame rate in ffmpeg's description of an input (`ffmpeg -i FILE`'s

@@ -5,6 +5,7 @@ pub mod nerf;
 pub mod ngp;
 
 pub mod sdf;
+pub mod spherical_harmonics;
 pub mod trainable;
 
 // The renderer's tests on the crate's own fields live here, beside the fields, so that the

@@ -511,7 +511,9 @@ pub fn touched_rows(points: &Tensor, params: &HashGridParams) -> candle_core::Re
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::test_support::{gradient_values, weighted_sum_gradients};
+    use crate::kernels::test_support::{
+        gradient_values, hash_encoding_f64, weighted_sum_gradients,
+    };
     use crate::kernels::{with_kernel_choice, KernelChoice};
     use candle_core::{Device, Var};
 
@@ -552,42 +554,12 @@ mod tests {
         (points, table)
     }
 
-    /// The encoding in f64, written out independently of the kernel: resolutions, hash and
-    /// trilinear weights from the definitions.
+    /// The encoding of every point in f64 ([`hash_encoding_f64`]).
     fn reference(points: &[f32], table: &[f32], p: &HashGridParams) -> Vec<f64> {
-        let t = 1u64 << p.log2_table_size;
-        let b =
-            ((p.max_resolution.ln() - p.base_resolution.ln()) / (p.n_levels as f64 - 1.0)).exp();
-        let mut out = Vec::new();
-        for q in points.chunks(3) {
-            for l in 0..p.n_levels {
-                let n = (p.base_resolution * b.powi(l as i32) + 1e-9).floor() as u64;
-                let mut acc = vec![0f64; p.n_features];
-                for k in 0..8u64 {
-                    let mut w = 1.0;
-                    let mut c = [0u64; 3];
-                    for a in 0..3 {
-                        let x = q[a] as f64 * n as f64;
-                        let base = (x.floor() as u64).min(n - 1);
-                        let fr = x - base as f64;
-                        let up = (k >> a) & 1;
-                        c[a] = base + up;
-                        w *= if up == 1 { fr } else { 1.0 - fr };
-                    }
-                    let idx = if (n + 1).pow(3) <= t {
-                        c[0] + (n + 1) * c[1] + (n + 1) * (n + 1) * c[2]
-                    } else {
-                        ((c[0] ^ (c[1] * 2654435761) ^ (c[2] * 805459861)) & 0xffff_ffff) % t
-                    };
-                    let row = (l as u64 * t + idx) as usize * p.n_features;
-                    for (a, v) in acc.iter_mut().zip(&table[row..row + p.n_features]) {
-                        *a += w * *v as f64;
-                    }
-                }
-                out.extend(acc);
-            }
-        }
-        out
+        points
+            .chunks(3)
+            .flat_map(|q| hash_encoding_f64([q[0] as f64, q[1] as f64, q[2] as f64], table, p))
+            .collect()
     }
 
     #[test]

@@ -6,5 +6,6 @@ pub mod camera_refinement;
 pub mod fit;
 pub mod fit_sdf;
 pub mod model;
+pub mod schedule;
 pub mod sparse_adam;
 pub mod step;
