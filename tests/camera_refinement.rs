@@ -50,10 +50,9 @@ fn train_and_score(capture: &Path, checkpoint: &Path, overrides: &[String]) -> (
 }
 
 #[test]
-#[ignore = "after the merge into nerf_scene (background auto, appearance, camera clearance, 384 \
-            depths) its 48x48, 10-epoch runs collapse to 7.7-8 dB or reach 17.8 dB from run to \
-            run, so no recovery can be read; the mechanics are unit-tested in \
-            train::camera_refinement and field::skipping_tests (issue 29)"]
+#[ignore = "at CI's size on today's nerf_scene the perturbation costs too little to read a \
+            recovery (exact 21.31, perturbed 20.77, refined 20.92 dB); run with \
+            CAMERA_REFINEMENT_VIEWS=100 and a larger CAMERA_REFINEMENT_SIZE (issue 29)"]
 fn refined_cameras_recover_most_of_the_psnr_that_perturbed_cameras_lose() {
     let test = "refined_cameras_recover_most_of_the_psnr_that_perturbed_cameras_lose";
     let views = env_or("CAMERA_REFINEMENT_VIEWS", 32).min(100);
@@ -73,6 +72,10 @@ fn refined_cameras_recover_most_of_the_psnr_that_perturbed_cameras_lose() {
         format!("training.num_epochs={epochs}"),
         "training.eval_views=0".to_string(),
         format!("training.samples_per_step={samples}"),
+        // The photos' alpha composited on black and trained on black: a random background
+        // per step (what `auto` does for photos with alpha) needs more than these few hundred
+        // steps to leave its grey veil, which would hide what the cameras do.
+        "renderer.background=black".to_string(),
     ];
     let run = |capture: &Path, name: &str, mode: &str| {
         let mut o = common.clone();

@@ -359,6 +359,17 @@ fn format_duration(seconds: f64) -> String {
 }
 
 impl Run<'_> {
+    /// The run's last checkpoint, the progress bar cleared, and the refined cameras' summary
+    /// when they were refined: how every run ends (finished, stopped or out of time).
+    fn finish(&mut self) -> Result<()> {
+        self.checkpoint()?;
+        self.bar.finish_and_clear();
+        if let Some(cameras) = &self.adam.cameras {
+            log::info!("{}", cameras.summary()?);
+        }
+        Ok(())
+    }
+
     /// Writes the checkpoint of `self.info` (the model, optimiser and grid as they are now),
     /// then appends the log lines of the steps it holds.
     fn checkpoint(&mut self) -> Result<()> {
@@ -752,21 +763,15 @@ pub fn fit(
                 background: Some(run.settings.step.renderer.background),
                 image_size: Some((run.dataset.width, run.dataset.height)),
             };
-            run.checkpoint()?;
-            run.bar.finish_and_clear();
+            run.finish()?;
             return Ok(ended(run.info));
         }
         run.after_epoch(epoch, mean_loss, &mut hooks)?;
         if (signalled || run.out_of_time()) && epoch + 1 < first + planned {
-            run.checkpoint()?;
-            run.bar.finish_and_clear();
+            run.finish()?;
             return Ok(ended(run.info));
         }
     }
-    run.checkpoint()?;
-    run.bar.finish_and_clear();
-    if let Some(cameras) = &run.adam.cameras {
-        log::info!("{}", cameras.summary()?);
-    }
+    run.finish()?;
     Ok(FitOutcome::Finished(run.info))
 }

@@ -65,8 +65,8 @@ pub struct TrainingConfig {
     /// `depth_then_disparity` sampler.
     pub distortion_loss: f64,
     /// Extension: refine each training camera's pose with the field
-    /// ([`crate::train::camera_refinement`]): `auto` (the default: on for captures, whose
-    /// cameras come from structure from motion, off for NeRF-synthetic scenes), `on` or `off`.
+    /// ([`crate::train::camera_refinement`]): `off` (the default), `on`, or `auto` (on for
+    /// captures whose files show structure from motion).
     pub camera_refinement: CameraRefinementName,
 }
 
