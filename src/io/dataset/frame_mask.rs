@@ -1,13 +1,20 @@
-//! A frame's mask: a greyscale PNG of the photo's own size in which 0 marks a pixel to ignore
-//! (a moving person, the photographer's shadow, a region with no valid colour) and any other
-//! value one to use, as nerfstudio reads `mask_path`. Training draws no ray from an ignored
-//! pixel and evaluation scores only the used ones.
+//! A frame's mask: a PNG of the photo's own size in which 0 marks a pixel to ignore (a moving
+//! person, the photographer's shadow, a region with no valid colour) and any other value one
+//! to use, as nerfstudio reads `mask_path`. Training draws no ray from an ignored pixel and
+//! evaluation scores only the used ones.
+//!
+//! **The rule, for every kind of PNG** ([`pixel_is_used`]): a pixel is used when any of its
+//! colour channels is non-zero at the file's own bit depth, and ignored when all are 0. So 8-
+//! and 16-bit grey is used where the value is not 0 (a 16-bit 1 counts, it is not rounded to 8
+//! bits first), RGB where any of red, green or blue is not 0 (`(0, 0, 1)` is used), a palette
+//! image by the colour its index names (an index whose colour is black is ignored, whatever
+//! the index), and an alpha channel is never read (a transparent white pixel is used).
 
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Result};
 use image::imageops::{self, FilterType};
-use image::{ImageBuffer, ImageFormat, Luma};
+use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
 
 use super::frame_image::{MAX_IMAGE_FILE_BYTES, MAX_SOURCE_IMAGE_SIDE};
 use crate::io::bounded_read::read_regular_file;
@@ -80,12 +87,7 @@ pub fn load_mask(
         );
     }
     // (H0, W0): 1 for a used pixel, 0 for an ignored one.
-    let flags: Vec<f32> = decoded
-        .to_luma8()
-        .into_raw()
-        .into_iter()
-        .map(|v| if v > 0 { 1.0 } else { 0.0 })
-        .collect();
+    let flags = used_flags(&decoded);
     let (w, h) = (width as u32, height as u32);
     let used: Vec<bool> = if (w0, h0) == (w, h) {
         flags.iter().map(|&f| f > 0.5).collect()
@@ -108,6 +110,36 @@ pub fn load_mask(
         );
     }
     Ok(mask)
+}
+
+/// Whether a mask pixel is used: any of its colour channels non-zero. `pixel` is the pixel's
+/// bytes as decoded (native-endian samples of `bytes_per_sample` bytes), `colour_samples` how
+/// many of its leading samples are colour (the alpha sample after them is not read).
+pub fn pixel_is_used(pixel: &[u8], colour_samples: usize, bytes_per_sample: usize) -> bool {
+    pixel[..colour_samples * bytes_per_sample]
+        .iter()
+        .any(|&b| b != 0)
+}
+
+/// Row-major flags of a decoded mask, 1 for a used pixel ([`pixel_is_used`]), read from the
+/// decoded bytes as they are (no conversion, which would round a 16-bit 1 or an RGB
+/// `(0, 0, 1)` to a grey 0).
+fn used_flags(decoded: &DynamicImage) -> Vec<f32> {
+    let colour = decoded.color();
+    let samples = usize::from(colour.channel_count());
+    let bytes_per_sample = usize::from(colour.bytes_per_pixel()) / samples;
+    let colour_samples = samples - usize::from(colour.has_alpha());
+    decoded
+        .as_bytes()
+        .chunks_exact(samples * bytes_per_sample)
+        .map(|pixel| {
+            if pixel_is_used(pixel, colour_samples, bytes_per_sample) {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -163,5 +195,59 @@ mod tests {
         let missing = dir.path().join("none.png");
         let err = load_mask(&missing, Path::new("a.jpg"), (8, 4), (8, 4)).unwrap_err();
         assert!(err.to_string().contains("none.png"), "{err}");
+    }
+
+    /// The mask of `m.png` written as `image`, at its own size: the used flags.
+    fn flags_of(image: DynamicImage) -> Vec<bool> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.png");
+        image.save(&path).unwrap();
+        let (w, h) = (image.width(), image.height());
+        let mask = load_mask(&path, Path::new("a.jpg"), (w, h), (w as usize, h as usize));
+        mask.unwrap().used().to_vec()
+    }
+
+    #[test]
+    fn every_kind_of_png_follows_one_rule_any_colour_channel_non_zero() {
+        use image::{ImageBuffer, LumaA, Rgb, Rgba};
+        // 8-bit grey: 0 ignored, 1 and 100 used.
+        let grey = image::GrayImage::from_fn(3, 1, |x, _| Luma([[0, 1, 100][x as usize]]));
+        assert_eq!(flags_of(grey.into()), [false, true, true]);
+        // 16-bit grey: a 1 and a band of 100 are used (not rounded to 8 bits).
+        let grey16: ImageBuffer<Luma<u16>, Vec<u16>> =
+            ImageBuffer::from_fn(3, 1, |x, _| Luma([[0, 1, 100][x as usize]]));
+        assert_eq!(flags_of(DynamicImage::ImageLuma16(grey16)), [false, true, true]);
+        // Grey with alpha: the alpha is not read.
+        let grey_alpha: ImageBuffer<LumaA<u8>, Vec<u8>> =
+            ImageBuffer::from_fn(2, 1, |x, _| LumaA([[0, 255][x as usize], 0]));
+        assert_eq!(flags_of(DynamicImage::ImageLumaA8(grey_alpha)), [false, true]);
+        // RGB: any channel; (0, 0, 1) is used.
+        let rgb = image::RgbImage::from_fn(3, 1, |x, _| {
+            Rgb([[0, 0, 0], [0, 0, 1], [200, 0, 0]][x as usize])
+        });
+        assert_eq!(flags_of(rgb.into()), [false, true, true]);
+        // 16-bit RGBA: colour decides, alpha not read.
+        let rgba16: ImageBuffer<Rgba<u16>, Vec<u16>> = ImageBuffer::from_fn(3, 1, |x, _| {
+            Rgba([[0, 0, 0, 65535], [0, 1, 0, 0], [0, 0, 0, 0]][x as usize])
+        });
+        assert_eq!(flags_of(DynamicImage::ImageRgba16(rgba16)), [false, true, false]);
+    }
+
+    #[test]
+    fn a_palette_mask_is_read_by_the_colour_its_index_names() {
+        // Index 0 names white and index 1 black: the black one is ignored, whatever its index.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.png");
+        {
+            let file = std::fs::File::create(&path).unwrap();
+            let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), 4, 1);
+            encoder.set_color(png::ColorType::Indexed);
+            encoder.set_depth(png::BitDepth::Eight);
+            encoder.set_palette(vec![255, 255, 255, 0, 0, 0]);
+            let mut writer = encoder.write_header().unwrap();
+            writer.write_image_data(&[0, 1, 1, 0]).unwrap();
+        }
+        let mask = load_mask(&path, Path::new("a.jpg"), (4, 1), (4, 1)).unwrap();
+        assert_eq!(mask.used(), &[true, false, false, true]);
     }
 }
