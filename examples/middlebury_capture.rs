@@ -11,6 +11,17 @@
 //! Photos the set stores turned by 180° need nothing: their calibration is of the photo as
 //! stored.
 //!
+//! **Photos stood upright.** The gantry's photos are 640×480 and show the object lying on its
+//! side; a copy whose photos were turned by 90° to stand upright (480×640, as in
+//! `../shared/data/real/temple_ring`) no longer fits the calibration. Such a photo (taller than
+//! wide) gets its camera turned with it: the set's `*_ang.txt` gives each photo's latitude,
+//! and Middlebury's negative-latitude photos are the positive ones turned by 180° (its
+//! README), so standing them upright turns them the other way: a negative latitude is turned
+//! counter-clockwise (the photo's new `x` is the old `y`), a positive one clockwise. Measured
+//! on the temple ring against the cameras `nerf process` recovers from the photos: the turn
+//! between each calibrated camera and COLMAP's is −90.0° ± 0.1 about the optical axis for the
+//! 31 negative latitudes and +90.0° ± 0.1 for the 16 positive ones.
+//!
 //! Run: `cargo run --release --example middlebury_capture -- SET_DIR OUT`, e.g.
 //! `SET_DIR = ../shared/data/real/temple_ring` (it holds `templeR_par.txt` and `images/`, or
 //! the photos beside the file as the original download has them).
@@ -18,7 +29,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context, Result};
-use glam::{DMat3, DQuat};
+use glam::{DMat3, DQuat, DVec3};
 
 /// One photo's calibration: file name, K (row-major), R (row-major), t.
 struct Calibration {
@@ -42,6 +53,74 @@ fn par_file(dir: &Path) -> Result<PathBuf> {
         0 => bail!("{}: no *_par.txt camera file", dir.display()),
         _ => bail!("{}: several *_par.txt files", dir.display()),
     }
+}
+
+/// How a stored photo is turned against the photo its calibration describes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Turn {
+    /// Stored as calibrated.
+    None,
+    /// Turned by 90° counter-clockwise: pixel `(u, v)` of the calibrated `W × H` photo is
+    /// `(v, W − u)` of the stored `H × W` one.
+    CounterClockwise,
+    /// Turned by 90° clockwise: pixel `(u, v)` is `(H − v, u)` of the stored photo.
+    Clockwise,
+}
+
+impl Turn {
+    /// The camera of the stored photo, from the calibrated `K` (row-major) and world → camera
+    /// `R` (row-major) and `t`, the stored photo being `width × height`: `[fx, fy, cx, cy]`,
+    /// `R` and `t`. The turn `Q` about the optical axis maps calibrated camera coordinates to
+    /// the stored photo's (`R' = Q R`, `t' = Q t`), and the intrinsics follow the pixels.
+    fn camera(self, c: &Calibration, (width, height): (f64, f64)) -> ([f64; 4], DMat3, DVec3) {
+        let r = DMat3::from_cols_array(&c.r).transpose();
+        let t = DVec3::from_array(c.t);
+        let [fx, fy, cx, cy] = [c.k[0], c.k[4], c.k[2], c.k[5]];
+        let (intrinsics, q) = match self {
+            Turn::None => ([fx, fy, cx, cy], DMat3::IDENTITY),
+            // New x = old y, new y = −old x; the calibrated photo was `height` wide.
+            Turn::CounterClockwise => (
+                [fy, fx, cy, height - cx],
+                DMat3::from_cols(DVec3::new(0.0, -1.0, 0.0), DVec3::X, DVec3::Z),
+            ),
+            // New x = −old y, new y = old x; the calibrated photo was `width` tall.
+            Turn::Clockwise => (
+                [fy, fx, width - cy, cx],
+                DMat3::from_cols(DVec3::Y, DVec3::new(-1.0, 0.0, 0.0), DVec3::Z),
+            ),
+        };
+        (intrinsics, q * r, q * t)
+    }
+}
+
+/// Each photo's latitude by name, from the set's `*_ang.txt` (`lat lon name` a line), when
+/// the set has one.
+fn latitudes(dir: &Path) -> Result<Option<std::collections::HashMap<String, f64>>> {
+    let Some(path) = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot list {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .find(|p| p.to_string_lossy().ends_with("_ang.txt"))
+    else {
+        return Ok(None);
+    };
+    let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
+    let mut out = std::collections::HashMap::new();
+    for (i, line) in text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+    {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        let latitude = match fields[..] {
+            [lat, _, _] => lat.parse::<f64>().ok().filter(|v| v.is_finite()),
+            _ => None,
+        };
+        let latitude = latitude.with_context(|| {
+            format!("{} line {}: expected `lat lon name`", path.display(), i + 1)
+        })?;
+        out.insert(fields[2].to_string(), latitude);
+    }
+    Ok(Some(out))
 }
 
 /// The calibrations of a `*_par.txt` file (its first line is the photo count).
@@ -105,6 +184,7 @@ fn main() -> Result<()> {
     };
     let (set, out) = (Path::new(set), Path::new(out));
     let calibrations = read_par(&par_file(set)?)?;
+    let latitudes = latitudes(set)?;
     let photos = if set.join("images").is_dir() {
         set.join("images")
     } else {
@@ -120,6 +200,7 @@ fn main() -> Result<()> {
     std::fs::create_dir_all(out.join("images"))?;
     let mut cameras = String::from("# CAMERA_ID MODEL WIDTH HEIGHT fx fy cx cy\n");
     let mut images = String::from("# IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME\n");
+    let mut turned = 0;
     for (i, c) in calibrations.iter().enumerate() {
         let src = photos.join(&c.name);
         let (w, h) = image::image_dimensions(&src)
@@ -131,12 +212,30 @@ fn main() -> Result<()> {
             "{}: K is not a pinhole matrix (skew or a bad last row)",
             c.name
         );
+        let turn = if h <= w {
+            Turn::None
+        } else {
+            let latitude = latitudes
+                .as_ref()
+                .and_then(|l| l.get(&c.name))
+                .with_context(|| {
+                    format!(
+                        "{} is {w}x{h}, stood upright from the gantry's landscape photo: its \
+                     latitude in the set's *_ang.txt tells which way it was turned, and there \
+                     is none for it",
+                        c.name
+                    )
+                })?;
+            if *latitude < 0.0 {
+                Turn::CounterClockwise
+            } else {
+                Turn::Clockwise
+            }
+        };
+        turned += usize::from(turn != Turn::None);
+        let ([fx, fy, cx, cy], r, t) = turn.camera(c, (f64::from(w), f64::from(h)));
         let id = i + 1;
-        cameras += &format!(
-            "{id} PINHOLE {w} {h} {} {} {} {}\n",
-            c.k[0], c.k[4], c.k[2], c.k[5]
-        );
-        let r = DMat3::from_cols_array(&c.r).transpose();
+        cameras += &format!("{id} PINHOLE {w} {h} {fx} {fy} {cx} {cy}\n");
         ensure!(
             (r.determinant() - 1.0).abs() < 1e-3,
             "{}: R is not a rotation (determinant {})",
@@ -146,14 +245,14 @@ fn main() -> Result<()> {
         let q = DQuat::from_mat3(&r).normalize();
         images += &format!(
             "{id} {} {} {} {} {} {} {} {id} {}\n\n",
-            q.w, q.x, q.y, q.z, c.t[0], c.t[1], c.t[2], c.name
+            q.w, q.x, q.y, q.z, t.x, t.y, t.z, c.name
         );
     }
     write_atomically(&sparse.join("cameras.txt"), &cameras)?;
     write_atomically(&sparse.join("points3D.txt"), "# none\n")?;
     write_atomically(&sparse.join("images.txt"), &images)?;
     println!(
-        "{} photos with their cameras: {}",
+        "{} photos with their cameras ({turned} stood upright, their cameras turned with them): {}",
         calibrations.len(),
         out.display()
     );

@@ -276,9 +276,10 @@ impl ColmapCamera {
             principal_point,
             distortion,
         };
+        // One message (callers put it after their own context with `{e}`).
         camera
             .validate()
-            .with_context(|| format!("COLMAP camera model {}", model.name()))?;
+            .map_err(|e| anyhow::anyhow!("COLMAP camera model {}: {e:#}", model.name()))?;
         Ok(camera)
     }
 
@@ -349,7 +350,7 @@ impl ColmapCamera {
         };
         camera
             .validate()
-            .with_context(|| format!("nerfstudio camera_model {model}"))?;
+            .map_err(|e| anyhow::anyhow!("nerfstudio camera_model {model}: {e:#}"))?;
         Ok(camera)
     }
 
@@ -458,7 +459,12 @@ impl CameraModel for ColmapCamera {
              det R = {:.6})",
             r.determinant()
         );
-        Ok(())
+        crate::core::camera_checks::check_intrinsics(
+            self.size,
+            self.focal,
+            self.principal_point,
+            &self.distortion,
+        )
     }
 
     fn ray_through_ndc(&self, x: f64, y: f64) -> (DVec3, DVec3) {

@@ -17,6 +17,8 @@
 
 use glam::{DVec2, DVec3};
 
+use crate::core::term::short_number;
+
 /// Newton stops when the residual `|distort(p) − target|` is below this (normalised units).
 const RESIDUAL_TOLERANCE: f64 = 1e-14;
 /// Newton gives up after this many steps, keeping the iterate with the smallest residual.
@@ -135,6 +137,64 @@ impl LensDistortion {
         }
     }
 
+    /// Whether the lens maps one ray to each of `points` (distorted normalised points, spread
+    /// over an image): at each, undistortion converges (`distort(undistort(d))` within `1e-9 ·
+    /// (1 + |d|)` of `d`) and the distortion keeps its orientation there (a positive Jacobian
+    /// determinant; for a fisheye, `θ_d` rising with `θ`, below 180°). Newton failing to
+    /// converge is this error, never a silent fallback to the distorted point. The error says
+    /// which point failed and how.
+    pub fn check_invertible_at(&self, points: &[DVec2]) -> Result<(), String> {
+        let tolerance = |d: DVec2| 1e-9 * (1.0 + d.length());
+        for &d in points {
+            match self {
+                Self::None => {}
+                Self::RadialTangential { .. } => {
+                    let p = self.undistort_radial_tangential(d);
+                    let DistortionWithJacobian { value, jacobian } =
+                        self.radial_tangential_with_jacobian(p);
+                    let residual = (value - d).length();
+                    if residual.is_nan() || residual > tolerance(d) {
+                        return Err(format!(
+                            "undistorting ({:.4}, {:.4}) does not converge (residual {})",
+                            d.x,
+                            d.y,
+                            short_number(residual)
+                        ));
+                    }
+                    let [[j00, j01], [j10, j11]] = jacobian;
+                    let det = j00 * j11 - j01 * j10;
+                    if det.is_nan() || det <= 0.0 {
+                        return Err(format!(
+                            "the distortion folds over at ({:.4}, {:.4}) (its Jacobian's \
+                             determinant is not positive there)",
+                            d.x, d.y
+                        ));
+                    }
+                }
+                Self::Fisheye { k } => {
+                    let rho = d.length();
+                    let theta = solve_fisheye_theta(k, rho);
+                    let residual = (fisheye_theta_d(k, theta) - rho).abs();
+                    if residual.is_nan() || residual > tolerance(d) {
+                        return Err(format!(
+                            "undistorting the fisheye radius {rho:.4} does not converge \
+                             (residual {})",
+                            short_number(residual)
+                        ));
+                    }
+                    let slope = fisheye_slope(k, theta);
+                    if slope.is_nan() || slope <= 0.0 {
+                        return Err(format!(
+                            "the fisheye's θ_d stops rising at θ = {:.1}°",
+                            theta.to_degrees()
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// `distort(p)` and its analytic Jacobian for the radial–tangential family (identity for
     /// the others, which never call it).
     fn radial_tangential_with_jacobian(&self, p: DVec2) -> DistortionWithJacobian {
@@ -220,10 +280,15 @@ fn fisheye_theta_d(&[k1, k2, k3, k4]: &[f64; 4], theta: f64) -> f64 {
     theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
 }
 
+/// `dθ_d/dθ` of [`fisheye_theta_d`].
+fn fisheye_slope(&[k1, k2, k3, k4]: &[f64; 4], theta: f64) -> f64 {
+    let t2 = theta * theta;
+    1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+}
+
 /// The angle `θ ∈ [0, π)` with `θ_d(θ) = rho`, by Newton from `θ = rho` (1-D: the fisheye
 /// distortion is purely radial); the iterate with the smallest residual.
 fn solve_fisheye_theta(k: &[f64; 4], rho: f64) -> f64 {
-    let [k1, k2, k3, k4] = *k;
     let mut theta = rho.min(std::f64::consts::PI * 0.999);
     let mut best = (f64::INFINITY, theta);
     for _ in 0..MAX_NEWTON_STEPS {
@@ -237,8 +302,7 @@ fn solve_fisheye_theta(k: &[f64; 4], rho: f64) -> f64 {
         if residual.abs() <= RESIDUAL_TOLERANCE {
             break;
         }
-        let t2 = theta * theta;
-        let slope = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)));
+        let slope = fisheye_slope(k, theta);
         if slope.abs() < 1e-300 {
             break;
         }

@@ -3,6 +3,7 @@
 pub mod allocator;
 pub mod camera;
 pub mod camera_alignment;
+pub mod camera_checks;
 pub mod camera_colmap;
 pub mod camera_consensus;
 pub mod camera_model;

@@ -8,3 +8,23 @@ pub fn note(message: &str) {
     let mut err = std::io::stderr().lock();
     let _ = writeln!(err, "{message}");
 }
+
+/// A number for a one-line message: 4 significant digits, in scientific notation when very
+/// large or small (`1e300`, not 300 digits).
+pub fn short_number(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
+        let text = format!("{v:.3e}");
+        // 1.000e300 → 1e300.
+        match text.split_once('e') {
+            Some((mantissa, exponent)) => {
+                let mantissa = mantissa.trim_end_matches('0').trim_end_matches('.');
+                format!("{mantissa}e{exponent}")
+            }
+            None => text,
+        }
+    } else {
+        let text = format!("{v:.4}");
+        let text = text.trim_end_matches('0').trim_end_matches('.');
+        text.to_string()
+    }
+}

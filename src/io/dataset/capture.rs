@@ -167,7 +167,15 @@ pub fn read_capture_split_with(
     let (transform, from_cameras) = match stored {
         Some(stored) => (stored, SceneTransform::from_poses(&poses).ok()),
         None => {
-            let computed = SceneTransform::from_poses(&poses)?;
+            let computed = SceneTransform::from_poses(&poses).map_err(|e| {
+                anyhow::anyhow!(
+                    "{}: {e} ({} camera{}, the first {})",
+                    dir.display(),
+                    poses.len(),
+                    if poses.len() == 1 { "" } else { "s" },
+                    frames[0].file_path.display()
+                )
+            })?;
             (computed, Some(computed))
         }
     };

@@ -216,11 +216,17 @@ mod tests {
         // 16-bit grey: a 1 and a band of 100 are used (not rounded to 8 bits).
         let grey16: ImageBuffer<Luma<u16>, Vec<u16>> =
             ImageBuffer::from_fn(3, 1, |x, _| Luma([[0, 1, 100][x as usize]]));
-        assert_eq!(flags_of(DynamicImage::ImageLuma16(grey16)), [false, true, true]);
+        assert_eq!(
+            flags_of(DynamicImage::ImageLuma16(grey16)),
+            [false, true, true]
+        );
         // Grey with alpha: the alpha is not read.
         let grey_alpha: ImageBuffer<LumaA<u8>, Vec<u8>> =
             ImageBuffer::from_fn(2, 1, |x, _| LumaA([[0, 255][x as usize], 0]));
-        assert_eq!(flags_of(DynamicImage::ImageLumaA8(grey_alpha)), [false, true]);
+        assert_eq!(
+            flags_of(DynamicImage::ImageLumaA8(grey_alpha)),
+            [false, true]
+        );
         // RGB: any channel; (0, 0, 1) is used.
         let rgb = image::RgbImage::from_fn(3, 1, |x, _| {
             Rgb([[0, 0, 0], [0, 0, 1], [200, 0, 0]][x as usize])
@@ -230,7 +236,10 @@ mod tests {
         let rgba16: ImageBuffer<Rgba<u16>, Vec<u16>> = ImageBuffer::from_fn(3, 1, |x, _| {
             Rgba([[0, 0, 0, 65535], [0, 1, 0, 0], [0, 0, 0, 0]][x as usize])
         });
-        assert_eq!(flags_of(DynamicImage::ImageRgba16(rgba16)), [false, true, false]);
+        assert_eq!(
+            flags_of(DynamicImage::ImageRgba16(rgba16)),
+            [false, true, false]
+        );
     }
 
     #[test]

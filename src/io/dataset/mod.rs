@@ -29,9 +29,11 @@ pub mod transforms_intrinsics;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Result};
+use anyhow::{anyhow, bail, Result};
 use rayon::prelude::*;
 
+use crate::core::camera_checks::check_photo_size;
+use crate::core::frame_camera::FrameCamera;
 use crate::core::image::RgbImage;
 use frame_mask::load_mask;
 
@@ -222,13 +224,18 @@ impl Dataset {
     }
 }
 
-/// An error naming the first image whose file size differs from the first frame's: a split's
-/// images share one camera model, so a frame of another size cannot be scored against it.
+/// An error naming the first image whose file size differs from the first frame's (a split's
+/// images share one camera model, so a frame of another size cannot be scored against it), or
+/// whose capture camera cannot describe it ([`check_photo_size`]).
 fn check_sizes_agree(frames: &[Frame], loaded: &[LoadedImage]) -> Result<()> {
     let Some(first) = loaded.first() else {
         return Ok(());
     };
     for (frame, image) in frames.iter().zip(loaded) {
+        if let FrameCamera::Colmap(camera) = &frame.camera {
+            check_photo_size(camera.size, image.source_size)
+                .map_err(|e| anyhow!("{}: {e}", frame.file_path.display()))?;
+        }
         if image.source_size != first.source_size {
             bail!(
                 "{} is {}x{}, but the split's images are {}x{} ({}): every image of a split must \

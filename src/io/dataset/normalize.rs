@@ -10,6 +10,7 @@ use anyhow::{bail, Result};
 use glam::{DMat3, DVec3};
 
 use crate::core::camera_colmap::ColmapPose;
+use crate::core::term::short_number;
 
 /// A camera farther from the centre than this many times the median distance is an outlier
 /// and does not set the scale.
@@ -25,6 +26,11 @@ pub struct SceneTransform {
     /// Scale factor (> 0).
     pub scale: f64,
 }
+
+/// The finest float64 spacing at the cameras' farthest coordinate, as a fraction of their
+/// spread, at which their positions still count as known: centres shifted by 1e17 with a
+/// spread of 4 sit on a 16-unit float64 grid, and normalise to nothing.
+pub const MIN_RESOLVED_FRACTION: f64 = 1e-6;
 
 impl SceneTransform {
     /// The transform that changes nothing.
@@ -72,6 +78,22 @@ impl SceneTransform {
             .fold(0.0, f64::max);
         if !(radius.is_finite() && radius > 1e-12) {
             bail!("the cameras all stand at one point: the scene has no scale");
+        }
+        let farthest = centers
+            .iter()
+            .map(|c| c.abs().max_element())
+            .fold(0.0, f64::max);
+        let resolution = farthest * f64::EPSILON;
+        if resolution > MIN_RESOLVED_FRACTION * radius {
+            bail!(
+                "the cameras stand {} apart but {} from the origin, where float64 resolves \
+                 positions only to {}, more than {} of their spread: move the capture's \
+                 origin near its cameras",
+                short_number(radius),
+                short_number(farthest),
+                short_number(resolution),
+                short_number(MIN_RESOLVED_FRACTION)
+            );
         }
         Ok(Self {
             rotation,
@@ -335,6 +357,29 @@ mod tests {
         let err = SceneTransform::from_poses(&[pose, pose]).unwrap_err();
         assert!(err.to_string().contains("one point"), "{err}");
         assert!(SceneTransform::from_poses(&[]).is_err());
+    }
+
+    #[test]
+    fn centres_too_far_from_the_origin_to_resolve_are_an_error() {
+        // A ring of radius 4 around (1e13, 0, 0): float64 spaces positions 0.002 apart there
+        // (around 1e17, 16 apart: the ring collapses to one point, the error above).
+        let ring = |offset: f64| -> Vec<ColmapPose> {
+            let centre = DVec3::new(offset, 0.0, 0.0);
+            (0..8)
+                .map(|i| {
+                    let a = i as f64 * std::f64::consts::TAU / 8.0;
+                    let eye = centre + 4.0 * DVec3::new(a.cos(), a.sin(), 0.5);
+                    look_at(eye, centre, DVec3::Z)
+                })
+                .collect()
+        };
+        let err = SceneTransform::from_poses(&ring(1e13))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("origin") && err.contains("e12 from"), "{err}");
+        assert!(err.len() < 250, "{err}");
+        // A survey's coordinates (metres, 5e5 from the origin) are resolved to 1e-10 m.
+        assert!(SceneTransform::from_poses(&ring(5e5)).is_ok());
     }
 
     #[test]
