@@ -376,7 +376,7 @@ mod tests {
         let err = SceneTransform::from_poses(&ring(1e13))
             .unwrap_err()
             .to_string();
-        assert!(err.contains("origin") && err.contains("e12 from"), "{err}");
+        assert!(err.contains("origin") && err.contains("1e13 from"), "{err}");
         assert!(err.len() < 250, "{err}");
         // A survey's coordinates (metres, 5e5 from the origin) are resolved to 1e-10 m.
         assert!(SceneTransform::from_poses(&ring(5e5)).is_ok());
