@@ -221,3 +221,122 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
         &["row 0", "field of view"],
     );
 }
+
+#[test]
+fn checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint() {
+    let test = "checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint";
+    let Some(lego) = lego(test) else { return };
+    let lego = lego.first(9);
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("capture");
+    write_colmap_text(&lego, &dir);
+    let ckpt = root.path().join("model.safetensors");
+    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
+    let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
+    args.push(dir.to_str().unwrap());
+    args.extend(overrides);
+    common::nerf_ok(&args);
+    let (tensors, info) = nerf::io::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
+    let mut tensors: Vec<_> = tensors.into_iter().collect();
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    let orbit = info
+        .capture_orbit
+        .expect("a capture checkpoint stores its orbit");
+    let transform = info.scene_transform.expect("and its normalisation");
+    // Each bad value, the command that reads it, and what the error must say.
+    type Edit = Box<dyn Fn(&mut nerf::io::checkpoint::CheckpointInfo)>;
+    let cases: Vec<(&str, Edit, &str, &str)> = vec![
+        (
+            "orbit radius 1e300",
+            Box::new(move |i| {
+                i.capture_orbit = Some(nerf::io::dataset::CaptureOrbit {
+                    radius: 1e300,
+                    ..orbit
+                })
+            }),
+            "render",
+            "the orbit's radius 1e300 is beyond 100",
+        ),
+        (
+            "orbit height 1e308",
+            Box::new(move |i| {
+                i.capture_orbit = Some(nerf::io::dataset::CaptureOrbit {
+                    height: 1e308,
+                    ..orbit
+                })
+            }),
+            "render",
+            "the orbit's height 1e308 is beyond 100",
+        ),
+        (
+            "orbit focal 1e-300",
+            Box::new(move |i| {
+                i.capture_orbit = Some(nerf::io::dataset::CaptureOrbit {
+                    focal: [1e-300, 2.0],
+                    ..orbit
+                })
+            }),
+            "render",
+            "NDC focal length of 1e-300",
+        ),
+        (
+            "scene scale 1e100",
+            Box::new(move |i| {
+                i.scene_transform = Some(nerf::io::dataset::SceneTransform {
+                    scale: 1e300,
+                    ..transform
+                })
+            }),
+            "eval",
+            "stored in the checkpoint (metadata scene_transform) puts a camera",
+        ),
+        (
+            "scene scale 1e100, resumed",
+            Box::new(move |i| {
+                i.scene_transform = Some(nerf::io::dataset::SceneTransform {
+                    scale: 1e300,
+                    ..transform
+                })
+            }),
+            "train",
+            "stored in the checkpoint (metadata scene_transform) puts a camera",
+        ),
+    ];
+    for (n, (what, edit, command, says)) in cases.into_iter().enumerate() {
+        let bad = root.path().join(format!("bad_{n}.safetensors"));
+        let mut info = info;
+        edit(&mut info);
+        nerf::io::checkpoint::save(&bad, &tensors, info).unwrap();
+        let before = std::fs::read(&bad).unwrap();
+        let out = root.path().join(format!("out_{n}"));
+        let ckpt_arg = format!("training.checkpoint_path={}", bad.display());
+        // `render` and `view` read the stored path through the same function
+        // (`app::scene_frame::render_cameras`): `render` stands for both.
+        let mut args = vec![command, "--config", "nerf_scene_bounded"];
+        if command != "render" {
+            args.extend(["--data-dir", dir.to_str().unwrap()]);
+        }
+        match command {
+            "render" => args.extend(["--out-dir", out.to_str().unwrap()]),
+            "train" => args.push("training.num_epochs=2"),
+            _ => {}
+        }
+        args.push(&ckpt_arg);
+        args.extend(["data.image_size=[24,24]", "sampler.n_pts_per_ray=32"]);
+        let err = error_line(&common::nerf(&args));
+        eprintln!("{what} ({command}): {err}");
+        assert!(err.contains(says), "{what}: {err} (expected {says:?})");
+        assert!(
+            err.contains(&bad.display().to_string()) || err.contains("checkpoint"),
+            "{what}: {err}"
+        );
+        assert!(err.len() < 400, "{what}: {err}");
+        assert!(!out.exists(), "{what}: wrote {}", out.display());
+        assert_eq!(
+            std::fs::read(&bad).unwrap(),
+            before,
+            "{what}: the checkpoint changed"
+        );
+    }
+}

@@ -159,11 +159,13 @@ pub fn parse_view_query(
         }
     }
     check_pose(d.eye, d.at, d.up)?;
-    // A focal left out comes from the config, which has its own, wider bounds.
+    // A focal left out is the viewer's default: the config's `cameras.focal_length`, or the
+    // checkpoint's stored capture path, whichever the viewer started from.
     if !(MIN_FOCAL..=MAX_FOCAL).contains(&d.focal) {
         return Err(format!(
-            "focal: must be from {MIN_FOCAL:e} to {MAX_FOCAL:e} (the config's cameras.focal_length is {:e})",
-            d.focal
+            "focal: must be from {MIN_FOCAL:e} to {MAX_FOCAL:e} (the viewer's default focal \
+             length, from the config or the checkpoint's capture path, is {})",
+            crate::core::term::short_number(d.focal)
         ));
     }
     let (r, t) = look_at_view_transform(d.eye, d.at, d.up);

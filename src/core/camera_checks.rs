@@ -41,6 +41,11 @@ pub const ASPECT_TOLERANCE: f64 = 0.01;
 /// goes to 64).
 pub const MAX_SIZE_RATIO: f64 = 64.0;
 
+/// The farthest a stored capture path (an orbit's radius and height, a spiral's centre, radii
+/// and focus distance) may reach in the normalised frame, where the training cameras stand
+/// within distance 1 of the centre: from 100 the whole scene is under a pixel.
+pub const MAX_NORMALISED_DISTANCE: f64 = 100.0;
+
 /// Grid points along each image axis at which the distortion is checked.
 const GRID: usize = 9;
 /// Steps along each line from the principal point at which the radius must rise.
@@ -95,6 +100,37 @@ pub fn field_of_view_degrees(side: f64, focal: f64, fisheye: bool) -> f64 {
         false => 2.0 * (side / (2.0 * focal)).atan().to_degrees(),
         true => (side / focal).to_degrees(),
     }
+}
+
+/// Checks NDC focal lengths `[fx, fy]` (the image spans 2 NDC units) against the field-of-view
+/// rule of a perspective lens: `2·atan(1 / f)` from [`MIN_FIELD_OF_VIEW_DEGREES`] to
+/// [`MAX_FIELD_OF_VIEW_DEGREES`].
+pub fn check_ndc_focal(focal: [f64; 2]) -> Result<()> {
+    for f in focal {
+        let degrees = field_of_view_degrees(2.0, f, false);
+        if !(MIN_FIELD_OF_VIEW_DEGREES..=MAX_FIELD_OF_VIEW_DEGREES).contains(&degrees) {
+            bail!(
+                "an NDC focal length of {} gives a field of view of {}°: it must be \
+                 {MIN_FIELD_OF_VIEW_DEGREES}° to {MAX_FIELD_OF_VIEW_DEGREES}°",
+                short_number(f),
+                short_number(degrees)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Checks that a stored capture path's `what` (a distance in the normalised frame) is within
+/// [`MAX_NORMALISED_DISTANCE`] of the centre.
+pub fn check_normalised_distance(what: &str, distance: f64) -> Result<()> {
+    if distance.is_nan() || distance.abs() > MAX_NORMALISED_DISTANCE {
+        bail!(
+            "{what} {} is beyond {MAX_NORMALISED_DISTANCE} in the normalised frame, where the \
+             training cameras stand within 1 of the centre",
+            short_number(distance)
+        );
+    }
+    Ok(())
 }
 
 /// The distortion's rule: invertible on a grid over the image and radially monotonic from the
@@ -274,6 +310,22 @@ mod tests {
             k: [-1.0, 0.0, 0.0, 0.0],
         };
         assert!(check([300.0, 300.0], CENTRE, turning).is_err());
+    }
+
+    #[test]
+    fn stored_paths_follow_the_same_field_of_view_and_stay_near_the_cameras() {
+        // NDC focal 1: 90°; 2: 53°.
+        assert!(check_ndc_focal([1.0, 2.0]).is_ok());
+        let err = check_ndc_focal([1e-300, 2.0]).unwrap_err().to_string();
+        assert!(err.contains("1e-300") && err.contains("180°"), "{err}");
+        assert!(check_ndc_focal([2.0, 1e300]).is_err());
+        assert!(check_normalised_distance("orbit radius", 0.9).is_ok());
+        let err = check_normalised_distance("orbit radius", 1e300).unwrap_err();
+        assert!(
+            err.to_string().starts_with("orbit radius 1e300 is beyond"),
+            "{err}"
+        );
+        assert!(check_normalised_distance("orbit height", f64::NAN).is_err());
     }
 
     #[test]

@@ -19,7 +19,7 @@ use anyhow::{bail, Result};
 pub use super::capture_frame::{CaptureFrame, CaptureFrames};
 use super::normalize::SceneTransform;
 use super::transforms::{Frame, Split};
-use crate::core::camera_colmap::ColmapCamera;
+use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
 
 /// Every this-many-th frame (by sorted image name, from 0) is held out for evaluation.
 pub const HOLDOUT_EVERY: usize = 8;
@@ -114,6 +114,32 @@ impl Normalisation {
     }
 }
 
+/// An error unless the scene normalisation `stored` in a checkpoint puts the capture's cameras
+/// (`poses`, in the capture's own frame) within
+/// [`MAX_NORMALISED_DISTANCE`](crate::core::camera_checks::MAX_NORMALISED_DISTANCE) of the
+/// centre, as the frame it was trained in put its cameras within 1: an overflowing stored
+/// transform would otherwise train and score on nothing.
+fn check_stored_frame(dir: &Path, stored: &SceneTransform, poses: &[ColmapPose]) -> Result<()> {
+    let farthest = poses
+        .iter()
+        .map(|p| stored.apply_pose(p).center().length())
+        .fold(
+            0.0,
+            |a: f64, d| if d.is_nan() { f64::INFINITY } else { a.max(d) },
+        );
+    let limit = crate::core::camera_checks::MAX_NORMALISED_DISTANCE;
+    if farthest > limit {
+        bail!(
+            "{}: the scene normalisation stored in the checkpoint (metadata scene_transform) \
+             puts a camera {} from the centre, beyond {limit}: the model was trained with its \
+             cameras within 1",
+            dir.display(),
+            crate::core::term::short_number(farthest)
+        );
+    }
+    Ok(())
+}
+
 /// Whether frame `index` (of the frames sorted by image name) belongs to `split` under the
 /// every-8th holdout: `test` and `val` hold index % 8 == 0, `train` the rest.
 pub fn in_holdout_split(index: usize, split: Split) -> bool {
@@ -179,6 +205,9 @@ pub fn read_capture_split_with(
             (computed, Some(computed))
         }
     };
+    if stored.is_some() {
+        check_stored_frame(dir, &transform, &poses)?;
+    }
     let total_frames = frames.len();
     let depth_bounds = scene_depth_bounds(&frames, transform.scale);
     let mut indexed: Vec<(usize, CaptureFrame)> = frames.into_iter().enumerate().collect();

@@ -10,8 +10,10 @@ use anyhow::{bail, ensure, Result};
 use glam::DVec3;
 
 use crate::core::camera::{look_at_view_transform, PerspectiveCamera};
+use crate::core::camera_checks::{check_ndc_focal, check_normalised_distance};
 use crate::core::camera_model::CameraModel;
 use crate::core::frame_camera::FrameCamera;
+use crate::core::term::short_number;
 use crate::io::dataset::Frame;
 
 /// A circle of views around the z axis, looking at the origin.
@@ -72,24 +74,25 @@ impl CaptureOrbit {
         }
     }
 
-    /// Checks the values are finite and the radius and focal lengths positive.
+    /// Checks the values are finite, the radius positive, radius and height within
+    /// [`MAX_NORMALISED_DISTANCE`](crate::core::camera_checks::MAX_NORMALISED_DISTANCE) and
+    /// the focal lengths a lens's ([`check_ndc_focal`]): the rules a capture's own cameras
+    /// follow, so that a checkpoint's stored orbit cannot render black frames.
     pub fn validate(&self) -> Result<()> {
         let values = [self.radius, self.height, self.focal[0], self.focal[1]];
         ensure!(
             values.iter().all(|v| v.is_finite()),
-            "capture orbit values must be finite, got {values:?}"
+            "capture orbit values must be finite, got {}",
+            values.map(short_number).join(" ")
         );
         ensure!(
             self.radius > 1e-6,
             "the capture's cameras stand on the z axis (mean distance from it {}): no orbit",
-            self.radius
+            short_number(self.radius)
         );
-        ensure!(
-            self.focal.iter().all(|f| *f > 0.0),
-            "capture orbit focal lengths must be positive, got {:?}",
-            self.focal
-        );
-        Ok(())
+        check_normalised_distance("the orbit's radius", self.radius)?;
+        check_normalised_distance("the orbit's height", self.height)?;
+        check_ndc_focal(self.focal).map_err(|e| anyhow::anyhow!("the orbit's camera: {e}"))
     }
 
     /// `n_poses` views evenly around the orbit, the first at azimuth 0 (on +x), each looking

@@ -15,8 +15,10 @@ use glam::DVec3;
 use super::normalize::focus_of_axes;
 use super::orbit::mean_ndc_focal;
 use crate::core::camera::{look_at_view_transform, PerspectiveCamera};
+use crate::core::camera_checks::{check_ndc_focal, check_normalised_distance};
 use crate::core::camera_model::CameraModel;
 use crate::core::frame_camera::FrameCamera;
+use crate::core::term::short_number;
 use crate::io::dataset::Frame;
 
 /// A capture is forward-facing when every camera's viewing direction lies within this many
@@ -198,25 +200,29 @@ impl CaptureSpiral {
                 && (self.up.length() - 1.0).abs() < 1e-6
                 && self.forward.dot(self.up).abs() < 1e-6,
             "capture spiral axes must be perpendicular unit vectors, got forward {} and up {}",
-            self.forward,
-            self.up
+            short_vector(self.forward),
+            short_vector(self.up)
         );
         ensure!(
             self.radii.iter().all(|r| *r >= 0.0),
-            "capture spiral radii must not be negative, got {:?}",
-            self.radii
+            "capture spiral radii must not be negative, got {}",
+            self.radii.map(short_number).join(" ")
         );
         ensure!(
             self.focus_distance > 0.0,
             "capture spiral focus distance must be positive, got {}",
-            self.focus_distance
+            short_number(self.focus_distance)
         );
-        ensure!(
-            self.focal.iter().all(|f| *f > 0.0),
-            "capture spiral focal lengths must be positive, got {:?}",
-            self.focal
-        );
-        Ok(())
+        check_normalised_distance("the spiral's centre", self.centre.length())?;
+        for (what, value) in [
+            ("the spiral's right radius", self.radii[0]),
+            ("the spiral's up radius", self.radii[1]),
+            ("the spiral's forward radius", self.radii[2]),
+            ("the spiral's focus distance", self.focus_distance),
+        ] {
+            check_normalised_distance(what, value)?;
+        }
+        check_ndc_focal(self.focal).map_err(|e| anyhow::anyhow!("the spiral's camera: {e}"))
     }
 
     /// `n_poses` views along the spiral: view `i` at angle `θ = 2π · SPIRAL_TURNS · i / n`
@@ -285,6 +291,11 @@ impl CaptureSpiral {
         spiral.validate()?;
         Ok(spiral)
     }
+}
+
+/// A vector for a one-line message, each coordinate short (`(1e300, 0, 1)`).
+fn short_vector(v: DVec3) -> String {
+    format!("({})", v.to_array().map(short_number).join(", "))
 }
 
 #[cfg(test)]
