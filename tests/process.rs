@@ -78,6 +78,62 @@ fn no_photos_and_missing_colmap_are_one_line_errors() {
 }
 
 #[test]
+fn photos_colmap_cannot_take_are_named_before_it_runs_and_links_are_not_followed() {
+    let dir = tempfile::tempdir().unwrap();
+    // A COLMAP that records that it ran: none of these cases may reach it.
+    let marker = dir.path().join("colmap_ran");
+    let colmap = fake_colmap(dir.path(), &format!("touch {}; exit 1", marker.display()));
+    let cases: [(&str, fn(&Path), &str); 3] = [
+        (
+            "a line break in a name",
+            |p| {
+                std::fs::copy(p.join("p0.png"), p.join("two\nlines.png"))
+                    .map(drop)
+                    .unwrap()
+            },
+            "name COLMAP cannot keep",
+        ),
+        (
+            "a leading space",
+            |p| {
+                std::fs::copy(p.join("p0.png"), p.join(" p9.png"))
+                    .map(drop)
+                    .unwrap()
+            },
+            "name COLMAP cannot keep",
+        ),
+        (
+            "a .jpg that is not a photo",
+            |p| std::fs::write(p.join("notes.jpg"), b"shopping list").unwrap(),
+            "notes.jpg: not a photo that decodes",
+        ),
+    ];
+    for (i, (what, spoil, says)) in cases.iter().enumerate() {
+        let photos = photos(&dir.path().join(format!("case{i}")), 4);
+        spoil(&photos);
+        let out = dir.path().join(format!("out{i}"));
+        let err = common::one_line_error(&process(&photos, &out, Some(&colmap)));
+        assert!(err.contains(says), "{what}: {err}");
+        assert!(!out.exists(), "{what}: wrote {}", out.display());
+        assert!(!marker.exists(), "{what}: COLMAP ran");
+    }
+    // Two links back up the tree: not followed (the walk was exponential), each photo listed
+    // once, and a note says so.
+    let photos = photos(&dir.path().join("loops"), 4);
+    std::os::unix::fs::symlink(&photos, photos.join("again")).unwrap();
+    std::fs::create_dir(photos.join("sub")).unwrap();
+    std::os::unix::fs::symlink(&photos, photos.join("sub").join("again")).unwrap();
+    let out = dir.path().join("out_loops");
+    let o = process(&photos, &out, Some(&colmap));
+    let log = common::stderr(&o);
+    assert!(
+        log.contains("symbolic links to folders not followed"),
+        "{log}"
+    );
+    assert_eq!(common::sorted_names(&out.join("images")).len(), 4, "{log}");
+}
+
+#[test]
 fn failed_stage_and_nothing_registered_are_one_line_errors() {
     let dir = tempfile::tempdir().unwrap();
     let photos = photos(dir.path(), 4);
@@ -94,9 +150,17 @@ fn failed_stage_and_nothing_registered_are_one_line_errors() {
     assert!(!out.join("transforms.json").exists());
     let log = std::fs::read_to_string(out.join("colmap/exhaustive_matcher.log")).unwrap();
     assert!(log.contains("matching went wrong"), "{log}");
-    // The same folder again: refused, the earlier run's outputs named.
-    let err = common::one_line_error(&process(&photos, &out, Some(&failing)));
-    assert!(err.contains("from an earlier run"), "{err}");
+    // The failed run left OUT marked unfinished; the same command again starts over (here it
+    // fails the same way, which shows it ran rather than refused).
+    assert!(out.join(".nerf-process-unfinished").is_file());
+    let o = process(&photos, &out, Some(&failing));
+    assert!(
+        common::stderr(&o).contains("held an unfinished run"),
+        "{}",
+        common::stderr(&o)
+    );
+    let err = last_line_error(&o);
+    assert!(err.contains("COLMAP's exhaustive_matcher failed"), "{err}");
 
     // A COLMAP whose mapper makes no model: nothing registered.
     let idle = fake_colmap(dir.path(), "exit 0");

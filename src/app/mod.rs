@@ -18,6 +18,7 @@ pub mod external_tool;
 pub mod jobs;
 pub mod messages;
 pub mod process;
+pub mod process_inputs;
 pub mod process_mapper;
 #[cfg(feature = "cli")]
 pub mod report;

@@ -13,17 +13,19 @@
 //! its command line is stable across releases, it extracts SIFT features on the CPU (no GPU or
 //! display needed, with `QT_QPA_PLATFORM=offscreen`), and it puts no Python in the path.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Map, Value};
 
 use crate::app::colmap_run::{check_colmap, colmap_program, last_line, run_stage};
+use crate::app::process_inputs::{
+    check_names, check_photos_decode, copy_images, list_images, mark_finished, start_run,
+};
 use crate::app::process_mapper::{MapperRun, MappingOptions};
 use crate::core::camera_colmap::{ColmapCameraModel, ColmapPose};
 use crate::core::distortion::LensDistortion;
 use crate::io::colmap::{ColmapCamera, ColmapModel};
-use crate::io::progress::progress_bar;
 
 pub use crate::app::process_mapper::MIN_REGISTERED;
 
@@ -34,9 +36,6 @@ pub const EXHAUSTIVE_MAX_IMAGES: usize = 100;
 /// COLMAP's `exhaustive_matcher` matches images in blocks of this many (its default
 /// `ExhaustiveMatching.block_size`), which the progress bar counts.
 const EXHAUSTIVE_BLOCK: usize = 50;
-
-/// Extensions of the photos taken (compared without case).
-const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
 
 /// How COLMAP pairs images for matching.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -159,104 +158,16 @@ pub struct ProcessSummary {
     pub stages: Vec<StageTime>,
 }
 
-/// The photos under `dir` (PNG and JPEG by extension, in subfolders too, hidden entries and
-/// `skip` left out) as paths relative to `dir`, sorted. One-line errors: `dir` not a folder,
-/// or no photos in it.
-pub fn list_images(dir: &Path, skip: Option<&Path>) -> Result<Vec<PathBuf>> {
-    if !dir.is_dir() {
-        bail!("--images {}: not a folder", dir.display());
-    }
-    let mut found = Vec::new();
-    let mut pending = vec![PathBuf::new()];
-    while let Some(relative) = pending.pop() {
-        let folder = dir.join(&relative);
-        let entries = std::fs::read_dir(&folder)
-            .with_context(|| format!("cannot list {}", folder.display()))?;
-        for entry in entries {
-            let entry = entry.with_context(|| format!("cannot list {}", folder.display()))?;
-            let name = entry.file_name();
-            if name.to_string_lossy().starts_with('.') {
-                continue;
-            }
-            let path = entry.path();
-            let child = relative.join(&name);
-            if path.is_dir() {
-                let skipped = skip.is_some_and(|s| same_file(&path, s));
-                if !skipped {
-                    pending.push(child);
-                }
-            } else if path.is_file() && is_image_name(&path) {
-                found.push(child);
-            }
-        }
-    }
-    if found.is_empty() {
-        bail!(
-            "no images in {}: nerf process takes PNG and JPEG photos (.png, .jpg, .jpeg), in subfolders too",
-            dir.display()
-        );
-    }
-    found.sort();
-    Ok(found)
-}
-
-/// Whether `a` and `b` name the same existing file or folder.
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => false,
-    }
-}
-
-/// Whether `path` has a photo's extension.
-fn is_image_name(path: &Path) -> bool {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
-}
-
-/// The outputs of an earlier run in `out` that [`process`] refuses to replace.
-fn earlier_outputs(out: &Path) -> Vec<&'static str> {
-    ["transforms.json", "images", "colmap"]
-        .into_iter()
-        .filter(|name| out.join(name).symlink_metadata().is_ok())
-        .collect()
-}
-
-/// Copies each of `names` (relative to `from`) to the same relative path under `to`, each
-/// through a temporary file renamed into place, so no half-copied photo is ever there.
-pub fn copy_images(from: &Path, names: &[PathBuf], to: &Path) -> Result<()> {
-    let bar = progress_bar(names.len() as u64, "copying images");
-    for name in names {
-        let target = to.join(name);
-        let folder = target.parent().unwrap_or(to);
-        std::fs::create_dir_all(folder)
-            .with_context(|| format!("cannot create {}", folder.display()))?;
-        let file_name = target.file_name().unwrap_or_default().to_string_lossy();
-        let temp = folder.join(format!(".{file_name}.{}.tmp", std::process::id()));
-        let source = from.join(name);
-        let copied = std::fs::copy(&source, &temp).and_then(|_| std::fs::rename(&temp, &target));
-        if let Err(e) = copied {
-            let _ = std::fs::remove_file(&temp);
-            bail!(
-                "cannot copy {} to {}: {e}",
-                source.display(),
-                target.display()
-            );
-        }
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
-    Ok(())
-}
-
 /// Runs the whole pipeline of the module doc: lists and copies the photos (or writes the
 /// video's chosen frames), runs COLMAP's feature extraction and matching, maps
 /// ([`crate::app::process_mapper::map`]), and writes `OUT/transforms.json` (atomically, last,
-/// so a failed run leaves none). One-line errors: no photos, not a video, ffmpeg or COLMAP
-/// missing, a vocabulary tree that is not a file, an earlier run's outputs in `OUT`, a stage
-/// that failed (naming its log), fewer than [`MIN_REGISTERED`] images registered, a camera
-/// model nerfstudio cannot hold. Before anything is written, `OUT` is left as it was.
+/// so a failed run leaves none). One-line errors: no photos, a photo whose name COLMAP cannot
+/// keep or that does not decode, not a video, ffmpeg or COLMAP missing, a vocabulary tree that
+/// is not a file, a finished run's outputs in `OUT`, a stage that failed (naming its log),
+/// fewer than [`MIN_REGISTERED`] images registered, a camera model nerfstudio cannot hold.
+/// Until the input checks pass, `OUT` is left as it was; from then until `transforms.json` is
+/// written it holds the unfinished-run marker, and a re-run replaces what it left
+/// ([`crate::app::process_inputs::start_run`]).
 pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     let ProcessOptions {
         source,
@@ -267,7 +178,12 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         mapping,
     } = options;
     let photos = match source {
-        Source::Images(dir) => Some(list_images(dir, Some(out))?),
+        Source::Images(dir) => {
+            let names = list_images(dir, Some(out))?;
+            check_names(dir, &names)?;
+            check_photos_decode(dir, &names)?;
+            Some(names)
+        }
         Source::Video { file, frames } => {
             if !file.is_file() {
                 bail!("--video {}: not a file", file.display());
@@ -289,14 +205,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
             bail!("--vocab-tree {}: not a file", tree.display());
         }
     }
-    let earlier = earlier_outputs(out);
-    if !earlier.is_empty() {
-        bail!(
-            "{} already holds {} from an earlier run: remove them or choose another --out",
-            out.display(),
-            earlier.join(", ")
-        );
-    }
+    start_run(out)?;
     let images = out.join("images");
     let colmap = out.join("colmap");
     let (names, video) = match source {
@@ -463,6 +372,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     let text = serde_json::to_string_pretty(&transforms)? + "\n";
     let transforms_path = out.join("transforms.json");
     crate::io::output::write_text(&transforms_path, &text)?;
+    mark_finished(out)?;
     let unregistered = n - registered.min(n);
     log::info!(
         "COLMAP registered {registered} of {n} images (model {}){}",
