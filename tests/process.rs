@@ -83,7 +83,9 @@ fn photos_colmap_cannot_take_are_named_before_it_runs_and_links_are_not_followed
     // A COLMAP that records that it ran: none of these cases may reach it.
     let marker = dir.path().join("colmap_ran");
     let colmap = fake_colmap(dir.path(), &format!("touch {}; exit 1", marker.display()));
-    let cases: [(&str, fn(&Path), &str); 3] = [
+    // What is wrong, how a folder of photos gets it, and what the error says.
+    type Case<'a> = (&'a str, fn(&Path), &'a str);
+    let cases: [Case; 3] = [
         (
             "a line break in a name",
             |p| {
