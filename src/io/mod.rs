@@ -8,6 +8,7 @@ pub mod checkpoint;
 pub mod checkpoint_file;
 pub mod colmap;
 pub mod dataset;
+pub mod decode_budget;
 pub mod images;
 pub mod npy;
 pub mod output;

@@ -9,6 +9,7 @@ use image::{ImageBuffer, ImageFormat, Rgba};
 
 use crate::core::image::RgbImage;
 use crate::io::bounded_read::read_regular_file;
+use crate::io::decode_budget::{file_decode_cost, reserve};
 
 /// Largest image file read (an 800×800 RGBA PNG is about 0.5 MB; 16-bit 4096² is 128 MB).
 pub const MAX_IMAGE_FILE_BYTES: u64 = 256 << 20;
@@ -78,6 +79,9 @@ pub fn load_frame_image(
             path.display()
         ),
     };
+    // Decoding is counted against the process's budget, so that the images in flight on
+    // rayon's threads stay within it however many threads there are.
+    let _reservation = reserve(file_decode_cost(path));
     let bytes = read_regular_file(path, "image", MAX_IMAGE_FILE_BYTES)?;
     // The decoder's sizes come from the file: bounded before it allocates.
     let mut limits = image::Limits::default();
@@ -99,27 +103,22 @@ pub fn load_frame_image(
         )
     })?;
     let has_alpha = decoded.color().has_alpha();
-    // (H0, W0, 4) RGBA in [0, 1].
-    let rgba = decoded.to_rgba32f();
-    let (w0, h0) = rgba.dimensions();
+    // (H0, W0, 4) RGBA in [0, 1]; the decoded copy is dropped at once.
+    let mut composited: ImageBuffer<Rgba<f32>, Vec<f32>> = decoded.to_rgba32f();
+    drop(decoded);
+    let (w0, h0) = composited.dimensions();
     let bg = if white_background { 1.0 } else { 0.0 };
-    // Composited colour and transparency; every channel is resized independently and
-    // linearly, so the relation between them survives resizing.
-    let composited: Vec<f32> = rgba
-        .pixels()
-        .flat_map(|p| {
-            let a = p[3];
-            [
-                p[0] * a + bg * (1.0 - a),
-                p[1] * a + bg * (1.0 - a),
-                p[2] * a + bg * (1.0 - a),
-                1.0 - a,
-            ]
-        })
-        .collect();
-    // (H0, W0, 4).
-    let composited: ImageBuffer<Rgba<f32>, Vec<f32>> = ImageBuffer::from_raw(w0, h0, composited)
-        .ok_or_else(|| anyhow!("cannot decode PNG {}: inconsistent size", path.display()))?;
+    // Composited colour and transparency, in place; every channel is resized independently
+    // and linearly, so the relation between them survives resizing.
+    for p in composited.pixels_mut() {
+        let a = p[3];
+        *p = Rgba([
+            p[0] * a + bg * (1.0 - a),
+            p[1] * a + bg * (1.0 - a),
+            p[2] * a + bg * (1.0 - a),
+            1.0 - a,
+        ]);
+    }
     let resized = if (w0, h0) == (w, h) {
         composited
     } else {

@@ -18,6 +18,7 @@ use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
 
 use super::frame_image::{MAX_IMAGE_FILE_BYTES, MAX_SOURCE_IMAGE_SIDE};
 use crate::io::bounded_read::read_regular_file;
+use crate::io::decode_budget::{file_decode_cost, reserve};
 
 /// Which pixels of a `width × height` image are used, as flags and as a list.
 #[derive(Debug, Clone, PartialEq)]
@@ -59,6 +60,8 @@ pub fn load_mask(
     source_size: (u32, u32),
     (width, height): (usize, usize),
 ) -> Result<PixelMask> {
+    // Within the decoding budget, as the photos are (`crate::io::decode_budget`).
+    let _reservation = reserve(file_decode_cost(path));
     let bytes = read_regular_file(path, "mask", MAX_IMAGE_FILE_BYTES)?;
     if image::guess_format(&bytes).ok() != Some(ImageFormat::Png) {
         bail!("mask {} is not a PNG image", path.display());
