@@ -72,6 +72,25 @@ pub fn read_split_with(
     stored: Option<SceneTransform>,
 ) -> Result<SplitFrames> {
     let format = SceneFormat::detect(data_dir);
+    let blender_files = Split::ALL.iter().any(|s| s.transforms_path(data_dir).is_file());
+    if format == SceneFormat::Blender && data_dir.is_dir() && !blender_files {
+        // A folder of something else (photos without cameras, a file named `sparse`): say
+        // what a dataset folder holds rather than only that lego's file is missing.
+        let sparse = data_dir.join("sparse");
+        bail!(
+            "{} holds no dataset nerf reads: expected transforms_{{train,val,test}}.json \
+             (NeRF-synthetic, with transforms_{split}.json), transforms.json (nerfstudio or \
+             instant-ngp), poses_bounds.npy (LLFF) or a COLMAP model (sparse/0/ with its \
+             cameras, images and points3D files){}; photos without cameras go through nerf \
+             process first; for lego, {DOWNLOAD_HINT}",
+            data_dir.display(),
+            if sparse.exists() && !sparse.is_dir() {
+                " (its `sparse` is a file, not a folder)"
+            } else {
+                ""
+            }
+        );
+    }
     if format == SceneFormat::Blender {
         return Ok(SplitFrames {
             frames: read_blender_split(data_dir, split)?,
@@ -320,5 +339,10 @@ mod tests {
             err.contains("transforms_test.json") && err.contains("download_lego.sh"),
             "{err}"
         );
+        assert!(err.contains("holds no dataset") && !err.contains('\n'), "{err}");
+        // A file named `sparse` is not a COLMAP model, and the message says so.
+        std::fs::write(dir.path().join("sparse"), b"").unwrap();
+        let err = read_split(dir.path(), Split::Test).unwrap_err().to_string();
+        assert!(err.contains("its `sparse` is a file, not a folder"), "{err}");
     }
 }
