@@ -1,5 +1,5 @@
-//! Cameras that cannot be right, through each loader (COLMAP text, nerfstudio, instant-ngp,
-//! LLFF): finite but impossible focal lengths, principal points and distortions, a camera of
+//! Cameras that cannot be right, through each loader (COLMAP text and binary, nerfstudio,
+//! instant-ngp, LLFF): finite but impossible focal lengths, principal points and distortions, a camera of
 //! another shape than its photos, centres too far from the origin to resolve, and a lone
 //! camera. Each is one `error:` line naming the file (and the camera or frame) with the rule
 //! it broke, exit 1, and nothing written (`core::camera_checks`, docs/reliability.md#captures).
@@ -143,6 +143,23 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
             cameras
         };
         refused(root, &format!("colmap, {what}"), &dir, &named, says);
+        // The same model as COLMAP's binary files.
+        let binary = root.join(format!("colmap_binary_{i}"));
+        lego.copy_images(&binary);
+        let (_, model) = nerf::io::colmap::find_model(&dir).unwrap();
+        let sparse = binary.join("sparse").join("0");
+        nerf::io::colmap::write_binary(&sparse, &model).unwrap();
+        let named = match says[0] {
+            "frame_" => binary.join("images"),
+            _ => sparse.join("cameras.bin"),
+        };
+        refused(
+            root,
+            &format!("colmap binary, {what}"),
+            &binary,
+            &named,
+            says,
+        );
     }
 
     // nerfstudio: the frame's intrinsics, the photo's shape, centres far from the origin, and

@@ -72,7 +72,9 @@ pub fn read_split_with(
     stored: Option<SceneTransform>,
 ) -> Result<SplitFrames> {
     let format = SceneFormat::detect(data_dir);
-    let blender_files = Split::ALL.iter().any(|s| s.transforms_path(data_dir).is_file());
+    let blender_files = Split::ALL
+        .iter()
+        .any(|s| s.transforms_path(data_dir).is_file());
     if format == SceneFormat::Blender && data_dir.is_dir() && !blender_files {
         // A folder of something else (photos without cameras, a file named `sparse`): say
         // what a dataset folder holds rather than only that lego's file is missing.
@@ -339,10 +341,16 @@ mod tests {
             err.contains("transforms_test.json") && err.contains("download_lego.sh"),
             "{err}"
         );
-        assert!(err.contains("holds no dataset") && !err.contains('\n'), "{err}");
+        assert!(
+            err.contains("holds no dataset") && !err.contains('\n'),
+            "{err}"
+        );
         // A file named `sparse` is not a COLMAP model, and the message says so.
         std::fs::write(dir.path().join("sparse"), b"").unwrap();
         let err = read_split(dir.path(), Split::Test).unwrap_err().to_string();
-        assert!(err.contains("its `sparse` is a file, not a folder"), "{err}");
+        assert!(
+            err.contains("its `sparse` is a file, not a folder"),
+            "{err}"
+        );
     }
 }
