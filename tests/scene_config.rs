@@ -15,6 +15,11 @@ const SIDE: u32 = 40;
 /// A nerfstudio capture of the first 16 lego views as `SIDE`² JPEGs composited on white (no
 /// alpha), with the true cameras.
 fn white_capture(dir: &Path, test: &str) -> bool {
+    capture_on(dir, test, |_, _| [1.0; 3])
+}
+
+/// [`white_capture`] with the views composited on `backdrop(x, y)` (RGB in [0, 1]).
+fn capture_on(dir: &Path, test: &str, backdrop: fn(u32, u32) -> [f32; 3]) -> bool {
     let Some(lego) = lego(test) else {
         return false;
     };
@@ -31,8 +36,9 @@ fn white_capture(dir: &Path, test: &str) -> bool {
                 image::imageops::resize(&rgba, SIDE, SIDE, image::imageops::FilterType::Triangle);
             let on_white = image::RgbImage::from_fn(SIDE, SIDE, |x, y| {
                 let [r, g, b, a] = small.get_pixel(x, y).0.map(|c| c as f32 / 255.0);
-                let over = |c: f32| ((c * a + 1.0 - a) * 255.0).round() as u8;
-                image::Rgb([over(r), over(g), over(b)])
+                let [br, bg, bb] = backdrop(x, y);
+                let over = |c: f32, back: f32| ((c * a + back * (1.0 - a)) * 255.0).round() as u8;
+                image::Rgb([over(r, br), over(g, bg), over(b, bb)])
             });
             let name = format!("images/frame_{i:02}.jpg");
             on_white.save(dir.join(&name)).unwrap();
@@ -83,6 +89,11 @@ fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white(
     ]);
     let err = common::stderr(&train);
     assert!(err.contains("background white"), "{err}");
+    // On a backdrop the camera clearance is kept.
+    assert!(
+        err.contains("kept empty around the 14 training cameras"),
+        "{err}"
+    );
     assert_eq!(metadata(&ckpt, "background").as_deref(), Some("1 1 1"));
     assert_eq!(metadata(&ckpt, "image_size").as_deref(), Some("40 40"));
     let epochs: usize = metadata(&ckpt, "epoch").unwrap().parse().unwrap();
@@ -117,6 +128,47 @@ fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white(
     // Told otherwise, eval renders on black.
     let black = eval_with(&["renderer.background=black"]);
     assert!(String::from_utf8_lossy(&black.stdout).contains("on black"));
+}
+
+#[test]
+fn a_capture_without_a_backdrop_trains_without_camera_clearance() {
+    let test = "a_capture_without_a_backdrop_trains_without_camera_clearance";
+    let root = tempfile::tempdir().unwrap();
+    let data = root.path().join("busy");
+    // A busy surround: a colour pattern no border reads as one plain backdrop.
+    let busy = |x: u32, y: u32| {
+        let v = |k: u32| ((x * 7 + y * 13 + k * 5) % 11) as f32 / 10.0;
+        [v(0), v(1), v(2)]
+    };
+    if !capture_on(&data, test, busy) {
+        return;
+    }
+    let train = |extra: &[&str]| {
+        let ckpt = root.path().join(format!("ck{}", extra.len()));
+        let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
+        let args = [
+            "train",
+            "--config",
+            "nerf_scene",
+            "--data-dir",
+            data.to_str().unwrap(),
+            "training.num_epochs=1",
+            "training.eval_views=0",
+            "sampler.n_pts_per_ray=32",
+            &ckpt_arg,
+        ];
+        common::stderr(&common::nerf_ok(&[&args[..], extra].concat()))
+    };
+    let err = train(&[]);
+    assert!(err.contains("no plain backdrop"), "{err}");
+    assert!(err.contains("no camera clearance"), "{err}");
+    assert!(!err.contains("kept empty around"), "{err}");
+    // A background given explicitly keeps the configured clearance.
+    let err = train(&["renderer.background=black"]);
+    assert!(
+        err.contains("kept empty around the 14 training cameras"),
+        "{err}"
+    );
 }
 
 #[test]
