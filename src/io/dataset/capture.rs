@@ -114,6 +114,38 @@ impl Normalisation {
     }
 }
 
+/// An error when the photo or mask `file` of the capture in `dir` is itself a symbolic link
+/// to a file outside both the capture and the folder the link sits in: the capture's own
+/// paths may not leave it (`..` is refused), so neither may a link among its files. A linked
+/// folder (`images/` on another disk) is followed: the check is on the file's own link.
+fn check_link_stays_inside(dir: &Path, file: &Path) -> Result<()> {
+    let is_link = file
+        .symlink_metadata()
+        .is_ok_and(|m| m.file_type().is_symlink());
+    if !is_link {
+        return Ok(());
+    }
+    let Ok(target) = file.canonicalize() else {
+        // A dangling link: the reader names the missing file.
+        return Ok(());
+    };
+    let inside = |folder: Option<&Path>| {
+        folder
+            .and_then(|f| f.canonicalize().ok())
+            .is_some_and(|f| target.starts_with(f))
+    };
+    if !(inside(Some(dir)) || inside(file.parent())) {
+        bail!(
+            "{}: a symbolic link to {}, outside the capture {}: copy the file into the capture \
+             (or link its whole folder)",
+            file.display(),
+            target.display(),
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 /// An error unless the scene normalisation `stored` in a checkpoint puts the capture's cameras
 /// (`poses`, in the capture's own frame) within
 /// [`MAX_NORMALISED_DISTANCE`](crate::core::camera_checks::MAX_NORMALISED_DISTANCE) of the
@@ -188,6 +220,12 @@ pub fn read_capture_split_with(
             listing.display(),
             format.name()
         );
+    }
+    for frame in &frames {
+        let files = std::iter::once(&frame.file_path).chain(frame.mask_path.as_ref());
+        for file in files {
+            check_link_stays_inside(dir, file)?;
+        }
     }
     let poses: Vec<_> = frames.iter().map(|f| f.camera.pose).collect();
     let (transform, from_cameras) = match stored {
@@ -276,5 +314,34 @@ mod tests {
         assert!(
             (0..20).all(|i| in_holdout_split(i, Split::Val) == in_holdout_split(i, Split::Test))
         );
+    }
+
+    #[test]
+    fn a_link_among_the_files_may_not_leave_the_capture_but_a_linked_folder_may() {
+        use std::os::unix::fs::symlink;
+        let root = tempfile::tempdir().unwrap();
+        let capture = root.path().join("capture");
+        let elsewhere = root.path().join("elsewhere");
+        std::fs::create_dir_all(capture.join("images")).unwrap();
+        std::fs::create_dir_all(&elsewhere).unwrap();
+        std::fs::write(elsewhere.join("secret.png"), b"x").unwrap();
+        std::fs::write(capture.join("images").join("a.png"), b"x").unwrap();
+        // A plain file, and a link to a file inside: fine.
+        assert!(check_link_stays_inside(&capture, &capture.join("images/a.png")).is_ok());
+        symlink(capture.join("images/a.png"), capture.join("images/b.png")).unwrap();
+        assert!(check_link_stays_inside(&capture, &capture.join("images/b.png")).is_ok());
+        // A link to a file outside: refused, naming both.
+        symlink(elsewhere.join("secret.png"), capture.join("images/c.png")).unwrap();
+        let err = check_link_stays_inside(&capture, &capture.join("images/c.png"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("c.png") && err.contains("secret.png"), "{err}");
+        // A linked folder (images on another disk) is followed, with links among its files.
+        let linked = root.path().join("linked");
+        std::fs::create_dir_all(&linked).unwrap();
+        symlink(&elsewhere, linked.join("images")).unwrap();
+        symlink(elsewhere.join("secret.png"), elsewhere.join("d.png")).unwrap();
+        assert!(check_link_stays_inside(&linked, &linked.join("images/secret.png")).is_ok());
+        assert!(check_link_stays_inside(&linked, &linked.join("images/d.png")).is_ok());
     }
 }
