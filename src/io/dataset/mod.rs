@@ -72,9 +72,10 @@ pub fn read_split_with(
     stored: Option<SceneTransform>,
 ) -> Result<SplitFrames> {
     let format = SceneFormat::detect(data_dir);
+    // Any kind of file under the name (a FIFO too: its reader refuses it, naming it).
     let blender_files = Split::ALL
         .iter()
-        .any(|s| s.transforms_path(data_dir).is_file());
+        .any(|s| s.transforms_path(data_dir).exists());
     if format == SceneFormat::Blender && data_dir.is_dir() && !blender_files {
         // A folder of something else (photos without cameras, a file named `sparse`): say
         // what a dataset folder holds rather than only that lego's file is missing.
