@@ -205,6 +205,11 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
             bail!("--vocab-tree {}: not a file", tree.display());
         }
     }
+    // A file ffmpeg cannot read as a video is named before OUT is touched.
+    let probe = match source {
+        Source::Video { file, .. } => Some(crate::app::video_frames::probe(&ffmpeg, file)?),
+        Source::Images(_) => None,
+    };
     start_run(out)?;
     let images = out.join("images");
     let colmap = out.join("colmap");
@@ -221,7 +226,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
             (names, None)
         }
         Source::Video { file, frames } => {
-            let probe = crate::app::video_frames::probe(&ffmpeg, file)?;
+            let probe = probe.context("a video's probe")?;
             std::fs::create_dir_all(out)
                 .with_context(|| format!("cannot create {}", out.display()))?;
             let choice =
