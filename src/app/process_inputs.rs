@@ -153,11 +153,7 @@ pub fn check_names(dir: &Path, names: &[PathBuf]) -> Result<()> {
 pub fn check_photos_decode(dir: &Path, names: &[PathBuf]) -> Result<()> {
     for name in names {
         let path = dir.join(name);
-        let size = image::ImageReader::open(&path)
-            .and_then(|r| r.with_guessed_format())
-            .map_err(|e| anyhow::anyhow!("{e}"))
-            .and_then(|r| r.into_dimensions().map_err(|e| anyhow::anyhow!("{e}")));
-        match size {
+        match image::image_dimensions(&path) {
             Ok((w, h)) if w > 0 && h > 0 => {}
             Ok((w, h)) => bail!("{}: a photo of {w}x{h} pixels", path.display()),
             Err(e) => bail!(

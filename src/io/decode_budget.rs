@@ -76,13 +76,9 @@ pub fn file_decode_cost(path: &std::path::Path) -> u64 {
     if !meta.is_file() {
         return 0;
     }
-    let dimensions = image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
-        .ok()
-        .and_then(|r| r.into_dimensions().ok());
-    match dimensions {
-        Some((w, h)) => decode_cost(w, h, meta.len()),
-        None => meta.len(),
+    match image::image_dimensions(path) {
+        Ok((w, h)) => decode_cost(w, h, meta.len()),
+        Err(_) => meta.len(),
     }
 }
 
