@@ -82,7 +82,7 @@ fn read_capture(capture: &Path) -> Result<Vec<TrueCamera>> {
         .iter()
         .map(|image| {
             let pose = ColmapPose::from_quaternion(image.qvec, image.tvec)?;
-            let m = nerf::app::process::opengl_camera_to_world(&pose);
+            let m = pose.opengl_camera_to_world();
             let column = |j: usize| DVec3::new(m[0][j], m[1][j], m[2][j]);
             Ok(TrueCamera {
                 stem: image_stem(&image.name),

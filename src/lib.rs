@@ -14,9 +14,12 @@
 //!   checkpoints, PyTorch import, progress;
 //! * [`train`]: Adam, the NeRF state, one training step and the loop;
 //! * [`eval`]: PSNR over a dataset split, and the float64 reference renderer;
-//! * [`app`]: config files (the homework's YAML), turned into the plain parameters above, and
-//!   the jobs of the `nerf` command (render, camera paths, train, eval, bench, report, export,
-//!   and the `nerf view` web viewer).
+//! * [`config`]: the homework's config files (YAML) as data, turned into the plain
+//!   parameters above.
+//!
+//! The `nerf` command's jobs (render, camera paths, train, eval, bench, report, export,
+//! process and the `nerf view` web viewer) are not part of the library: they live in the
+//! binary's own module tree, `src/bin/nerf/`, and call the library as any user would.
 //!
 //! ```no_run
 //! use nerf::{render_view, Pipeline, SdfField, SdfVolume, Sdf, StratifiedSampler, VolumeRenderer};
@@ -48,7 +51,7 @@ pub use candle_nn;
 /// The vector maths of the camera API (`glam::DVec3` for eye, target and up).
 pub use glam;
 
-pub mod app;
+pub mod config;
 pub mod core;
 pub mod eval;
 pub mod field;

@@ -329,7 +329,7 @@ fn checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint() {
         let out = root.path().join(format!("out_{n}"));
         let ckpt_arg = format!("training.checkpoint_path={}", bad.display());
         // `render` and `view` read the stored path through the same function
-        // (`app::scene_frame::render_cameras`): `render` stands for both.
+        // (`render::scene_frame::render_cameras` of the binary): `render` stands for both.
         let mut args = vec![command, "--config", "nerf_scene_bounded"];
         if command != "render" {
             args.extend(["--data-dir", dir.to_str().unwrap()]);

@@ -526,82 +526,6 @@ fn a_render_off_a_terminal_prints_plain_progress_lines() {
     }
 }
 
-/// Every option that several subcommands take (`--config`, `--checkpoint`, `--data-dir`,
-/// `--out-dir`, `--epochs`, …) has one help text wherever it appears.
-#[test]
-fn shared_options_read_the_same_in_every_subcommand() {
-    use clap::CommandFactory;
-    fn collect(
-        cmd: &clap::Command,
-        path: &str,
-        seen: &mut std::collections::BTreeMap<String, Vec<(String, String)>>,
-    ) {
-        for arg in cmd.get_arguments() {
-            let id = arg.get_id().to_string();
-            let help = arg
-                .get_long_help()
-                .or(arg.get_help())
-                .map(|h| h.to_string());
-            seen.entry(id)
-                .or_default()
-                .push((path.to_string(), help.unwrap_or_default()));
-        }
-        for sub in cmd.get_subcommands() {
-            collect(sub, &format!("{path} {}", sub.get_name()), seen);
-        }
-    }
-    let mut seen = Default::default();
-    collect(&nerf::app::cli::Cli::command(), "nerf", &mut seen);
-    for id in [
-        "config",
-        "overrides",
-        "checkpoint",
-        "data_dir",
-        "epochs",
-        "minutes",
-        "overwrite",
-    ] {
-        let uses = &seen[id];
-        assert!(uses.len() >= 2, "{id}: {uses:?}");
-        assert!(
-            uses.iter().all(|(_, help)| help == &uses[0].1),
-            "{id} reads differently: {uses:#?}"
-        );
-    }
-    // Every subcommand that reads a config or a checkpoint takes the shared option.
-    let subcommands = |id: &str| seen[id].iter().map(|(p, _)| p.clone()).collect::<Vec<_>>();
-    assert_eq!(
-        subcommands("config"),
-        [
-            "nerf run",
-            "nerf render",
-            "nerf train",
-            "nerf targets",
-            "nerf eval",
-            "nerf import-torch",
-            "nerf bench",
-            "nerf view",
-            "nerf export mesh",
-            "nerf export points",
-            "nerf export model",
-            "nerf export depth"
-        ]
-    );
-    let checkpoint = subcommands("checkpoint");
-    for cmd in [
-        "nerf run",
-        "nerf render",
-        "nerf train",
-        "nerf eval",
-        "nerf bench",
-    ] {
-        assert!(checkpoint.iter().any(|c| c == cmd), "{cmd}: {checkpoint:?}");
-    }
-    for cmd in ["nerf run", "nerf train"] {
-        assert!(subcommands("epochs").iter().any(|c| c == cmd), "{cmd}");
-    }
-}
-
 #[test]
 fn config_name_is_shown_in_help_and_means_config() {
     for cmd in [&["render"][..], &["train"], &["run"], &["export", "mesh"]] {
@@ -609,11 +533,5 @@ fn config_name_is_shown_in_help_and_means_config() {
         let help = String::from_utf8_lossy(&o.stdout);
         assert!(o.status.success(), "{cmd:?}");
         assert!(help.contains("--config-name"), "{cmd:?}: {help}");
-    }
-    use clap::Parser;
-    let parsed = nerf::app::cli::Cli::try_parse_from(["nerf", "render", "--config-name", "box"]);
-    match parsed.map(|c| c.command) {
-        Ok(nerf::app::cli::Command::Render(args)) => assert_eq!(args.config.config, "box"),
-        other => panic!("{other:?}"),
     }
 }

@@ -8,7 +8,7 @@ mod common;
 mod voxels;
 
 use candle_core::Device;
-use nerf::app::config::Config;
+use nerf::config::Config;
 use nerf::io::dataset::{Dataset, Split};
 use nerf::{fit, FieldSpec, Hooks, RunLimits, TrainModel, TrainPaths};
 

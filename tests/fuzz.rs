@@ -1,6 +1,6 @@
 //! Property tests (proptest) for the parsers that read user input: configs (YAML and
 //! overrides), the dataset's transforms JSON, nerfstudio camera paths, the viewer's
-//! `/render.png` query, and the file readers: checkpoints (safetensors and PyTorch archives,
+//! `/render.png` query (in the binary's view::request), and the file readers: checkpoints (safetensors and PyTorch archives,
 //! mutated from the fixtures), pickles and `.npy` arrays. Whatever the input, they return a
 //! value or an error of one line; they never panic, abort or hang.
 //!
@@ -10,8 +10,7 @@
 use std::io::{Cursor, Read, Write};
 use std::path::{Path, PathBuf};
 
-use nerf::app::config::{apply_override, Config};
-use nerf::app::view_request::{parse_view_query, ViewDefaults};
+use nerf::config::{apply_override, Config};
 use nerf::io::camera_path::parse_camera_path;
 use nerf::io::dataset::parse_split;
 use proptest::prelude::*;
@@ -50,7 +49,7 @@ fn ok_or_one_line<T>(result: anyhow::Result<T>) -> Result<(), TestCaseError> {
 fn seeds() -> Vec<String> {
     ["box", "sphere", "lego", "nerf_lego", "nerf_lego_fast"]
         .iter()
-        .map(|n| nerf::app::config::config_text(n).unwrap().0)
+        .map(|n| nerf::config::config_text(n).unwrap().0)
         .collect()
 }
 
@@ -97,7 +96,7 @@ proptest! {
         let start = std::time::Instant::now();
         ok_or_one_line(Config::from_yaml(&text, &[]))?;
         ok_or_one_line(Config::from_yaml(
-            &nerf::app::config::config_text("box").unwrap().0,
+            &nerf::config::config_text("box").unwrap().0,
             &[format!("data.image_size={}", pieces.concat())],
         ))?;
         prop_assert!(start.elapsed().as_secs_f64() < 2.0, "{:?}", start.elapsed());
@@ -204,32 +203,6 @@ proptest! {
         let cut = truncate.min(json.len());
         if json.is_char_boundary(cut) {
             ok_or_one_line(parse_camera_path(&json.as_bytes()[..cut]))?;
-        }
-    }
-
-    #[test]
-    fn view_queries_never_panic(
-        pairs in prop::collection::vec((
-            prop_oneof![
-                Just("eye".to_string()), Just("at".to_string()), Just("up".to_string()),
-                Just("focal".to_string()), Just("width".to_string()), Just("height".to_string()),
-                Just("client".to_string()), Just("gen".to_string()), "[ -~]{0,6}",
-            ],
-            prop_oneof![nasty_value(), Just("0,0,1".to_string()), "[-0-9.,e]{0,20}"],
-        ), 0..6),
-    ) {
-        let defaults = ViewDefaults {
-            eye: glam::DVec3::new(0.0, 0.0, -3.0),
-            at: glam::DVec3::ZERO,
-            up: glam::DVec3::Y,
-            focal: 1.0,
-            width: 8,
-            height: 8,
-        };
-        if let Ok(request) = parse_view_query(&pairs, &defaults) {
-            // Whatever passes is a usable camera and size.
-            prop_assert!(request.camera.validate().is_ok());
-            prop_assert!(request.width >= 1 && request.height >= 1);
         }
     }
 }

@@ -10,7 +10,7 @@ mod common;
 use common::{homework_config, nerf_in, read_npy, render_args, stderr};
 
 use candle_core::Device;
-use nerf::app::config::Config;
+use nerf::config::Config;
 use nerf::field::nerf::parameter_shapes;
 use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};

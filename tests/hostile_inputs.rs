@@ -4,8 +4,8 @@
 
 mod common;
 
-use nerf::app::config::Config;
-use nerf::app::yaml_bounds::MAX_YAML_BYTES;
+use nerf::config::yaml_bounds::MAX_YAML_BYTES;
+use nerf::config::Config;
 use nerf::io::camera_path::read_camera_path;
 use nerf::io::dataset::{load_image, read_split, Split, MAX_SOURCE_IMAGE_SIDE};
 

@@ -164,7 +164,7 @@ fn a_memo_referenced_again_and_again_is_shared_not_copied() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("bomb.pth");
     std::fs::write(&path, archive(&bytes, &[])).unwrap();
-    let cfg = nerf::app::config::Config::from_yaml(
+    let cfg = nerf::config::Config::from_yaml(
         &std::fs::read_to_string(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/tests/fixtures/tiny_nerf.yaml"

@@ -5,7 +5,7 @@ mod common;
 
 use candle_core::{Device, Tensor};
 use common::{max_abs_diff, nerf_ok, read_npy};
-use nerf::app::config::Config;
+use nerf::config::Config;
 use nerf::core::rays::Rays;
 use nerf::{named_vars, with_kernel_choice, KernelChoice, NerfField, NerfState};
 

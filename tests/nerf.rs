@@ -7,8 +7,7 @@ use std::path::{Path, PathBuf};
 use candle_core::{Device, Tensor};
 mod common;
 
-use nerf::app::config::Config;
-use nerf::app::train::train_nerf;
+use nerf::config::Config;
 use nerf::field::nerf::parameter_shapes;
 use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::dataset::{Dataset, Frame};
@@ -357,7 +356,8 @@ const SMALL_RUN: [&str; 4] = [
 
 /// Trains the config `name` with [`SMALL_RUN`], `overrides` and
 /// `training.checkpoint_path=<checkpoint>` on the lego data in `data` (its images under
-/// `dir/images`) within `limits`, on the CPU; returns the checkpoint's path.
+/// `dir/images`) within `limits`, through `nerf train` on the CPU; returns the checkpoint's
+/// path (the file, as the trainer resolves a directory).
 fn train_lego(
     name: &str,
     overrides: &[&str],
@@ -366,16 +366,31 @@ fn train_lego(
     data: &Path,
     limits: nerf::RunLimits,
 ) -> PathBuf {
-    let mut o: Vec<String> = SMALL_RUN
-        .iter()
-        .chain(overrides)
-        .map(|s| s.to_string())
-        .collect();
-    o.push(format!("training.checkpoint_path={}", checkpoint.display()));
-    let config = Config::load(name, &o).unwrap();
-    let paths = config.train_paths(&dir.join("images")).unwrap();
-    train_nerf(&config, data, &paths, limits, None, &Device::Cpu).unwrap();
-    paths.checkpoint
+    let images = dir.join("images");
+    let checkpoint_key = format!("training.checkpoint_path={}", checkpoint.display());
+    let epochs = limits.epochs.map(|e| e.to_string());
+    // `--minutes` must be positive: a limit of 0 s is the smallest positive one, which also
+    // stops after the first step.
+    let minutes = limits.seconds.map(|s| (s / 60.0).max(1e-12).to_string());
+    let mut args = vec![
+        "train",
+        "--config",
+        name,
+        "--data-dir",
+        data.to_str().unwrap(),
+    ];
+    args.extend(["--out-dir", images.to_str().unwrap()]);
+    if let Some(e) = &epochs {
+        args.extend(["--epochs", e]);
+    }
+    if let Some(m) = &minutes {
+        args.extend(["--minutes", m]);
+    }
+    args.extend(SMALL_RUN.iter().chain(overrides));
+    args.push(&checkpoint_key);
+    common::nerf_ok(&args);
+    let config = Config::load(name, std::slice::from_ref(&checkpoint_key)).unwrap();
+    config.train_paths(&images).unwrap().checkpoint
 }
 
 #[test]

@@ -3,7 +3,7 @@
 
 use candle_core::{Device, Tensor};
 use glam::DVec3;
-use nerf::app::config::Config;
+use nerf::config::Config;
 use nerf::core::camera::{surround_cameras, PerspectiveCamera};
 use nerf::core::rays::{pixel_grid_values, ray_through_ndc, Rays};
 use nerf::core::volume::{deltas, weights};

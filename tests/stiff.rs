@@ -4,7 +4,7 @@
 mod common;
 
 use candle_core::{Device, Tensor};
-use nerf::app::config::Config;
+use nerf::config::Config;
 use nerf::core::rays::Rays;
 use nerf::core::volume::{deltas, weights, MAX_OPTICAL_DEPTH};
 use nerf::kernels::composite::{composite, Composited};

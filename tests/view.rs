@@ -197,7 +197,7 @@ fn bad_requests_are_refused_and_the_server_keeps_serving() {
         "/%2e%2e/%2e%2e/etc/passwd",
         "/..%2fCargo.toml",
         "//etc/passwd",
-        "/src/app/viewer.html",
+        "/src/bin/nerf/view/viewer.html",
         "/render.png/../Cargo.toml",
     ] {
         let (status, _, _) = server.get(target);

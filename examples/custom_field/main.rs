@@ -13,14 +13,14 @@ mod voxels;
 
 use anyhow::{Context, Result};
 use candle_core::Device;
-use nerf::app::config::Config;
+use nerf::config::Config;
 use nerf::io::dataset::{Dataset, Split};
 use nerf::{fit, render_view, Hooks, RunLimits, TrainModel, TrainPaths};
 use std::path::PathBuf;
 
 fn main() -> Result<()> {
     // The library's progress notes (fresh run, resume, step lines) on stderr.
-    nerf::app::messages::print_library_messages();
+    nerf::core::term::print_library_messages();
     let mut args = std::env::args().skip(1);
     let out = PathBuf::from(args.next().unwrap_or_else(|| "images".into()));
     let lego = PathBuf::from(args.next().unwrap_or_else(|| "../shared/data/lego".into()));

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use anyhow::Result;
 use candle_core::{DType, Device, Tensor, D};
 use candle_nn::VarMap;
-use nerf::app::config::Config;
+use nerf::config::Config;
 use nerf::field::trainable::{
     named_vars, seed_uniform, BoxedField, DenseGroup, ParamGroups, SparseRowsGroup,
 };

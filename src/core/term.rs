@@ -1,5 +1,7 @@
 //! Messages on stderr that never panic: a closed pipe or a full disk on stderr must not turn a
-//! warning into a crash (`eprintln!` panics when the write fails).
+//! warning into a crash (`eprintln!` panics when the write fails). Also the library's own
+//! messages (training progress, loaded files, warnings), which it emits through the `log`
+//! facade, printed one per line by [`print_library_messages`].
 
 use std::io::Write;
 
@@ -26,5 +28,30 @@ pub fn short_number(v: f64) -> String {
         let text = format!("{v:.4}");
         let text = text.trim_end_matches('0').trim_end_matches('.');
         text.to_string()
+    }
+}
+
+struct StderrLines;
+
+impl log::Log for StderrLines {
+    fn enabled(&self, metadata: &log::Metadata) -> bool {
+        metadata.level() <= log::Level::Info
+    }
+
+    fn log(&self, record: &log::Record) {
+        if self.enabled(record.metadata()) {
+            note(&record.args().to_string());
+        }
+    }
+
+    fn flush(&self) {}
+}
+
+/// Prints the library's messages of level info and above on stderr, one per line (never
+/// panicking on a closed stderr). Does nothing when a logger is already installed.
+pub fn print_library_messages() {
+    static LOGGER: StderrLines = StderrLines;
+    if log::set_logger(&LOGGER).is_ok() {
+        log::set_max_level(log::LevelFilter::Info);
     }
 }

@@ -87,7 +87,7 @@ pub mod metadata_limits {
     /// Steps of an epoch already taken (`step_in_epoch`): one per training image.
     pub const STEP_IN_EPOCH: u64 = 1 << 20;
     /// Rays of the next step (`rays_per_step`): the most an adapted step may take
-    /// (`app::config::limits::DRAWN_SAMPLES` at one sample per ray).
+    /// (`config::limits::DRAWN_SAMPLES` at one sample per ray).
     pub const RAYS_PER_STEP: u64 = 1 << 23;
 }
 

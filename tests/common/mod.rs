@@ -131,7 +131,7 @@ pub fn save_seeded_checkpoint_with(
     info: nerf::CheckpointInfo,
 ) {
     let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
-    let config = nerf::app::config::Config::load("lego", &overrides).unwrap();
+    let config = nerf::config::Config::load("lego", &overrides).unwrap();
     let state = nerf::NerfState::seeded(
         &config.nerf_params().unwrap(),
         seed,

@@ -1,0 +1,107 @@
+//! The `nerf` command line: parses arguments ([`crate::cli`]) and calls the subcommand's
+//! function ([`crate::commands`]); here only the allocator and the exit codes.
+
+mod bench;
+mod cli;
+mod commands;
+mod eval;
+mod export;
+mod process;
+#[cfg(test)]
+mod readme_commands;
+mod render;
+mod report;
+mod train;
+mod view;
+
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::Parser;
+
+use crate::cli::{Cli, Command};
+use crate::commands::{StdoutError, Stopped};
+
+/// mimalloc keeps freed segments for reuse: Candle allocates a fresh buffer of up to tens of
+/// megabytes per op, and an allocator that returns each to the OS pays page faults on the next
+/// op (`nerf::tune_allocator` does the same for glibc, for programs on the system allocator).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// Exit code for a closed stdout pipe: 128 + SIGPIPE, as a shell reports a process that
+/// SIGPIPE ended, so `nerf ... | head` ends quietly and scripts can still tell.
+const BROKEN_PIPE_EXIT: u8 = 141;
+
+/// Exit code of a run stopped by SIGINT or SIGTERM (128 + SIGINT, as shells report it).
+const STOPPED_EXIT: u8 = 130;
+
+fn run(cli: Cli) -> Result<()> {
+    nerf::kernels::set_kernel_choice(cli.kernels.into());
+    let device = cli.device.open()?;
+    match cli.command {
+        Command::Run(args) => commands::run(args, &device),
+        Command::Render(args) => commands::render(args, &device),
+        Command::Train(args) => commands::train(args, &device),
+        Command::Targets(args) => commands::targets(args, &device),
+        Command::Eval(args) => commands::eval(args, &device),
+        Command::ImportTorch(args) => commands::import_torch(args),
+        Command::Bench(args) => commands::bench(args, &device),
+        Command::Report(args) => commands::report(args, &device),
+        Command::View(args) => commands::view(args, &device),
+        Command::Process(args) => commands::process(args),
+        Command::Export { what } => commands::export(what, &device),
+    }
+}
+
+fn main() -> ExitCode {
+    // Keep freed mimalloc segments instead of returning them to the OS after 10 ms: training
+    // allocates and frees large activations every op (measured when they were 64 MB: 3.8 →
+    // 1.9 s per step).
+    // SAFETY: sets a process-wide allocator option before any worker threads start.
+    // The binding does not export these two enum values of mimalloc v2's `mi_option_e`.
+    const MI_OPTION_ARENA_EAGER_COMMIT: libmimalloc_sys::mi_option_t = 4;
+    const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+    unsafe {
+        libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1);
+        libmimalloc_sys::mi_option_set(MI_OPTION_ARENA_EAGER_COMMIT, 1);
+    }
+    // Candle runs its element-wise ops on a pool of its own beside rayon's, whose caller
+    // spin-waits for the pool's workers: with rayon's workers also busy, on a machine of few
+    // cores those spins took 13-18% of a hash-grid training step's cycles. One thread for
+    // Candle's element-wise ops (its matmuls still use every thread; our fused kernels use
+    // rayon's): hash-grid training step 0.097-0.124 s -> 0.080-0.084 s, NeRF training step
+    // 1.00 -> 0.83 s, measured in paired runs here. A user's CANDLE_NUM_THREADS wins.
+    if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
+        std::env::set_var("CANDLE_NUM_THREADS", "1");
+    }
+    nerf::core::term::print_library_messages();
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            if let Some(Stopped(message)) = e.downcast_ref::<Stopped>() {
+                nerf::core::term::note(message);
+                return ExitCode::from(STOPPED_EXIT);
+            }
+            if let Some(StdoutError(io)) = e.downcast_ref::<StdoutError>() {
+                if io.kind() == std::io::ErrorKind::BrokenPipe {
+                    return ExitCode::from(BROKEN_PIPE_EXIT);
+                }
+            }
+            // One line: the chain of causes joined by ": ", each cut to its first non-blank
+            // line (Candle appends a backtrace to its errors' text when RUST_BACKTRACE is set;
+            // some causes' text starts with a line break).
+            let causes: Vec<String> = e
+                .chain()
+                .filter_map(|c| {
+                    let text = c.to_string();
+                    text.lines()
+                        .find(|l| !l.trim().is_empty())
+                        .map(|l| l.trim().to_string())
+                })
+                .collect();
+            nerf::core::term::note(&format!("error: {}", causes.join(": ")));
+            ExitCode::FAILURE
+        }
+    }
+}

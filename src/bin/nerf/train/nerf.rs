@@ -1,0 +1,183 @@
+//! `nerf train`: a config's NeRF training run, with test-PSNR logging and preview GIFs as the
+//! loop's hooks.
+
+use std::path::Path;
+
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{bail, Result};
+use candle_core::Device;
+
+use crate::render::scene::render_nerf_gif;
+use crate::render::scene_frame::{note_scene_frame, stored_transform};
+use nerf::config::{Config, SizeUse};
+use nerf::core::image::colour_name;
+use nerf::eval::evaluate::evaluate;
+use nerf::io::dataset::backdrop::backdrop_colour;
+use nerf::io::dataset::{Dataset, Split};
+use nerf::render::renderer::BLACK;
+use nerf::train::fit::{
+    fit, CheckpointScore, FitOutcome, Hooks, RunLimits, TrainPaths, TrainSettings,
+};
+use nerf::train::step::StepSettings;
+
+/// Refuses to start a fresh run over an existing checkpoint (`training.resume: False`) unless
+/// `overwrite`; with it, removes the old checkpoint and log together, so that the new run's
+/// log and checkpoint never mix with the old ones.
+pub fn check_fresh_start(config: &Config, paths: &TrainPaths, overwrite: bool) -> Result<()> {
+    if config.training()?.resume || !paths.checkpoint.exists() {
+        return Ok(());
+    }
+    if !overwrite {
+        bail!(
+            "{} already holds a checkpoint and training.resume is False: pass --overwrite to \
+             start again and replace it and its log, or resume with training.resume=True",
+            paths.checkpoint.display()
+        );
+    }
+    for p in [&paths.checkpoint, &paths.log] {
+        // Through a link, its target: the link stays, and the new run writes through it.
+        nerf::io::output::remove_output(p)?;
+    }
+    Ok(())
+}
+
+#[cfg(feature = "cli")]
+/// Installs the SIGINT/SIGTERM handler of a training run: the first signal sets the returned
+/// flag (the loop finishes its step and writes a checkpoint); a second one exits at once with
+/// status 130, removing the temporary file of a write under way (every file is written
+/// atomically, so nothing is left half-written, and the log holds no step past the checkpoint).
+pub fn stop_on_signal() -> Result<&'static AtomicBool> {
+    use anyhow::Context as _;
+    use std::sync::atomic::Ordering;
+    static STOP: AtomicBool = AtomicBool::new(false);
+    ctrlc::set_handler(|| {
+        if STOP.swap(true, Ordering::SeqCst) {
+            nerf::core::term::note("second interrupt: exiting now");
+            nerf::io::output::exit_removing_temp_files(130);
+        }
+        nerf::core::term::note("interrupt: stopping after this step (again to exit at once)");
+    })
+    .context("cannot install the interrupt handler")?;
+    Ok(&STOP)
+}
+
+/// Runs `nerf train` for `config` on the dataset in `data_dir` (a capture normalised as its
+/// cameras say, or as the checkpoint a resumed run continues stores). `limits` end the run early
+/// (after writing a checkpoint) after that many epochs or seconds of training in this process;
+/// `stop` ends it after the current step.
+pub fn train_nerf(
+    config: &Config,
+    data_dir: &Path,
+    paths: &TrainPaths,
+    limits: RunLimits,
+    stop: Option<&AtomicBool>,
+    device: &Device,
+) -> Result<FitOutcome> {
+    let mut settings = config.train_settings()?;
+    let size = config
+        .data
+        .dataset_image_size(data_dir, SizeUse::Training)?;
+    let white = config.renderer.white_background;
+    // A resumed run keeps the frame it started in.
+    let stored = match settings.resume {
+        true => stored_transform(&paths.checkpoint)?,
+        false => None,
+    };
+    let dataset = Dataset::load_first_with(data_dir, Split::Train, size, white, None, stored)?;
+    if stored.is_some() {
+        let n = dataset.normalisation.as_ref();
+        note_scene_frame(data_dir, &paths.checkpoint, stored, n);
+    }
+    if let Some(sized) = settings.model.for_training_images(dataset.images.len()) {
+        settings.model = sized;
+    }
+    if config.renderer.background_is_auto() {
+        let backdrop = choose_background(&mut settings.step, &dataset, data_dir);
+        if !backdrop {
+            keep_clearance_off(&mut settings, data_dir);
+        }
+    }
+    let frame = dataset.normalisation.map(|n| n.applied);
+    let eval_views = config.training()?.eval_views;
+    let test = if eval_views > 0 {
+        match Dataset::load_first_with(data_dir, Split::Test, size, white, None, frame) {
+            Ok(d) => Some(d),
+            Err(e) => {
+                nerf::core::term::note(&format!("warning: no test-PSNR logging: {e:#}"));
+                None
+            }
+        }
+    } else {
+        None
+    };
+    let mut render = config.render_settings()?;
+    render.renderer.background = settings.step.renderer.background;
+    let mut hooks = Hooks::default();
+    if let Some(test) = &test {
+        hooks.evaluate = Some(Box::new(move |field| {
+            let pipeline = render.with(field);
+            let report = evaluate(&pipeline, test, Split::Test, None, Some(eval_views), device)?;
+            Ok(CheckpointScore {
+                psnr: report.mean_psnr,
+                views: report.views.len(),
+            })
+        }));
+    }
+    let gif = paths.images.join("render_nerf_training.gif");
+    hooks.preview = Some(Box::new(move |field| {
+        render_nerf_gif(config, field, &gif, device)
+    }));
+    fit(&settings, &dataset, paths, limits, stop, hooks, device)
+}
+
+/// `renderer.background: auto` at training: photos with alpha are trained on a random colour
+/// per step (their own background stays the loader's, white or black); photos without are
+/// trained on the colour of the plain backdrop their borders show
+/// ([`nerf::io::dataset::backdrop::backdrop_colour`]), else on black (a scene with no
+/// backdrop: what lies beyond is the contracted far field's). Says what it chose, and
+/// returns whether the photos show the object apart from its surroundings (alpha, or a plain
+/// backdrop).
+fn choose_background(step: &mut StepSettings, dataset: &Dataset, data_dir: &Path) -> bool {
+    let has_alpha = dataset
+        .transparency
+        .iter()
+        .any(|t| t.iter().any(|&v| v > 0.0));
+    let (background, why, apart) = if has_alpha {
+        step.random_background = true;
+        (
+            step.renderer.background,
+            "the photos have alpha: a random background colour per step",
+            true,
+        )
+    } else {
+        match backdrop_colour(&dataset.images) {
+            Some(c) => (c, "the photos' borders show a plain backdrop", true),
+            None => (BLACK, "no plain backdrop in the photos' borders", false),
+        }
+    };
+    step.renderer.background = background;
+    nerf::core::term::note(&format!(
+        "{}: background {} ({why}); stored in the checkpoint for eval, render and view",
+        data_dir.display(),
+        colour_name(background)
+    ));
+    apart
+}
+
+/// `renderer.background: auto` on photos with no backdrop (a room, a street, a facade): the
+/// cameras stand among the scene's own geometry (the floor, the ground in front of a
+/// building), which the camera clearance would keep empty, so it is left off
+/// (docs/own-scene.md: Herz-Jesu scored 1.8 dB better held out without it, where the temple
+/// on its black backdrop scored 1.1 dB better with it). An explicit `renderer.background`
+/// keeps the configured clearance.
+fn keep_clearance_off(settings: &mut TrainSettings, data_dir: &Path) {
+    if let Some(grid) = settings.grid.as_mut().filter(|g| g.camera_clearance > 0.0) {
+        grid.camera_clearance = 0.0;
+        nerf::core::term::note(&format!(
+            "{}: no camera clearance (no backdrop: the cameras stand among the scene; \
+             renderer.background=black keeps renderer.occupancy_grid.camera_clearance)",
+            data_dir.display()
+        ));
+    }
+}
