@@ -5,13 +5,15 @@
 //!
 //! * [`core`]: pytorch3d cameras, the homework's pixel grid and rays, the volume-rendering
 //!   maths, SDF maths, marching cubes, images and metrics;
+//! * [`io`]: images, PLY meshes and point clouds, plots, datasets and captures, nerfstudio
+//!   camera paths, checkpoints, PyTorch import, progress;
 //! * [`kernels`]: fused CPU ops, each with its backward pass and tensor-op twin, and the one
 //!   switch between them ([`KernelChoice`]);
 //! * [`render`]: the stratified sampler, the [`Field`] trait, the volume renderer, occupancy
 //!   grid and empty-space skipping;
-//! * [`field`]: the fields — SDF volumes ([`SdfField`]) and the NeRF MLP ([`NerfField`]);
-//! * [`io`]: images, PLY meshes and point clouds, plots, datasets, nerfstudio camera paths,
-//!   checkpoints, PyTorch import, progress;
+//! * [`field`]: the fields — SDF volumes ([`SdfField`]), the NeRF MLP ([`NerfField`]) and
+//!   the hash grid — each kind's config beside it, and the one list of kinds a config can
+//!   name ([`field::registry`]);
 //! * [`train`]: Adam, the NeRF state, one training step and the loop;
 //! * [`eval`]: PSNR over a dataset split, and the float64 reference renderer;
 //! * [`config`]: the homework's config files (YAML) as data, turned into the plain

@@ -93,7 +93,8 @@ pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
 #[cfg(test)]
 mod tests {
     use crate::config::test_box_with as box_with;
-    use crate::config::{Config, ImplicitFunctionConfig};
+    use crate::config::Config;
+    use crate::field::sdf_config::SdfVolumeConfig;
 
     #[test]
     fn built_in_box_matches_the_homework() {
@@ -101,9 +102,7 @@ mod tests {
         assert_eq!(c.image_size(), (256, 256));
         assert_eq!(c.sampler.n_pts_per_ray, 64);
         assert_eq!((c.sampler.min_depth, c.sampler.max_depth), (0.0, 5.0));
-        let ImplicitFunctionConfig::SdfVolume(s) = &c.implicit_function else {
-            panic!()
-        };
+        let s = c.implicit_function.get::<SdfVolumeConfig>().unwrap();
         assert_eq!(s.sdf.side_lengths.as_ref().unwrap().val, [1.75; 3]);
         assert_eq!(s.beta.val, 0.05);
         assert!(s.feature.rainbow);

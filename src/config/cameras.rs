@@ -34,19 +34,20 @@ pub(super) struct RawCamerasConfig {
 /// The homework's render views: radius 3 with y up and focal 1 for SDF scenes; radius 4 with
 /// z up and focal 2 for NeRF scenes; 20 poses.
 fn default_cameras(f: &ImplicitFunctionConfig) -> CamerasConfig {
-    match f {
-        ImplicitFunctionConfig::SdfVolume(_) => CamerasConfig {
+    if f.is_sdf_volume() {
+        CamerasConfig {
             radius: 3.0,
             n_poses: 20,
             up: [0.0, 1.0, 0.0],
             focal_length: 1.0,
-        },
-        _ => CamerasConfig {
+        }
+    } else {
+        CamerasConfig {
             radius: 4.0,
             n_poses: 20,
             up: [0.0, 0.0, 1.0],
             focal_length: 2.0,
-        },
+        }
     }
 }
 

@@ -6,7 +6,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 
-use super::implicit_function::ImplicitFunctionConfig;
 use super::training::TrainingConfig;
 use super::Config;
 use crate::train::fit::TrainPaths;
@@ -88,8 +87,8 @@ impl Config {
     /// [`HOMEWORK_CHECKPOINT`] or the `lego` config, since the shipped MLP rendered densely
     /// shows the ghost density its grid removes.
     fn shipped_model_hint(&self) -> String {
-        match &self.implicit_function {
-            ImplicitFunctionConfig::Ngp(_) => format!(
+        match self.implicit_function.kind() {
+            "ngp" => format!(
                 "; the shipped hash-grid model is {SHIPPED_NGP_CHECKPOINT}, rendered by `nerf render --config lego_ngp` from the repository root"
             ),
             _ if self.occupancy_grid().is_some() => {

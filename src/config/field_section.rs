@@ -1,8 +1,7 @@
 //! The `implicit_function` section at run time: the field kind it describes, as the library's
-//! [`FieldSpec`] ([`NerfParams`], [`NgpParams`]) or [`SdfVolume`], and trained models loaded
-//! for it. The one place in the application where the config's field kinds become the
-//! library's fields (the registration place): everything else asks [`Config::field_spec`] and
-//! [`Config::load_model`], and sees only the seam's traits.
+//! [`FieldSpec`] or [`SdfVolume`], and trained models loaded for it. Each kind's own config
+//! says what it becomes ([`crate::field::registry`]); everything else asks
+//! [`Config::field_spec`] and [`Config::load_model`], and sees only the seam's traits.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -10,149 +9,53 @@ use std::sync::Arc;
 use anyhow::{bail, Result};
 use candle_core::Device;
 
-use super::implicit_function::{
-    DensityActivationName, ImplicitFunctionConfig, NerfConfig, NgpConfig, SdfKind,
-};
 use super::messages::plural;
 use super::Config;
-use crate::core::sdf::{Sdf, SdfVolume};
-use crate::field::appearance::AppearanceParams;
+use crate::core::sdf::SdfVolume;
 use crate::field::nerf::NerfParams;
-use crate::field::ngp::NgpParams;
+use crate::field::nerf_config::NerfConfig;
+use crate::field::registry::kind_names;
 use crate::field::sdf::{SdfField, SdfModel, SdfTrainable};
+use crate::field::sdf_config::SdfVolumeConfig;
 use crate::field::trainable::{BoxedField, FieldSpec};
 use crate::io::checkpoint::CheckpointInfo;
 use crate::train::model::TrainModel;
-
-impl NerfConfig {
-    /// The model's sizes.
-    pub fn params(&self) -> NerfParams {
-        NerfParams {
-            n_harmonic_functions_xyz: self.n_harmonic_functions_xyz,
-            n_harmonic_functions_dir: self.n_harmonic_functions_dir,
-            n_hidden_neurons_xyz: self.n_hidden_neurons_xyz,
-            n_hidden_neurons_dir: self.n_hidden_neurons_dir,
-            n_layers_xyz: self.n_layers_xyz,
-            append_xyz: self.append_xyz.clone(),
-        }
-    }
-}
-
-impl NgpConfig {
-    /// The field's sizes (an error for a bad grid or box).
-    pub fn params(&self) -> Result<NgpParams> {
-        use crate::field::ngp::DensityActivation;
-        let density_activation = match self.density_activation {
-            DensityActivationName::TruncExp => DensityActivation::TruncExp,
-            DensityActivationName::Softplus => DensityActivation::Softplus,
-        };
-        let half = (0..3)
-            .map(|a| (self.aabb[1][a] - self.aabb[0][a]) / 2.0)
-            .fold(0.0, f64::max);
-        let params = NgpParams {
-            grid: crate::kernels::hash_grid::HashGridParams {
-                n_levels: self.n_levels,
-                n_features: self.n_features_per_level,
-                log2_table_size: self.log2_hashmap_size,
-                base_resolution: self.base_resolution,
-                max_resolution: self.max_resolution.unwrap_or(2048.0 * half),
-            },
-            aabb: self.aabb,
-            density_activation,
-            contraction: self.contraction.0,
-            // The number of images is the training set's, known when it is loaded
-            // (FieldSpec::for_training_images) or read from a checkpoint.
-            appearance: (self.appearance_dim > 0).then_some(AppearanceParams {
-                dim: self.appearance_dim,
-                images: 0,
-            }),
-        };
-        params.validate()?;
-        Ok(params)
-    }
-}
 
 impl Config {
     /// How the field maps world points into its grid's space (identity but for an `ngp` field
     /// with `contraction: linf`); the occupancy grid tests points in the same space.
     pub fn contraction(&self) -> crate::core::contraction::Contraction {
-        match &self.implicit_function {
-            ImplicitFunctionConfig::Ngp(ngp) => ngp.contraction.0,
-            _ => crate::core::contraction::Contraction::None,
-        }
+        self.implicit_function.field().contraction()
     }
 
     /// The NeRF's sizes, or an error naming the key when the config describes another field.
     pub fn nerf_params(&self) -> Result<NerfParams> {
-        match &self.implicit_function {
-            ImplicitFunctionConfig::Nerf(n) => Ok(n.params()),
-            ImplicitFunctionConfig::Ngp(_) => bail!(
-                "implicit_function.type is ngp: this command takes nerf configs only so far (training ngp is not wired in yet, issue 13); render and eval take ngp"
+        match self.implicit_function.get::<NerfConfig>() {
+            Some(n) => Ok(n.params()),
+            None => bail!(
+                "implicit_function.type is {}: this needs a nerf config (e.g. lego)",
+                self.implicit_function.kind()
             ),
-            ImplicitFunctionConfig::SdfVolume(_) => bail!(
-                "implicit_function.type is sdf_volume: this command needs a NeRF config (e.g. lego)"
-            ),
+        }
+    }
+
+    /// The SDF volume's config, or an error naming the key for another kind.
+    fn sdf_volume_config(&self) -> Result<&SdfVolumeConfig> {
+        match self.implicit_function.get::<SdfVolumeConfig>() {
+            Some(s) => Ok(s),
+            None => bail!("implicit_function.type: this command needs sdf_volume"),
         }
     }
 
     /// The SDF volume's initial values, when the config describes one.
     pub fn sdf_volume(&self) -> Result<SdfVolume> {
-        let ImplicitFunctionConfig::SdfVolume(s) = &self.implicit_function else {
-            bail!("implicit_function.type: this command needs sdf_volume");
-        };
-        let center = s.sdf.center.val.map(|v| v as f32);
-        // Validation guarantees the shape's own key is present.
-        let sdf = match (s.sdf.kind, &s.sdf.side_lengths, &s.sdf.radius) {
-            (SdfKind::Box, Some(sides), _) => Sdf::Box {
-                center,
-                side_lengths: sides.val.map(|v| v as f32),
-            },
-            (SdfKind::Sphere, _, Some(radius)) => Sdf::Sphere {
-                center,
-                radius: radius.val as f32,
-            },
-            (SdfKind::Box, None, _) => {
-                bail!("implicit_function.sdf.side_lengths: required for a box")
-            }
-            (SdfKind::Sphere, _, None) => {
-                bail!("implicit_function.sdf.radius: required for a sphere")
-            }
-        };
-        Ok(SdfVolume {
-            sdf,
-            alpha: s.alpha.val,
-            beta: s.beta.val,
-            rainbow: s.feature.rainbow,
-            feature: s.feature.val.map(|v| v as f32),
-        })
+        self.sdf_volume_config()?.volume()
     }
 
     /// Which SDF parameters the config marks `opt: True`. An error names an `opt: True` on
     /// a parameter the shape does not have (a box's `radius`, a sphere's `side_lengths`).
     pub fn sdf_trainable(&self) -> Result<SdfTrainable> {
-        let ImplicitFunctionConfig::SdfVolume(s) = &self.implicit_function else {
-            bail!("implicit_function.type: this command needs sdf_volume");
-        };
-        let p = "implicit_function.sdf";
-        match s.sdf.kind {
-            SdfKind::Box if s.sdf.radius.as_ref().is_some_and(|r| r.opt) => {
-                bail!("{p}.radius.opt: a box has no radius to train (it has side_lengths)")
-            }
-            SdfKind::Sphere if s.sdf.side_lengths.as_ref().is_some_and(|r| r.opt) => {
-                bail!(
-                    "{p}.side_lengths.opt: a sphere has no side lengths to train (it has a radius)"
-                )
-            }
-            _ => {}
-        }
-        Ok(SdfTrainable {
-            center: s.sdf.center.opt,
-            side_lengths: s.sdf.side_lengths.as_ref().is_some_and(|p| p.opt),
-            radius: s.sdf.radius.as_ref().is_some_and(|p| p.opt),
-            alpha: s.alpha.opt,
-            beta: s.beta.opt,
-            feature: s.feature.opt,
-        })
+        self.sdf_volume_config()?.trainable()
     }
 
     /// The SDF volume as a model to fit: its `opt: True` parameters as variables.
@@ -168,22 +71,19 @@ impl Config {
     /// The trainable field the config describes (its kind and sizes); an error for an SDF
     /// volume.
     pub fn field_spec(&self) -> Result<Arc<dyn FieldSpec>> {
-        Ok(match &self.implicit_function {
-            ImplicitFunctionConfig::Nerf(nerf) => Arc::new(nerf.params()),
-            ImplicitFunctionConfig::Ngp(ngp) => Arc::new(ngp.params()?),
-            ImplicitFunctionConfig::SdfVolume(_) => {
-                bail!("implicit_function.type: this command needs nerf or ngp")
-            }
-        })
+        match self.implicit_function.field().field_spec() {
+            Some(spec) => spec,
+            None => bail!(
+                "implicit_function.type: this command needs {}",
+                kind_names(true)
+            ),
+        }
     }
 
     /// The standard deviation of the noise the NeRF MLP adds to its raw density in training
     /// (`density_noise_std`; 0 for the other kinds).
     pub fn density_noise(&self) -> f64 {
-        match &self.implicit_function {
-            ImplicitFunctionConfig::Nerf(nerf) => nerf.density_noise_std,
-            _ => 0.0,
-        }
+        self.implicit_function.field().density_noise()
     }
 
     /// A trained field for rendering or evaluating with this config, whatever its kind:
@@ -227,7 +127,8 @@ impl Config {
 
 #[cfg(test)]
 mod tests {
-    use crate::config::{Config, ImplicitFunctionConfig};
+    use crate::config::Config;
+    use crate::field::ngp_config::NgpConfig;
 
     #[test]
     fn ngp_keys_and_defaults() {
@@ -244,9 +145,7 @@ mod tests {
             )
         };
         let c = Config::from_yaml(&yaml("  type: ngp"), &[]).unwrap();
-        let ImplicitFunctionConfig::Ngp(n) = &c.implicit_function else {
-            panic!("not ngp")
-        };
+        let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
         let p = n.params().unwrap();
         assert_eq!(
             (p.grid.n_levels, p.grid.n_features, p.grid.log2_table_size),
@@ -259,9 +158,7 @@ mod tests {
         assert_eq!(p.aabb, [[-1.5; 3], [1.5; 3]]);
         let o = vec!["implicit_function.log2_hashmap_size=12".to_string()];
         let c = Config::from_yaml(&yaml("  type: ngp\n  max_resolution: 512"), &o).unwrap();
-        let ImplicitFunctionConfig::Ngp(n) = &c.implicit_function else {
-            panic!("not ngp")
-        };
+        let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
         assert_eq!(n.params().unwrap().grid.max_resolution, 512.0);
         assert_eq!(n.params().unwrap().grid.log2_table_size, 12);
         assert!(c.nerf_params().unwrap_err().to_string().contains("ngp"));
@@ -303,9 +200,7 @@ mod tests {
         let body = "implicit_function:\n  type: ngp\n  n_levels: 4\n  log2_hashmap_size: 10\n  max_resolution: 64\n";
         let c =
             Config::from_yaml(&format!("{}{body}{}", &lego[..start], &lego[end..]), &[]).unwrap();
-        let ImplicitFunctionConfig::Ngp(n) = &c.implicit_function else {
-            panic!("not ngp")
-        };
+        let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
         let dev = candle_core::Device::Cpu;
         let varmap = candle_nn::VarMap::new();
         let vb = candle_nn::VarBuilder::from_varmap(&varmap, candle_core::DType::F32, &dev);

@@ -17,12 +17,8 @@ pub const BATCH_SAMPLES: usize = 1 << 21;
 /// occupancy grid or early termination only the evaluated ones hold activations, a drawn
 /// one costs its depth and a grid test.
 pub const DRAWN_SAMPLES: usize = 1 << 23;
-/// Most harmonic functions of a positional embedding (2^31 is past f32 precision).
-pub const HARMONICS: usize = 32;
-/// Widest hidden layer.
-pub const HIDDEN: usize = 4096;
-/// Deepest trunk.
-pub const LAYERS: usize = 64;
+// The NeRF's own sizes (harmonics, widths, depth) are bounded beside its config
+// (`crate::field::nerf_config`).
 /// Most marching-cubes cells per side of `nerf export mesh`: 513³ density samples, 0.5 GiB
 /// held as one grid (the field is evaluated into it [`GRID_BATCH`] points at a time, and
 /// the mesher reads it in place, welding each cube's triangles as it goes).

@@ -6,23 +6,28 @@ use serde::de::DeserializeOwned;
 use serde_yaml_ng::Value;
 
 use super::Config;
+use crate::field::field_config::SectionError;
 
 /// Deserialises `value` into `T`, prefixing errors with the dotted key path.
 pub(super) fn from_value<T: DeserializeOwned>(value: Value, prefix: &str) -> Result<T> {
-    serde_path_to_error::deserialize(value).map_err(|e| {
-        let path = e.path().to_string();
-        let key = match (prefix.is_empty(), path == ".") {
-            (true, true) => "config".to_string(),
-            (true, false) => path,
-            (false, true) => prefix.to_string(),
-            (false, false) => format!("{prefix}.{path}"),
-        };
-        anyhow!(
-            "{}: {}",
-            one_line(&key),
-            one_line(&in_user_words(&e.into_inner().to_string()))
-        )
-    })
+    serde_path_to_error::deserialize(value).map_err(|e| key_error(e, prefix))
+}
+
+/// A deserialiser error as a one-line message naming the dotted key it failed at, below
+/// `prefix` (the config's top level when empty).
+pub(super) fn key_error(e: SectionError, prefix: &str) -> anyhow::Error {
+    let path = e.path().to_string();
+    let key = match (prefix.is_empty(), path == ".") {
+        (true, true) => "config".to_string(),
+        (true, false) => path,
+        (false, true) => prefix.to_string(),
+        (false, false) => format!("{prefix}.{path}"),
+    };
+    anyhow!(
+        "{}: {}",
+        one_line(&key),
+        one_line(&in_user_words(&e.into_inner().to_string()))
+    )
 }
 
 /// A deserialiser message with Rust type names replaced by what a config writer knows:

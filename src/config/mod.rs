@@ -39,10 +39,7 @@ pub use checkpoint_paths::{HOMEWORK_CHECKPOINT, SHIPPED_CHECKPOINT, SHIPPED_NGP_
 pub use data::{
     photo_scale_factor, DataCameraConfig, DataCameras, DataConfig, SizeUse, DEFAULT_PIXEL_BUDGET,
 };
-pub use implicit_function::{
-    DensityActivationName, FeatureConfig, ImplicitFunctionConfig, ImplicitFunctionKind, NerfConfig,
-    NgpConfig, Param, SdfKind, SdfShapeConfig, SdfVolumeConfig,
-};
+pub use implicit_function::ImplicitFunctionConfig;
 pub use messages::{in_user_words, plural};
 pub use overrides::apply_override;
 pub use renderer::{BackgroundConfig, OccupancyGridConfig, RendererConfig, RendererKind};

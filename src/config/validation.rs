@@ -3,18 +3,11 @@
 
 use anyhow::{bail, Result};
 
-use super::implicit_function::{ImplicitFunctionConfig, NerfConfig, SdfKind, SdfVolumeConfig};
 use super::limits;
 use super::renderer::OccupancyGridConfig;
 use super::Config;
-
-/// An error naming `key` when `v` is not in `1..=max`.
-fn count_in_range(key: &str, v: usize, max: usize) -> Result<()> {
-    if v == 0 || v > max {
-        bail!("{key}: must be 1 to {max} (got {v})");
-    }
-    Ok(())
-}
+use crate::core::key_checks::{count_in_range, finite};
+use crate::field::registry::kind_names;
 
 impl Config {
     /// Checks every value's range, naming the key of the first bad one.
@@ -53,13 +46,7 @@ impl Config {
         self.validate_renderer()?;
         self.validate_sampler()?;
         self.validate_cameras()?;
-        match &self.implicit_function {
-            ImplicitFunctionConfig::SdfVolume(s) => validate_sdf(s)?,
-            ImplicitFunctionConfig::Nerf(n) => validate_nerf(n)?,
-            ImplicitFunctionConfig::Ngp(n) => {
-                n.params()?;
-            }
-        }
+        self.implicit_function.field().validate()?;
         self.validate_data_cameras()?;
         self.validate_training()
     }
@@ -78,8 +65,11 @@ impl Config {
             validate_occupancy_grid(g)?;
         }
         let accelerated = early > 0.0 || self.renderer.occupancy_grid.is_some();
-        if accelerated && matches!(self.implicit_function, ImplicitFunctionConfig::SdfVolume(_)) {
-            bail!("renderer.occupancy_grid and renderer.early_termination need implicit_function.type nerf or ngp");
+        if accelerated && self.implicit_function.is_sdf_volume() {
+            bail!(
+                "renderer.occupancy_grid and renderer.early_termination need implicit_function.type {}",
+                kind_names(true)
+            );
         }
         if accelerated && self.sampler.n_pts_per_ray_fine > 0 {
             bail!("sampler.n_pts_per_ray_fine (coarse-to-fine sampling) renders densely: set renderer.occupancy_grid=null and renderer.early_termination=0");
@@ -265,92 +255,6 @@ fn validate_occupancy_grid(g: &OccupancyGridConfig) -> Result<()> {
         bail!(
             "{key}.camera_clearance: must be in [0, 1) (got {})",
             g.camera_clearance
-        );
-    }
-    Ok(())
-}
-
-fn finite(key: &str, v: f64) -> Result<()> {
-    if !v.is_finite() {
-        bail!("{key}: must be a finite number (got {v})");
-    }
-    Ok(())
-}
-
-fn validate_sdf(s: &SdfVolumeConfig) -> Result<()> {
-    let p = "implicit_function";
-    for (i, v) in s.sdf.center.val.iter().enumerate() {
-        finite(&format!("{p}.sdf.center.val[{i}]"), *v)?;
-    }
-    for (i, v) in s.feature.val.iter().enumerate() {
-        finite(&format!("{p}.feature.val[{i}]"), *v)?;
-    }
-    finite(&format!("{p}.alpha.val"), s.alpha.val)?;
-    finite(&format!("{p}.beta.val"), s.beta.val)?;
-    if !(0.0..=1.0).contains(&s.alpha.val) {
-        bail!("{p}.alpha.val: must be in [0, 1] (got {})", s.alpha.val);
-    }
-    if s.beta.val <= 0.0 {
-        bail!("{p}.beta.val: must be positive (got {})", s.beta.val);
-    }
-    match s.sdf.kind {
-        SdfKind::Box => {
-            let Some(sides) = &s.sdf.side_lengths else {
-                bail!("{p}.sdf.side_lengths: required for a box");
-            };
-            for (i, v) in sides.val.iter().enumerate() {
-                finite(&format!("{p}.sdf.side_lengths.val[{i}]"), *v)?;
-                if *v <= 0.0 {
-                    bail!("{p}.sdf.side_lengths.val[{i}]: must be positive (got {v})");
-                }
-            }
-        }
-        SdfKind::Sphere => {
-            let Some(radius) = &s.sdf.radius else {
-                bail!("{p}.sdf.radius: required for a sphere");
-            };
-            finite(&format!("{p}.sdf.radius.val"), radius.val)?;
-            if radius.val <= 0.0 {
-                bail!("{p}.sdf.radius.val: must be positive (got {})", radius.val);
-            }
-        }
-    }
-    Ok(())
-}
-
-fn validate_nerf(n: &NerfConfig) -> Result<()> {
-    let p = "implicit_function";
-    count_in_range(
-        &format!("{p}.n_hidden_neurons_xyz"),
-        n.n_hidden_neurons_xyz,
-        limits::HIDDEN,
-    )?;
-    count_in_range(
-        &format!("{p}.n_hidden_neurons_dir"),
-        n.n_hidden_neurons_dir,
-        limits::HIDDEN,
-    )?;
-    count_in_range(&format!("{p}.n_layers_xyz"), n.n_layers_xyz, limits::LAYERS)?;
-    for (key, v) in [
-        ("n_harmonic_functions_xyz", n.n_harmonic_functions_xyz),
-        ("n_harmonic_functions_dir", n.n_harmonic_functions_dir),
-    ] {
-        if v > limits::HARMONICS {
-            bail!("{p}.{key}: must be at most {} (got {v})", limits::HARMONICS);
-        }
-    }
-    finite(&format!("{p}.density_noise_std"), n.density_noise_std)?;
-    if n.density_noise_std < 0.0 {
-        bail!("{p}.density_noise_std: must be non-negative");
-    }
-    if let Some(bad) = n
-        .append_xyz
-        .iter()
-        .find(|&&i| i == 0 || i >= n.n_layers_xyz)
-    {
-        bail!(
-            "{p}.append_xyz: layer {bad} is out of range 1..{}",
-            n.n_layers_xyz
         );
     }
     Ok(())

@@ -15,6 +15,7 @@ pub mod fastexp;
 pub mod frame_camera;
 pub mod frame_selection;
 pub mod image;
+pub mod key_checks;
 pub mod marching_cubes;
 pub mod marching_tables;
 pub mod metrics;

@@ -1,10 +1,16 @@
-//! The fields: SDF volumes, the NeRF MLP and the hash-grid (Instant-NGP-class) field.
+//! The fields: SDF volumes, the NeRF MLP and the hash-grid (Instant-NGP-class) field, each
+//! kind's config beside it (`*_config.rs`), and the one list of kinds a config can name
+//! ([`registry`]).
 
 pub mod appearance;
+pub mod field_config;
 pub mod nerf;
+pub mod nerf_config;
 pub mod ngp;
-
+pub mod ngp_config;
+pub mod registry;
 pub mod sdf;
+pub mod sdf_config;
 pub mod spherical_harmonics;
 pub mod trainable;
 

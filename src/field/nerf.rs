@@ -23,9 +23,9 @@ use candle_core::{DType, Device, Tensor};
 use candle_nn::{Init, Linear, VarBuilder, VarMap};
 
 use crate::field::trainable::{
-    linear_init_bound, load_parameters, seed_uniform, BoxedField, FieldSpec, ParameterShapes,
-    TrainableField,
+    linear_init_bound, load_parameters, seed_uniform, BoxedField, FieldSpec, TrainableField,
 };
+use crate::io::parameter_shapes::ParameterShapes;
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;

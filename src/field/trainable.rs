@@ -19,13 +19,10 @@ use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::VarMap;
 use rand::{Rng, SeedableRng};
 
+use crate::io::parameter_shapes::ParameterShapes;
 use crate::kernels::hash_grid::{HashGridParams, TableGradient};
 use crate::render::field::Field;
 use crate::render::occupancy::OccupancyGrid;
-
-/// Every parameter's name and shape, in the order checkpoints write them (for the NeRF MLP,
-/// PyTorch's module order, which the homework's optimiser state is indexed by).
-pub type ParameterShapes = Vec<(String, Vec<usize>)>;
 
 /// A field that can be handed to other threads (the viewer renders on a worker).
 pub type BoxedField = Box<dyn Field + Send + Sync>;

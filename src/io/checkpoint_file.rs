@@ -22,8 +22,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use candle_core::{Device, Tensor};
 
-use crate::field::trainable::ParameterShapes;
 use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::parameter_shapes::ParameterShapes;
 use crate::io::torch::read_torch_checkpoint;
 use crate::io::torch_archive::looks_like_torch;
 

@@ -12,6 +12,7 @@ pub mod decode_budget;
 pub mod images;
 pub mod npy;
 pub mod output;
+pub mod parameter_shapes;
 pub mod pickle;
 #[cfg(feature = "cli")]
 pub mod plot;

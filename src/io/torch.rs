@@ -13,8 +13,8 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Result};
 use candle_core::Tensor;
 
-use crate::field::trainable::ParameterShapes;
 use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::parameter_shapes::ParameterShapes;
 use crate::io::pickle::Value;
 use crate::io::torch_archive::{tensor_ref, TorchArchive};
 

@@ -9,8 +9,9 @@ use super::scoring::{
     analytic_image, image_error, stacked, timed_frames, AnalyticImage, ImageError, GRAZING_BETAS,
 };
 use super::Sizes;
-use nerf::config::{Config, ImplicitFunctionConfig};
+use nerf::config::Config;
 use nerf::core::camera::PerspectiveCamera;
+use nerf::field::sdf_config::SdfVolumeConfig;
 
 /// β of the homework's box.
 pub const HOMEWORK_BETA: f64 = 0.05;
@@ -59,7 +60,7 @@ impl BoxRender {
     /// The `box` config with these settings, validated.
     pub fn config(&self) -> Result<Config> {
         let mut config = Config::load("box", &[])?;
-        let ImplicitFunctionConfig::SdfVolume(volume) = &mut config.implicit_function else {
+        let Some(volume) = config.implicit_function.get_mut::<SdfVolumeConfig>() else {
             bail!("the box config's implicit_function is not an sdf_volume");
         };
         volume.beta.val = self.beta;

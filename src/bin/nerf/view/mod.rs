@@ -392,7 +392,7 @@ pub fn serve(
     };
     let kind = match worker.scene {
         SceneField::Sdf { .. } => "sdf",
-        SceneField::Nerf(_) => config.implicit_function.kind().name(),
+        SceneField::Nerf(_) => config.implicit_function.kind(),
     };
     let info = serde_json::json!({
         "scene": name, "field": kind,

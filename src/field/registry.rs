@@ -1,0 +1,49 @@
+//! The field kinds a config's `implicit_function.type` can name, listed once
+//! ([`FIELD_KINDS`]): each kind's config (its section's schema, checks and what it becomes
+//! at run time) lives beside the field, in the kind's own file, and registering it is one
+//! line here. The config layer asks this list which kinds exist, and every message that
+//! lists them is written from it. What a kind is: [`crate::field::field_config`].
+
+use crate::field::field_config::FieldKind;
+
+/// The built-in field kinds, in the order messages list them: one line each.
+pub const FIELD_KINDS: &[FieldKind] = &[
+    crate::field::sdf_config::SDF_VOLUME,
+    crate::field::nerf_config::NERF,
+    crate::field::ngp_config::NGP,
+];
+
+/// The registered kind called `name`.
+pub fn find_kind(name: &str) -> Option<&'static FieldKind> {
+    FIELD_KINDS.iter().find(|k| k.name == name)
+}
+
+/// The names of the registered kinds (only the trainable ones when `trainable_only`) as a
+/// message lists them: `sdf_volume, nerf or ngp`.
+pub fn kind_names(trainable_only: bool) -> String {
+    let names: Vec<&str> = FIELD_KINDS
+        .iter()
+        .filter(|k| k.trainable || !trainable_only)
+        .map(|k| k.name)
+        .collect();
+    match names.split_last() {
+        Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+        Some((last, _)) => last.to_string(),
+        None => String::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_kind_is_registered_once_and_listed() {
+        for kind in FIELD_KINDS {
+            assert_eq!(find_kind(kind.name).map(|k| k.name), Some(kind.name));
+        }
+        assert_eq!(kind_names(false), "sdf_volume, nerf or ngp");
+        assert_eq!(kind_names(true), "nerf or ngp");
+        assert!(find_kind("mesh").is_none());
+    }
+}
