@@ -87,7 +87,7 @@ impl Config {
         match &self.implicit_function {
             ImplicitFunctionConfig::Nerf(n) => Ok(n.params()),
             ImplicitFunctionConfig::Ngp(_) => bail!(
-                "implicit_function.type is ngp: this command takes nerf configs only so far (training ngp is not wired in yet, issue 13); render and eval take ngp"
+                "implicit_function.type is ngp: these are the NeRF MLP's sizes, and an ngp field has its own (Config::field_spec gives either kind, which train, render and eval take)"
             ),
             ImplicitFunctionConfig::SdfVolume(_) => bail!(
                 "implicit_function.type is sdf_volume: this command needs a NeRF config (e.g. lego)"
