@@ -231,8 +231,8 @@ fn is_ident_char(c: char) -> bool {
     c.is_ascii_alphanumeric() || c == '_'
 }
 
-/// The `src/…`, `tests/…` and `examples/…` paths a line names. A path stops at the first character that cannot be in one;
-/// a full stop that ends a sentence is not part of it.
+/// The `src/…`, `tests/…` and `examples/…` paths a line names. A path stops at the first
+/// character that cannot be in one; a full stop that ends a sentence is not part of it.
 fn tree_paths(text: &str) -> Vec<String> {
     let mut paths = Vec::new();
     for prefix in CHECKED_PATH_ROOTS {
