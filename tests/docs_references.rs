@@ -300,15 +300,19 @@ fn item_paths(text: &str) -> Vec<Vec<String>> {
                     path.extend(member);
                     path
                 }));
-            } else if !(after.starts_with("::…") || after.starts_with('…'))
-                && !after.starts_with("::*")
-                && segments.len() > 1
-            {
+            } else if segments.len() > 1 && !stands_for_many(after) {
                 paths.push(segments);
             }
         }
     }
     paths
+}
+
+/// Whether the text after a path makes it stand for many (`a::…`, `a…`, `a::*`).
+fn stands_for_many(after: &str) -> bool {
+    ["::…", "…", "::*"]
+        .iter()
+        .any(|more| after.starts_with(more))
 }
 
 /// The identifiers of `a::b::c` at the start of `text`, and the text after them.
@@ -565,7 +569,7 @@ fn expand_use_tree(tree: &str) -> Vec<String> {
     let (prefix, group) = (&tree[..open], &tree[open + 1..tree.len() - 1]);
     split_top_level(group)
         .into_iter()
-        .flat_map(|member| expand_use_tree(member))
+        .flat_map(expand_use_tree)
         .map(|path| format!("{prefix}{path}"))
         .collect()
 }
