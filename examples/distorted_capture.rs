@@ -9,7 +9,8 @@
 //! premultiplied by alpha, so no fringes), and written as RGBA like the renders, so that the
 //! loader composites it on the config's background as it does the NeRF-synthetic images.
 //! (Composited on white instead, `nerf_scene` must paint the white with density on a shell
-//! around cameras that stand inside its box, and the held-out views scored 9.8 dB.) With
+//! around cameras that stand inside its box, and the held-out views score badly; measured:
+//! docs/own-scene.md#white-backdrops.) With
 //! `--pinhole` the same photos come from a pinhole camera
 //! of the same focal length instead, the undistorted equivalent. The poses are moved into an
 //! arbitrary similarity gauge (a rotation, a translation and a scale of the world, as

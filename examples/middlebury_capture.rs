@@ -17,10 +17,11 @@
 //! wide) gets its camera turned with it: the set's `*_ang.txt` gives each photo's latitude,
 //! and Middlebury's negative-latitude photos are the positive ones turned by 180° (its
 //! README), so standing them upright turns them the other way: a negative latitude is turned
-//! counter-clockwise (the photo's new `x` is the old `y`), a positive one clockwise. Measured
-//! on the temple ring against the cameras `nerf process` recovers from the photos: the turn
-//! between each calibrated camera and COLMAP's is −90.0° ± 0.1 about the optical axis for the
-//! 31 negative latitudes and +90.0° ± 0.1 for the 16 positive ones.
+//! counter-clockwise (the photo's new `x` is the old `y`), a positive one clockwise. The
+//! cameras `nerf process` recovers from the temple ring's photos agree: each calibrated
+//! camera is a quarter turn about the optical axis from COLMAP's, one way for the negative
+//! latitudes and the other for the positive ones (measured:
+//! docs/own-scene.md#photos-stood-upright).
 //!
 //! Run: `cargo run --release --example middlebury_capture -- SET_DIR OUT`, e.g.
 //! `SET_DIR = ../shared/data/real/temple_ring` (it holds `templeR_par.txt` and `images/`, or

@@ -33,7 +33,7 @@ impl Config {
         match self.implicit_function.get::<NerfConfig>() {
             Some(n) => Ok(n.params()),
             None => bail!(
-                "implicit_function.type is {}: this needs a nerf config (e.g. lego)",
+                "implicit_function.type is {}: these are the NeRF MLP's sizes, for a nerf config such as lego (Config::field_spec gives any trainable kind)",
                 self.implicit_function.kind()
             ),
         }

@@ -3,10 +3,10 @@
 /// For programs that use this library on the system allocator (the `nerf` binary uses mimalloc
 /// instead, and its test binaries use glibc): tunes glibc's allocator for tensor work. Tensors
 /// of many megabytes are allocated and freed for every op, and by default glibc hands each
-/// back to the OS, so the next op pays page faults to get it again (measured: about 40% of the
-/// box render's time). Raising the mmap and trim thresholds keeps freed buffers for reuse. A
-/// no-op on other platforms. The library calls it itself, once, before its first render or
-/// training run ([`ensure_allocator_tuned`]).
+/// back to the OS, so the next op pays page faults to get it again (a large share of the box
+/// render's time; measured: docs/speed-and-report.md#allocators). Raising the mmap and trim
+/// thresholds keeps freed buffers for reuse. A no-op on other platforms. The library calls it
+/// itself, once, before its first render or training run ([`ensure_allocator_tuned`]).
 pub fn tune_allocator() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only changes allocator parameters, under glibc's own lock.

@@ -305,8 +305,9 @@ pub struct NerfField {
 impl Field for NerfField {
     fn max_samples_per_chunk(&self) -> usize {
         // Activations of 128 floats per sample per layer: 2^15 samples are 16 MiB each,
-        // small enough for the allocator to reuse instead of mapping fresh pages each time
-        // (the dense training step went from 1.45 s to 1.32 s against 2^18).
+        // small enough for the allocator to reuse instead of mapping fresh pages each time,
+        // which made the dense training step faster than at 2^18 (measured:
+        // docs/speed-and-report.md#allocators).
         1 << 15
     }
 

@@ -1,11 +1,11 @@
 //! A budget, in bytes, for the images being decoded at once. Datasets load their images on
 //! rayon's threads; without a budget each thread holds one image's decoded copies, so the peak
-//! grows with the thread count: sixteen 8192×8192 PNGs (4 MB on disk, inside the side limit)
-//! took about 3.5 GB each while decoding, 6.9 GB on 2 threads, and aborted on 4. With it, a
-//! decode first reserves its cost ([`decode_cost`]) and waits while the images in flight hold
-//! the rest; one image costlier than the whole budget runs alone. So the peak is about
-//! [`DECODE_BUDGET_BYTES`] (or one image's cost) plus what the loaded, resized images keep,
-//! on 2 threads or 64.
+//! grows with the thread count: a few large photos, small on disk, took gigabytes each while
+//! decoding, and a run on more threads aborted (measured: docs/reliability.md#decoding-budget).
+//! With it, a decode first reserves its cost ([`decode_cost`]) and waits while the images in
+//! flight hold the rest; one image costlier than the whole budget runs alone. So the peak is
+//! about [`DECODE_BUDGET_BYTES`] (or one image's cost) plus what the loaded, resized images
+//! keep, on 2 threads or 64.
 
 use std::sync::{Condvar, Mutex};
 

@@ -64,11 +64,10 @@ pub fn write_gif(path: &Path, frames: &[RgbImage], delay_cs: u16) -> Result<()> 
 /// A frame's GIF palette (at most 256 colours, `r, g, b` bytes) and each pixel's index in it,
 /// by Wu's colour quantiser (quantette, in Oklab, no dithering).
 ///
-/// Measured on the 20 frames of `nerf render --config lego_ngp` (128², PSNR of the paletted
-/// frame against its 8-bit frame; the 20 frames on 2 threads): Wu 45.1 dB in 0.013 s, where
-/// gif's own NeuQuant at full quality (sampling factor 1) gave 42.8 dB in 0.143 s, and at
-/// factor 10 38.0 dB in 0.020 s. quantette's k-means adds 1 dB for 4× Wu's time. On the
-/// box's smooth shading the two are even: 37.06 dB (Wu) against 37.14 dB (NeuQuant).
+/// Wu's method is both faster and closer to the frames than gif's own NeuQuant at full
+/// quality, whose faster settings lose more; quantette's k-means gains little for its time;
+/// on smooth shading Wu and NeuQuant are even (measured:
+/// docs/speed-and-report.md#gif-palettes).
 pub fn gif_palette(frame: &RgbImage) -> Result<(Vec<u8>, Vec<u8>)> {
     use quantette::{ImageBuf, Pipeline, QuantizeMethod};
     let bytes = frame.to_bytes();

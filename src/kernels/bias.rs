@@ -1,6 +1,7 @@
 //! Adding a bias, or a per-ray term, to the rows of an activation matrix on the CPU, with the
 //! gradient of the added term summed in one multi-threaded pass over the rows (Candle's
-//! broadcast-add backward reduces column by column, which cost 7% of a training step).
+//! broadcast-add backward reduces column by column, a visible share of a training step;
+//! measured: docs/speed-and-report.md#bias-gradients).
 //! Elsewhere (another device or dtype, or generic kernels chosen) the Candle ops run.
 
 use candle_core::{Shape, Tensor};

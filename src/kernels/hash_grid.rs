@@ -26,9 +26,9 @@ use crate::kernels::{hash_block, hash_point_gradient, use_fused};
 
 /// Points per task of the fused forward pass. A task walks its points one level at a time, so
 /// that its gathers stay in one level's slice of the table (2 MiB at 2^18 rows of 2 features,
-/// about the size of this machine's L2) rather than hopping across all `L` slices (32 MiB) for
-/// every point: random 8-byte reads from a 2 MiB table ran at about 1 G/s on 2 cores here,
-/// from a 32 MiB one at 0.15 G/s.
+/// near the size of an L2 cache) rather than hopping across all `L` slices (32 MiB) for every
+/// point: random reads from one slice run several times faster than from the whole table
+/// (measured: docs/speed-and-report.md#hash-table-reads).
 const POINTS_PER_TASK: usize = 1024;
 
 /// The multiplier of each axis in the spatial hash (instant-ngp's primes; x's is 1).
@@ -273,7 +273,8 @@ struct GradientState {
     values: Vec<f32>,
     /// One bit per row, set when a backward pass writes the row: `words_per_level` words per
     /// level. Setting a bit is branch-free, where a `seen` flag with a list of first touches
-    /// mispredicted on about every other corner of the fine levels; and the rows come out of
+    /// mispredicted often on the fine levels (measured:
+    /// docs/speed-and-report.md#hash-table-reads); and the rows come out of
     /// it sorted, so the optimiser walks the table and its moments in address order.
     touched: Vec<u64>,
     words_per_level: usize,

@@ -1,9 +1,11 @@
 //! The sampler seam: where along each ray the field is evaluated.
 //!
-//! Every sampling strategy implements [`RaySampler`] in a file of its own, as nerfstudio's
-//! `ray_samplers.py` lists its samplers: [`crate::render::sampler::StratifiedSampler`] (the
-//! homework's), [`crate::render::hierarchical::CoarseToFineSampler`] (pytorch3d's NeRF
-//! project's coarse-to-fine) and [`crate::render::disparity_sampler::DepthThenDisparitySampler`]
+//! Every sampling strategy implements [`RaySampler`], each in a file of its own (nerfstudio
+//! keeps all of its samplers as classes of one file, `model_components/ray_samplers.py`; the
+//! trait plays the part of its `Sampler` base class):
+//! [`crate::render::sampler::StratifiedSampler`] (the homework's),
+//! [`crate::render::hierarchical::CoarseToFineSampler`] (pytorch3d's NeRF project's
+//! coarse-to-fine) and [`crate::render::disparity_sampler::DepthThenDisparitySampler`]
 //! (unbounded scenes: uniform in depth near the cameras, uniform in disparity beyond). Each
 //! draws depths per ray ([`RaySampler::compact_lengths`]); a strategy that places further
 //! depths by looking at the field (coarse-to-fine, a proposal network) does so in

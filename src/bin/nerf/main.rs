@@ -55,8 +55,8 @@ fn run(cli: Cli) -> Result<()> {
 
 fn main() -> ExitCode {
     // Keep freed mimalloc segments instead of returning them to the OS after 10 ms: training
-    // allocates and frees large activations every op (measured when they were 64 MB: 3.8 →
-    // 1.9 s per step).
+    // allocates and frees large activations every op, and each one returned costs page faults
+    // when the next op takes it back (measured: docs/speed-and-report.md#allocators).
     // SAFETY: sets a process-wide allocator option before any worker threads start.
     // The binding does not export these two enum values of mimalloc v2's `mi_option_e`.
     const MI_OPTION_ARENA_EAGER_COMMIT: libmimalloc_sys::mi_option_t = 4;
@@ -67,10 +67,11 @@ fn main() -> ExitCode {
     }
     // Candle runs its element-wise ops on a pool of its own beside rayon's, whose caller
     // spin-waits for the pool's workers: with rayon's workers also busy, on a machine of few
-    // cores those spins took 13-18% of a hash-grid training step's cycles. One thread for
+    // cores those spins took a large share of a training step's cycles. One thread for
     // Candle's element-wise ops (its matmuls still use every thread; our fused kernels use
-    // rayon's): hash-grid training step 0.097-0.124 s -> 0.080-0.084 s, NeRF training step
-    // 1.00 -> 0.83 s, measured in paired runs here. A user's CANDLE_NUM_THREADS wins.
+    // rayon's) makes both the hash-grid and the NeRF training step faster (measured:
+    // docs/speed-and-report.md#element-wise-ops-on-one-thread). A user's CANDLE_NUM_THREADS
+    // wins.
     if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
         std::env::set_var("CANDLE_NUM_THREADS", "1");
     }

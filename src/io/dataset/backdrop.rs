@@ -1,9 +1,9 @@
 //! Whether a capture's photos were taken on a plain white backdrop, judged by their borders.
 //! An unbounded model trained on such photos composited on black must explain the white by
-//! density, and grows a white veil that held-out cameras facing it see as a wall (lego's 100
-//! views on white: two of 13 held-out views at 9–10 dB, 21.37 dB in all); told the backdrop
-//! is white (`renderer.white_background=True`), empty space renders white and all 13 score
-//! 25–28 dB (26.77 dB). `nerf process` uses this to say so.
+//! density, and grows a white veil that held-out cameras facing it see as a wall, so those
+//! views score poorly; told the backdrop is white (`renderer.white_background=True`), empty
+//! space renders white and every held-out view scores well (measured:
+//! docs/own-scene.md#white-backdrops). `nerf process` uses this to say so.
 
 use std::path::{Path, PathBuf};
 

@@ -27,9 +27,9 @@ use nerf::render::surface::{sample_grid, surface_colors};
 use nerf::render::view::render_view;
 
 /// Default density threshold σ of a NeRF's surface (one sample step of the lego config, 4/127,
-/// then has opacity `1 − e^{−σΔ}` ≈ 0.27). Chosen by the shipped model's silhouette IoU
-/// against the test masks (every 10th view, resolution 128): σ = 5: 0.952, 10: 0.972,
-/// 25: 0.956, 50: 0.862, 100: 0.466.
+/// then has opacity `1 − e^{−σΔ}` ≈ 0.27). Chosen as the threshold whose mesh of the shipped
+/// model matches the test masks' silhouettes best, lower and higher ones both doing worse
+/// (measured: docs/viewer-and-export.md#export-mesh-points-depth).
 pub const DEFAULT_NERF_THRESHOLD: f64 = 10.0;
 
 /// Samples per colour ray of a mesh vertex.

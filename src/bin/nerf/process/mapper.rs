@@ -8,16 +8,15 @@
 //!
 //! Why refine after mapping instead of mapping with the tighter threshold: on the lego
 //! views the mapper with `--Mapper.filter_max_reproj_error 1.5` gave the same accuracy but
-//! took 193–258 s a run inside `nerf process` against 25–77 s at 4 px (fewer points left to
-//! register the next image on, so about three times as many failed registration attempts),
-//! and two of 15 runs at 1 to 2 px flipped a camera.
+//! took several times as long a run (fewer points left to register the next image on, so
+//! many more failed registration attempts), and runs at 1 to 2 px sometimes flipped a camera
+//! (measured: docs/own-scene.md#mapper-settings).
 //!
 //! Why several runs: the mapper's RANSAC draws at random, and on photos with few features
-//! (the 100 lego views on white, about 1150 SIFT features each) one run in a few places a
-//! camera at its mirror pose (seen: 1.76 scene radii off, 170° turned) or bends a stretch of
-//! cameras (4.4–4.8%), while its own statistics (reprojection error, track length) look like
-//! every other run's. On those 100 photos three runs took 185 s, beside 173 s of exhaustive
-//! matching.
+//! (such as the 100 lego views on white) one run in a few places a camera at its mirror pose
+//! or bends a stretch of cameras, while its own statistics (reprojection error, track length)
+//! look like every other run's. Three runs cost about what exhaustive matching does
+//! (measured: docs/own-scene.md#mapper-settings).
 
 use std::ffi::{OsStr, OsString};
 use std::path::{Path, PathBuf};
@@ -33,16 +32,16 @@ use nerf::core::camera_consensus::{consensus, Centres};
 pub const COMPARABLE_FRACTION: f64 = 0.9;
 
 /// A camera that more than half of the other runs place further than this fraction of the
-/// camera spread from where the kept run has it is left out (agreeing runs of the lego
-/// capture differ by under 1% of it; a flipped camera by over 100%).
+/// camera spread from where the kept run has it is left out: well above what agreeing runs
+/// differ by, far below a flipped camera (measured: docs/own-scene.md#mapper-settings).
 pub const OUTLIER_FRACTION: f64 = 0.05;
 
 /// Runs added, one at a time, while no run has registered half of the photos, or fewer than
 /// [`MAJORITY_RUNS`] runs (or all requested, if fewer) are comparable. The mapper is not
-/// repeatable even for one seed (its RANSAC runs on several threads): on the 24 lego views of
-/// `tests/process.rs`, 3 of 9 runs registered none where the others registered 21, and once
-/// all 3 runs of one `nerf process` did; on the 100 lego views one run registered 15, which
-/// left two runs, one of them with a bent stretch (a camera 4.4% off), and no majority.
+/// repeatable even for one seed (its RANSAC runs on several threads): a run can register none
+/// of a capture where the others register most, and one that registers few can leave two
+/// comparable runs that disagree, with no majority (measured:
+/// docs/own-scene.md#mapper-settings).
 pub const MAX_EXTRA_RUNS: u64 = 3;
 
 /// Fewest registered images written as a capture (a kept model with fewer is not refined:
@@ -53,8 +52,8 @@ pub const MIN_REGISTERED: usize = 3;
 pub const MAJORITY_RUNS: u64 = 3;
 
 /// Two comparable runs whose centres all agree to within this fraction of the camera spread
-/// settle the mapping: no further run is made (agreeing runs of the lego capture differ by
-/// under 1% of it; the bent stretch seen once by 4.4%, a flipped camera by over 100%).
+/// settle the mapping: no further run is made (above what agreeing runs differ by, below a
+/// bent stretch of cameras or a flipped one; measured: docs/own-scene.md#mapper-settings).
 pub const SETTLED_FRACTION: f64 = 0.02;
 
 /// How the mapper is run.
@@ -70,8 +69,8 @@ pub struct MappingOptions {
 
 impl Default for MappingOptions {
     /// Three runs; observations kept within 1.5 px (COLMAP maps with 4 px: on the lego views
-    /// the refinement at 1.5 px took the mean camera-centre error from 0.33% to 0.24% of the
-    /// scene radius and the largest from 1.03% to 0.57–0.63%, over four seeds, in 3 s).
+    /// the refinement at 1.5 px lowered both the mean and the largest camera-centre error, in
+    /// seconds; measured: docs/own-scene.md#mapper-settings).
     fn default() -> Self {
         Self {
             runs: 3,

@@ -168,9 +168,9 @@ fn choose_background(step: &mut StepSettings, dataset: &Dataset, data_dir: &Path
 /// `renderer.background: auto` on photos with no backdrop (a room, a street, a facade): the
 /// cameras stand among the scene's own geometry (the floor, the ground in front of a
 /// building), which the camera clearance would keep empty, so it is left off
-/// (docs/own-scene.md: Herz-Jesu scored 1.8 dB better held out without it, where the temple
-/// on its black backdrop scored 1.1 dB better with it). An explicit `renderer.background`
-/// keeps the configured clearance.
+/// (a facade's capture scored better held out without it, where a capture on a black
+/// backdrop scored better with it; measured: docs/own-scene.md#background). An explicit
+/// `renderer.background` keeps the configured clearance.
 fn keep_clearance_off(settings: &mut TrainSettings, data_dir: &Path) {
     if let Some(grid) = settings.grid.as_mut().filter(|g| g.camera_clearance > 0.0) {
         grid.camera_clearance = 0.0;
