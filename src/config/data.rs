@@ -37,7 +37,7 @@ pub struct DataConfig {
 
 /// Pixels a training photo keeps at most by default (640×480): 300 photos of it are 92 M
 /// pixels, about 30 epochs' rays of a 10-minute hash-grid run at 16k rays per step, and a
-/// photo's render at eval costs about 1.5 s here.
+/// photo's render at eval stays short (measured: docs/own-scene.md#pixel-budget).
 pub const DEFAULT_PIXEL_BUDGET: usize = 640 * 480;
 
 /// The size renders of a config without `data.image_size` take when nothing else gives one

@@ -42,9 +42,8 @@ pub const POINT_CLOUD_RAYS: usize = 1 << 27;
 // * `point_vis`'s sample points are made and splatted [`POINT_SAMPLES`] at a time;
 // * a mesh grid is evaluated [`GRID_BATCH`] points at a time.
 // The environment variable `NERF_WORK_CHUNK=N` lowers every one of these pieces to N items
-// (rays, points) for tests of chunking; the outputs do not depend on it. Measured at the
-// largest sizes: a 4096² box render peaks at 1.7 GB resident (its frame, three vis images
-// and the bands), `export mesh --resolution 512` of the box at 0.7 GB.
+// (rays, points) for tests of chunking; the outputs do not depend on it. The peaks at the
+// largest sizes: docs/reliability.md#working-memory-at-the-largest-sizes.
 
 /// Rays per band of an image (rounded to whole renderer chunks where rendered): 2^18 rays
 /// are about 60 MB of rays, pixels and outputs, on top of the renderer's chunk.

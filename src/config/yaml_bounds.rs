@@ -1,6 +1,6 @@
 //! Bounds on YAML text before the YAML parser sees it: its size and how deep it nests. The
-//! parser's time grows faster than the text with the nesting (100 000 levels took over a
-//! minute), so a linear scan of the text refuses deep nesting first.
+//! parser's time grows faster than the text with the nesting (measured:
+//! docs/reliability.md#yaml-nesting), so a linear scan of the text refuses deep nesting first.
 //!
 //! The scan counts flow collections (`[`, `{`, outside quoted strings and comments) and block
 //! nesting (each deeper indentation, and each `- ` or `? ` that opens an entry on a line),
