@@ -43,7 +43,7 @@ pub use implicit_function::ImplicitFunctionConfig;
 pub use messages::{in_user_words, plural};
 pub use overrides::apply_override;
 pub use renderer::{BackgroundConfig, OccupancyGridConfig, RendererConfig, RendererKind};
-pub use sampler::{SamplerConfig, SamplerKind};
+pub use sampler::{SamplerConfig, SamplerType};
 pub use training::TrainingConfig;
 
 /// The homework's top-level `type`: the job `nerf run` (the homework's `main.py`) runs.

@@ -4,34 +4,50 @@
 use std::sync::Arc;
 
 use anyhow::Result;
-use serde::Deserialize;
+use serde::{Deserialize, Deserializer};
 
 use super::Config;
-use crate::render::disparity_sampler::DepthThenDisparitySampler;
-use crate::render::hierarchical::CoarseToFineSampler;
 use crate::render::ray_sampler::RaySampler;
 use crate::render::sampler::StratifiedSampler;
+use crate::render::sampler_kind::{SamplerKind, SamplerSettings};
+use crate::render::sampler_registry::{find_sampler_kind, sampler_kind_names, SAMPLER_KINDS};
 
-/// `sampler.type`: the homework's sampler, or one for unbounded scenes.
-#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum SamplerKind {
-    /// `stratified`: the homework's `StratifiedRaysampler`.
-    #[default]
-    Stratified,
-    /// `depth_then_disparity`: `n_pts_per_ray` depths uniform on `[min_depth, max_depth]`,
-    /// then `n_pts_far` uniform in disparity out to `far_depth`
-    /// ([`DepthThenDisparitySampler`]).
-    DepthThenDisparity,
+/// `sampler.type`: a registered sampler kind ([`crate::render::sampler_registry`]), the
+/// homework's `stratified` by default.
+#[derive(Debug, Clone, Copy)]
+pub struct SamplerType(pub &'static SamplerKind);
+
+impl Default for SamplerType {
+    fn default() -> Self {
+        Self(&SAMPLER_KINDS[0])
+    }
+}
+
+impl PartialEq for SamplerType {
+    fn eq(&self, other: &Self) -> bool {
+        self.0.name == other.0.name
+    }
+}
+
+impl<'de> Deserialize<'de> for SamplerType {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        find_sampler_kind(&name).map(Self).ok_or_else(|| {
+            serde::de::Error::custom(format!(
+                "unknown `{name}` (expected {})",
+                sampler_kind_names()
+            ))
+        })
+    }
 }
 
 /// The `sampler` section.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SamplerConfig {
-    /// `sampler.type`: `stratified` (the default) or `depth_then_disparity`.
+    /// `sampler.type`: `stratified` (the default) or another registered kind.
     #[serde(rename = "type", default)]
-    pub kind: SamplerKind,
+    pub kind: SamplerType,
     /// Samples per ray (`sampler.n_pts_per_ray`, 1 to [`super::limits::PTS_PER_RAY`]).
     pub n_pts_per_ray: usize,
     /// Depth of the first sample along each ray, in world units (`sampler.min_depth`, ≥ 0).
@@ -59,42 +75,26 @@ fn default_far_depth() -> f64 {
 }
 
 impl SamplerConfig {
-    /// The sampler: `n_pts_per_ray` stratified depths on `[min_depth, max_depth]`, and, with
+    /// The sampler the section's kind builds from its settings: for `stratified`,
+    /// `n_pts_per_ray` stratified depths on `[min_depth, max_depth]`, and, with
     /// `n_pts_per_ray_fine` > 0, that many more drawn from a coarse pass's weights.
     pub fn sampler(&self) -> Result<Arc<dyn RaySampler>> {
-        if self.kind == SamplerKind::DepthThenDisparity {
-            anyhow::ensure!(
-                self.n_pts_per_ray_fine == 0,
-                "sampler.n_pts_per_ray_fine: coarse-to-fine sampling is for type stratified"
-            );
-            return Ok(Arc::new(DepthThenDisparitySampler::new(
-                self.n_pts_per_ray,
-                (self.min_depth, self.max_depth),
-                self.n_pts_far,
-                self.far_depth,
-            )?));
-        }
-        anyhow::ensure!(
-            self.n_pts_far == 0,
-            "sampler.n_pts_far: only with type depth_then_disparity"
-        );
-        let stratified = self.stratified()?;
-        Ok(match self.n_pts_per_ray_fine {
-            0 => Arc::new(stratified),
-            n_fine => Arc::new(CoarseToFineSampler {
-                coarse: stratified,
-                n_fine,
-            }),
+        (self.kind.0.build)(&SamplerSettings {
+            n_pts_per_ray: self.n_pts_per_ray,
+            min_depth: self.min_depth,
+            max_depth: self.max_depth,
+            n_pts_per_ray_fine: self.n_pts_per_ray_fine,
+            n_pts_far: self.n_pts_far,
+            far_depth: self.far_depth,
         })
     }
 
     /// Samples drawn per ray before any refinement (`n_pts_per_ray`, plus `n_pts_far` for
-    /// `depth_then_disparity`).
+    /// `depth_then_disparity`): the sampler's own count; `n_pts_per_ray` for a section that
+    /// makes no sampler (validation refuses it).
     pub fn drawn_per_ray(&self) -> usize {
-        match self.kind {
-            SamplerKind::Stratified => self.n_pts_per_ray,
-            SamplerKind::DepthThenDisparity => self.n_pts_per_ray + self.n_pts_far,
-        }
+        self.sampler()
+            .map_or(self.n_pts_per_ray, |s| s.drawn_per_ray())
     }
 
     /// The stratified depths alone (the SDF fit and the float64 reference sample only these).

@@ -55,3 +55,12 @@ pub fn print_library_messages() {
         log::set_max_level(log::LevelFilter::Info);
     }
 }
+
+/// Names as a message lists them: `a`, `a or b`, `a, b or c`.
+pub fn or_list(names: &[&str]) -> String {
+    match names.split_last() {
+        Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+        Some((last, _)) => last.to_string(),
+        None => String::new(),
+    }
+}

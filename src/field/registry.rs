@@ -26,11 +26,7 @@ pub fn kind_names(trainable_only: bool) -> String {
         .filter(|k| k.trainable || !trainable_only)
         .map(|k| k.name)
         .collect();
-    match names.split_last() {
-        Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
-        Some((last, _)) => last.to_string(),
-        None => String::new(),
-    }
+    crate::core::term::or_list(&names)
 }
 
 #[cfg(test)]

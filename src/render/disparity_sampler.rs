@@ -12,6 +12,8 @@
 //! switch depth, not the ray's exit from the unit cube), so rendering keeps the `(1, S, 1)`
 //! compact form the skipping pass marches.
 
+use std::sync::Arc;
+
 use anyhow::{ensure, Result};
 use candle_core::Tensor;
 use rand::Rng;
@@ -20,6 +22,26 @@ use crate::core::distortion_loss::RaySpacing;
 use crate::core::rays::Rays;
 use crate::render::ray_sampler::RaySampler;
 use crate::render::sampler::shared_lengths;
+use crate::render::sampler_kind::{SamplerKind, SamplerSettings};
+
+/// The `depth_then_disparity` sampler kind ([`crate::render::sampler_registry`]).
+pub const DEPTH_THEN_DISPARITY: SamplerKind = SamplerKind {
+    name: "depth_then_disparity",
+    build: depth_then_disparity_kind,
+};
+
+fn depth_then_disparity_kind(s: &SamplerSettings) -> Result<Arc<dyn RaySampler>> {
+    ensure!(
+        s.n_pts_per_ray_fine == 0,
+        "sampler.n_pts_per_ray_fine: coarse-to-fine sampling is for type stratified"
+    );
+    Ok(Arc::new(DepthThenDisparitySampler::new(
+        s.n_pts_per_ray,
+        (s.min_depth, s.max_depth),
+        s.n_pts_far,
+        s.far_depth,
+    )?))
+}
 
 /// Uniform in depth on `[min_depth, max_depth]`, then uniform in disparity on
 /// `[max_depth, far_depth]`.

@@ -9,6 +9,8 @@
 //! The fine depths are chosen from values, without a gradient (pytorch3d detaches them too);
 //! gradients flow through the fine pass's field evaluations.
 
+use std::sync::Arc;
+
 use anyhow::Result;
 use candle_core::{DType, Tensor};
 use rand::Rng;
@@ -19,6 +21,26 @@ use crate::kernels::sample_points::sample_points;
 use crate::render::field::Field;
 use crate::render::ray_sampler::RaySampler;
 use crate::render::sampler::{RaySamples, StratifiedSampler};
+use crate::render::sampler_kind::{SamplerKind, SamplerSettings};
+
+/// The `stratified` sampler kind ([`crate::render::sampler_registry`]): the homework's
+/// stratified depths, refined coarse-to-fine when `n_pts_per_ray_fine` > 0.
+pub const STRATIFIED: SamplerKind = SamplerKind {
+    name: "stratified",
+    build: stratified_kind,
+};
+
+fn stratified_kind(s: &SamplerSettings) -> Result<Arc<dyn RaySampler>> {
+    anyhow::ensure!(
+        s.n_pts_far == 0,
+        "sampler.n_pts_far: only with type depth_then_disparity"
+    );
+    let coarse = StratifiedSampler::new(s.n_pts_per_ray, s.min_depth, s.max_depth)?;
+    Ok(match s.n_pts_per_ray_fine {
+        0 => Arc::new(coarse),
+        n_fine => Arc::new(CoarseToFineSampler { coarse, n_fine }),
+    })
+}
 
 /// Coarse-to-fine sampling (`sampler.n_pts_per_ray_fine` > 0): the field at the stratified
 /// depths gives weights (no gradient), `n_fine` more depths are drawn from them, and the

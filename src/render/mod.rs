@@ -10,6 +10,8 @@ pub mod pointcloud;
 pub mod ray_sampler;
 pub mod renderer;
 pub mod sampler;
+pub mod sampler_kind;
+pub mod sampler_registry;
 pub mod skipping;
 pub mod surface;
 pub mod view;

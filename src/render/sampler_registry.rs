@@ -1,0 +1,40 @@
+//! The sampler kinds a config's `sampler.type` can name, listed once ([`SAMPLER_KINDS`]): each
+//! kind is defined beside its sampler, and registering it is one line here. The messages that
+//! list the kinds are written from this list. What a kind is:
+//! [`crate::render::sampler_kind`].
+
+use crate::render::sampler_kind::SamplerKind;
+
+/// The built-in sampler kinds, the default first: one line each.
+pub const SAMPLER_KINDS: &[SamplerKind] = &[
+    crate::render::hierarchical::STRATIFIED,
+    crate::render::disparity_sampler::DEPTH_THEN_DISPARITY,
+];
+
+/// The registered kind called `name`.
+pub fn find_sampler_kind(name: &str) -> Option<&'static SamplerKind> {
+    SAMPLER_KINDS.iter().find(|k| k.name == name)
+}
+
+/// The registered kinds' names as a message lists them: `stratified or depth_then_disparity`.
+pub fn sampler_kind_names() -> String {
+    let names: Vec<&str> = SAMPLER_KINDS.iter().map(|k| k.name).collect();
+    crate::core::term::or_list(&names)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_kind_is_registered_once_and_listed() {
+        for kind in SAMPLER_KINDS {
+            assert_eq!(
+                find_sampler_kind(kind.name).map(|k| k.name),
+                Some(kind.name)
+            );
+        }
+        assert_eq!(sampler_kind_names(), "stratified or depth_then_disparity");
+        assert!(find_sampler_kind("pdf").is_none());
+    }
+}
