@@ -9,7 +9,7 @@
 //! Written by hand: no crate offers a CPU hash-grid encoding (tiny-cuda-nn and its ports are
 //! CUDA), and the loops must share their layout with the table and the sparse optimiser.
 
-use crate::kernels::hash_grid::{Level, HASH_PRIMES};
+use crate::kernels::hash_level::{Level, HASH_PRIMES};
 
 /// Points per block.
 pub const BLOCK: usize = 16;
@@ -269,7 +269,7 @@ fn scatter_points_portable(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::hash_grid::HashGridParams;
+    use crate::kernels::hash_level::HashGridParams;
 
     fn values(n: usize, seed: u32, lo: f32, hi: f32) -> Vec<f32> {
         let mut s = seed.wrapping_mul(2_654_435_761) | 1;

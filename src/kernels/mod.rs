@@ -22,6 +22,7 @@ pub mod distortion_loss;
 pub mod gemm;
 pub mod hash_block;
 pub mod hash_grid;
+pub mod hash_level;
 pub mod hash_point_gradient;
 pub mod ngp_mlp;
 pub mod sample_points;
