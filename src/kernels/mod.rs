@@ -17,6 +17,7 @@ use candle_core::{DType, Tensor};
 
 pub mod bias;
 pub mod composite;
+mod cpu_dispatch;
 pub mod cpu_kernel;
 pub mod distortion_loss;
 pub mod gemm;
