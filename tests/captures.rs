@@ -62,12 +62,10 @@ fn check_capture(lego: &Lego, dir: &Path, format: SceneFormat) {
 
 #[test]
 fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
-    let Some(lego) =
-        lego("colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras")
-    else {
+    let test = "colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras";
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
         return;
     };
-    let root = tempfile::tempdir().unwrap();
     let text = root.path().join("colmap_text");
     write_colmap_text(&lego, &text);
     check_capture(&lego, &text, SceneFormat::Colmap);
@@ -90,8 +88,9 @@ fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
 #[test]
 fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let test = "a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene";
-    let Some(lego) = lego(test) else { return };
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
+        return;
+    };
     let capture = root.path().join("capture");
     write_colmap_text(&lego, &capture);
     let data = Dataset::load(&capture, Split::Test, 20, 20, false).unwrap();
@@ -103,31 +102,20 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let ckpt = root.path().join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
     let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
-    let dir_arg = capture.to_str().unwrap();
-    let mut args = vec![
+    let o = common::nerf_ok(&common::data_args(
         "train",
-        "--config",
         "nerf_scene_bounded",
-        "--data-dir",
-        dir_arg,
-    ];
-    args.extend(overrides);
-    let o = common::nerf_ok(&args);
+        &capture,
+        &overrides,
+    ));
     assert!(ckpt.is_file());
     let log = common::stderr(&o);
     assert!(
         log.contains("COLMAP capture") && log.contains("normalised"),
         "{log}"
     );
-    let mut args = vec![
-        "eval",
-        "--config",
-        "nerf_scene_bounded",
-        "--data-dir",
-        dir_arg,
-        "--split",
-        "test",
-    ];
+    let split = ["--split", "test"];
+    let mut args = common::data_args("eval", "nerf_scene_bounded", &capture, &split);
     args.extend(overrides);
     let o = common::nerf_ok(&args);
     let out = String::from_utf8_lossy(&o.stdout);
@@ -153,8 +141,9 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
 #[test]
 fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     let test = "the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in";
-    let Some(lego) = lego(test) else { return };
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
+        return;
+    };
     let full = root.path().join("full");
     write_colmap_text(&lego, &full);
     // The first 9 photos only: the same held-out frames (frame_00 and frame_08), but the
@@ -172,10 +161,12 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     let ckpt = root.path().join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
     let overrides = tiny_scene_overrides("training.num_epochs=2", &ckpt_arg);
-    let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
-    args.push(full.to_str().unwrap());
-    args.extend(overrides);
-    common::nerf_ok(&args);
+    common::nerf_ok(&common::data_args(
+        "train",
+        "nerf_scene_bounded",
+        &full,
+        &overrides,
+    ));
     // Stored exactly.
     let meta = checkpoint::read_metadata(&ckpt).unwrap();
     assert_eq!(
@@ -242,20 +233,14 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     assert_eq!(export(&subset, &root.path().join("depth_b")), depth);
     // Without the stored transform (a checkpoint from before it was stored), the subset's
     // recomputed frame renders other images: the check above can tell them apart.
-    let (tensors, mut info) = checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
-    info.scene_transform = None;
     let old = root.path().join("old.safetensors");
-    let mut tensors: Vec<_> = tensors.into_iter().collect();
-    tensors.sort_by(|a, b| a.0.cmp(&b.0));
-    checkpoint::save(&old, &tensors, info).unwrap();
+    resave_checkpoint(&ckpt, &old, |info| info.scene_transform = None);
     let recomputed_images = root.path().join("c");
     let log = eval(&subset, &old, &recomputed_images);
     assert!(log.contains("stores no scene normalisation"), "{log}");
     assert_ne!(files_of(&recomputed_images), files_of(&on_full));
     // A resumed run on the subset keeps training in the stored frame, and keeps storing it.
-    let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
-    args.push(subset.to_str().unwrap());
-    args.extend(overrides);
+    let mut args = common::data_args("train", "nerf_scene_bounded", &subset, &overrides);
     args.push("training.num_epochs=3");
     let log = common::stderr(&common::nerf_ok(&args));
     assert!(
@@ -273,8 +258,9 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
 #[test]
 fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
     let test = "an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains";
-    let Some(lego) = lego(test) else { return };
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
+        return;
+    };
     let ns = root.path().join("nerfstudio");
     write_nerfstudio(&lego, &ns);
     // In colmap2nerf's own gauge (centres scaled and moved, scale and offset written), and in
@@ -320,9 +306,7 @@ fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
     let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
     let run = |command: &str, dir: &Path, extra: &[&str]| {
-        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
-        args.push(dir.to_str().unwrap());
-        args.extend(overrides);
+        let mut args = common::data_args(command, "nerf_scene", dir, &overrides);
         args.extend(extra);
         common::stderr(&common::nerf_ok(&args))
     };
@@ -340,13 +324,7 @@ fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
         assert_eq!(name_a, name_b);
         let decode = |png: &[u8]| image::load_from_memory(png).unwrap().to_rgb8();
         let (x, y) = (decode(png_a), decode(png_b));
-        let worst = x
-            .as_raw()
-            .iter()
-            .zip(y.as_raw())
-            .map(|(p, q)| p.abs_diff(*q))
-            .max()
-            .unwrap();
+        let worst = common::max_channel_difference(&x, &y);
         assert!(worst <= 1, "{name_a}: {worst}");
     }
 }

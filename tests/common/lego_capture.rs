@@ -340,3 +340,42 @@ pub fn write_colmap2nerf(lego: &Lego, dir: &Path, moved: Option<(f64, [f64; 3])>
     assert!(text.contains(&format!("\"w\": {w:.1}")), "{text}");
     std::fs::write(dir.join("transforms.json"), text).unwrap();
 }
+
+/// The first `n` lego training views ([`lego_views`]) and a fresh scratch directory for the
+/// test's captures, or a visible skip.
+pub fn lego_root(test: &str, n: usize) -> Option<(Lego, tempfile::TempDir)> {
+    Some((lego_views(test, n)?, tempfile::tempdir().unwrap()))
+}
+
+/// Applies `change` to the JSON of `dir/transforms.json`, which it returns.
+pub fn edit_transforms(dir: &Path, change: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
+    let json = dir.join("transforms.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    change(&mut v);
+    std::fs::write(&json, v.to_string()).unwrap();
+    json
+}
+
+/// Replaces the first line of the text file `path` that `pick` chooses by `change` of it;
+/// returns `path`.
+pub fn edit_line(
+    path: PathBuf,
+    pick: impl Fn(&str) -> bool,
+    change: impl FnOnce(&str) -> String,
+) -> PathBuf {
+    let text = std::fs::read_to_string(&path).unwrap();
+    let line = text.lines().find(|l| pick(l)).unwrap();
+    std::fs::write(&path, text.replacen(line, &change(line), 1)).unwrap();
+    path
+}
+
+/// Writes the checkpoint `from`'s tensors (sorted by name) again at `to`, with its metadata
+/// changed by `edit`.
+pub fn resave_checkpoint(from: &Path, to: &Path, edit: impl FnOnce(&mut nerf::CheckpointInfo)) {
+    let (tensors, mut info) = nerf::io::checkpoint::load(from, &candle_core::Device::Cpu).unwrap();
+    let mut tensors: Vec<_> = tensors.into_iter().collect();
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    edit(&mut info);
+    nerf::io::checkpoint::save(to, &tensors, info).unwrap();
+}
