@@ -131,10 +131,8 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
         refused(root, &format!("colmap, {what}"), &dir, &named, says);
         // The same model as COLMAP's binary files.
         let binary = root.join(format!("colmap_binary_{i}"));
-        lego.copy_images(&binary);
-        let (_, model) = nerf::io::colmap::find_model(&dir).unwrap();
+        write_colmap_binary(&lego, &dir, &binary);
         let sparse = binary.join("sparse").join("0");
-        nerf::io::colmap::write_binary(&sparse, &model).unwrap();
         let named = match says[0] {
             "frame_" => binary.join("images"),
             _ => sparse.join("cameras.bin"),
@@ -233,16 +231,14 @@ fn checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint() {
     };
     let dir = root.path().join("capture");
     write_colmap_text(&lego, &dir);
-    let ckpt = root.path().join("model.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
-    common::nerf_ok(&common::data_args(
-        "train",
+    let scene = TinyScene::new(
         "nerf_scene_bounded",
-        &dir,
-        &overrides,
-    ));
-    let (_, info) = nerf::io::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
+        root.path().join("model.safetensors"),
+        1,
+    );
+    scene.run_ok("train", &dir, &[]);
+    let ckpt = &scene.checkpoint;
+    let (_, info) = nerf::io::checkpoint::load(ckpt, &candle_core::Device::Cpu).unwrap();
     let orbit = info
         .capture_orbit
         .expect("a capture checkpoint stores its orbit");
@@ -301,7 +297,7 @@ fn checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint() {
     ];
     for (n, (what, edit, command, says)) in cases.into_iter().enumerate() {
         let bad = root.path().join(format!("bad_{n}.safetensors"));
-        resave_checkpoint(&ckpt, &bad, edit);
+        resave_checkpoint(ckpt, &bad, edit);
         let before = std::fs::read(&bad).unwrap();
         let out = root.path().join(format!("out_{n}"));
         let ckpt_arg = format!("training.checkpoint_path={}", bad.display());

@@ -73,11 +73,13 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
         assert!((0..200).all(|p| used[p] == (p % 20 >= first)), "{used:?}");
     }
 
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
+    let scene = TinyScene::new(
+        "nerf_scene_bounded",
+        root.path().join("scene.safetensors"),
+        1,
+    );
     let run = |command: &str, dir: &Path| {
-        let mut args = common::data_args(command, "nerf_scene_bounded", dir, &overrides);
+        let mut args = scene.args(command, dir, &[]);
         if command == "eval" {
             args.extend(["--split", "test"]);
         }
@@ -139,23 +141,18 @@ fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model(
     let text = root.path().join("text");
     write_colmap_text(&lego, &text);
     let binary = root.path().join("binary");
-    lego.copy_images(&binary);
-    let (_, model) = nerf::io::colmap::find_model(&text).unwrap();
-    nerf::io::colmap::write_binary(&binary.join("sparse").join("0"), &model).unwrap();
+    write_colmap_binary(&lego, &text, &binary);
     assert!(binary.join("sparse/0/images.bin").is_file());
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
-    let run = |command: &str, dir: &Path, extra: &[&str]| {
-        let mut args = common::data_args(command, "nerf_scene_bounded", dir, &overrides);
-        args.extend(extra);
-        common::nerf_ok(&args)
-    };
-    run("train", &text, &[]);
+    let scene = TinyScene::new(
+        "nerf_scene_bounded",
+        root.path().join("scene.safetensors"),
+        1,
+    );
+    scene.run_ok("train", &text, &[]);
     let (a, b) = (root.path().join("a"), root.path().join("b"));
     for (dir, saved) in [(&text, &a), (&binary, &b)] {
         let saved = saved.to_str().unwrap();
-        run("eval", dir, &["--split", "test", "--save-images", saved]);
+        scene.run_ok("eval", dir, &["--split", "test", "--save-images", saved]);
     }
     assert_eq!(files_of(&a).len(), 2);
     assert_eq!(files_of(&a), files_of(&b));

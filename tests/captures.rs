@@ -71,9 +71,7 @@ fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
     check_capture(&lego, &text, SceneFormat::Colmap);
     // The same model written as binary, beside a second, smaller model: the larger is chosen.
     let binary = root.path().join("colmap_binary");
-    lego.copy_images(&binary);
-    let (_, mut model) = nerf::io::colmap::find_model(&text).unwrap();
-    nerf::io::colmap::write_binary(&binary.join("sparse").join("0"), &model).unwrap();
+    let mut model = write_colmap_binary(&lego, &text, &binary);
     model.images.truncate(3);
     nerf::io::colmap::write_binary(&binary.join("sparse").join("1"), &model).unwrap();
     check_capture(&lego, &binary, SceneFormat::Colmap);
@@ -99,24 +97,19 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
         .images
         .iter()
         .all(|im| im.width == 20 && im.height == 20));
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
-    let o = common::nerf_ok(&common::data_args(
-        "train",
+    let scene = TinyScene::new(
         "nerf_scene_bounded",
-        &capture,
-        &overrides,
-    ));
-    assert!(ckpt.is_file());
+        root.path().join("scene.safetensors"),
+        1,
+    );
+    let o = scene.run_ok("train", &capture, &[]);
+    assert!(scene.checkpoint.is_file());
     let log = common::stderr(&o);
     assert!(
         log.contains("COLMAP capture") && log.contains("normalised"),
         "{log}"
     );
-    let split = ["--split", "test"];
-    let mut args = common::data_args("eval", "nerf_scene_bounded", &capture, &split);
-    args.extend(overrides);
+    let mut args = scene.args("eval", &capture, &["--split", "test"]);
     let o = common::nerf_ok(&args);
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.contains("PSNR"), "{out}");
@@ -158,15 +151,13 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         .transform;
     assert!(!trained_in.agrees_with(&recomputed, 1e-3));
 
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=2", &ckpt_arg);
-    common::nerf_ok(&common::data_args(
-        "train",
+    let scene = TinyScene::new(
         "nerf_scene_bounded",
-        &full,
-        &overrides,
-    ));
+        root.path().join("scene.safetensors"),
+        2,
+    );
+    scene.run_ok("train", &full, &[]);
+    let (ckpt, overrides) = (&scene.checkpoint, scene.overrides());
     // Stored exactly.
     let meta = checkpoint::read_metadata(&ckpt).unwrap();
     assert_eq!(
@@ -240,8 +231,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     assert!(log.contains("stores no scene normalisation"), "{log}");
     assert_ne!(files_of(&recomputed_images), files_of(&on_full));
     // A resumed run on the subset keeps training in the stored frame, and keeps storing it.
-    let mut args = common::data_args("train", "nerf_scene_bounded", &subset, &overrides);
-    args.push("training.num_epochs=3");
+    let args = scene.args("train", &subset, &["training.num_epochs=3"]);
     let log = common::stderr(&common::nerf_ok(&args));
     assert!(
         log.contains("resuming from") && log.contains("using the scene normalisation stored in"),
@@ -302,13 +292,9 @@ fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
 
     // The command: a model trained on the colmap2nerf file renders its held-out views as it
     // renders the nerfstudio file's (the same cameras, to float64 rounding).
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
+    let scene = TinyScene::new("nerf_scene", root.path().join("scene.safetensors"), 1);
     let run = |command: &str, dir: &Path, extra: &[&str]| {
-        let mut args = common::data_args(command, "nerf_scene", dir, &overrides);
-        args.extend(extra);
-        common::stderr(&common::nerf_ok(&args))
+        common::stderr(&scene.run_ok(command, dir, extra))
     };
     let log = run("train", &same, &[]);
     assert!(log.contains("instant-ngp (transforms.json)"), "{log}");

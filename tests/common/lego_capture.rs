@@ -199,6 +199,15 @@ pub fn write_colmap_text(lego: &Lego, dir: &Path) {
     std::fs::write(sparse.join("points3D.txt"), "# none\n").unwrap();
 }
 
+/// The COLMAP model of the text capture `text` ([`write_colmap_text`]) written again as binary
+/// files in `dir/sparse/0`, beside copies of the photos; returns the model.
+pub fn write_colmap_binary(lego: &Lego, text: &Path, dir: &Path) -> nerf::io::colmap::ColmapModel {
+    lego.copy_images(dir);
+    let (_, model) = nerf::io::colmap::find_model(text).unwrap();
+    nerf::io::colmap::write_binary(&dir.join("sparse").join("0"), &model).unwrap();
+    model
+}
+
 pub fn write_nerfstudio(lego: &Lego, dir: &Path) {
     let names = lego.copy_images(dir);
     let (w, h) = lego.size;
@@ -282,6 +291,46 @@ pub fn tiny_scene_overrides<'a>(epochs: &'a str, checkpoint: &'a str) -> [&'a st
         "sampler.n_pts_per_ray=32",
         checkpoint,
     ]
+}
+
+/// A small training of `config` on a capture ([`tiny_scene_overrides`]) that writes the
+/// checkpoint `checkpoint`, and the commands that read that checkpoint.
+pub struct TinyScene {
+    /// The config trained and read (`nerf_scene`, `nerf_scene_bounded`).
+    pub config: &'static str,
+    /// The checkpoint written.
+    pub checkpoint: PathBuf,
+    epochs: String,
+    checkpoint_arg: String,
+}
+
+impl TinyScene {
+    /// `epochs` epochs of `config` into `checkpoint`.
+    pub fn new(config: &'static str, checkpoint: PathBuf, epochs: usize) -> Self {
+        Self {
+            config,
+            epochs: format!("training.num_epochs={epochs}"),
+            checkpoint_arg: format!("training.checkpoint_path={}", checkpoint.display()),
+            checkpoint,
+        }
+    }
+
+    /// The overrides of every command ([`tiny_scene_overrides`]).
+    pub fn overrides(&self) -> [&str; 5] {
+        tiny_scene_overrides(&self.epochs, &self.checkpoint_arg)
+    }
+
+    /// `nerf COMMAND --config CONFIG --data-dir DIR`, the overrides, then `extra`.
+    pub fn args<'a>(&'a self, command: &'a str, dir: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
+        let mut args = super::data_args(command, self.config, dir, &self.overrides());
+        args.extend(extra);
+        args
+    }
+
+    /// Runs [`TinyScene::args`] and asserts that it succeeded (a failure shows its stderr).
+    pub fn run_ok(&self, command: &str, dir: &Path, extra: &[&str]) -> std::process::Output {
+        super::nerf_ok(&self.args(command, dir, extra))
+    }
 }
 
 /// The views as instant-ngp's `scripts/colmap2nerf.py` writes them: `w` and `h` as floats,
