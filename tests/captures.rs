@@ -159,9 +159,9 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     scene.run_ok("train", &full, &[]);
     let (ckpt, overrides) = (&scene.checkpoint, scene.overrides());
     // Stored exactly.
-    let meta = checkpoint::read_metadata(&ckpt).unwrap();
+    let meta = checkpoint::read_metadata(ckpt).unwrap();
     assert_eq!(
-        checkpoint::scene_transform_of(&meta, &ckpt).unwrap(),
+        checkpoint::scene_transform_of(&meta, ckpt).unwrap(),
         Some(trained_in)
     );
 
@@ -193,9 +193,9 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         common::stderr(&common::nerf_ok(&args))
     };
     let (on_full, on_subset) = (root.path().join("a"), root.path().join("b"));
-    let log = eval(&full, &ckpt, &on_full);
+    let log = eval(&full, ckpt, &on_full);
     assert!(!log.contains("not the one these cameras give"), "{log}");
-    let log = eval(&subset, &ckpt, &on_subset);
+    let log = eval(&subset, ckpt, &on_subset);
     assert!(
         log.contains("using the scene normalisation stored in"),
         "{log}"
@@ -225,7 +225,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     // Without the stored transform (a checkpoint from before it was stored), the subset's
     // recomputed frame renders other images: the check above can tell them apart.
     let old = root.path().join("old.safetensors");
-    resave_checkpoint(&ckpt, &old, |info| info.scene_transform = None);
+    resave_checkpoint(ckpt, &old, |info| info.scene_transform = None);
     let recomputed_images = root.path().join("c");
     let log = eval(&subset, &old, &recomputed_images);
     assert!(log.contains("stores no scene normalisation"), "{log}");
@@ -237,10 +237,10 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         log.contains("resuming from") && log.contains("using the scene normalisation stored in"),
         "{log}"
     );
-    let meta = checkpoint::read_metadata(&ckpt).unwrap();
+    let meta = checkpoint::read_metadata(ckpt).unwrap();
     assert_eq!(meta["epoch"], "3");
     assert_eq!(
-        checkpoint::scene_transform_of(&meta, &ckpt).unwrap(),
+        checkpoint::scene_transform_of(&meta, ckpt).unwrap(),
         Some(trained_in)
     );
 }
