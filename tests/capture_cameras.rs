@@ -9,27 +9,20 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::lego_capture::*;
+use nerf::io::dataset::{CaptureOrbit, SceneTransform};
 
 /// Replaces the camera line of `dir`'s COLMAP `cameras.txt` by `line(w, h, f)` and returns the
 /// file.
 fn colmap_camera(dir: &Path, line: impl Fn(f64, f64, f64) -> String) -> PathBuf {
     let cameras = dir.join("sparse").join("0").join("cameras.txt");
-    let text = std::fs::read_to_string(&cameras).unwrap();
-    let old = text.lines().find(|l| l.contains("PINHOLE")).unwrap();
-    let fields: Vec<f64> = old.split(' ').skip(2).map(|v| v.parse().unwrap()).collect();
-    let new = line(fields[0], fields[1], fields[2]);
-    std::fs::write(&cameras, text.replacen(old, &new, 1)).unwrap();
-    cameras
-}
-
-/// Applies `change` to `dir/transforms.json`, which it returns.
-fn transforms(dir: &Path, change: impl Fn(&mut serde_json::Value)) -> PathBuf {
-    let json = dir.join("transforms.json");
-    let mut v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    change(&mut v);
-    std::fs::write(&json, v.to_string()).unwrap();
-    json
+    edit_line(
+        cameras,
+        |l| l.contains("PINHOLE"),
+        |old| {
+            let fields: Vec<f64> = old.split(' ').skip(2).map(|v| v.parse().unwrap()).collect();
+            line(fields[0], fields[1], fields[2])
+        },
+    )
 }
 
 /// Sets the focal length of each of the `rows` rows of `dir/poses_bounds.npy` to `focal`;
@@ -51,14 +44,7 @@ fn llff_focal(dir: &Path, rows: usize, focal: f64) -> PathBuf {
 fn refused(root: &Path, name: &str, dir: &Path, named: &Path, says: &[&str]) {
     let out = root.join(format!("out_{name}"));
     let ckpt = format!("training.checkpoint_path={}", out.join("ck").display());
-    let args = [
-        "train",
-        "--config",
-        "nerf_scene",
-        "--data-dir",
-        dir.to_str().unwrap(),
-        &ckpt,
-    ];
+    let args = common::data_args("train", "nerf_scene", dir, &[&ckpt]);
     let err = error_line(&common::nerf(&args));
     eprintln!("{name}: {err}");
     assert!(err.contains(&named.display().to_string()), "{name}: {err}");
@@ -73,9 +59,9 @@ fn refused(root: &Path, name: &str, dir: &Path, named: &Path, says: &[&str]) {
 #[test]
 fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
     let test = "cameras_that_cannot_be_right_are_refused_by_every_loader";
-    let Some(lego) = lego(test) else { return };
-    let lego = lego.first(4);
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, 4) else {
+        return;
+    };
     let root = root.path();
     let fresh = |name: &str, write: fn(&Lego, &Path)| {
         let dir = root.join(name);
@@ -145,10 +131,8 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
         refused(root, &format!("colmap, {what}"), &dir, &named, says);
         // The same model as COLMAP's binary files.
         let binary = root.join(format!("colmap_binary_{i}"));
-        lego.copy_images(&binary);
-        let (_, model) = nerf::io::colmap::find_model(&dir).unwrap();
+        write_colmap_binary(&lego, &dir, &binary);
         let sparse = binary.join("sparse").join("0");
-        nerf::io::colmap::write_binary(&sparse, &model).unwrap();
         let named = match says[0] {
             "frame_" => binary.join("images"),
             _ => sparse.join("cameras.bin"),
@@ -208,7 +192,7 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
     ];
     for (i, (what, change, says)) in nerfstudio.iter().enumerate() {
         let dir = fresh(&format!("nerfstudio_{i}"), write_nerfstudio);
-        let json = transforms(&dir, change);
+        let json = edit_transforms(&dir, change);
         let named = match says[0] {
             "frame_" => dir.join("images"),
             "origin" | "one point" => dir.clone(),
@@ -220,7 +204,7 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
     // instant-ngp: a field of view of 179.9° (inside instant-ngp's (0, π), not a lens's).
     let dir = root.join("ngp");
     write_colmap2nerf(&lego, &dir, None);
-    let json = transforms(&dir, |v| {
+    let json = edit_transforms(&dir, |v| {
         v.as_object_mut().unwrap().remove("fl_x");
         v.as_object_mut().unwrap().remove("fl_y");
         v["camera_angle_x"] = serde_json::json!(179.9f64.to_radians());
@@ -242,89 +226,78 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
 #[test]
 fn checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint() {
     let test = "checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint";
-    let Some(lego) = lego(test) else { return };
-    let lego = lego.first(9);
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, 9) else {
+        return;
+    };
     let dir = root.path().join("capture");
     write_colmap_text(&lego, &dir);
-    let ckpt = root.path().join("model.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
-    let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
-    args.push(dir.to_str().unwrap());
-    args.extend(overrides);
-    common::nerf_ok(&args);
-    let (tensors, info) = nerf::io::checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
-    let mut tensors: Vec<_> = tensors.into_iter().collect();
-    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    let scene = TinyScene::new(
+        "nerf_scene_bounded",
+        root.path().join("model.safetensors"),
+        1,
+    );
+    scene.run_ok("train", &dir, &[]);
+    let ckpt = &scene.checkpoint;
+    let (_, info) = nerf::io::checkpoint::load(ckpt, &candle_core::Device::Cpu).unwrap();
     let orbit = info
         .capture_orbit
         .expect("a capture checkpoint stores its orbit");
     let transform = info.scene_transform.expect("and its normalisation");
     // Each bad value, the command that reads it, and what the error must say.
     type Edit = Box<dyn Fn(&mut nerf::io::checkpoint::CheckpointInfo)>;
+    let with_orbit =
+        |orbit: CaptureOrbit| -> Edit { Box::new(move |i| i.capture_orbit = Some(orbit)) };
+    let with_transform = |transform: SceneTransform| -> Edit {
+        Box::new(move |i| i.scene_transform = Some(transform))
+    };
+    let scaled = SceneTransform {
+        scale: 1e300,
+        ..transform
+    };
     let cases: Vec<(&str, Edit, &str, &str)> = vec![
         (
             "orbit radius 1e300",
-            Box::new(move |i| {
-                i.capture_orbit = Some(nerf::io::dataset::CaptureOrbit {
-                    radius: 1e300,
-                    ..orbit
-                })
+            with_orbit(CaptureOrbit {
+                radius: 1e300,
+                ..orbit
             }),
             "render",
             "the orbit's radius 1e300 is beyond 100",
         ),
         (
             "orbit height 1e308",
-            Box::new(move |i| {
-                i.capture_orbit = Some(nerf::io::dataset::CaptureOrbit {
-                    height: 1e308,
-                    ..orbit
-                })
+            with_orbit(CaptureOrbit {
+                height: 1e308,
+                ..orbit
             }),
             "render",
             "the orbit's height 1e308 is beyond 100",
         ),
         (
             "orbit focal 1e-300",
-            Box::new(move |i| {
-                i.capture_orbit = Some(nerf::io::dataset::CaptureOrbit {
-                    focal: [1e-300, 2.0],
-                    ..orbit
-                })
+            with_orbit(CaptureOrbit {
+                focal: [1e-300, 2.0],
+                ..orbit
             }),
             "render",
             "NDC focal length of 1e-300",
         ),
         (
             "scene scale 1e100",
-            Box::new(move |i| {
-                i.scene_transform = Some(nerf::io::dataset::SceneTransform {
-                    scale: 1e300,
-                    ..transform
-                })
-            }),
+            with_transform(scaled),
             "eval",
             "stored in the checkpoint (metadata scene_transform) puts a camera",
         ),
         (
             "scene scale 1e100, resumed",
-            Box::new(move |i| {
-                i.scene_transform = Some(nerf::io::dataset::SceneTransform {
-                    scale: 1e300,
-                    ..transform
-                })
-            }),
+            with_transform(scaled),
             "train",
             "stored in the checkpoint (metadata scene_transform) puts a camera",
         ),
     ];
     for (n, (what, edit, command, says)) in cases.into_iter().enumerate() {
         let bad = root.path().join(format!("bad_{n}.safetensors"));
-        let mut info = info;
-        edit(&mut info);
-        nerf::io::checkpoint::save(&bad, &tensors, info).unwrap();
+        resave_checkpoint(ckpt, &bad, edit);
         let before = std::fs::read(&bad).unwrap();
         let out = root.path().join(format!("out_{n}"));
         let ckpt_arg = format!("training.checkpoint_path={}", bad.display());

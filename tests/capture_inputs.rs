@@ -35,24 +35,23 @@ fn write_masks(dir: &Path, frames: usize, size: (u32, u32), cut: u32, paint: boo
 
 /// Adds `mask_path: masks/<photo name>` to every frame of `dir/transforms.json`.
 fn add_mask_paths(dir: &Path) {
-    let path = dir.join("transforms.json");
-    let mut json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
-    for frame in json["frames"].as_array_mut().unwrap() {
-        let name = frame["file_path"]
-            .as_str()
-            .unwrap()
-            .replace("images/", "masks/");
-        frame["mask_path"] = serde_json::json!(name);
-    }
-    std::fs::write(&path, json.to_string()).unwrap();
+    edit_transforms(dir, |json| {
+        for frame in json["frames"].as_array_mut().unwrap() {
+            let name = frame["file_path"]
+                .as_str()
+                .unwrap()
+                .replace("images/", "masks/");
+            frame["mask_path"] = serde_json::json!(name);
+        }
+    });
 }
 
 #[test]
 fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
     let test = "masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named";
-    let Some(lego) = lego(test) else { return };
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
+        return;
+    };
     let cut = lego.size.0 / 2;
     // nerfstudio: mask_path per frame.
     let ns = root.path().join("nerfstudio");
@@ -74,13 +73,13 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
         assert!((0..200).all(|p| used[p] == (p % 20 >= first)), "{used:?}");
     }
 
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
+    let scene = TinyScene::new(
+        "nerf_scene_bounded",
+        root.path().join("scene.safetensors"),
+        1,
+    );
     let run = |command: &str, dir: &Path| {
-        let mut args = vec![command, "--config", "nerf_scene_bounded", "--data-dir"];
-        args.push(dir.to_str().unwrap());
-        args.extend(overrides);
+        let mut args = scene.args(command, dir, &[]);
         if command == "eval" {
             args.extend(["--split", "test"]);
         }
@@ -114,13 +113,12 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
     image::GrayImage::new(7, 5).save(&bad_size).unwrap();
     let missing = plain.join("masks").join("frame_05.png");
     for (file, says) in [(&bad_size, "is 7x5"), (&missing, "")] {
-        let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
-        args.push(plain.to_str().unwrap());
-        args.extend([
+        let more = [
             "data.image_size=[24,24]",
             "training.num_epochs=1",
             &fresh_arg,
-        ]);
+        ];
+        let args = common::data_args("train", "nerf_scene_bounded", &plain, &more);
         if file == &missing {
             std::fs::copy(&missing, &bad_size).unwrap();
             std::fs::remove_file(&missing).unwrap();
@@ -137,30 +135,24 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
 #[test]
 fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model() {
     let test = "one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model";
-    let Some(lego) = lego(test) else { return };
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
+        return;
+    };
     let text = root.path().join("text");
     write_colmap_text(&lego, &text);
     let binary = root.path().join("binary");
-    lego.copy_images(&binary);
-    let (_, model) = nerf::io::colmap::find_model(&text).unwrap();
-    nerf::io::colmap::write_binary(&binary.join("sparse").join("0"), &model).unwrap();
+    write_colmap_binary(&lego, &text, &binary);
     assert!(binary.join("sparse/0/images.bin").is_file());
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
-    let run = |command: &str, dir: &Path, extra: &[&str]| {
-        let mut args = vec![command, "--config", "nerf_scene_bounded", "--data-dir"];
-        args.push(dir.to_str().unwrap());
-        args.extend(overrides);
-        args.extend(extra);
-        common::nerf_ok(&args)
-    };
-    run("train", &text, &[]);
+    let scene = TinyScene::new(
+        "nerf_scene_bounded",
+        root.path().join("scene.safetensors"),
+        1,
+    );
+    scene.run_ok("train", &text, &[]);
     let (a, b) = (root.path().join("a"), root.path().join("b"));
     for (dir, saved) in [(&text, &a), (&binary, &b)] {
         let saved = saved.to_str().unwrap();
-        run("eval", dir, &["--split", "test", "--save-images", saved]);
+        scene.run_ok("eval", dir, &["--split", "test", "--save-images", saved]);
     }
     assert_eq!(files_of(&a).len(), 2);
     assert_eq!(files_of(&a), files_of(&b));
@@ -176,9 +168,9 @@ fn edit(path: &Path, from: &str, to: &str) {
 #[test]
 fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
     let test = "each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written";
-    let Some(lego) = lego(test) else { return };
-    let lego = lego.first(4);
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, 4) else {
+        return;
+    };
     // A way to break a capture, returning the file the error must name.
     type Breakage = fn(&Path) -> PathBuf;
     // What is broken, how, and what the error must also say.
@@ -201,11 +193,11 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
             |d| {
                 let cameras = d.join("sparse").join("0").join("cameras.txt");
                 // COLMAP's FOV model (fx fy cx cy omega), which no loader here supports.
-                let text = std::fs::read_to_string(&cameras).unwrap();
-                let line = text.lines().find(|l| l.contains("PINHOLE")).unwrap();
-                let fov = format!("{} 0.1", line.replace("PINHOLE", "FOV"));
-                std::fs::write(&cameras, text.replacen(line, &fov, 1)).unwrap();
-                cameras
+                edit_line(
+                    cameras,
+                    |l| l.contains("PINHOLE"),
+                    |line| format!("{} 0.1", line.replace("PINHOLE", "FOV")),
+                )
             },
             "FOV",
         ),
@@ -214,12 +206,15 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
             "NaN pose",
             |d| {
                 let images = d.join("sparse").join("0").join("images.txt");
-                let text = std::fs::read_to_string(&images).unwrap();
-                let line = text.lines().find(|l| l.starts_with("2 ")).unwrap();
-                let mut fields: Vec<&str> = line.split(' ').collect();
-                fields[5] = "nan";
-                std::fs::write(&images, text.replacen(line, &fields.join(" "), 1)).unwrap();
-                images
+                edit_line(
+                    images,
+                    |l| l.starts_with("2 "),
+                    |line| {
+                        let mut fields: Vec<&str> = line.split(' ').collect();
+                        fields[5] = "nan";
+                        fields.join(" ")
+                    },
+                )
             },
             "",
         ),
@@ -233,20 +228,11 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
             "",
         ),
     ];
-    /// Applies `change` to the JSON of `dir/transforms.json`, which it returns.
-    fn edit_json(d: &Path, change: fn(&mut serde_json::Value)) -> PathBuf {
-        let json = d.join("transforms.json");
-        let mut v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-        change(&mut v);
-        std::fs::write(&json, v.to_string()).unwrap();
-        json
-    }
     let nerfstudio: [Case; 8] = [
         (
             "one photo listed twice, with two poses",
             |d| {
-                edit_json(d, |v| {
+                edit_transforms(d, |v| {
                     v["frames"][2]["file_path"] = v["frames"][1]["file_path"].clone()
                 })
             },
@@ -255,7 +241,7 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
         (
             "a photo in train_filenames and test_filenames",
             |d| {
-                edit_json(d, |v| {
+                edit_transforms(d, |v| {
                     let names: Vec<_> =
                         (0..4).map(|i| format!("images/frame_{i:02}.png")).collect();
                     v["train_filenames"] = serde_json::json!(names);
@@ -266,7 +252,7 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
         ),
         (
             "a width that is not a whole number of pixels",
-            |d| edit_json(d, |v| v["w"] = serde_json::json!(400.5)),
+            |d| edit_transforms(d, |v| v["w"] = serde_json::json!(400.5)),
             "w = 400.5 is not a whole number of pixels",
         ),
         ("missing images/", missing_images, ""),
@@ -296,14 +282,7 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
         ),
         (
             "zero registered images",
-            |d| {
-                let json = d.join("transforms.json");
-                let mut v: serde_json::Value =
-                    serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-                v["frames"] = serde_json::json!([]);
-                std::fs::write(&json, v.to_string()).unwrap();
-                json
-            },
+            |d| edit_transforms(d, |v| v["frames"] = serde_json::json!([])),
             "no frames",
         ),
     ];
@@ -357,16 +336,8 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
             let out = root.path().join(format!("out_{format}_{i}"));
             let ckpt = format!("training.checkpoint_path={}", out.join("ck").display());
             let out_dir = out.join("images");
-            let args = [
-                "train",
-                "--config",
-                "nerf_scene_bounded",
-                "--data-dir",
-                dir.to_str().unwrap(),
-                "--out-dir",
-                out_dir.to_str().unwrap(),
-                &ckpt,
-            ];
+            let more = ["--out-dir", out_dir.to_str().unwrap(), &ckpt];
+            let args = common::data_args("train", "nerf_scene_bounded", &dir, &more);
             let err = error_line(&common::nerf(&args));
             eprintln!("{format}, {what}: {err}");
             assert!(

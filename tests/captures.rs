@@ -62,20 +62,16 @@ fn check_capture(lego: &Lego, dir: &Path, format: SceneFormat) {
 
 #[test]
 fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
-    let Some(lego) =
-        lego("colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras")
-    else {
+    let test = "colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras";
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
         return;
     };
-    let root = tempfile::tempdir().unwrap();
     let text = root.path().join("colmap_text");
     write_colmap_text(&lego, &text);
     check_capture(&lego, &text, SceneFormat::Colmap);
     // The same model written as binary, beside a second, smaller model: the larger is chosen.
     let binary = root.path().join("colmap_binary");
-    lego.copy_images(&binary);
-    let (_, mut model) = nerf::io::colmap::find_model(&text).unwrap();
-    nerf::io::colmap::write_binary(&binary.join("sparse").join("0"), &model).unwrap();
+    let mut model = write_colmap_binary(&lego, &text, &binary);
     model.images.truncate(3);
     nerf::io::colmap::write_binary(&binary.join("sparse").join("1"), &model).unwrap();
     check_capture(&lego, &binary, SceneFormat::Colmap);
@@ -90,8 +86,9 @@ fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
 #[test]
 fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let test = "a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene";
-    let Some(lego) = lego(test) else { return };
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
+        return;
+    };
     let capture = root.path().join("capture");
     write_colmap_text(&lego, &capture);
     let data = Dataset::load(&capture, Split::Test, 20, 20, false).unwrap();
@@ -100,35 +97,19 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
         .images
         .iter()
         .all(|im| im.width == 20 && im.height == 20));
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
-    let dir_arg = capture.to_str().unwrap();
-    let mut args = vec![
-        "train",
-        "--config",
+    let scene = TinyScene::new(
         "nerf_scene_bounded",
-        "--data-dir",
-        dir_arg,
-    ];
-    args.extend(overrides);
-    let o = common::nerf_ok(&args);
-    assert!(ckpt.is_file());
+        root.path().join("scene.safetensors"),
+        1,
+    );
+    let o = scene.run_ok("train", &capture, &[]);
+    assert!(scene.checkpoint.is_file());
     let log = common::stderr(&o);
     assert!(
         log.contains("COLMAP capture") && log.contains("normalised"),
         "{log}"
     );
-    let mut args = vec![
-        "eval",
-        "--config",
-        "nerf_scene_bounded",
-        "--data-dir",
-        dir_arg,
-        "--split",
-        "test",
-    ];
-    args.extend(overrides);
+    let mut args = scene.args("eval", &capture, &["--split", "test"]);
     let o = common::nerf_ok(&args);
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.contains("PSNR"), "{out}");
@@ -153,8 +134,9 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
 #[test]
 fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     let test = "the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in";
-    let Some(lego) = lego(test) else { return };
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
+        return;
+    };
     let full = root.path().join("full");
     write_colmap_text(&lego, &full);
     // The first 9 photos only: the same held-out frames (frame_00 and frame_08), but the
@@ -169,17 +151,17 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         .transform;
     assert!(!trained_in.agrees_with(&recomputed, 1e-3));
 
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=2", &ckpt_arg);
-    let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
-    args.push(full.to_str().unwrap());
-    args.extend(overrides);
-    common::nerf_ok(&args);
+    let scene = TinyScene::new(
+        "nerf_scene_bounded",
+        root.path().join("scene.safetensors"),
+        2,
+    );
+    scene.run_ok("train", &full, &[]);
+    let (ckpt, overrides) = (&scene.checkpoint, scene.overrides());
     // Stored exactly.
-    let meta = checkpoint::read_metadata(&ckpt).unwrap();
+    let meta = checkpoint::read_metadata(ckpt).unwrap();
     assert_eq!(
-        checkpoint::scene_transform_of(&meta, &ckpt).unwrap(),
+        checkpoint::scene_transform_of(&meta, ckpt).unwrap(),
         Some(trained_in)
     );
 
@@ -211,9 +193,9 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         common::stderr(&common::nerf_ok(&args))
     };
     let (on_full, on_subset) = (root.path().join("a"), root.path().join("b"));
-    let log = eval(&full, &ckpt, &on_full);
+    let log = eval(&full, ckpt, &on_full);
     assert!(!log.contains("not the one these cameras give"), "{log}");
-    let log = eval(&subset, &ckpt, &on_subset);
+    let log = eval(&subset, ckpt, &on_subset);
     assert!(
         log.contains("using the scene normalisation stored in"),
         "{log}"
@@ -242,30 +224,23 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     assert_eq!(export(&subset, &root.path().join("depth_b")), depth);
     // Without the stored transform (a checkpoint from before it was stored), the subset's
     // recomputed frame renders other images: the check above can tell them apart.
-    let (tensors, mut info) = checkpoint::load(&ckpt, &candle_core::Device::Cpu).unwrap();
-    info.scene_transform = None;
     let old = root.path().join("old.safetensors");
-    let mut tensors: Vec<_> = tensors.into_iter().collect();
-    tensors.sort_by(|a, b| a.0.cmp(&b.0));
-    checkpoint::save(&old, &tensors, info).unwrap();
+    resave_checkpoint(ckpt, &old, |info| info.scene_transform = None);
     let recomputed_images = root.path().join("c");
     let log = eval(&subset, &old, &recomputed_images);
     assert!(log.contains("stores no scene normalisation"), "{log}");
     assert_ne!(files_of(&recomputed_images), files_of(&on_full));
     // A resumed run on the subset keeps training in the stored frame, and keeps storing it.
-    let mut args = vec!["train", "--config", "nerf_scene_bounded", "--data-dir"];
-    args.push(subset.to_str().unwrap());
-    args.extend(overrides);
-    args.push("training.num_epochs=3");
+    let args = scene.args("train", &subset, &["training.num_epochs=3"]);
     let log = common::stderr(&common::nerf_ok(&args));
     assert!(
         log.contains("resuming from") && log.contains("using the scene normalisation stored in"),
         "{log}"
     );
-    let meta = checkpoint::read_metadata(&ckpt).unwrap();
+    let meta = checkpoint::read_metadata(ckpt).unwrap();
     assert_eq!(meta["epoch"], "3");
     assert_eq!(
-        checkpoint::scene_transform_of(&meta, &ckpt).unwrap(),
+        checkpoint::scene_transform_of(&meta, ckpt).unwrap(),
         Some(trained_in)
     );
 }
@@ -273,8 +248,9 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
 #[test]
 fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
     let test = "an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains";
-    let Some(lego) = lego(test) else { return };
-    let root = tempfile::tempdir().unwrap();
+    let Some((lego, root)) = lego_root(test, FRAMES) else {
+        return;
+    };
     let ns = root.path().join("nerfstudio");
     write_nerfstudio(&lego, &ns);
     // In colmap2nerf's own gauge (centres scaled and moved, scale and offset written), and in
@@ -316,15 +292,9 @@ fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
 
     // The command: a model trained on the colmap2nerf file renders its held-out views as it
     // renders the nerfstudio file's (the same cameras, to float64 rounding).
-    let ckpt = root.path().join("scene.safetensors");
-    let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let overrides = tiny_scene_overrides("training.num_epochs=1", &ckpt_arg);
+    let scene = TinyScene::new("nerf_scene", root.path().join("scene.safetensors"), 1);
     let run = |command: &str, dir: &Path, extra: &[&str]| {
-        let mut args = vec![command, "--config", "nerf_scene", "--data-dir"];
-        args.push(dir.to_str().unwrap());
-        args.extend(overrides);
-        args.extend(extra);
-        common::stderr(&common::nerf_ok(&args))
+        common::stderr(&scene.run_ok(command, dir, extra))
     };
     let log = run("train", &same, &[]);
     assert!(log.contains("instant-ngp (transforms.json)"), "{log}");
@@ -340,13 +310,7 @@ fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
         assert_eq!(name_a, name_b);
         let decode = |png: &[u8]| image::load_from_memory(png).unwrap().to_rgb8();
         let (x, y) = (decode(png_a), decode(png_b));
-        let worst = x
-            .as_raw()
-            .iter()
-            .zip(y.as_raw())
-            .map(|(p, q)| p.abs_diff(*q))
-            .max()
-            .unwrap();
+        let worst = common::max_channel_difference(&x, &y);
         assert!(worst <= 1, "{name_a}: {worst}");
     }
 }

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::{gif_frames, nerf, nerf_ok, read_npy, render_args, stderr};
+use common::{gif_frames, max_channel_difference, nerf, nerf_ok, read_npy, render_args, stderr};
 
 #[test]
 fn render_box_writes_every_output() {
@@ -193,13 +193,7 @@ fn box_render_agrees_with_the_homework_reference_images() {
     for name in ["grid_vis.png", "ray_vis.png"] {
         let ours = image::open(out.join(name)).unwrap().to_rgb8();
         let theirs = image::open(reference.join(name)).unwrap().to_rgb8();
-        let max = ours
-            .as_raw()
-            .iter()
-            .zip(theirs.as_raw())
-            .map(|(a, b)| a.abs_diff(*b))
-            .max()
-            .unwrap();
+        let max = max_channel_difference(&ours, &theirs);
         assert!(max <= 2, "{name}: max channel difference {max}");
     }
     let reference_frames = gif_frames(&reference.join("render_cube.gif"));
@@ -464,17 +458,17 @@ fn wrong_shape_checkpoint_and_corrupt_png_name_what_is_wrong() {
     std::fs::write(data.join("test/r_1.png"), b"\x89PNG\r\n\x1a\nnot really").unwrap();
     let images = dir.path().join("images");
     let ckpt = Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints/nerf_lego.safetensors");
-    let o = nerf(&[
+    let o = nerf(&common::data_args(
         "eval",
-        "--config",
         "lego",
-        "--checkpoint",
-        ckpt.to_str().unwrap(),
-        "--data-dir",
-        data.to_str().unwrap(),
-        "--save-images",
-        images.to_str().unwrap(),
-    ]);
+        &data,
+        &[
+            "--checkpoint",
+            ckpt.to_str().unwrap(),
+            "--save-images",
+            images.to_str().unwrap(),
+        ],
+    ));
     let err = common::one_line_error(&o);
     assert!(
         err.contains("cannot decode PNG") && err.contains("r_1.png"),

@@ -414,22 +414,22 @@ fn training_resumes_from_a_pytorch_checkpoint_and_keeps_its_format() {
     let config = fixtures().join("tiny_nerf.yaml");
     let o = nerf_in(
         d,
-        &[
+        &common::data_args(
             "train",
-            "--config",
             config.to_str().unwrap(),
-            "--data-dir",
-            data.to_str().unwrap(),
-            "training.checkpoint_path=checkpoint_file",
-            "training.resume=True",
-            "training.num_epochs=4",
-            "training.batch_size=32",
-            "training.lr=0.0005",
-            "training.lr_scheduler_step_size=50",
-            "training.lr_scheduler_gamma=0.8",
-            "training.checkpoint_interval=1",
-            "training.render_interval=100",
-        ],
+            &data,
+            &[
+                "training.checkpoint_path=checkpoint_file",
+                "training.resume=True",
+                "training.num_epochs=4",
+                "training.batch_size=32",
+                "training.lr=0.0005",
+                "training.lr_scheduler_step_size=50",
+                "training.lr_scheduler_gamma=0.8",
+                "training.checkpoint_interval=1",
+                "training.render_interval=100",
+            ],
+        ),
     );
     let out = ok(&o, "train from the PyTorch checkpoint");
     assert!(

@@ -372,14 +372,12 @@ fn train_lego(
     // `--minutes` must be positive: a limit of 0 s is the smallest positive one, which also
     // stops after the first step.
     let minutes = limits.seconds.map(|s| (s / 60.0).max(1e-12).to_string());
-    let mut args = vec![
+    let mut args = common::data_args(
         "train",
-        "--config",
         name,
-        "--data-dir",
-        data.to_str().unwrap(),
-    ];
-    args.extend(["--out-dir", images.to_str().unwrap()]);
+        data,
+        &["--out-dir", images.to_str().unwrap()],
+    );
     if let Some(e) = &epochs {
         args.extend(["--epochs", e]);
     }

@@ -189,32 +189,32 @@ fn failed_stage_and_nothing_registered_are_one_line_errors() {
     // registered is what is said (the refinement is not run on so small a model).
     let two: Vec<String> = (0..2).map(|i| format!("p{i}.png")).collect();
     let models = ring_models(&dir.path().join("two"), &two, "none", 3);
-    let small = fake_colmap(
-        dir.path(),
-        &format!(
-            "stage=$1; out=; seed=\nwhile [ $# -gt 0 ]; do case \"$1\" in --output_path) out=\"$2\";; --random_seed) seed=\"$2\";; esac; shift; done\ncase $stage in mapper) mkdir -p \"$out/0\" && cp {}/seed$seed/* \"$out/0/\";; point_filtering|bundle_adjuster) echo refinement ran >&2; exit 1;; esac",
-            models.display()
-        ),
-    );
+    let small = seeded_colmap(dir.path(), &models, "", "echo refinement ran >&2; exit 1");
     let out = dir.path().join("out3");
     let err = last_line_error(&process(&photos, &out, Some(&small)));
     assert!(err.contains("COLMAP registered 2 of 4 images"), "{err}");
     assert!(!out.join("transforms.json").exists());
 }
 
-/// Whether COLMAP runs here (`colmap` on PATH, or `$NERF_COLMAP`); else a visible skip, and
-/// a failure under `CI=true` (`.ci/install` installs Debian's package), as for Chromium.
-fn colmap_installed(test: &str) -> bool {
+/// Whether the tool `what` runs here (`$env`, else `program` on PATH, run with `arg`); else a
+/// visible skip, and a failure under `CI=true` (`.ci/install` installs Debian's package of
+/// `package`), as for Chromium.
+fn tool_installed(
+    test: &str,
+    what: &str,
+    (env, program, arg): (&str, &str, &str),
+    package: &str,
+) -> bool {
     use std::io::Write;
-    let program = std::env::var_os("NERF_COLMAP").unwrap_or_else(|| "colmap".into());
+    let program = std::env::var_os(env).unwrap_or_else(|| program.into());
     let runs = Command::new(&program)
-        .arg("help")
+        .arg(arg)
         .env("QT_QPA_PLATFORM", "offscreen")
         .output()
         .is_ok();
     if !runs {
         let why = format!(
-            "COLMAP not found ({} does not run; sudo apt-get install colmap, or run .ci/install)",
+            "{what} not found ({} does not run; sudo apt-get install {package}, or run .ci/install)",
             program.to_string_lossy()
         );
         if std::env::var("CI").is_ok_and(|v| v == "true") {
@@ -225,9 +225,17 @@ fn colmap_installed(test: &str) -> bool {
     runs
 }
 
-/// Lego's training views as (image name, OpenGL camera → world rotation, centre).
-fn lego_cameras(lego: &Path) -> Vec<(String, DMat3, DVec3)> {
-    let text = std::fs::read_to_string(lego.join("transforms_train.json")).unwrap();
+/// Whether COLMAP runs here (`colmap` on PATH, or `$NERF_COLMAP`); else a visible skip, and
+/// a failure under `CI=true` ([`tool_installed`]).
+fn colmap_installed(test: &str) -> bool {
+    let command = ("NERF_COLMAP", "colmap", "help");
+    tool_installed(test, "COLMAP", command, "colmap")
+}
+
+/// Lego's views of `split` (`train`; `test`, a spiral around the model, 3.6° a view) as
+/// (image name, OpenGL camera → world rotation, centre).
+fn lego_cameras(lego: &Path, split: &str) -> Vec<(String, DMat3, DVec3)> {
+    let text = std::fs::read_to_string(lego.join(format!("transforms_{split}.json"))).unwrap();
     let json: serde_json::Value = serde_json::from_str(&text).unwrap();
     json["frames"]
         .as_array()
@@ -239,6 +247,44 @@ fn lego_cameras(lego: &Path) -> Vec<(String, DMat3, DVec3)> {
             (format!("{name}.png"), rotation, centre)
         })
         .collect()
+}
+
+/// The frames of the capture `out`'s `transforms.json`.
+fn written_frames(out: &Path) -> Vec<serde_json::Value> {
+    let text = std::fs::read_to_string(out.join("transforms.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    json["frames"].as_array().unwrap().clone()
+}
+
+/// Runs `run` (a `nerf process` of `what`), asserts that it succeeded and prints how long it
+/// took; returns its stdout.
+fn timed_ok(what: &str, run: impl FnOnce() -> Output) -> String {
+    let start = std::time::Instant::now();
+    let o = run();
+    let seconds = start.elapsed().as_secs_f64();
+    let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    eprintln!("nerf process {what}: {seconds:.1} s; {stdout}");
+    stdout
+}
+
+/// Recovered (r) against true (t) cameras: asserts that `t = A·r` for one rotation `A` to
+/// within 1.5°, and the centres `C_t = s·A·C_r + b` to within 2% of the true cameras' mean
+/// distance from the origin ([`align_by_orientations`]).
+fn assert_aligned(pairs: &[CameraPair]) {
+    let alignment = align_by_orientations(pairs);
+    let rotation_errors = alignment.rotation_errors_degrees;
+    let radius = pairs.iter().map(|p| p.true_centre.length()).sum::<f64>() / pairs.len() as f64;
+    let centre_errors: Vec<f64> = alignment.centre_errors.iter().map(|e| e / radius).collect();
+    let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
+    eprintln!(
+        "{} registered; rotation error max {:.3}°, centre error max {:.4} of the radius",
+        pairs.len(),
+        max(&rotation_errors),
+        max(&centre_errors)
+    );
+    assert!(max(&rotation_errors) < 1.5, "{rotation_errors:?}");
+    assert!(max(&centre_errors) < 0.02, "{centre_errors:?}");
 }
 
 /// The rotation and centre of a 4×4 camera → world matrix in JSON.
@@ -259,7 +305,7 @@ fn colmap_recovers_lego_cameras() {
     }
     // The 24 views nearest r_0's (within about 47°): lego's 100 views spread over a hemisphere
     // leave 24 consecutive ones too far apart to match on the object's few features.
-    let truth = lego_cameras(&lego);
+    let truth = lego_cameras(&lego, "train");
     let c0 = truth[0].2.normalize();
     let mut nearest: Vec<_> = truth.iter().collect();
     nearest.sort_by(|a, b| {
@@ -274,17 +320,12 @@ fn colmap_recovers_lego_cameras() {
         std::fs::copy(lego.join("train").join(name), photos.join(name)).unwrap();
     }
     let out = dir.path().join("capture");
-    let start = std::time::Instant::now();
-    let o = process(&photos, &out, None);
-    let seconds = start.elapsed().as_secs_f64();
-    let stdout = String::from_utf8_lossy(&o.stdout).to_string();
-    assert!(o.status.success(), "{}", common::stderr(&o));
-    eprintln!("nerf process on 24 lego views: {seconds:.1} s; {stdout}");
+    let stdout = timed_ok("on 24 lego views", || process(&photos, &out, None));
 
     let text = std::fs::read_to_string(out.join("transforms.json")).unwrap();
     let json: serde_json::Value = serde_json::from_str(&text).unwrap();
     assert_eq!(json["camera_model"], "OPENCV");
-    let frames = json["frames"].as_array().unwrap();
+    let frames = written_frames(&out);
     assert!(frames.len() >= 15, "{} of 24 registered", frames.len());
     // Frames are the kept mapper run's registered images, less any the other runs disputed.
     let (_, model) = nerf::io::colmap::find_model(&out.join("colmap")).unwrap();
@@ -316,20 +357,25 @@ fn colmap_recovers_lego_cameras() {
             }
         })
         .collect();
-    let alignment = align_by_orientations(&pairs);
-    let rotation_errors = alignment.rotation_errors_degrees;
-    let radius = pairs.iter().map(|p| p.true_centre.length()).sum::<f64>() / pairs.len() as f64;
-    let centre_errors: Vec<f64> = alignment.centre_errors.iter().map(|e| e / radius).collect();
-    let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
-    eprintln!(
-        "{} registered; rotation error max {:.3}°, centre error max {:.4} of the radius",
-        pairs.len(),
-        max(&rotation_errors),
-        max(&centre_errors)
-    );
-    assert!(max(&rotation_errors) < 1.5, "{rotation_errors:?}");
-    assert!(max(&centre_errors) < 0.02, "{centre_errors:?}");
+    assert_aligned(&pairs);
 }
+
+/// A stand-in COLMAP in `dir` (`dir/colmap`, [`fake_colmap`]) whose mapper copies the
+/// prepared model `models/seed<k>` ([`ring_models`]) of its `--random_seed k`, and whose
+/// refinement stages (point_filtering, bundle_adjuster) run `refine` (`$input` and `$out`
+/// their folders); `prelude` runs first.
+fn seeded_colmap(dir: &Path, models: &Path, prelude: &str, refine: &str) -> PathBuf {
+    fake_colmap(
+        dir,
+        &format!(
+            "{prelude}stage=$1; input=; out=; seed=\nwhile [ $# -gt 0 ]; do case \"$1\" in --input_path) input=\"$2\";; --output_path) out=\"$2\";; --random_seed) seed=\"$2\";; esac; shift; done\ncase $stage in mapper) mkdir -p \"$out/0\" && cp {}/seed$seed/* \"$out/0/\";; point_filtering|bundle_adjuster) {refine};; esac",
+            models.display()
+        ),
+    )
+}
+
+/// The refinement of [`seeded_colmap`] that copies its input model to its output.
+const COPY_INPUT: &str = "cp \"$input\"/* \"$out/\"";
 
 /// COLMAP text models of `names` seen from a ring of cameras (radius 4, height 2), one per
 /// seed under `dir/seed<k>`: seed 0 has `flipped` at its mirror place across the ring's axis,
@@ -370,19 +416,9 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
     let models = ring_models(dir.path(), &names, "p3.png", 4);
     // A COLMAP whose mapper copies the prepared model of its --random_seed, and whose
     // refinement stages copy their input model.
-    let colmap = fake_colmap(
-        dir.path(),
-        &format!(
-            "stage=$1; input=; out=; seed=\nwhile [ $# -gt 0 ]; do case \"$1\" in --input_path) input=\"$2\";; --output_path) out=\"$2\";; --random_seed) seed=\"$2\";; esac; shift; done\ncase $stage in mapper) mkdir -p \"$out/0\" && cp {}/seed$seed/* \"$out/0/\";; point_filtering|bundle_adjuster) cp \"$input\"/* \"$out/\";; esac",
-            models.display()
-        ),
-    );
+    let colmap = seeded_colmap(dir.path(), &models, "", COPY_INPUT);
     let frames_of = |out: &Path| -> Vec<String> {
-        let text = std::fs::read_to_string(out.join("transforms.json")).unwrap();
-        let json: serde_json::Value = serde_json::from_str(&text).unwrap();
-        json["frames"]
-            .as_array()
-            .unwrap()
+        written_frames(out)
             .iter()
             .map(|f| f["file_path"].as_str().unwrap().to_string())
             .collect()
@@ -466,22 +502,14 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
 }
 
 /// Whether ffmpeg runs here (`ffmpeg` on PATH, or `$NERF_FFMPEG`); else a visible skip, and a
-/// failure under `CI=true` (`.ci/install` installs Debian's package).
+/// failure under `CI=true` ([`tool_installed`]).
 fn ffmpeg_installed(test: &str) -> bool {
-    use std::io::Write;
-    let program = std::env::var_os("NERF_FFMPEG").unwrap_or_else(|| "ffmpeg".into());
-    let runs = Command::new(&program).arg("-version").output().is_ok();
-    if !runs {
-        let why = format!(
-            "ffmpeg not found ({} does not run; sudo apt-get install ffmpeg, or run .ci/install)",
-            program.to_string_lossy()
-        );
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("{test}: {why}, and CI must have it");
-        }
-        let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {why}");
-    }
-    runs
+    tool_installed(
+        test,
+        "ffmpeg",
+        ("NERF_FFMPEG", "ffmpeg", "-version"),
+        "ffmpeg",
+    )
 }
 
 /// Encodes `dir/<pattern>` (an ffmpeg image sequence, numbered from 0) at `fps` frames a
@@ -569,13 +597,7 @@ fn video_frames_are_the_sharpest_of_each_stretch_and_matched_sequentially() {
 
     let names: Vec<String> = (0..10).map(|i| format!("frame_{i:05}.jpg")).collect();
     let models = ring_models(dir.path(), &names, "none", 3);
-    let colmap = fake_colmap(
-        dir.path(),
-        &format!(
-            "echo \"$@\"\nstage=$1; input=; out=; seed=\nwhile [ $# -gt 0 ]; do case \"$1\" in --input_path) input=\"$2\";; --output_path) out=\"$2\";; --random_seed) seed=\"$2\";; esac; shift; done\ncase $stage in mapper) mkdir -p \"$out/0\" && cp {}/seed$seed/* \"$out/0/\";; point_filtering|bundle_adjuster) cp \"$input\"/* \"$out/\";; esac",
-            models.display()
-        ),
-    );
+    let colmap = seeded_colmap(dir.path(), &models, "echo \"$@\"\n", COPY_INPUT);
     let tree = dir.path().join("tree.bin");
     std::fs::write(&tree, "a vocabulary tree").unwrap();
     let out = dir.path().join("capture");
@@ -598,9 +620,7 @@ fn video_frames_are_the_sharpest_of_each_stretch_and_matched_sequentially() {
         "{log}"
     );
     assert!(!out.join("images.partial").exists());
-    let text = std::fs::read_to_string(out.join("transforms.json")).unwrap();
-    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
-    assert_eq!(json["frames"].as_array().unwrap().len(), 10);
+    assert_eq!(written_frames(&out).len(), 10);
 
     // A clip shorter than the frames asked for: every frame is kept, once (and a COLMAP
     // that registers nothing leaves them there, with no transforms.json).
@@ -668,23 +688,6 @@ fn bad_video_inputs_are_one_line_errors() {
     }
 }
 
-/// Lego's test views (a spiral around the model, 3.6° a view) as (image name, OpenGL camera
-/// → world rotation, centre).
-fn lego_test_cameras(lego: &Path) -> Vec<(String, DMat3, DVec3)> {
-    let text = std::fs::read_to_string(lego.join("transforms_test.json")).unwrap();
-    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
-    json["frames"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|f| {
-            let name = f["file_path"].as_str().unwrap().rsplit('/').next().unwrap();
-            let (rotation, centre) = rotation_and_centre(&f["transform_matrix"]);
-            (format!("{name}.png"), rotation, centre)
-        })
-        .collect()
-}
-
 #[test]
 #[ignore = "registered 13 of the 20 frames kept from the 60-view clip in its first full run \
             (it asks 15); sequential matching on this clip needs looking into (issue 29)"]
@@ -699,7 +702,7 @@ fn colmap_recovers_lego_cameras_from_a_video() {
     }
     // Lego's first 60 test views on white (a 216° arc coming down from 47° to 25° of
     // elevation) as a 10 fps clip, of which 20 frames are kept.
-    let truth = lego_test_cameras(&lego);
+    let truth = lego_cameras(&lego, "test");
     let dir = tempfile::tempdir().unwrap();
     let frames = dir.path().join("frames");
     std::fs::create_dir_all(&frames).unwrap();
@@ -721,16 +724,11 @@ fn colmap_recovers_lego_cameras_from_a_video() {
     let video = dir.path().join("orbit.mp4");
     encode_video(&frames, "v_%03d.png", 10, "scale=400:400", &video);
     let out = dir.path().join("capture");
-    let start = std::time::Instant::now();
-    let o = process_video(&video, &out, &["--frames", "20"], &[]);
-    let seconds = start.elapsed().as_secs_f64();
-    let stdout = String::from_utf8_lossy(&o.stdout).to_string();
-    assert!(o.status.success(), "{}", common::stderr(&o));
-    eprintln!("nerf process --video on 60 lego test views: {seconds:.1} s; {stdout}");
+    timed_ok("--video on 60 lego test views", || {
+        process_video(&video, &out, &["--frames", "20"], &[])
+    });
 
-    let text = std::fs::read_to_string(out.join("transforms.json")).unwrap();
-    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let frames = json["frames"].as_array().unwrap();
+    let frames = written_frames(&out);
     assert!(frames.len() >= 15, "{} of 20 registered", frames.len());
     let pairs: Vec<CameraPair> = frames
         .iter()
@@ -747,20 +745,5 @@ fn colmap_recovers_lego_cameras_from_a_video() {
             }
         })
         .collect();
-    let alignment = align_by_orientations(&pairs);
-    let radius = pairs.iter().map(|p| p.true_centre.length()).sum::<f64>() / pairs.len() as f64;
-    let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
-    let centre_errors: Vec<f64> = alignment.centre_errors.iter().map(|e| e / radius).collect();
-    eprintln!(
-        "{} registered; rotation error max {:.3}°, centre error max {:.4} of the radius",
-        pairs.len(),
-        max(&alignment.rotation_errors_degrees),
-        max(&centre_errors)
-    );
-    assert!(
-        max(&alignment.rotation_errors_degrees) < 1.5,
-        "{:?}",
-        alignment.rotation_errors_degrees
-    );
-    assert!(max(&centre_errors) < 0.02, "{centre_errors:?}");
+    assert_aligned(&pairs);
 }

@@ -6,24 +6,28 @@
 
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use common::lego_capture::lego;
+use common::lego_capture::lego_root;
+use tempfile::TempDir;
 
 const SIDE: u32 = 40;
 
 /// A nerfstudio capture of the first 16 lego views as `SIDE`² JPEGs composited on white (no
-/// alpha), with the true cameras.
-fn white_capture(dir: &Path, test: &str) -> bool {
-    capture_on(dir, test, |_, _| [1.0; 3])
+/// alpha), with the true cameras, in `name` of a fresh scratch directory: the directory and
+/// the capture, or a visible skip.
+fn white_capture(test: &str, name: &str) -> Option<(TempDir, PathBuf)> {
+    capture_on(test, name, |_, _| [1.0; 3])
 }
 
 /// [`white_capture`] with the views composited on `backdrop(x, y)` (RGB in [0, 1]).
-fn capture_on(dir: &Path, test: &str, backdrop: fn(u32, u32) -> [f32; 3]) -> bool {
-    let Some(lego) = lego(test) else {
-        return false;
-    };
-    let lego = lego.first(16);
+fn capture_on(
+    test: &str,
+    name: &str,
+    backdrop: fn(u32, u32) -> [f32; 3],
+) -> Option<(TempDir, PathBuf)> {
+    let (lego, root) = lego_root(test, 16)?;
+    let dir = root.path().join(name);
     std::fs::create_dir_all(dir.join("images")).unwrap();
     let scale = SIDE as f64 / lego.size.0 as f64;
     let frames: Vec<serde_json::Value> = lego
@@ -51,8 +55,15 @@ fn capture_on(dir: &Path, test: &str, backdrop: fn(u32, u32) -> [f32; 3]) -> boo
         "cy": SIDE as f64 / 2.0, "w": SIDE, "h": SIDE, "frames": frames,
     });
     std::fs::write(dir.join("transforms.json"), json.to_string()).unwrap();
-    true
+    Some((root, dir))
 }
+
+/// The overrides of a short training: one epoch of 32 samples a ray, nothing held out scored.
+const ONE_EPOCH: [&str; 3] = [
+    "training.num_epochs=1",
+    "training.eval_views=0",
+    "sampler.n_pts_per_ray=32",
+];
 
 fn metadata(path: &Path, key: &str) -> Option<String> {
     nerf::io::checkpoint::read_metadata(path)
@@ -64,29 +75,17 @@ fn metadata(path: &Path, key: &str) -> Option<String> {
 #[test]
 fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white() {
     let test = "a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white";
-    let root = tempfile::tempdir().unwrap();
-    let data = root.path().join("white");
-    if !white_capture(&data, test) {
+    let Some((root, data)) = white_capture(test, "white") else {
         return;
-    }
+    };
     let ckpt = root.path().join("ck").join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let data_arg = data.to_str().unwrap();
     // One epoch is 14 steps of about 20 ms on an idle 2-core machine: the time budget, not
     // num_epochs, must end the run.
-    let train = common::nerf_ok(&[
-        "train",
-        "--config",
-        "nerf_scene",
-        "--data-dir",
-        data_arg,
-        "--minutes",
-        "0.4",
-        "training.num_epochs=1",
-        "training.eval_views=0",
-        "sampler.n_pts_per_ray=32",
-        &ckpt_arg,
-    ]);
+    let mut args = common::data_args("train", "nerf_scene", &data, &["--minutes", "0.4"]);
+    args.extend(ONE_EPOCH);
+    args.push(&ckpt_arg);
+    let train = common::nerf_ok(&args);
     let err = common::stderr(&train);
     assert!(err.contains("background white"), "{err}");
     // On a backdrop the camera clearance is kept.
@@ -102,7 +101,7 @@ fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white(
     let renders = root.path().join("renders");
     let ckpt_path = ckpt.to_str().unwrap();
     let eval_with = |extra: &[&str]| {
-        let head = ["eval", "--config", "nerf_scene", "--data-dir", data_arg];
+        let head = common::data_args("eval", "nerf_scene", &data, &[]);
         let tail = [
             "--checkpoint",
             ckpt_path,
@@ -133,30 +132,19 @@ fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white(
 #[test]
 fn a_capture_without_a_backdrop_trains_without_camera_clearance() {
     let test = "a_capture_without_a_backdrop_trains_without_camera_clearance";
-    let root = tempfile::tempdir().unwrap();
-    let data = root.path().join("busy");
     // A busy surround: a colour pattern no border reads as one plain backdrop.
     let busy = |x: u32, y: u32| {
         let v = |k: u32| ((x * 7 + y * 13 + k * 5) % 11) as f32 / 10.0;
         [v(0), v(1), v(2)]
     };
-    if !capture_on(&data, test, busy) {
+    let Some((root, data)) = capture_on(test, "busy", busy) else {
         return;
-    }
+    };
     let train = |extra: &[&str]| {
         let ckpt = root.path().join(format!("ck{}", extra.len()));
         let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-        let args = [
-            "train",
-            "--config",
-            "nerf_scene",
-            "--data-dir",
-            data.to_str().unwrap(),
-            "training.num_epochs=1",
-            "training.eval_views=0",
-            "sampler.n_pts_per_ray=32",
-            &ckpt_arg,
-        ];
+        let mut args = common::data_args("train", "nerf_scene", &data, &ONE_EPOCH);
+        args.push(&ckpt_arg);
         common::stderr(&common::nerf_ok(&[&args[..], extra].concat()))
     };
     let err = train(&[]);
@@ -174,27 +162,15 @@ fn a_capture_without_a_backdrop_trains_without_camera_clearance() {
 #[test]
 fn a_pixel_budget_scales_the_photos_by_a_whole_factor_and_bad_values_are_named() {
     let test = "a_pixel_budget_scales_the_photos_by_a_whole_factor_and_bad_values_are_named";
-    let root = tempfile::tempdir().unwrap();
-    let data = root.path().join("white");
-    if !white_capture(&data, test) {
+    let Some((root, data)) = white_capture(test, "white") else {
         return;
-    }
+    };
     let ckpt = root.path().join("scene.safetensors");
     let ckpt_arg = format!("training.checkpoint_path={}", ckpt.display());
-    let data_arg = data.to_str().unwrap();
     let train = |extra: &str| {
-        common::nerf(&[
-            "train",
-            "--config",
-            "nerf_scene",
-            "--data-dir",
-            data_arg,
-            "training.num_epochs=1",
-            "training.eval_views=0",
-            "sampler.n_pts_per_ray=32",
-            &ckpt_arg,
-            extra,
-        ])
+        let mut args = common::data_args("train", "nerf_scene", &data, &ONE_EPOCH);
+        args.extend([ckpt_arg.as_str(), extra]);
+        common::nerf(&args)
     };
     // 40 × 40 = 1600 pixels over a budget of 400: half size, 20 × 20.
     let o = train("data.pixel_budget=400");

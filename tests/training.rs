@@ -339,17 +339,8 @@ fn train_checkpoint_is_the_config_checkpoint_path() {
     };
     let train = |cmd: &str, place: &[&str]| {
         let images = dir.path().join("images");
-        let mut args = vec![
-            cmd,
-            "--config",
-            "nerf_lego",
-            "--data-dir",
-            data.to_str().unwrap(),
-            "--out-dir",
-            images.to_str().unwrap(),
-            "--epochs",
-            "1",
-        ];
+        let more = ["--out-dir", images.to_str().unwrap(), "--epochs", "1"];
+        let mut args = common::data_args(cmd, "nerf_lego", &data, &more);
         args.extend(place);
         args.extend(common::TINY_NERF_TRAINING);
         args.extend(common::TINY_NERF_MODEL);

@@ -40,15 +40,7 @@ impl Contraction {
     pub fn contract(self, p: [f64; 3]) -> [f64; 3] {
         match self {
             Self::None => p,
-            Self::LInf => {
-                let norm = p.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                if norm <= 1.0 {
-                    p
-                } else {
-                    let scale = (2.0 - 1.0 / norm) / norm;
-                    p.map(|v| v * scale)
-                }
-            }
+            Self::LInf => linf_contract(p),
         }
     }
 
@@ -57,15 +49,7 @@ impl Contraction {
     pub fn contract_f32(self, p: [f32; 3]) -> [f32; 3] {
         match self {
             Self::None => p,
-            Self::LInf => {
-                let norm = p.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-                if norm <= 1.0 {
-                    p
-                } else {
-                    let scale = (2.0 - 1.0 / norm) / norm;
-                    p.map(|v| v * scale)
-                }
-            }
+            Self::LInf => linf_contract(p),
         }
     }
 
@@ -75,7 +59,7 @@ impl Contraction {
         match self {
             Self::None => q,
             Self::LInf => {
-                let norm = q.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                let norm = linf_norm(q);
                 if norm <= 1.0 {
                     q
                 } else {
@@ -101,6 +85,59 @@ impl Contraction {
                 points.broadcast_mul(&scale)?
             }
         })
+    }
+}
+
+/// The float widths the contraction is computed in: f64 for geometry, f32 for the occupancy
+/// grid's per-sample test. One formula serves both ([`linf_contract`]), each in its own width.
+trait Real:
+    Copy
+    + PartialOrd
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::ops::Div<Output = Self>
+{
+    const ZERO: Self;
+    const ONE: Self;
+    const TWO: Self;
+    fn abs(self) -> Self;
+    fn max(self, other: Self) -> Self;
+}
+
+macro_rules! real {
+    ($($t:ty),*) => {$(
+        impl Real for $t {
+            const ZERO: Self = 0.0;
+            const ONE: Self = 1.0;
+            const TWO: Self = 2.0;
+            #[inline(always)]
+            fn abs(self) -> Self {
+                <$t>::abs(self)
+            }
+            #[inline(always)]
+            fn max(self, other: Self) -> Self {
+                <$t>::max(self, other)
+            }
+        }
+    )*};
+}
+real!(f32, f64);
+
+/// `‖p‖∞`.
+#[inline(always)]
+fn linf_norm<T: Real>(p: [T; 3]) -> T {
+    p.iter().fold(T::ZERO, |m, v| m.max(v.abs()))
+}
+
+/// The L∞ contraction of `p`: `p` where `‖p‖∞ ≤ 1`, else `(2 − 1/‖p‖∞) · p / ‖p‖∞`.
+#[inline(always)]
+fn linf_contract<T: Real>(p: [T; 3]) -> [T; 3] {
+    let norm = linf_norm(p);
+    if norm <= T::ONE {
+        p
+    } else {
+        let scale = (T::TWO - T::ONE / norm) / norm;
+        p.map(|v| v * scale)
     }
 }
 

@@ -63,19 +63,10 @@ impl Rays {
         ndc_points: &[[f64; 2]],
         device: &Device,
     ) -> Result<Self> {
-        let n = ndc_points.len();
-        let mut origins = Vec::with_capacity(3 * n);
-        let mut directions = Vec::with_capacity(3 * n);
-        for &[x, y] in ndc_points {
-            let (o, d) = ray_through_ndc(camera, x, y);
-            origins.extend(o.to_array().map(|v| v as f32));
-            directions.extend(d.to_array().map(|v| v as f32));
-        }
-        Ok(Self {
-            origins: Tensor::from_vec(origins, (n, 3), device)?,
-            directions: Tensor::from_vec(directions, (n, 3), device)?,
-            camera_index: None,
-        })
+        let rays = ndc_points
+            .iter()
+            .map(|&[x, y]| ray_through_ndc(camera, x, y));
+        Self::from_f64_rays(rays, device)
     }
 
     /// One ray per pixel of a `width × height` image, row-major: `(W·H, 3)` origins and directions.
@@ -117,19 +108,27 @@ impl Rays {
         pixels: impl ExactSizeIterator<Item = usize>,
         device: &Device,
     ) -> Result<Self> {
-        let n = pixels.len();
+        let rays = pixels.map(|i| camera.pixel_ray(i % width, i / width, (width, height)));
+        Self::from_f64_rays(rays, device)
+    }
+
+    /// Rays of no training camera from `(origin, unit direction)` pairs in f64: `(N, 3)` f32
+    /// origins and directions on `device`.
+    fn from_f64_rays(
+        rays: impl ExactSizeIterator<Item = (DVec3, DVec3)>,
+        device: &Device,
+    ) -> Result<Self> {
+        let n = rays.len();
         let mut origins = Vec::with_capacity(3 * n);
         let mut directions = Vec::with_capacity(3 * n);
-        for i in pixels {
-            let (o, d) = camera.pixel_ray(i % width, i / width, (width, height));
+        for (o, d) in rays {
             origins.extend(o.to_array().map(|v| v as f32));
             directions.extend(d.to_array().map(|v| v as f32));
         }
-        Ok(Self {
-            origins: Tensor::from_vec(origins, (n, 3), device)?,
-            directions: Tensor::from_vec(directions, (n, 3), device)?,
-            camera_index: None,
-        })
+        Ok(Self::new(
+            Tensor::from_vec(origins, (n, 3), device)?,
+            Tensor::from_vec(directions, (n, 3), device)?,
+        ))
     }
 
     /// The same rays in `dtype` (float64 for gradient checks: the renderer then works in

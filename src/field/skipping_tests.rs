@@ -12,9 +12,10 @@ use crate::kernels::composite::composite;
 use crate::kernels::composite::Composited;
 use crate::kernels::sample_points::sample_points;
 use crate::render::field::Field;
+use crate::render::field::FieldOutput;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams};
 use crate::render::renderer::{RenderOutput, VolumeRenderer};
-use crate::render::sampler::StratifiedSampler;
+use crate::render::sampler::{RaySamples, StratifiedSampler};
 use crate::render::skipping::*;
 use candle_core::Tensor;
 
@@ -83,15 +84,27 @@ fn a_chunk_of_skipping_rays_draws_a_bounded_number_of_samples() {
     }
 }
 
+/// An all-occupied grid of `resolution`³ cells over the cube `±half_side` (density
+/// threshold 1).
+fn grid(resolution: usize, half_side: f64, contraction: Contraction) -> OccupancyGrid {
+    let h = half_side;
+    let config = OccupancyGridParams {
+        resolution,
+        aabb: [-h, -h, -h, h, h, h],
+        density_threshold: 1.0,
+        contraction,
+    };
+    OccupancyGrid::new(&config).unwrap()
+}
+
+/// An all-occupied grid large enough to hold every sample of the tests' rays.
+fn all_occupied_grid() -> OccupancyGrid {
+    grid(64, 10.0, Contraction::None)
+}
+
 /// A 4³ grid over ±1 with cell `c` empty where `c % every == empty`.
 fn striped_grid(every: usize, empty: usize) -> OccupancyGrid {
-    let config = OccupancyGridParams {
-        resolution: 4,
-        aabb: [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0],
-        density_threshold: 1.0,
-        contraction: Contraction::None,
-    };
-    let mut grid = OccupancyGrid::new(&config).unwrap();
+    let mut grid = grid(4, 1.0, Contraction::None);
     for (c, o) in grid.occupied.iter_mut().enumerate() {
         *o = c % every != empty;
     }
@@ -128,14 +141,7 @@ fn packed_forward_equals_dense_forward() {
 fn all_occupied_grid_without_termination_is_dense_rendering() {
     let m = model(0.3);
     let sampler = StratifiedSampler::new(24, 2.0, 6.0).unwrap();
-    // Large enough to hold every sample.
-    let config = OccupancyGridParams {
-        resolution: 64,
-        aabb: [-10.0, -10.0, -10.0, 10.0, 10.0, 10.0],
-        density_threshold: 1.0,
-        contraction: Contraction::None,
-    };
-    let grid = OccupancyGrid::new(&config).unwrap();
+    let grid = all_occupied_grid();
     let renderer = VolumeRenderer::new(1000, false).unwrap();
     let dense = render(renderer, &field(&m, None), &sampler);
     let skipped = render(renderer, &field(&m, Some(grid)), &sampler);
@@ -188,6 +194,16 @@ fn empty_cells_render_as_zero_density() {
     assert!(out.samples.evaluated < out.samples.total);
     // Independent recomputation: dense field, density zeroed outside occupied cells.
     let samples = sampler.sample(&rays(), None).unwrap();
+    let (dense, density) = dense_and_masked(&m, &grid, &samples);
+    let Composited { color, depth, .. } =
+        composite(&density, &dense.feature, &samples.lengths).unwrap();
+    assert!(max_diff(&color, &out.color) < 1e-6);
+    assert!(max_diff(&depth, &out.depth) < 1e-5);
+}
+
+/// The dense field of `m` at `samples` of [`rays`], and its density zeroed outside `grid`'s
+/// occupied cells (the skipping pass's result, recomputed independently).
+fn dense_and_masked(m: &Nerf, grid: &OccupancyGrid, samples: &RaySamples) -> (FieldOutput, Tensor) {
     let dense = m.forward(&samples.points, &rays().directions, 0.0).unwrap();
     let points = samples
         .points
@@ -200,11 +216,8 @@ fn empty_cells_render_as_zero_density() {
         .map(|p| f32::from(u8::from(grid.is_occupied([p[0], p[1], p[2]]))))
         .collect();
     let mask = Tensor::from_vec(mask, samples.lengths.shape(), &Device::Cpu).unwrap();
-    let density = dense.density.mul(&mask).unwrap();
-    let Composited { color, depth, .. } =
-        composite(&density, &dense.feature, &samples.lengths).unwrap();
-    assert!(max_diff(&color, &out.color) < 1e-6);
-    assert!(max_diff(&depth, &out.depth) < 1e-5);
+    let masked = dense.density.mul(&mask).unwrap();
+    (dense, masked)
 }
 
 /// Every one of the rays' `n` samples per ray materialised and tested against `grid` on its
@@ -235,41 +248,54 @@ fn marching_keeps_exactly_the_samples_in_occupied_cells() {
     use rand::{Rng, SeedableRng};
     // A 32³ grid over ±1.5 (4³ blocks): occupied cells scattered inside a ball, so most
     // blocks are empty and whole blocks are skipped.
-    let config = OccupancyGridParams {
-        resolution: 32,
-        aabb: [-1.5, -1.5, -1.5, 1.5, 1.5, 1.5],
-        density_threshold: 1.0,
-        contraction: Contraction::None,
-    };
-    let mut grid = OccupancyGrid::new(&config).unwrap();
+    let mut grid = grid(32, 1.5, Contraction::None);
     let mut rng = rand::rngs::StdRng::seed_from_u64(11);
     for (c, o) in grid.occupied.iter_mut().enumerate() {
         let [x, y, z] = [c / 1024, (c / 32) % 32, c % 32].map(|v| v as f32 - 15.5);
         *o = x * x + y * y + z * z < 100.0 && rng.random::<f32>() < 0.3;
     }
-    assert!(grid.empty_blocks().empty.iter().any(|e| *e));
-    let f = field(&model(1.0).detached(), Some(grid.clone()));
     let cam = crate::core::camera::surround_cameras(4.0, 3, glam::DVec3::Z, 2.0)[1];
     let rays = Rays::for_image(&cam, 24, 20, &Device::Cpu).unwrap();
     let sampler = StratifiedSampler::new(96, 2.0, 6.0).unwrap();
-    for jitter in [false, true] {
-        let lengths = if jitter {
-            sampler.compact_lengths(&rays, Some(&mut rng)).unwrap()
-        } else {
-            sampler.compact_lengths(&rays, None).unwrap()
-        };
-        let packed = evaluate_packed(&f, 0.0, &rays, &lengths).unwrap();
-        // Every sample materialised and tested on its own.
-        let (_, expected) = occupied_samples(&grid, &rays, &lengths, 96);
+    let check = |packed: &PackedSamples, _: &[f32], expected: &[u32]| {
         assert!(!expected.is_empty());
-        let mut got = packed.index.clone();
-        got.sort_unstable();
-        assert_eq!(got, expected, "jitter {jitter}");
         assert!(
             packed.counts.examined < packed.counts.total / 2,
             "{:?}",
             packed.counts
         );
+    };
+    assert_marching_keeps_the_occupied_samples(&grid, &rays, &sampler, &mut rng, check);
+}
+
+/// Asserts that `grid` has empty blocks and that marching `rays` at `sampler`'s depths through
+/// a field with `grid`, unjittered and then jittered by `rng`, keeps exactly the samples in
+/// occupied cells, every sample materialised and tested on its own ([`occupied_samples`]);
+/// `check` first sees each packed pass, the samples' points and the indices of the occupied
+/// ones.
+fn assert_marching_keeps_the_occupied_samples(
+    grid: &OccupancyGrid,
+    rays: &Rays,
+    sampler: &StratifiedSampler,
+    rng: &mut rand::rngs::StdRng,
+    check: impl Fn(&PackedSamples, &[f32], &[u32]),
+) {
+    assert!(grid.empty_blocks().empty.iter().any(|e| *e));
+    let f = field(&model(1.0).detached(), Some(grid.clone()));
+    for jitter in [false, true] {
+        let lengths = if jitter {
+            sampler.compact_lengths(rays, Some(&mut *rng))
+        } else {
+            sampler.compact_lengths(rays, None)
+        }
+        .unwrap();
+        let packed = evaluate_packed(&f, 0.0, rays, &lengths).unwrap();
+        let n = sampler.n_pts_per_ray;
+        let (points, expected) = occupied_samples(grid, rays, &lengths, n);
+        check(&packed, &points, &expected);
+        let mut got = packed.index.clone();
+        got.sort_unstable();
+        assert_eq!(got, expected, "jitter {jitter}");
     }
 }
 
@@ -349,49 +375,31 @@ fn marching_a_contracted_grid_keeps_exactly_the_samples_in_occupied_cells() {
     // A 64³ grid over the contracted cube [-2, 2]³ (blocks of 8 cells: 0.5 wide), occupied
     // cells scattered over a shell and the centre, so that whole empty blocks inside the unit
     // cube are skipped and samples far out (up to 100 units) land in the shell.
-    let config = OccupancyGridParams {
-        resolution: 64,
-        aabb: [-2.0, -2.0, -2.0, 2.0, 2.0, 2.0],
-        density_threshold: 1.0,
-        contraction: Contraction::LInf,
-    };
-    let mut grid = OccupancyGrid::new(&config).unwrap();
+    let mut grid = grid(64, 2.0, Contraction::LInf);
     let mut rng = rand::rngs::StdRng::seed_from_u64(12);
     for (c, o) in grid.occupied.iter_mut().enumerate() {
         let [x, y, z] = [c / 4096, (c / 64) % 64, c % 64].map(|v| (v as f32 - 31.5).abs());
         let norm = x.max(y).max(z);
         *o = !(3.0..=24.0).contains(&norm) && rng.random::<f32>() < 0.3;
     }
-    let blocks = grid.empty_blocks();
-    assert!(blocks.empty.iter().any(|e| *e));
-    let f = field(&model(1.0).detached(), Some(grid.clone()));
     // A camera inside the unit cube, as a normalised capture's.
     let cam = crate::core::camera::surround_cameras(0.9, 3, glam::DVec3::Z, 0.5)[1];
     let rays = Rays::for_image(&cam, 16, 12, &Device::Cpu).unwrap();
     let sampler = StratifiedSampler::new(256, 0.02, 100.0).unwrap();
-    for jitter in [false, true] {
-        let lengths = if jitter {
-            sampler.compact_lengths(&rays, Some(&mut rng)).unwrap()
-        } else {
-            sampler.compact_lengths(&rays, None).unwrap()
-        };
-        let packed = evaluate_packed(&f, 0.0, &rays, &lengths).unwrap();
-        let (points, expected) = occupied_samples(&grid, &rays, &lengths, 256);
+    let check = |packed: &PackedSamples, points: &[f32], expected: &[u32]| {
         // Samples in the shell (far from the unit cube) are among them.
         assert!(expected.iter().any(|&k| {
             let p = &points[3 * k as usize..3 * k as usize + 3];
             p.iter().fold(0f32, |m, v| m.max(v.abs())) > 5.0
         }));
-        let mut got = packed.index.clone();
-        got.sort_unstable();
-        assert_eq!(got, expected, "jitter {jitter}");
         // Whole blocks inside the unit cube were passed over without a test.
         assert!(
             packed.counts.examined < packed.counts.total,
             "{:?}",
             packed.counts
         );
-    }
+    };
+    assert_marching_keeps_the_occupied_samples(&grid, &rays, &sampler, &mut rng, check);
 }
 
 #[test]
@@ -409,19 +417,7 @@ fn distortion_loss_of_the_packed_and_dense_paths_equals_its_recomputation() {
     let packed_out = render(renderer, &field(&m, Some(grid.clone())), &sampler);
     assert!(packed_out.samples.evaluated < packed_out.samples.total);
     let samples = sampler.sample(&rays(), None).unwrap();
-    let dense = m.forward(&samples.points, &rays().directions, 0.0).unwrap();
-    let points = samples
-        .points
-        .flatten_all()
-        .unwrap()
-        .to_vec1::<f32>()
-        .unwrap();
-    let mask: Vec<f32> = points
-        .chunks_exact(3)
-        .map(|p| f32::from(u8::from(grid.is_occupied([p[0], p[1], p[2]]))))
-        .collect();
-    let mask = Tensor::from_vec(mask, samples.lengths.shape(), &Device::Cpu).unwrap();
-    let masked = dense.density.mul(&mask).unwrap();
+    let (dense, masked) = dense_and_masked(&m, &grid, &samples);
     for (out, density) in [(&dense_out, &dense.density), (&packed_out, &masked)] {
         let want = distortion_loss_tensor_ops(density, &samples.lengths, spacing).unwrap();
         let got = out.distortion.as_ref().expect("a distortion loss");
@@ -442,15 +438,7 @@ fn tracked_rays_get_the_dense_paths_gradient_through_the_packed_pass() {
     // values of the packed pass of untracked rays.
     let m = model(0.3);
     let sampler = StratifiedSampler::new(24, 2.0, 6.0).unwrap();
-    let grid = || {
-        let config = OccupancyGridParams {
-            resolution: 64,
-            aabb: [-10.0, -10.0, -10.0, 10.0, 10.0, 10.0],
-            density_threshold: 1.0,
-            contraction: Contraction::None,
-        };
-        Some(OccupancyGrid::new(&config).unwrap())
-    };
+    let grid = || Some(all_occupied_grid());
     let renderer = VolumeRenderer::new(1000, false).unwrap();
     let plain = rays();
     let origins = candle_core::Var::from_tensor(&plain.origins).unwrap();
@@ -482,14 +470,7 @@ fn tracked_rays_get_the_dense_paths_gradient_through_the_packed_pass() {
     };
     let (packed_o, packed_d) = grads(&packed);
     let (dense_o, dense_d) = grads(&dense);
-    let size = |t: &Tensor| {
-        t.abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
-    };
+    let size = |t: &Tensor| crate::core::compare::max_abs_value(t).unwrap();
     assert!(size(&dense_o) > 1e-3 && size(&dense_d) > 1e-3);
     crate::core::compare::assert_close(&packed_o, &dense_o, 1e-4, "origins");
     crate::core::compare::assert_close(&packed_d, &dense_d, 1e-4, "directions");

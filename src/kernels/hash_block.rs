@@ -9,7 +9,8 @@
 //! Written by hand: no crate offers a CPU hash-grid encoding (tiny-cuda-nn and its ports are
 //! CUDA), and the loops must share their layout with the table and the sparse optimiser.
 
-use crate::kernels::hash_grid::{Level, HASH_PRIMES};
+use crate::kernels::cpu_dispatch::dispatched;
+use crate::kernels::hash_level::{Level, HASH_PRIMES};
 
 /// Points per block.
 pub const BLOCK: usize = 16;
@@ -137,45 +138,16 @@ fn scatter_level<const DENSE: bool>(
     }
 }
 
-/// Encodes `points` `(m, 3)` on every level of `levels`: `out` `(m, L·f)`, level-major inside
-/// (all points on level 0, then level 1, ...), `table` the `(L·T, f)` rows.
-pub fn encode_points(levels: &[Level], table: &[f32], points: &[f32], out: &mut [f32], f: usize) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU has AVX-512F, checked just above.
-            return unsafe { encode_points_avx512(levels, table, points, out, f) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { encode_points_avx2(levels, table, points, out, f) };
-        }
-    }
-    encode_points_portable(levels, table, points, out, f)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn encode_points_avx512(
-    levels: &[Level],
-    table: &[f32],
-    points: &[f32],
-    out: &mut [f32],
-    f: usize,
-) {
-    encode_points_portable(levels, table, points, out, f)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn encode_points_avx2(
-    levels: &[Level],
-    table: &[f32],
-    points: &[f32],
-    out: &mut [f32],
-    f: usize,
-) {
-    encode_points_portable(levels, table, points, out, f)
+dispatched! {
+    /// Encodes `points` `(m, 3)` on every level of `levels`: `out` `(m, L·f)`, level-major
+    /// inside (all points on level 0, then level 1, ...), `table` the `(L·T, f)` rows.
+    pub fn encode_points(
+        levels: &[Level],
+        table: &[f32],
+        points: &[f32],
+        out: &mut [f32],
+        f: usize,
+    ) = encode_points_portable for ["avx512f", "avx2"];
 }
 
 #[inline(always)]
@@ -198,55 +170,18 @@ fn encode_points_portable(
     }
 }
 
-/// The table gradient of level `l` (`level`) from the output gradient `grads` `(m, L·f)` of
-/// `points` `(m, 3)`: added into `d` (the level's `(T, f)` rows), each written row's bit set
-/// in `touched`.
-pub fn scatter_points(
-    (level, l): (&Level, usize),
-    d: &mut [f32],
-    touched: &mut [u64],
-    points: &[f32],
-    grads: &[f32],
-    f: usize,
-) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU has AVX-512F, checked just above.
-            return unsafe { scatter_points_avx512((level, l), d, touched, points, grads, f) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { scatter_points_avx2((level, l), d, touched, points, grads, f) };
-        }
-    }
-    scatter_points_portable((level, l), d, touched, points, grads, f)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn scatter_points_avx512(
-    level: (&Level, usize),
-    d: &mut [f32],
-    touched: &mut [u64],
-    points: &[f32],
-    grads: &[f32],
-    f: usize,
-) {
-    scatter_points_portable(level, d, touched, points, grads, f)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn scatter_points_avx2(
-    level: (&Level, usize),
-    d: &mut [f32],
-    touched: &mut [u64],
-    points: &[f32],
-    grads: &[f32],
-    f: usize,
-) {
-    scatter_points_portable(level, d, touched, points, grads, f)
+dispatched! {
+    /// The table gradient of level `l` (`level`) from the output gradient `grads` `(m, L·f)`
+    /// of `points` `(m, 3)`: added into `d` (the level's `(T, f)` rows), each written row's bit
+    /// set in `touched`.
+    pub fn scatter_points(
+        level: (&Level, usize),
+        d: &mut [f32],
+        touched: &mut [u64],
+        points: &[f32],
+        grads: &[f32],
+        f: usize,
+    ) = scatter_points_portable for ["avx512f", "avx2"];
 }
 
 #[inline(always)]
@@ -269,7 +204,7 @@ fn scatter_points_portable(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::hash_grid::HashGridParams;
+    use crate::kernels::hash_level::HashGridParams;
 
     fn values(n: usize, seed: u32, lo: f32, hi: f32) -> Vec<f32> {
         let mut s = seed.wrapping_mul(2_654_435_761) | 1;

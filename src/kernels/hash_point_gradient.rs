@@ -20,7 +20,7 @@
 use candle_core::{DType, Tensor};
 use rayon::prelude::*;
 
-use crate::kernels::hash_grid::{HashGridParams, Level};
+use crate::kernels::hash_level::{HashGridParams, Level};
 
 /// Points per task of [`point_gradients`] (a task walks them one level at a time).
 const POINTS_PER_TASK: usize = 1024;

@@ -17,11 +17,13 @@ use candle_core::{DType, Tensor};
 
 pub mod bias;
 pub mod composite;
+mod cpu_dispatch;
 pub mod cpu_kernel;
 pub mod distortion_loss;
 pub mod gemm;
 pub mod hash_block;
 pub mod hash_grid;
+pub mod hash_level;
 pub mod hash_point_gradient;
 pub mod ngp_mlp;
 pub mod sample_points;

@@ -15,6 +15,7 @@ use crate::core::sdf::{
     box_distance_with_gradient, sphere_distance_with_gradient, PackedLayout, Sdf, SdfVolume,
 };
 use crate::core::volume::spacing;
+use crate::kernels::cpu_dispatch::dispatched;
 
 /// Samples computed together before the running transmittance is checked.
 pub const BLOCK: usize = 16;
@@ -156,23 +157,13 @@ fn fill<D>(
     sc.d_beta[r].copy_from_slice(&b.d_beta[..m]);
 }
 
-/// One ray's `[r, g, b, depth, opacity]` ([`crate::kernels::sdf_render`]'s forward pass):
-/// blocks of [`BLOCK`] samples' transparency `e^{−τ} = 1 − density` and colour, composited,
-/// stopping after the block in which the transmittance reaches 0.
-pub fn forward(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5] {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { forward_avx2(volume, ray, lengths) };
-    }
-    forward_portable(volume, ray, lengths)
-}
-
-/// [`forward`] compiled for AVX2 (8 samples per vector instead of SSE2's 4).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn forward_avx2(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5] {
-    forward_portable(volume, ray, lengths)
+dispatched! {
+    /// One ray's `[r, g, b, depth, opacity]` ([`crate::kernels::sdf_render`]'s forward pass):
+    /// blocks of [`BLOCK`] samples' transparency `e^{−τ} = 1 − density` and colour, composited,
+    /// stopping after the block in which the transmittance reaches 0. (AVX2 takes 8 samples
+    /// per vector instead of SSE2's 4.)
+    pub fn forward(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5]
+        = forward_portable for ["avx2"];
 }
 
 /// [`forward`] for any CPU.
@@ -242,34 +233,17 @@ fn forward_with<D: Fn([f32; 3]) -> f32>(
     out
 }
 
-/// Replays one ray `[origin, direction]` at `lengths` into `sc`, up to the block in which its
-/// transmittance reaches 0; returns how many samples that is and the ray's `[r, g, b, depth,
-/// opacity]`. The weights use `e^{−τ} = 1 − density`
-/// ([`SdfVolume::transparency_from_distance`]).
-pub fn replay(
-    volume: &SdfVolume,
-    ray: &[f32],
-    lengths: &[f32],
-    sc: &mut RayScratch,
-) -> (usize, [f32; 5]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { replay_avx2(volume, ray, lengths, sc) };
-    }
-    replay_portable(volume, ray, lengths, sc)
-}
-
-/// [`replay`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn replay_avx2(
-    volume: &SdfVolume,
-    ray: &[f32],
-    lengths: &[f32],
-    sc: &mut RayScratch,
-) -> (usize, [f32; 5]) {
-    replay_portable(volume, ray, lengths, sc)
+dispatched! {
+    /// Replays one ray `[origin, direction]` at `lengths` into `sc`, up to the block in which
+    /// its transmittance reaches 0; returns how many samples that is and the ray's `[r, g, b,
+    /// depth, opacity]`. The weights use `e^{−τ} = 1 − density`
+    /// ([`SdfVolume::transparency_from_distance`]).
+    pub fn replay(
+        volume: &SdfVolume,
+        ray: &[f32],
+        lengths: &[f32],
+        sc: &mut RayScratch,
+    ) -> (usize, [f32; 5]) = replay_portable for ["avx2"];
 }
 
 /// [`replay`] for any CPU.
@@ -325,30 +299,18 @@ fn replay_portable(
     (s, out)
 }
 
-/// Adds the parameter gradients of the first `n` replayed samples in `sc` to `acc` (packed
-/// layout) for the output gradient `grad` (`[G_r, G_g, G_b, G_depth, G_opacity]`):
-/// `Σ_i ∂L/∂τ_i ∂τ_i/∂θ` with `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, `g_i = Σ_c G_c c_ic
-/// + G_depth t_i + G_opacity`, and the colour's `Σ_i w_i G_c ∂c_ic/∂θ`.
-pub fn reverse(volume: &SdfVolume, sc: &mut RayScratch, n: usize, grad: &[f32], acc: &mut [f64]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { reverse_avx2(volume, sc, n, grad, acc) };
-    }
-    reverse_portable(volume, sc, n, grad, acc)
-}
-
-/// [`reverse`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn reverse_avx2(
-    volume: &SdfVolume,
-    sc: &mut RayScratch,
-    n: usize,
-    grad: &[f32],
-    acc: &mut [f64],
-) {
-    reverse_portable(volume, sc, n, grad, acc)
+dispatched! {
+    /// Adds the parameter gradients of the first `n` replayed samples in `sc` to `acc` (packed
+    /// layout) for the output gradient `grad` (`[G_r, G_g, G_b, G_depth, G_opacity]`):
+    /// `Σ_i ∂L/∂τ_i ∂τ_i/∂θ` with `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, `g_i = Σ_c G_c
+    /// c_ic + G_depth t_i + G_opacity`, and the colour's `Σ_i w_i G_c ∂c_ic/∂θ`.
+    pub fn reverse(
+        volume: &SdfVolume,
+        sc: &mut RayScratch,
+        n: usize,
+        grad: &[f32],
+        acc: &mut [f64],
+    ) = reverse_portable for ["avx2"];
 }
 
 /// [`reverse`] for any CPU.

@@ -4,7 +4,7 @@
 use candle_core::backprop::GradStore;
 use candle_core::Tensor;
 
-use crate::kernels::hash_grid::HashGridParams;
+use crate::kernels::hash_level::HashGridParams;
 
 /// The gradients of `Σ out ⊙ weight` (`weight` broadcast to `out`'s shape): a loss that weighs
 /// every output differently, so a gradient summed or routed wrongly shows.

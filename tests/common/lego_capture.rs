@@ -199,6 +199,15 @@ pub fn write_colmap_text(lego: &Lego, dir: &Path) {
     std::fs::write(sparse.join("points3D.txt"), "# none\n").unwrap();
 }
 
+/// The COLMAP model of the text capture `text` ([`write_colmap_text`]) written again as binary
+/// files in `dir/sparse/0`, beside copies of the photos; returns the model.
+pub fn write_colmap_binary(lego: &Lego, text: &Path, dir: &Path) -> nerf::io::colmap::ColmapModel {
+    lego.copy_images(dir);
+    let (_, model) = nerf::io::colmap::find_model(text).unwrap();
+    nerf::io::colmap::write_binary(&dir.join("sparse").join("0"), &model).unwrap();
+    model
+}
+
 pub fn write_nerfstudio(lego: &Lego, dir: &Path) {
     let names = lego.copy_images(dir);
     let (w, h) = lego.size;
@@ -284,6 +293,46 @@ pub fn tiny_scene_overrides<'a>(epochs: &'a str, checkpoint: &'a str) -> [&'a st
     ]
 }
 
+/// A small training of `config` on a capture ([`tiny_scene_overrides`]) that writes the
+/// checkpoint `checkpoint`, and the commands that read that checkpoint.
+pub struct TinyScene {
+    /// The config trained and read (`nerf_scene`, `nerf_scene_bounded`).
+    pub config: &'static str,
+    /// The checkpoint written.
+    pub checkpoint: PathBuf,
+    epochs: String,
+    checkpoint_arg: String,
+}
+
+impl TinyScene {
+    /// `epochs` epochs of `config` into `checkpoint`.
+    pub fn new(config: &'static str, checkpoint: PathBuf, epochs: usize) -> Self {
+        Self {
+            config,
+            epochs: format!("training.num_epochs={epochs}"),
+            checkpoint_arg: format!("training.checkpoint_path={}", checkpoint.display()),
+            checkpoint,
+        }
+    }
+
+    /// The overrides of every command ([`tiny_scene_overrides`]).
+    pub fn overrides(&self) -> [&str; 5] {
+        tiny_scene_overrides(&self.epochs, &self.checkpoint_arg)
+    }
+
+    /// `nerf COMMAND --config CONFIG --data-dir DIR`, the overrides, then `extra`.
+    pub fn args<'a>(&'a self, command: &'a str, dir: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
+        let mut args = super::data_args(command, self.config, dir, &self.overrides());
+        args.extend(extra);
+        args
+    }
+
+    /// Runs [`TinyScene::args`] and asserts that it succeeded (a failure shows its stderr).
+    pub fn run_ok(&self, command: &str, dir: &Path, extra: &[&str]) -> std::process::Output {
+        super::nerf_ok(&self.args(command, dir, extra))
+    }
+}
+
 /// The views as instant-ngp's `scripts/colmap2nerf.py` writes them: `w` and `h` as floats,
 /// both focal forms (`fl_x` and `camera_angle_x`), zero distortion terms, `is_fisheye`,
 /// `aabb_scale`, `./`-prefixed paths and a `sharpness` per frame; odd frames carry their own
@@ -339,4 +388,43 @@ pub fn write_colmap2nerf(lego: &Lego, dir: &Path, moved: Option<(f64, [f64; 3])>
     // colmap2nerf's Python writes whole floats with their point: `"w": 400.0`.
     assert!(text.contains(&format!("\"w\": {w:.1}")), "{text}");
     std::fs::write(dir.join("transforms.json"), text).unwrap();
+}
+
+/// The first `n` lego training views ([`lego_views`]) and a fresh scratch directory for the
+/// test's captures, or a visible skip.
+pub fn lego_root(test: &str, n: usize) -> Option<(Lego, tempfile::TempDir)> {
+    Some((lego_views(test, n)?, tempfile::tempdir().unwrap()))
+}
+
+/// Applies `change` to the JSON of `dir/transforms.json`, which it returns.
+pub fn edit_transforms(dir: &Path, change: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
+    let json = dir.join("transforms.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    change(&mut v);
+    std::fs::write(&json, v.to_string()).unwrap();
+    json
+}
+
+/// Replaces the first line of the text file `path` that `pick` chooses by `change` of it;
+/// returns `path`.
+pub fn edit_line(
+    path: PathBuf,
+    pick: impl Fn(&str) -> bool,
+    change: impl FnOnce(&str) -> String,
+) -> PathBuf {
+    let text = std::fs::read_to_string(&path).unwrap();
+    let line = text.lines().find(|l| pick(l)).unwrap();
+    std::fs::write(&path, text.replacen(line, &change(line), 1)).unwrap();
+    path
+}
+
+/// Writes the checkpoint `from`'s tensors (sorted by name) again at `to`, with its metadata
+/// changed by `edit`.
+pub fn resave_checkpoint(from: &Path, to: &Path, edit: impl FnOnce(&mut nerf::CheckpointInfo)) {
+    let (tensors, mut info) = nerf::io::checkpoint::load(from, &candle_core::Device::Cpu).unwrap();
+    let mut tensors: Vec<_> = tensors.into_iter().collect();
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    edit(&mut info);
+    nerf::io::checkpoint::save(to, &tensors, info).unwrap();
 }

@@ -107,6 +107,17 @@ pub fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// The largest difference between the channels of two RGB images, pixel by pixel (as far as
+/// both go).
+pub fn max_channel_difference(a: &image::RgbImage, b: &image::RgbImage) -> u8 {
+    a.as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(x, y)| x.abs_diff(*y))
+        .max()
+        .unwrap()
+}
+
 /// The largest difference between 8-bit image bytes, read as `b / 255`, and the float values
 /// they were written from, pairwise (as far as both go).
 pub fn max_byte_difference(bytes: &[u8], values: &[f32]) -> f32 {
@@ -296,6 +307,17 @@ pub fn render_args<'a, P: AsRef<Path> + ?Sized>(
 ) -> Vec<&'a str> {
     let out = out.as_ref().to_str().unwrap();
     [&["render", "--config", config, "--out-dir", out][..], more].concat()
+}
+
+/// `nerf COMMAND --config CONFIG --data-dir DATA MORE…` (MORE: further flags and overrides).
+pub fn data_args<'a>(
+    command: &'a str,
+    config: &'a str,
+    data: &'a Path,
+    more: &[&'a str],
+) -> Vec<&'a str> {
+    let data = data.to_str().unwrap();
+    [&[command, "--config", config, "--data-dir", data][..], more].concat()
 }
 
 /// `nerf export KIND --config CONFIG EXTRA… --out OUT`.
