@@ -88,7 +88,7 @@ impl Config {
     /// shows the ghost density its grid removes.
     fn shipped_model_hint(&self) -> String {
         match self.implicit_function.kind() {
-            "ngp" => format!(
+            kind if kind == crate::field::ngp::KIND => format!(
                 "; the shipped hash-grid model is {SHIPPED_NGP_CHECKPOINT}, rendered by `nerf render --config lego_ngp` from the repository root"
             ),
             _ if self.occupancy_grid().is_some() => {

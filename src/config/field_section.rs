@@ -130,20 +130,23 @@ mod tests {
     use crate::config::Config;
     use crate::field::ngp_config::NgpConfig;
 
-    #[test]
-    fn ngp_keys_and_defaults() {
+    /// The built-in lego config's text with its `implicit_function` section's body replaced
+    /// by `body` (indented lines).
+    fn yaml(body: &str) -> String {
         let lego =
             std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/lego.yaml"))
                 .unwrap();
         let start = lego.find("implicit_function:").unwrap();
         let end = lego.find("cameras:").unwrap();
-        let yaml = |body: &str| {
-            format!(
-                "{}implicit_function:\n{body}\n{}",
-                &lego[..start],
-                &lego[end..]
-            )
-        };
+        format!(
+            "{}implicit_function:\n{body}\n{}",
+            &lego[..start],
+            &lego[end..]
+        )
+    }
+
+    #[test]
+    fn ngp_keys_and_defaults() {
         let c = Config::from_yaml(&yaml("  type: ngp"), &[]).unwrap();
         let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
         let p = n.params().unwrap();
@@ -192,14 +195,8 @@ mod tests {
     #[test]
     fn an_ngp_checkpoint_saves_and_loads_for_rendering() {
         use crate::field::ngp::Ngp;
-        let lego =
-            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/lego.yaml"))
-                .unwrap();
-        let start = lego.find("implicit_function:").unwrap();
-        let end = lego.find("cameras:").unwrap();
-        let body = "implicit_function:\n  type: ngp\n  n_levels: 4\n  log2_hashmap_size: 10\n  max_resolution: 64\n";
-        let c =
-            Config::from_yaml(&format!("{}{body}{}", &lego[..start], &lego[end..]), &[]).unwrap();
+        let body = "  type: ngp\n  n_levels: 4\n  log2_hashmap_size: 10\n  max_resolution: 64";
+        let c = Config::from_yaml(&yaml(body), &[]).unwrap();
         let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
         let dev = candle_core::Device::Cpu;
         let varmap = candle_nn::VarMap::new();
@@ -219,8 +216,7 @@ mod tests {
         assert_eq!(diff(&s0, &s1).unwrap() + diff(&c0, &c1).unwrap(), 0.0);
         // A checkpoint of other sizes is refused in one line.
         let o = vec!["implicit_function.log2_hashmap_size=11".to_string()];
-        let other =
-            Config::from_yaml(&format!("{}{body}{}", &lego[..start], &lego[end..]), &o).unwrap();
+        let other = Config::from_yaml(&yaml(body), &o).unwrap();
         let e = format!("{:#}", other.load_field(&path, &dev).err().unwrap());
         assert!(e.contains("encoding.table") || e.contains("shape"), "{e}");
     }

@@ -30,6 +30,9 @@ use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
 
+/// The kind's name: what a config's `implicit_function.type` and a checkpoint call it.
+pub const KIND: &str = "nerf";
+
 /// The sizes of the homework's NeRF (its `implicit_function` keys).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct NerfParams {
@@ -412,7 +415,7 @@ impl NerfState {
             &state.varmap,
             &parameter_shapes(params),
             tensors,
-            "nerf",
+            KIND,
             origin,
         )?;
         Ok(state)
@@ -449,7 +452,7 @@ impl NerfState {
 
 impl FieldSpec for NerfParams {
     fn kind(&self) -> &'static str {
-        "nerf"
+        KIND
     }
 
     fn seeded(&self, seed: u64, device: &Device) -> Result<Box<dyn TrainableField>> {
@@ -463,7 +466,7 @@ impl FieldSpec for NerfParams {
 
 impl TrainableField for NerfState {
     fn kind(&self) -> &'static str {
-        "nerf"
+        KIND
     }
 
     fn varmap(&self) -> &VarMap {

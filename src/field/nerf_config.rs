@@ -13,7 +13,7 @@ use crate::field::nerf::NerfParams;
 use crate::field::trainable::FieldSpec;
 
 /// The kind's registration ([`crate::field::registry::FIELD_KINDS`]).
-pub const NERF: FieldKind = FieldKind::new::<NerfConfig>("nerf", true);
+pub const NERF: FieldKind = FieldKind::new::<NerfConfig>(crate::field::nerf::KIND, true);
 
 /// Most harmonic functions of a positional embedding (2^31 is past f32 precision).
 pub const HARMONICS: usize = 32;

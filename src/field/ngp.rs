@@ -36,6 +36,9 @@ use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
 
+/// The kind's name: what a config's `implicit_function.type` and a checkpoint call it.
+pub const KIND: &str = "ngp";
+
 /// Width of the hidden layers of both MLPs.
 pub const HIDDEN: usize = 64;
 /// Geometry features passed from the density MLP to the colour MLP.
@@ -433,7 +436,7 @@ impl NgpState {
 
 impl FieldSpec for NgpParams {
     fn kind(&self) -> &'static str {
-        "ngp"
+        KIND
     }
 
     fn seeded(&self, seed: u64, device: &Device) -> Result<Box<dyn TrainableField>> {
@@ -451,7 +454,7 @@ impl FieldSpec for NgpParams {
 
 impl TrainableField for NgpState {
     fn kind(&self) -> &'static str {
-        "ngp"
+        KIND
     }
 
     fn varmap(&self) -> &VarMap {

@@ -14,7 +14,7 @@ use crate::field::ngp::NgpParams;
 use crate::field::trainable::FieldSpec;
 
 /// The kind's registration ([`crate::field::registry::FIELD_KINDS`]).
-pub const NGP: FieldKind = FieldKind::new::<NgpConfig>("ngp", true);
+pub const NGP: FieldKind = FieldKind::new::<NgpConfig>(crate::field::ngp::KIND, true);
 
 /// `implicit_function` with `type: ngp`: the hash-grid field ([`crate::field::ngp`]).
 #[derive(Debug, Clone, Deserialize, PartialEq)]
