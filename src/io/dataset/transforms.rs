@@ -11,6 +11,7 @@ use serde::Deserialize;
 
 use super::DOWNLOAD_HINT;
 use crate::core::camera::PerspectiveCamera;
+use crate::core::camera_error::CameraError;
 use crate::core::frame_camera::FrameCamera;
 use crate::io::bounded_read::read_regular_file;
 
@@ -144,17 +145,18 @@ pub const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
 
 /// Checks that the upper 3×3 block of a camera-to-world matrix is a rotation (orthonormal,
 /// determinant +1, to 1e-3), the bottom row is `(0, 0, 0, 1)` and the camera centre is within
-/// [`MAX_CAMERA_DISTANCE`] of the origin.
-pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
+/// [`MAX_CAMERA_DISTANCE`] of the origin; the error is a [`CameraError::Pose`].
+pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<(), CameraError> {
+    let refuse = |message: String| Err(CameraError::Pose { message });
     if c2w.iter().flatten().any(|v| !v.is_finite()) {
-        bail!("transform_matrix has a non-finite entry");
+        return refuse("transform_matrix has a non-finite entry".to_string());
     }
     let centre = [c2w[0][3], c2w[1][3], c2w[2][3]];
     let distance = centre.iter().map(|v| v * v).sum::<f64>().sqrt();
     if distance > MAX_CAMERA_DISTANCE {
-        bail!(
+        return refuse(format!(
             "transform_matrix puts the camera {distance:.3e} from the origin, farther than {MAX_CAMERA_DISTANCE:e} scene units"
-        );
+        ));
     }
     let bottom = c2w[3];
     if bottom
@@ -162,7 +164,9 @@ pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
         .zip([0.0, 0.0, 0.0, 1.0])
         .any(|(a, b)| (a - b).abs() > 1e-6)
     {
-        bail!("transform_matrix bottom row is {bottom:?}, expected [0, 0, 0, 1]");
+        return refuse(format!(
+            "transform_matrix bottom row is {bottom:?}, expected [0, 0, 0, 1]"
+        ));
     }
     let m = DMat3::from_cols_array_2d(&[
         [c2w[0][0], c2w[1][0], c2w[2][0]],
@@ -176,7 +180,7 @@ pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
         .max(off.y_axis.max_element())
         .max(off.z_axis.max_element());
     if worst > 1e-3 || m.determinant() <= 0.0 {
-        bail!("transform_matrix rotation block is not a rotation (|RᵀR − I| = {worst:.2e}, det = {:.4})", m.determinant());
+        return refuse(format!("transform_matrix rotation block is not a rotation (|RᵀR − I| = {worst:.2e}, det = {:.4})", m.determinant()));
     }
     Ok(())
 }
@@ -251,7 +255,7 @@ pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Fra
         .iter()
         .enumerate()
         .map(|(i, entry)| {
-            let context = |e: anyhow::Error| {
+            let context = |e: CameraError| {
                 anyhow!("{}: frame {i} ({}): {e}", path.display(), entry.file_path)
             };
             check_rigid(&entry.transform_matrix).map_err(context)?;
