@@ -12,6 +12,7 @@ pub mod compare;
 pub mod contraction;
 pub mod distortion;
 pub mod distortion_loss;
+pub(crate) mod error_chain;
 pub mod fastexp;
 pub mod frame_camera;
 pub mod frame_selection;
