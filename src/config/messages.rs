@@ -1,14 +1,18 @@
 //! The words of config errors: deserialiser messages in a config writer's terms, keys named
 //! by their dotted path, and a bad value blamed on the override or the file line it came from.
 
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use serde::de::DeserializeOwned;
 use serde_yaml_ng::Value;
 
-use super::Config;
+use super::{Config, ConfigError};
 
-/// Deserialises `value` into `T`, prefixing errors with the dotted key path.
-pub(super) fn from_value<T: DeserializeOwned>(value: Value, prefix: &str) -> Result<T> {
+/// Deserialises `value` into `T`; an error is a [`ConfigError::Invalid`] that starts with the
+/// dotted key path.
+pub(super) fn from_value<T: DeserializeOwned>(
+    value: Value,
+    prefix: &str,
+) -> Result<T, ConfigError> {
     serde_path_to_error::deserialize(value).map_err(|e| {
         let path = e.path().to_string();
         let key = match (prefix.is_empty(), path == ".") {
@@ -17,11 +21,12 @@ pub(super) fn from_value<T: DeserializeOwned>(value: Value, prefix: &str) -> Res
             (false, true) => prefix.to_string(),
             (false, false) => format!("{prefix}.{path}"),
         };
-        anyhow!(
-            "{}: {}",
-            one_line(&key),
+        let key = one_line(&key);
+        let message = format!(
+            "{key}: {}",
             one_line(&in_user_words(&e.into_inner().to_string()))
-        )
+        );
+        ConfigError::Invalid { key, message }
     })
 }
 
