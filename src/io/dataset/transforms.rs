@@ -5,11 +5,11 @@ use std::fmt;
 use std::path::{Component, Path, PathBuf};
 use std::str::FromStr;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, Result};
 use glam::{DMat3, DMat4};
 use serde::Deserialize;
 
-use super::DOWNLOAD_HINT;
+use super::{DatasetError, DOWNLOAD_HINT};
 use crate::core::camera::PerspectiveCamera;
 use crate::core::camera_error::CameraError;
 use crate::core::frame_camera::FrameCamera;
@@ -203,37 +203,46 @@ fn image_path(data_dir: &Path, file_path: &str) -> PathBuf {
 ///
 /// Errors (one line, naming the file) when the directory or the file is missing (with
 /// [`DOWNLOAD_HINT`]), when the JSON does not parse (with the offending key path), or when a
-/// frame's matrix or the field of view is unusable. Images are not opened here.
-pub fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
+/// frame's matrix or the field of view is unusable. Images are not opened here. The errors
+/// ([`DatasetError`]): [`DatasetError::NoDataset`] for a missing directory,
+/// [`DatasetError::MissingFile`] for a missing transforms file, and those of [`parse_split`].
+pub fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>, DatasetError> {
     if data_dir.exists() && !data_dir.is_dir() {
-        bail!(
+        let message = format!(
             "dataset directory {} is a file, not a directory; {DOWNLOAD_HINT}",
             data_dir.display()
         );
+        return Err(DatasetError::no_dataset(data_dir, message));
     }
     if !data_dir.is_dir() {
-        bail!(
+        let message = format!(
             "dataset directory {} does not exist; {DOWNLOAD_HINT}",
             data_dir.display()
         );
+        return Err(DatasetError::no_dataset(data_dir, message));
     }
     let path = split.transforms_path(data_dir);
     if !path.exists() {
-        bail!(
+        let message = format!(
             "cannot read {}: it does not exist; {DOWNLOAD_HINT}",
             path.display()
         );
+        return Err(DatasetError::missing_file(&path, message));
     }
-    let bytes = read_regular_file(&path, "dataset file", MAX_TRANSFORMS_BYTES)?;
+    let bytes = read_regular_file(&path, "dataset file", MAX_TRANSFORMS_BYTES)
+        .map_err(DatasetError::Other)?;
     parse_split(&bytes, data_dir, &path)
 }
 
 /// Parses the text of a `transforms_{split}.json` (read from `path`, named in errors) into
-/// frames whose image paths are relative to `data_dir`; see [`super::read_split`].
-pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Frame>> {
+/// frames whose image paths are relative to `data_dir`; see [`super::read_split`]. Errors:
+/// [`DatasetError::Metadata`] for JSON that does not parse, an unusable field of view or no
+/// frames, [`DatasetError::Camera`] for a frame's camera.
+pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Frame>, DatasetError> {
+    let metadata = |message: String| DatasetError::metadata(path, message);
     let mut de = serde_json::Deserializer::from_slice(bytes);
     let file: TransformsFile = serde_path_to_error::deserialize(&mut de)
-        .map_err(|e| anyhow!("cannot parse {}: {e}", path.display()))?;
+        .map_err(|e| metadata(format!("cannot parse {}: {e}", path.display())))?;
     let fov = file.camera_angle_x;
     // The NDC focal length 1/tan(fov/2) within the viewer's bounds, 1e-3 to 1e3: a field of
     // view of 1e-300 rad would otherwise score a black view instead of being refused.
@@ -243,20 +252,25 @@ pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Fra
         && fov < std::f64::consts::PI
         && (1e-3..=1e3).contains(&focal))
     {
-        bail!(
+        return Err(metadata(format!(
             "{}: camera_angle_x = {fov} is not a usable field of view (between 0.002 and 3.139 radians: an NDC focal length from 1e-3 to 1e3)",
             path.display()
-        );
+        )));
     }
     if file.frames.is_empty() {
-        bail!("{}: no frames", path.display());
+        return Err(metadata(format!("{}: no frames", path.display())));
     }
     file.frames
         .iter()
         .enumerate()
         .map(|(i, entry)| {
-            let context = |e: CameraError| {
-                anyhow!("{}: frame {i} ({}): {e}", path.display(), entry.file_path)
+            let context = |camera: CameraError| {
+                let message = format!(
+                    "{}: frame {i} ({}): {camera}",
+                    path.display(),
+                    entry.file_path
+                );
+                DatasetError::Camera { camera, message }
             };
             check_rigid(&entry.transform_matrix).map_err(context)?;
             // The pixel width only enters f_px and cancels in the NDC focal length; the NeRF
