@@ -55,7 +55,7 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
 
 /// [`read_frames`] of the file's `bytes` (read from `path`, in `dir`). A frame's camera error
 /// keeps its [`crate::core::camera_error::CameraError`] in the chain; every other error is a
-/// [`DatasetError::Metadata`] (inside the `anyhow::Error`).
+/// [`super::DatasetError::Metadata`] (inside the `anyhow::Error`).
 pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
     parse_frames(bytes, dir, path).map_err(|e| metadata_unless_camera(path, e))
 }
