@@ -11,7 +11,6 @@ use nerf::config::{apply_override, Config, ConfigError};
 use nerf::core::camera_checks::{check_intrinsics, check_photo_size};
 use nerf::core::distortion::LensDistortion;
 use nerf::core::term::error_line;
-use nerf::field::trainable::ParameterShapes;
 use nerf::io::checkpoint::{self, CheckpointError, CheckpointInfo};
 use nerf::io::checkpoint_file;
 use nerf::io::dataset::{read_split, Dataset, DatasetError, Split};
@@ -122,8 +121,11 @@ fn camera_checks_return_camera_errors() {
     says(e, "camera focal length must be non-zero");
 }
 
+/// Parameter names and shapes, in a model's order.
+type Shapes = Vec<(String, Vec<usize>)>;
+
 /// The built-in `nerf_lego` config's model and the parameters it expects.
-fn nerf_lego() -> (std::sync::Arc<dyn nerf::FieldSpec>, ParameterShapes) {
+fn nerf_lego() -> (std::sync::Arc<dyn nerf::FieldSpec>, Shapes) {
     let spec = Config::load("nerf_lego", &[])
         .unwrap()
         .field_spec()
