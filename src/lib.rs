@@ -62,11 +62,13 @@ pub mod kernels;
 pub mod render;
 pub mod train;
 
+pub use crate::config::ConfigError;
 pub use crate::core::allocator::{ensure_allocator_tuned, tune_allocator};
 pub use crate::core::camera::{
     camera_position_from_spherical_angles, look_at_view_transform, surround_cameras,
     PerspectiveCamera,
 };
+pub use crate::core::camera_error::CameraError;
 pub use crate::core::camera_model::CameraModel;
 pub use crate::core::image::RgbImage;
 pub use crate::core::rays::{pixel_grid, random_pixel_indices, Rays};
@@ -74,8 +76,8 @@ pub use crate::core::sdf::{Sdf, SdfVolume};
 pub use crate::field::nerf::{Nerf, NerfField, NerfParams, NerfState};
 pub use crate::field::sdf::{SdfField, SdfTrainable};
 pub use crate::field::trainable::{named_vars, FieldSpec, TrainableField};
-pub use crate::io::checkpoint::CheckpointInfo;
-pub use crate::io::dataset::{Dataset, Split};
+pub use crate::io::checkpoint::{CheckpointError, CheckpointInfo};
+pub use crate::io::dataset::{Dataset, DatasetError, Split};
 pub use crate::kernels::sdf_volume::{density_to_sigma, sdf_to_density};
 pub use crate::kernels::{set_kernel_choice, with_kernel_choice, KernelChoice};
 pub use crate::render::field::{Composited, Field, FieldOutput};

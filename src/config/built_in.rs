@@ -3,9 +3,8 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Result};
-
 use crate::config::yaml_bounds::MAX_YAML_BYTES;
+use crate::config::ConfigError;
 
 /// Configs shipped with the binary, found by name when `configs/NAME.yaml` is not on disk.
 const BUILT_IN: &[(&str, &str)] = &[
@@ -51,15 +50,21 @@ const BUILT_IN: &[(&str, &str)] = &[
     ),
 ];
 
-/// The text of the config file `path`: a regular file of at most [`MAX_YAML_BYTES`], UTF-8.
-fn read_config_file(path: &Path) -> Result<String> {
-    let bytes = crate::io::bounded_read::read_regular_file(path, "config", MAX_YAML_BYTES as u64)?;
-    String::from_utf8(bytes).map_err(|_| anyhow!("config {} is not UTF-8 text", path.display()))
+/// The text of the config file `path`: a regular file of at most [`MAX_YAML_BYTES`], UTF-8
+/// (else [`ConfigError::Unreadable`]).
+fn read_config_file(path: &Path) -> Result<String, ConfigError> {
+    let bytes = crate::io::bounded_read::read_regular_file(path, "config", MAX_YAML_BYTES as u64)
+        .map_err(|e| ConfigError::unreadable(path, &e))?;
+    String::from_utf8(bytes).map_err(|_| ConfigError::Unreadable {
+        path: path.to_path_buf(),
+        message: format!("config {} is not UTF-8 text", path.display()),
+    })
 }
 
 /// The YAML text for `--config NAME_OR_PATH`: an existing file path, `configs/NAME.yaml`, or a
-/// built-in config of that name.
-pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
+/// built-in config of that name, and where it came from (the path, or `built-in NAME`).
+/// Errors: [`ConfigError::NotFound`], [`ConfigError::Unreadable`].
+pub fn config_text(name_or_path: &str) -> Result<(String, String), ConfigError> {
     let path = Path::new(name_or_path);
     if path.is_file() {
         return Ok((read_config_file(path)?, path.display().to_string()));
@@ -68,11 +73,15 @@ pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
         || name_or_path.ends_with(".yaml")
         || name_or_path.ends_with(".yml");
     if looks_like_path && path.is_dir() {
-        bail!("config {name_or_path} is a directory, not a YAML file");
+        return Err(ConfigError::Unreadable {
+            path: path.to_path_buf(),
+            message: format!("config {name_or_path} is a directory, not a YAML file"),
+        });
     }
     if looks_like_path && path.exists() {
         // A FIFO, a socket or a device: refused before it is opened.
-        crate::io::bounded_read::check_regular_file(path, "config", MAX_YAML_BYTES as u64)?;
+        crate::io::bounded_read::check_regular_file(path, "config", MAX_YAML_BYTES as u64)
+            .map_err(|e| ConfigError::unreadable(path, &e))?;
     }
     if !looks_like_path {
         let local = Path::new("configs").join(format!("{name_or_path}.yaml"));
@@ -83,11 +92,17 @@ pub fn config_text(name_or_path: &str) -> Result<(String, String)> {
             return Ok(((*text).to_string(), format!("built-in {name_or_path}")));
         }
     }
-    if looks_like_path {
-        bail!("config file {name_or_path} not found");
-    }
-    let known: Vec<&str> = BUILT_IN.iter().map(|(n, _)| *n).collect();
-    bail!("config `{name_or_path}` not found (not a file, not configs/{name_or_path}.yaml; built-in configs: {})", known.join(", "))
+    let message = match looks_like_path {
+        true => format!("config file {name_or_path} not found"),
+        false => {
+            let known: Vec<&str> = BUILT_IN.iter().map(|(n, _)| *n).collect();
+            format!("config `{name_or_path}` not found (not a file, not configs/{name_or_path}.yaml; built-in configs: {})", known.join(", "))
+        }
+    };
+    Err(ConfigError::NotFound {
+        name: name_or_path.to_string(),
+        message,
+    })
 }
 
 #[cfg(test)]

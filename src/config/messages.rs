@@ -1,21 +1,25 @@
 //! The words of config errors: deserialiser messages in a config writer's terms, keys named
 //! by their dotted path, and a bad value blamed on the override or the file line it came from.
 
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use serde::de::DeserializeOwned;
 use serde_yaml_ng::Value;
 
-use super::Config;
+use super::{Config, ConfigError};
 use crate::field::field_config::SectionError;
 
-/// Deserialises `value` into `T`, prefixing errors with the dotted key path.
-pub(super) fn from_value<T: DeserializeOwned>(value: Value, prefix: &str) -> Result<T> {
+/// Deserialises `value` into `T`; an error is a [`ConfigError::Invalid`] that starts with the
+/// dotted key path.
+pub(super) fn from_value<T: DeserializeOwned>(
+    value: Value,
+    prefix: &str,
+) -> Result<T, ConfigError> {
     serde_path_to_error::deserialize(value).map_err(|e| key_error(e, prefix))
 }
 
-/// A deserialiser error as a one-line message naming the dotted key it failed at, below
-/// `prefix` (the config's top level when empty).
-pub(super) fn key_error(e: SectionError, prefix: &str) -> anyhow::Error {
+/// A deserialiser error as a [`ConfigError::Invalid`] whose one-line message names the dotted
+/// key it failed at, below `prefix` (the config's top level when empty).
+pub(super) fn key_error(e: SectionError, prefix: &str) -> ConfigError {
     let path = e.path().to_string();
     let key = match (prefix.is_empty(), path == ".") {
         (true, true) => "config".to_string(),
@@ -23,11 +27,12 @@ pub(super) fn key_error(e: SectionError, prefix: &str) -> anyhow::Error {
         (false, true) => prefix.to_string(),
         (false, false) => format!("{prefix}.{path}"),
     };
-    anyhow!(
-        "{}: {}",
-        one_line(&key),
+    let key = one_line(&key);
+    let message = format!(
+        "{key}: {}",
         one_line(&in_user_words(&e.into_inner().to_string()))
-    )
+    );
+    ConfigError::Invalid { key, message }
 }
 
 /// A deserialiser message with Rust type names replaced by what a config writer knows:

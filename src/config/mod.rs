@@ -1,7 +1,7 @@
 //! Configuration in the homework's YAML schema, with Hydra-style `key.sub=value` overrides.
 //!
 //! A homework config file works unmodified. Unknown keys, wrong types and bad values are
-//! errors that name the key. Extensions beyond the homework (all optional):
+//! errors that name the key ([`ConfigError`]). Extensions beyond the homework (all optional):
 //! `cameras` (the surround views to render) and `data.data_dir` (where the dataset lives).
 //!
 //! One file per concern: where the text comes from ([`built_in`]), the overrides
@@ -15,6 +15,7 @@ pub mod built_in;
 pub mod cameras;
 pub mod checkpoint_paths;
 pub mod data;
+pub mod error;
 pub mod field_section;
 pub mod implicit_function;
 pub mod limits;
@@ -26,7 +27,7 @@ pub mod training;
 pub mod validation;
 pub mod yaml_bounds;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::Result;
 use serde::Deserialize;
 use serde_yaml_ng::Value;
 
@@ -39,6 +40,7 @@ pub use checkpoint_paths::{HOMEWORK_CHECKPOINT, SHIPPED_CHECKPOINT, SHIPPED_NGP_
 pub use data::{
     photo_scale_factor, DataCameraConfig, DataCameras, DataConfig, SizeUse, DEFAULT_PIXEL_BUDGET,
 };
+pub use error::ConfigError;
 pub use implicit_function::ImplicitFunctionConfig;
 pub use messages::{in_user_words, plural};
 pub use overrides::apply_override;
@@ -114,19 +116,28 @@ pub struct Config {
 }
 
 impl Config {
-    /// Loads `--config NAME_OR_PATH` and applies the overrides in order.
-    pub fn load(name_or_path: &str, overrides: &[String]) -> Result<Self> {
+    /// Loads `--config NAME_OR_PATH` and applies the overrides in order. Errors: see
+    /// [`ConfigError`]; a bad value's message says the override or file line it came from.
+    pub fn load(name_or_path: &str, overrides: &[String]) -> Result<Self, ConfigError> {
         let (text, origin) = config_text(name_or_path)?;
-        Self::from_yaml(&text, overrides).map_err(|e| blame(&text, &origin, overrides, e))
+        Self::parse(&text, overrides)
+            .map_err(|e| ConfigError::from_anyhow(blame(&text, &origin, overrides, e)))
     }
 
-    /// Parses YAML text, applies overrides, and validates.
-    pub fn from_yaml(text: &str, overrides: &[String]) -> Result<Self> {
-        yaml_bounds::check_yaml_bounds(text, "the config")?;
+    /// Parses YAML text, applies overrides, and validates. Errors: see [`ConfigError`].
+    pub fn from_yaml(text: &str, overrides: &[String]) -> Result<Self, ConfigError> {
+        Self::parse(text, overrides).map_err(ConfigError::from_anyhow)
+    }
+
+    /// [`Config::from_yaml`], its typed errors inside an `anyhow::Error`.
+    fn parse(text: &str, overrides: &[String]) -> Result<Self> {
+        let syntax = |message: String| ConfigError::Syntax { message };
+        yaml_bounds::check_yaml_bounds(text, "the config").map_err(|e| syntax(format!("{e:#}")))?;
         let mut root: Value = serde_yaml_ng::from_str(text)
-            .map_err(|e| anyhow!("malformed YAML: {}", one_line(&e.to_string())))?;
+            .map_err(|e| syntax(format!("malformed YAML: {}", one_line(&e.to_string()))))?;
         if !matches!(root, Value::Mapping(_)) {
-            bail!("malformed config: the top level must be a mapping of sections");
+            let message = "malformed config: the top level must be a mapping of sections";
+            return Err(syntax(message.to_string()).into());
         }
         for o in overrides {
             apply_override(&mut root, o)?;
@@ -153,5 +164,5 @@ impl Config {
 #[cfg(test)]
 fn test_box_with(overrides: &[&str]) -> Result<Config> {
     let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    Config::load("box", &o)
+    Ok(Config::load("box", &o)?)
 }

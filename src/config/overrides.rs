@@ -4,13 +4,17 @@ use anyhow::{anyhow, bail, Result};
 use serde_yaml_ng::{Mapping, Value};
 
 use super::messages::{one_line, quoted};
+use super::ConfigError;
 use crate::config::yaml_bounds;
 
-/// Applies one `key.sub=value` override; the value is parsed as YAML. An error is one line
-/// that starts with ``override `key=value`:`` and says what is wrong with it.
-pub fn apply_override(root: &mut Value, assignment: &str) -> Result<()> {
-    apply_override_inner(root, assignment)
-        .map_err(|e| anyhow!("override `{}`: {e:#}", quoted(assignment)))
+/// Applies one `key.sub=value` override; the value is parsed as YAML. An error
+/// ([`ConfigError::Override`]) is one line that starts with ``override `key=value`:`` and says
+/// what is wrong with it.
+pub fn apply_override(root: &mut Value, assignment: &str) -> Result<(), ConfigError> {
+    apply_override_inner(root, assignment).map_err(|e| ConfigError::Override {
+        assignment: assignment.to_string(),
+        message: format!("override `{}`: {e:#}", quoted(assignment)),
+    })
 }
 
 fn apply_override_inner(root: &mut Value, assignment: &str) -> Result<()> {

@@ -7,8 +7,9 @@
 //!
 //! Camera maths is done in `f64` with glam; tensors handed to the renderer are `f32`.
 
-use anyhow::{bail, Result};
 use glam::{DMat3, DVec3};
+
+use crate::core::camera_error::CameraError;
 
 /// A pinhole camera with pytorch3d `PerspectiveCameras` parameters (NDC focal length and
 /// principal point).
@@ -35,8 +36,9 @@ impl PerspectiveCamera {
         }
     }
 
-    /// Rejects cameras with non-finite entries or a zero focal length, naming the culprit.
-    pub fn validate(&self) -> Result<()> {
+    /// Rejects cameras with non-finite entries ([`CameraError::NotFinite`]) or a zero focal
+    /// length ([`CameraError::FocalLength`]), naming the culprit.
+    pub fn validate(&self) -> Result<(), CameraError> {
         let all = self
             .r
             .iter()
@@ -45,10 +47,15 @@ impl PerspectiveCamera {
             .chain(self.focal.iter())
             .chain(self.principal_point.iter());
         if all.clone().any(|v| !v.is_finite()) {
-            bail!("camera has a non-finite value in R, T, focal length or principal point");
+            return Err(CameraError::NotFinite {
+                values: "R, T, focal length or principal point",
+            });
         }
         if self.focal.contains(&0.0) {
-            bail!("camera focal length must be non-zero");
+            return Err(CameraError::FocalLength {
+                focal: self.focal,
+                in_pixels: false,
+            });
         }
         Ok(())
     }
@@ -111,7 +118,7 @@ impl crate::core::camera_model::CameraModel for PerspectiveCamera {
         PerspectiveCamera::unproject_ndc(self, x, y, depth)
     }
 
-    fn validate(&self) -> Result<()> {
+    fn validate(&self) -> Result<(), CameraError> {
         PerspectiveCamera::validate(self)
     }
 }

@@ -18,9 +18,9 @@
 //!   [`ASPECT_TOLERANCE`] and a scale of at most [`MAX_SIZE_RATIO`] either way (a camera
 //!   calibrated at another resolution, [`check_photo_size`]).
 
-use anyhow::{bail, Result};
 use glam::DVec2;
 
+use crate::core::camera_error::CameraError;
 use crate::core::distortion::LensDistortion;
 use crate::core::term::short_number;
 
@@ -59,7 +59,7 @@ pub fn check_intrinsics(
     focal: [f64; 2],
     principal_point: [f64; 2],
     distortion: &LensDistortion,
-) -> Result<()> {
+) -> Result<(), CameraError> {
     let fisheye = matches!(distortion, LensDistortion::Fisheye { .. });
     let sides = [width as f64, height as f64];
     for ((axis, side), f) in ["x", "y"].iter().zip(sides).zip(focal) {
@@ -69,24 +69,25 @@ pub fn check_intrinsics(
             true => (MIN_FIELD_OF_VIEW_DEGREES, MAX_FISHEYE_FIELD_OF_VIEW_DEGREES),
         };
         if !(low..=high).contains(&degrees) {
-            bail!(
-                "a field of view of {}° across {axis} ({side} px at focal length {} px) is not \
-                 a {}lens's: it must be {low}° to {high}°",
-                short_number(degrees),
-                short_number(f),
-                if fisheye { "fisheye " } else { "" }
-            );
+            return Err(CameraError::FieldOfView {
+                axis,
+                side,
+                focal: f,
+                degrees,
+                fisheye,
+                range: [low, high],
+            });
         }
     }
     for ((axis, side), c) in ["cx", "cy"].iter().zip(sides).zip(principal_point) {
         let margin = PRINCIPAL_POINT_MARGIN * side;
         if !(-margin..=side + margin).contains(&c) {
-            bail!(
-                "the principal point's {axis} = {} px lies outside the image (0 to {side} px) \
-                 by more than {}% of its side",
-                short_number(c),
-                PRINCIPAL_POINT_MARGIN * 100.0
-            );
+            return Err(CameraError::PrincipalPoint {
+                axis,
+                value: c,
+                side,
+                margin: PRINCIPAL_POINT_MARGIN,
+            });
         }
     }
     check_distortion(sides, focal, principal_point, distortion)
@@ -105,16 +106,15 @@ pub fn field_of_view_degrees(side: f64, focal: f64, fisheye: bool) -> f64 {
 /// Checks NDC focal lengths `[fx, fy]` (the image spans 2 NDC units) against the field-of-view
 /// rule of a perspective lens: `2·atan(1 / f)` from [`MIN_FIELD_OF_VIEW_DEGREES`] to
 /// [`MAX_FIELD_OF_VIEW_DEGREES`].
-pub fn check_ndc_focal(focal: [f64; 2]) -> Result<()> {
+pub fn check_ndc_focal(focal: [f64; 2]) -> Result<(), CameraError> {
     for f in focal {
         let degrees = field_of_view_degrees(2.0, f, false);
         if !(MIN_FIELD_OF_VIEW_DEGREES..=MAX_FIELD_OF_VIEW_DEGREES).contains(&degrees) {
-            bail!(
-                "an NDC focal length of {} gives a field of view of {}°: it must be \
-                 {MIN_FIELD_OF_VIEW_DEGREES}° to {MAX_FIELD_OF_VIEW_DEGREES}°",
-                short_number(f),
-                short_number(degrees)
-            );
+            return Err(CameraError::NdcFieldOfView {
+                focal: f,
+                degrees,
+                range: [MIN_FIELD_OF_VIEW_DEGREES, MAX_FIELD_OF_VIEW_DEGREES],
+            });
         }
     }
     Ok(())
@@ -122,13 +122,13 @@ pub fn check_ndc_focal(focal: [f64; 2]) -> Result<()> {
 
 /// Checks that a stored capture path's `what` (a distance in the normalised frame) is within
 /// [`MAX_NORMALISED_DISTANCE`] of the centre.
-pub fn check_normalised_distance(what: &str, distance: f64) -> Result<()> {
+pub fn check_normalised_distance(what: &str, distance: f64) -> Result<(), CameraError> {
     if distance.is_nan() || distance.abs() > MAX_NORMALISED_DISTANCE {
-        bail!(
-            "{what} {} is beyond {MAX_NORMALISED_DISTANCE} in the normalised frame, where the \
-             training cameras stand within 1 of the centre",
-            short_number(distance)
-        );
+        return Err(CameraError::Distance {
+            what: what.to_string(),
+            distance,
+            limit: MAX_NORMALISED_DISTANCE,
+        });
     }
     Ok(())
 }
@@ -140,7 +140,7 @@ fn check_distortion(
     [fx, fy]: [f64; 2],
     [cx, cy]: [f64; 2],
     distortion: &LensDistortion,
-) -> Result<()> {
+) -> Result<(), CameraError> {
     if *distortion == LensDistortion::None {
         return Ok(());
     }
@@ -153,7 +153,10 @@ fn check_distortion(
         })
         .collect();
     if let Err(why) = distortion.check_invertible_at(&grid) {
-        bail!("the lens distortion is not invertible over the image: {why}");
+        return Err(CameraError::Distortion {
+            property: "invertible",
+            detail: why,
+        });
     }
     // Lines from the principal point to the 4 corners and the 4 edge midpoints.
     let ends = [
@@ -178,11 +181,13 @@ fn check_distortion(
                 None => break,
             };
             if radius.is_nan() || radius <= previous {
-                bail!(
-                    "the lens distortion is not monotonic over the image: towards pixel ({u}, \
-                     {v}) the undistorted radius stops rising at {}",
-                    short_number(previous)
-                );
+                return Err(CameraError::Distortion {
+                    property: "monotonic",
+                    detail: format!(
+                        "towards pixel ({u}, {v}) the undistorted radius stops rising at {}",
+                        short_number(previous)
+                    ),
+                });
             }
             previous = radius;
         }
@@ -193,7 +198,7 @@ fn check_distortion(
 /// Checks that a camera of `camera` `(width, height)` pixels can describe its photo of `photo`
 /// pixels: the same size, or the same aspect within [`ASPECT_TOLERANCE`] at a scale of at most
 /// [`MAX_SIZE_RATIO`] (a camera calibrated at another resolution; the rays follow the scale).
-pub fn check_photo_size(camera: (usize, usize), photo: (u32, u32)) -> Result<()> {
+pub fn check_photo_size(camera: (usize, usize), photo: (u32, u32)) -> Result<(), CameraError> {
     if camera == (photo.0 as usize, photo.1 as usize) {
         return Ok(());
     }
@@ -201,27 +206,24 @@ pub fn check_photo_size(camera: (usize, usize), photo: (u32, u32)) -> Result<()>
     let (pw, ph) = (f64::from(photo.0), f64::from(photo.1));
     let aspect = (cw / ch) / (pw / ph);
     let scale = cw / pw;
+    let refuse = |rule: String| {
+        Err(CameraError::PhotoSize {
+            camera,
+            photo,
+            rule,
+        })
+    };
     if (aspect - 1.0).abs() > ASPECT_TOLERANCE {
-        bail!(
-            "the camera is {}x{} but its photo is {}x{}: a camera must have its photo's size \
-             or its aspect (here {:.3} against {:.3})",
-            camera.0,
-            camera.1,
-            photo.0,
-            photo.1,
+        return refuse(format!(
+            "a camera must have its photo's size or its aspect (here {:.3} against {:.3})",
             cw / ch,
             pw / ph
-        );
+        ));
     }
     if !(1.0 / MAX_SIZE_RATIO..=MAX_SIZE_RATIO).contains(&scale) {
-        bail!(
-            "the camera is {}x{} but its photo is {}x{}: a camera may describe its photo at \
-             most {MAX_SIZE_RATIO} times larger or smaller",
-            camera.0,
-            camera.1,
-            photo.0,
-            photo.1
-        );
+        return refuse(format!(
+            "a camera may describe its photo at most {MAX_SIZE_RATIO} times larger or smaller"
+        ));
     }
     Ok(())
 }

@@ -23,6 +23,7 @@
 use anyhow::{bail, ensure, Context, Result};
 use glam::{DMat3, DQuat, DVec2, DVec3};
 
+use crate::core::camera_error::CameraError;
 use crate::core::camera_model::CameraModel;
 use crate::core::distortion::LensDistortion;
 
@@ -164,13 +165,19 @@ pub struct ColmapPose {
 impl ColmapPose {
     /// A pose from COLMAP's `images.txt` quaternion `[qw, qx, qy, qz]` (Hamilton, normalised
     /// here) and translation `[tx, ty, tz]`; an error for a zero or non-finite quaternion.
-    pub fn from_quaternion([qw, qx, qy, qz]: [f64; 4], translation: [f64; 3]) -> Result<Self> {
+    pub fn from_quaternion(
+        [qw, qx, qy, qz]: [f64; 4],
+        translation: [f64; 3],
+    ) -> std::result::Result<Self, CameraError> {
         let q = DQuat::from_xyzw(qx, qy, qz, qw);
         let norm = q.length();
-        ensure!(
-            norm.is_finite() && norm > 1e-12,
-            "COLMAP pose quaternion [{qw}, {qx}, {qy}, {qz}] is zero or not finite"
-        );
+        if !(norm.is_finite() && norm > 1e-12) {
+            return Err(CameraError::Pose {
+                message: format!(
+                    "COLMAP pose quaternion [{qw}, {qx}, {qy}, {qz}] is zero or not finite"
+                ),
+            });
+        }
         Ok(Self {
             rotation: DMat3::from_quat(q / norm),
             translation: DVec3::from_array(translation),
@@ -298,10 +305,12 @@ impl ColmapCamera {
             principal_point,
             distortion,
         };
-        // One message (callers put it after their own context with `{e}`).
+        // The camera error stays in the chain, under the model's name, for a dataset to find
+        // ([`crate::io::dataset::DatasetError::Camera`]); callers add their context with
+        // `.context`, never by formatting `{e}`, which would print only the model's name.
         camera
             .validate()
-            .map_err(|e| anyhow::anyhow!("COLMAP camera model {}: {e:#}", model.name()))?;
+            .with_context(|| format!("COLMAP camera model {}", model.name()))?;
         Ok(camera)
     }
 
@@ -372,7 +381,7 @@ impl ColmapCamera {
         };
         camera
             .validate()
-            .map_err(|e| anyhow::anyhow!("nerfstudio camera_model {model}: {e:#}"))?;
+            .with_context(|| format!("nerfstudio camera_model {model}"))?;
         Ok(camera)
     }
 
@@ -442,12 +451,11 @@ impl CameraModel for ColmapCamera {
         self.pose.camera_to_world(camera_point)
     }
 
-    fn validate(&self) -> Result<()> {
+    fn validate(&self) -> std::result::Result<(), CameraError> {
         let (width, height) = self.size;
-        ensure!(
-            width > 0 && height > 0,
-            "camera image size must be positive, got {width}×{height}"
-        );
+        if width == 0 || height == 0 {
+            return Err(CameraError::ImageSize { size: self.size });
+        }
         let translation = self.pose.translation.to_array();
         let all_finite = self
             .pose
@@ -460,27 +468,29 @@ impl CameraModel for ColmapCamera {
             .copied()
             .chain(self.distortion.coefficients())
             .all(f64::is_finite);
-        ensure!(
-            all_finite,
-            "camera has a non-finite value in its rotation, translation, focal length, \
-             principal point or distortion"
-        );
+        if !all_finite {
+            return Err(CameraError::NotFinite {
+                values: "its rotation, translation, focal length, principal point or distortion",
+            });
+        }
         let [fx, fy] = self.focal;
-        ensure!(
-            fx > 0.0 && fy > 0.0,
-            "camera focal lengths must be positive, got fx = {fx}, fy = {fy}"
-        );
+        if !(fx > 0.0 && fy > 0.0) {
+            return Err(CameraError::FocalLength {
+                focal: self.focal,
+                in_pixels: true,
+            });
+        }
         let r = self.pose.rotation;
         let orthogonality = (r.transpose() * r - DMat3::IDENTITY)
             .to_cols_array()
             .iter()
             .fold(0.0_f64, |worst, v| worst.max(v.abs()));
-        ensure!(
-            orthogonality < 1e-6 && r.determinant() > 0.0,
-            "camera rotation is not a proper rotation (|RᵀR − I| = {orthogonality:.2e}, \
-             det R = {:.6})",
-            r.determinant()
-        );
+        if !(orthogonality < 1e-6 && r.determinant() > 0.0) {
+            return Err(CameraError::Rotation {
+                orthogonality,
+                determinant: r.determinant(),
+            });
+        }
         crate::core::camera_checks::check_intrinsics(
             self.size,
             self.focal,

@@ -5,8 +5,9 @@
 //! ([`crate::core::rays::Rays`]) and the renderer ([`crate::render_view`]) take any of them.
 //! The pinhole kind is pytorch3d's `PerspectiveCameras`, [`crate::core::camera::PerspectiveCamera`].
 
-use anyhow::Result;
 use glam::DVec3;
+
+use crate::core::camera_error::CameraError;
 
 /// A camera: its pose and how it images the world.
 pub trait CameraModel: std::fmt::Debug + Send + Sync {
@@ -18,8 +19,8 @@ pub trait CameraModel: std::fmt::Debug + Send + Sync {
     fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3;
 
     /// An error naming what is wrong when the camera cannot image anything (a non-finite or
-    /// degenerate pose or intrinsics).
-    fn validate(&self) -> Result<()>;
+    /// degenerate pose or intrinsics; see [`CameraError`]).
+    fn validate(&self) -> Result<(), CameraError>;
 
     /// Origin and unit direction of the ray through the NDC point `(x, y)`: from the centre
     /// towards the point unprojected at depth 1.

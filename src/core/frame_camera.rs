@@ -2,11 +2,11 @@
 //! enum so that a frame stays a plain value (`Clone`, `PartialEq`). A loader that brings a new
 //! [`CameraModel`] kind adds one variant here.
 
-use anyhow::Result;
 use glam::DVec3;
 
 use crate::core::camera::PerspectiveCamera;
 use crate::core::camera_colmap::ColmapCamera;
+use crate::core::camera_error::CameraError;
 use crate::core::camera_model::CameraModel;
 
 /// One frame's camera.
@@ -58,7 +58,7 @@ impl CameraModel for FrameCamera {
         self.model().unproject_ndc(x, y, depth)
     }
 
-    fn validate(&self) -> Result<()> {
+    fn validate(&self) -> Result<(), CameraError> {
         self.model().validate()
     }
 

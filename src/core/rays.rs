@@ -271,7 +271,7 @@ mod camera_model_tests {
             // +X left in NDC: world x = −x for a camera looking down −z with +y up.
             DVec3::new(-x, y, 5.0 - depth)
         }
-        fn validate(&self) -> Result<()> {
+        fn validate(&self) -> Result<(), crate::core::camera_error::CameraError> {
             Ok(())
         }
         fn ray_through_ndc(&self, x: f64, y: f64) -> (DVec3, DVec3) {

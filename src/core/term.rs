@@ -31,6 +31,23 @@ pub fn short_number(v: f64) -> String {
     }
 }
 
+/// `error` and its chain of sources as the one line the `nerf` binary prints: each cause cut
+/// to its first non-blank line, trimmed (Candle appends a backtrace to its errors' text when
+/// `RUST_BACKTRACE` is set; some causes' text starts with a line break), blank ones left out,
+/// joined by `": "`. The typed errors of the library's boundaries carry this line as their
+/// message when they gather several layers of context.
+pub fn error_line(error: &(dyn std::error::Error + 'static)) -> String {
+    let causes: Vec<String> = std::iter::successors(Some(error), |e| e.source())
+        .filter_map(|c| {
+            let text = c.to_string();
+            text.lines()
+                .find(|l| !l.trim().is_empty())
+                .map(|l| l.trim().to_string())
+        })
+        .collect();
+    causes.join(": ")
+}
+
 struct StderrLines;
 
 impl log::Log for StderrLines {

@@ -228,23 +228,10 @@ pub fn load_parameters(
     kind: &str,
     origin: &Path,
 ) -> Result<()> {
+    crate::io::checkpoint_file::check_parameters(tensors, expected, kind, origin)?;
     let data = varmap.data().lock().expect("varmap lock");
-    for (name, shape) in expected {
-        let Some(t) = tensors.get(name) else {
-            bail!(
-                "checkpoint {} lacks tensor {name} (is it a {kind} checkpoint of this config's sizes?)",
-                origin.display()
-            );
-        };
-        if t.dims() != &shape[..] {
-            bail!(
-                "checkpoint {}: tensor {name} has shape {:?} but the config needs {:?}",
-                origin.display(),
-                t.dims(),
-                shape
-            );
-        }
-        let Some(var) = data.get(name) else {
+    for (name, _) in expected {
+        let (Some(t), Some(var)) = (tensors.get(name), data.get(name)) else {
             bail!("model has no parameter {name}");
         };
         var.set(&t.to_dtype(DType::F32)?.to_device(var.device())?)?;

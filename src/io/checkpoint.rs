@@ -17,6 +17,7 @@ use anyhow::{bail, Context, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
+pub use crate::io::checkpoint_error::CheckpointError;
 use crate::io::dataset::{CaptureOrbit, CaptureSpiral, SceneTransform};
 use crate::io::output::write_atomically;
 
@@ -92,10 +93,10 @@ pub mod metadata_limits {
 }
 
 impl CheckpointInfo {
-    /// An error naming the key when a count is past [`metadata_limits`] or the training wall
-    /// time is negative or not finite. (`rng_word_pos` needs no limit: the stream cycles, and
-    /// setting it reads only its low 68 bits.)
-    pub fn validate(&self, origin: &Path) -> Result<()> {
+    /// An error naming the key ([`CheckpointError::Metadata`]) when a count is past
+    /// [`metadata_limits`] or the training wall time is negative or not finite. (`rng_word_pos`
+    /// needs no limit: the stream cycles, and setting it reads only its low 68 bits.)
+    pub fn validate(&self, origin: &Path) -> Result<(), CheckpointError> {
         use metadata_limits as l;
         let counts = [
             ("epoch", self.epoch as u64, l::EPOCHS),
@@ -105,19 +106,21 @@ impl CheckpointInfo {
         ];
         for (key, value, max) in counts {
             if value > max {
-                bail!(
+                let message = format!(
                     "checkpoint {}: metadata {key} = {value} is past the most a run can have \
                      ({max}); the file is corrupt or crafted",
                     origin.display()
                 );
+                return Err(CheckpointError::metadata(origin, key, message));
             }
         }
         if !(self.wall_seconds.is_finite() && self.wall_seconds >= 0.0) {
-            bail!(
+            let message = format!(
                 "checkpoint {}: metadata wall_seconds = {} is not a time",
                 origin.display(),
                 self.wall_seconds
             );
+            return Err(CheckpointError::metadata(origin, "wall_seconds", message));
         }
         Ok(())
     }
@@ -189,36 +192,47 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     })
 }
 
-/// Reads every tensor (f32, its stored shape, on `device`) and the metadata of a checkpoint;
-/// an error names a non-finite tensor.
-pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
-    let bytes = std::fs::read(path)
-        .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
+/// Reads every tensor (f32, its stored shape, on `device`) and the metadata of a safetensors
+/// checkpoint. Errors ([`CheckpointError`]): no file ([`CheckpointError::NotFound`]), a
+/// PyTorch file or one that is not safetensors ([`CheckpointError::Format`]), metadata that does
+/// not read or is out of bounds ([`CheckpointError::Metadata`]), a non-finite tensor
+/// ([`CheckpointError::NonFinite`]).
+pub fn load(
+    path: &Path,
+    device: &Device,
+) -> Result<(HashMap<String, Tensor>, CheckpointInfo), CheckpointError> {
+    load_safetensors(path, device).map_err(CheckpointError::from_anyhow)
+}
+
+/// [`load`], its typed errors inside an `anyhow::Error`.
+fn load_safetensors(
+    path: &Path,
+    device: &Device,
+) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
+    let bytes = std::fs::read(path).map_err(|e| CheckpointError::unreadable(path, e))?;
     // A safetensors file: an 8-byte header length that fits, then the JSON header's `{` (its
     // first byte may be 0x80, as a pickle stream's is).
     let safetensors_like = bytes.len() > 8
         && bytes[8] == b'{'
         && u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) <= bytes.len() as u64 - 8;
     if !safetensors_like && (bytes.starts_with(b"PK\x03\x04") || bytes.first() == Some(&0x80)) {
-        bail!(
+        let message = format!(
             "checkpoint {} is a PyTorch file (torch.save), not safetensors: convert it with \
              `nerf import-torch {} --config CONFIG --out FILE.safetensors`",
             path.display(),
             path.display()
         );
+        return Err(CheckpointError::format(path, message).into());
     }
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| {
-        anyhow::anyhow!(
+    let corrupt = |e: safetensors::SafeTensorError| {
+        let message = format!(
             "checkpoint {} is corrupt or not safetensors: {e}",
             path.display()
-        )
-    })?;
-    let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| {
-        anyhow::anyhow!(
-            "checkpoint {} is corrupt or not safetensors: {e}",
-            path.display()
-        )
-    })?;
+        );
+        CheckpointError::format(path, message)
+    };
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(corrupt)?;
+    let st = safetensors::SafeTensors::deserialize(&bytes).map_err(corrupt)?;
     let meta = header.metadata().clone().unwrap_or_default();
     let info = CheckpointInfo {
         epoch: metadata_value(&meta, "epoch", path)?,
@@ -247,10 +261,13 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
                 .chunks_exact(2)
                 .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
                 .collect(),
-            other => bail!(
-                "checkpoint {}: tensor {name} is {other:?}, expected F32 or F16",
-                path.display()
-            ),
+            other => {
+                let message = format!(
+                    "checkpoint {}: tensor {name} is {other:?}, expected F32 or F16",
+                    path.display()
+                );
+                return Err(CheckpointError::format(path, message).into());
+            }
         };
         ensure_finite_values(path, &name, &values)?;
         tensors.insert(name, Tensor::from_vec(values, view.shape(), device)?);
@@ -258,17 +275,26 @@ pub fn load(path: &Path, device: &Device) -> Result<(HashMap<String, Tensor>, Ch
     Ok((tensors, info))
 }
 
-/// An error naming the file and tensor when any of `values` is NaN or infinite: such a weight
-/// makes the ReLU density NaN, which the occupancy grid then reads as empty space and renders
-/// as black, silently.
-pub fn ensure_finite_values(origin: &Path, name: &str, values: &[f32]) -> Result<()> {
+/// An error naming the file and tensor ([`CheckpointError::NonFinite`]) when any of `values` is
+/// NaN or infinite: such a weight makes the ReLU density NaN, which the occupancy grid then
+/// reads as empty space and renders as black, silently.
+pub fn ensure_finite_values(
+    origin: &Path,
+    name: &str,
+    values: &[f32],
+) -> Result<(), CheckpointError> {
     let bad = values.iter().filter(|v| !v.is_finite()).count();
     if bad > 0 {
-        bail!(
-            "{}: tensor {name} has {bad} non-finite values (NaN or inf) of {}",
-            origin.display(),
-            values.len()
-        );
+        return Err(CheckpointError::NonFinite {
+            path: origin.to_path_buf(),
+            name: name.to_string(),
+            count: bad,
+            message: format!(
+                "{}: tensor {name} has {bad} non-finite values (NaN or inf) of {}",
+                origin.display(),
+                values.len()
+            ),
+        });
     }
     Ok(())
 }
@@ -288,22 +314,27 @@ pub fn model_tensors(varmap: &VarMap) -> Vec<(String, Tensor)> {
 const MAX_HEADER_BYTES: u64 = 100_000_000;
 
 /// The metadata of the safetensors checkpoint at `path`, read from its header alone (the
-/// tensors are not read). An error names a file that is not safetensors.
-pub fn read_metadata(path: &Path) -> Result<HashMap<String, String>> {
+/// tensors are not read). An error names a missing file ([`CheckpointError::NotFound`]) or one
+/// that is not safetensors ([`CheckpointError::Format`]).
+pub fn read_metadata(path: &Path) -> Result<HashMap<String, String>, CheckpointError> {
     use std::io::Read;
     let corrupt = |why: &str| {
-        anyhow::anyhow!(
+        let message = format!(
             "checkpoint {} is corrupt or not safetensors: {why}",
             path.display()
-        )
+        );
+        CheckpointError::format(path, message)
     };
-    let mut file = std::fs::File::open(path)
-        .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
+    let mut file = std::fs::File::open(path).map_err(|e| CheckpointError::unreadable(path, e))?;
     let mut length = [0u8; 8];
     file.read_exact(&mut length)
         .map_err(|_| corrupt("shorter than a header"))?;
     let length = u64::from_le_bytes(length);
-    if length > MAX_HEADER_BYTES || length > file.metadata()?.len().saturating_sub(8) {
+    let file_length = file
+        .metadata()
+        .map_err(|e| CheckpointError::unreadable(path, e))?
+        .len();
+    if length > MAX_HEADER_BYTES || length > file_length.saturating_sub(8) {
         return Err(corrupt("its header length does not fit"));
     }
     let mut header = vec![0u8; length as usize];
@@ -318,17 +349,19 @@ pub fn read_metadata(path: &Path) -> Result<HashMap<String, String>> {
 }
 
 /// The value of metadata entry `key` of the checkpoint at `path` read by `parse`; `None`
-/// when there is none, an error naming the key when it does not read.
+/// when there is none, an error naming the key ([`CheckpointError::Metadata`]) when it does not
+/// read.
 fn parsed_metadata<T>(
     meta: &HashMap<String, String>,
     key: &str,
     path: &Path,
     parse: fn(&str) -> Result<T>,
-) -> Result<Option<T>> {
+) -> Result<Option<T>, CheckpointError> {
     meta.get(key)
         .map(|text| {
             parse(text).map_err(|e| {
-                anyhow::anyhow!("checkpoint {}: bad metadata {key}: {e}", path.display())
+                let message = format!("checkpoint {}: bad metadata {key}: {e}", path.display());
+                CheckpointError::metadata(path, key, message)
             })
         })
         .transpose()
@@ -339,7 +372,7 @@ fn parsed_metadata<T>(
 pub fn scene_transform_of(
     meta: &HashMap<String, String>,
     path: &Path,
-) -> Result<Option<SceneTransform>> {
+) -> Result<Option<SceneTransform>, CheckpointError> {
     parsed_metadata(meta, SCENE_TRANSFORM_KEY, path, SceneTransform::from_text)
 }
 
@@ -348,7 +381,7 @@ pub fn scene_transform_of(
 pub fn capture_orbit_of(
     meta: &HashMap<String, String>,
     path: &Path,
-) -> Result<Option<CaptureOrbit>> {
+) -> Result<Option<CaptureOrbit>, CheckpointError> {
     parsed_metadata(meta, CAPTURE_ORBIT_KEY, path, CaptureOrbit::from_text)
 }
 
@@ -357,14 +390,15 @@ pub fn capture_orbit_of(
 pub fn capture_spiral_of(
     meta: &HashMap<String, String>,
     path: &Path,
-) -> Result<Option<CaptureSpiral>> {
+) -> Result<Option<CaptureSpiral>, CheckpointError> {
     parsed_metadata(meta, CAPTURE_SPIRAL_KEY, path, CaptureSpiral::from_text)
 }
 
-/// The metadata entry `key` of the checkpoint at `path` parsed as a `T`, its default (0)
-/// when absent; an error naming the key when it does not parse.
 /// The stored background colour (three numbers in [0, 1]), if any.
-pub fn background_of(meta: &HashMap<String, String>, path: &Path) -> Result<Option<[f32; 3]>> {
+pub fn background_of(
+    meta: &HashMap<String, String>,
+    path: &Path,
+) -> Result<Option<[f32; 3]>, CheckpointError> {
     parsed_metadata(meta, BACKGROUND_KEY, path, |text| {
         let v: Vec<f32> = text
             .split_whitespace()
@@ -382,7 +416,7 @@ pub fn background_of(meta: &HashMap<String, String>, path: &Path) -> Result<Opti
 pub fn image_size_of(
     meta: &HashMap<String, String>,
     path: &Path,
-) -> Result<Option<(usize, usize)>> {
+) -> Result<Option<(usize, usize)>, CheckpointError> {
     parsed_metadata(meta, IMAGE_SIZE_KEY, path, |text| {
         let v: Vec<usize> = text
             .split_whitespace()
@@ -398,16 +432,19 @@ pub fn image_size_of(
     })
 }
 
+/// The metadata entry `key` of the checkpoint at `path` parsed as a `T`, its default (0)
+/// when absent; an error naming the key when it does not parse.
 fn metadata_value<T: std::str::FromStr + Default>(
     meta: &HashMap<String, String>,
     key: &str,
     path: &Path,
-) -> Result<T> {
+) -> Result<T, CheckpointError> {
     match meta.get(key) {
         None => Ok(T::default()),
-        Some(v) => v
-            .parse()
-            .map_err(|_| anyhow::anyhow!("checkpoint {}: bad metadata {key}", path.display())),
+        Some(v) => v.parse().map_err(|_| {
+            let message = format!("checkpoint {}: bad metadata {key}", path.display());
+            CheckpointError::metadata(path, key, message)
+        }),
     }
 }
 

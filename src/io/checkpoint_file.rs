@@ -19,10 +19,11 @@ use std::collections::HashMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::Result;
 use candle_core::{Device, Tensor};
 
 use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::checkpoint_error::CheckpointError;
 use crate::io::parameter_shapes::ParameterShapes;
 use crate::io::torch::read_torch_checkpoint;
 use crate::io::torch_archive::looks_like_torch;
@@ -38,14 +39,14 @@ pub enum CheckpointFormat {
 
 /// The format of the file at `path`, from its first bytes: a safetensors file is an 8-byte
 /// little-endian header length that fits in the file, then the JSON header's `{`; a
-/// `torch.save` file is a zip archive (or a legacy pickle stream). An error names a file that
-/// is neither.
-pub fn detect_format(path: &Path) -> Result<CheckpointFormat> {
+/// `torch.save` file is a zip archive (or a legacy pickle stream). An error names a missing
+/// file ([`CheckpointError::NotFound`]) or one that is neither ([`CheckpointError::Format`]).
+pub fn detect_format(path: &Path) -> Result<CheckpointFormat, CheckpointError> {
     let mut head = [0u8; 9];
-    let mut file = std::fs::File::open(path)
-        .with_context(|| format!("cannot read checkpoint {}", path.display()))?;
-    let len = file.metadata()?.len();
-    let n = file.read(&mut head)?;
+    let unreadable = |e| CheckpointError::unreadable(path, e);
+    let mut file = std::fs::File::open(path).map_err(unreadable)?;
+    let len = file.metadata().map_err(unreadable)?.len();
+    let n = file.read(&mut head).map_err(unreadable)?;
     let head = &head[..n];
     if n == 9 && head[8] == b'{' {
         let header = u64::from_le_bytes(head[..8].try_into().expect("8 bytes"));
@@ -56,21 +57,23 @@ pub fn detect_format(path: &Path) -> Result<CheckpointFormat> {
     if looks_like_torch(head) {
         return Ok(CheckpointFormat::Torch);
     }
-    bail!(
+    let message = format!(
         "checkpoint {} is corrupt or not a checkpoint (neither safetensors nor a PyTorch file)",
         path.display()
-    )
+    );
+    Err(CheckpointError::format(path, message))
 }
 
 /// Every tensor of a checkpoint of either format, by our names (the model's parameters and,
 /// when saved, `adam.exp_avg.*` / `adam.exp_avg_sq.*`; a safetensors checkpoint may also hold
 /// an occupancy grid), on `device`, and what it says about training progress. A PyTorch file
-/// is read for the parameters `expected` (names and shapes checked).
+/// is read for the parameters `expected` (names and shapes checked). Errors: see
+/// [`CheckpointError`].
 pub fn load(
     path: &Path,
     expected: &ParameterShapes,
     device: &Device,
-) -> Result<(HashMap<String, Tensor>, CheckpointInfo)> {
+) -> Result<(HashMap<String, Tensor>, CheckpointInfo), CheckpointError> {
     match detect_format(path)? {
         CheckpointFormat::Safetensors => checkpoint::load(path, device),
         CheckpointFormat::Torch => {
@@ -80,11 +83,54 @@ pub fn load(
                 .into_iter()
                 .chain(torch.adam)
                 .map(|(n, t)| Ok((n, t.to_device(device)?)))
-                .collect::<Result<_>>()?;
+                .collect::<Result<_>>()
+                .map_err(CheckpointError::Other)?;
             torch.info.validate(path)?;
             Ok((tensors, torch.info))
         }
     }
+}
+
+/// An error unless `tensors` (a checkpoint's, read from `origin`) hold every parameter of
+/// `expected` at its shape: [`CheckpointError::MissingParameter`] or
+/// [`CheckpointError::Shape`] for the first that is not, in `expected`'s order, naming the
+/// field `kind` the checkpoint should be of.
+pub fn check_parameters(
+    tensors: &HashMap<String, Tensor>,
+    expected: &ParameterShapes,
+    kind: &str,
+    origin: &Path,
+) -> Result<(), CheckpointError> {
+    for (name, shape) in expected {
+        let (path, name) = (origin.to_path_buf(), name.clone());
+        let Some(t) = tensors.get(&name) else {
+            let message = format!(
+                "checkpoint {} lacks tensor {name} (is it a {kind} checkpoint of this config's sizes?)",
+                origin.display()
+            );
+            return Err(CheckpointError::MissingParameter {
+                path,
+                name,
+                message,
+            });
+        };
+        if t.dims() != &shape[..] {
+            let message = format!(
+                "checkpoint {}: tensor {name} has shape {:?} but the config needs {:?}",
+                origin.display(),
+                t.dims(),
+                shape
+            );
+            return Err(CheckpointError::Shape {
+                path,
+                name,
+                expected: shape.clone(),
+                found: t.dims().to_vec(),
+                message,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// What a checkpoint path is resolved for.
@@ -112,9 +158,11 @@ pub fn relative_note(path: &Path) -> String {
 }
 
 /// The checkpoints in directory `dir` (files of either format, by content), sorted.
-pub fn checkpoints_in(dir: &Path) -> Result<Vec<PathBuf>> {
+pub fn checkpoints_in(dir: &Path) -> Result<Vec<PathBuf>, CheckpointError> {
+    use anyhow::Context;
     let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("cannot read checkpoint directory {}", dir.display()))?
+        .with_context(|| format!("cannot read checkpoint directory {}", dir.display()))
+        .map_err(CheckpointError::Other)?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.is_file() && detect_format(p).is_ok())
         .collect();
@@ -127,8 +175,10 @@ pub fn checkpoints_in(dir: &Path) -> Result<Vec<PathBuf>> {
 /// its only checkpoint (several: an error naming them; none: for reading an error naming the
 /// directory, for training `<dir>/<stem>.safetensors`, a fresh run); a missing path is an
 /// error for reading (a relative one says where it was tried) and for training the file (a
-/// name with an extension) or directory a fresh run writes.
-pub fn resolve_for(path: &Path, stem: &str, purpose: Purpose) -> Result<PathBuf> {
+/// name with an extension) or directory a fresh run writes. Errors:
+/// [`CheckpointError::NotFound`], [`CheckpointError::Ambiguous`] (several), and
+/// [`CheckpointError::Format`] for a path that is neither a file nor a directory.
+pub fn resolve_for(path: &Path, stem: &str, purpose: Purpose) -> Result<PathBuf, CheckpointError> {
     let ours = path.join(format!("{stem}.safetensors"));
     if path.is_file() {
         return Ok(path.to_path_buf());
@@ -141,76 +191,105 @@ pub fn resolve_for(path: &Path, stem: &str, purpose: Purpose) -> Result<PathBuf>
         return match (found.len(), purpose) {
             (1, _) => Ok(found.remove(0)),
             (0, Purpose::Train) => Ok(ours),
-            (0, Purpose::Read) => bail!(
-                "checkpoint directory {} holds no checkpoint (expected {} or one checkpoint \
-                 file{})",
-                path.display(),
-                ours.display(),
-                relative_note(path)
-            ),
-            (_, purpose) => bail!(
-                "checkpoint directory {} holds several checkpoints ({}); name one with {}",
-                path.display(),
-                found
-                    .iter()
-                    .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                match purpose {
-                    Purpose::Read => "--checkpoint",
-                    Purpose::Train => "training.checkpoint_path=FILE",
-                }
-            ),
+            (0, Purpose::Read) => Err(CheckpointError::not_found(
+                path,
+                format!(
+                    "checkpoint directory {} holds no checkpoint (expected {} or one checkpoint \
+                     file{})",
+                    path.display(),
+                    ours.display(),
+                    relative_note(path)
+                ),
+            )),
+            (_, purpose) => {
+                let message = format!(
+                    "checkpoint directory {} holds several checkpoints ({}); name one with {}",
+                    path.display(),
+                    found
+                        .iter()
+                        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    match purpose {
+                        Purpose::Read => "--checkpoint",
+                        Purpose::Train => "training.checkpoint_path=FILE",
+                    }
+                );
+                Err(CheckpointError::Ambiguous {
+                    dir: path.to_path_buf(),
+                    found,
+                    message,
+                })
+            }
         };
     }
     if let Ok(m) = std::fs::metadata(path) {
-        bail!(
+        let message = format!(
             "checkpoint {} is {}, neither a file nor a directory",
             path.display(),
             crate::io::bounded_read::kind(&m)
         );
+        return Err(CheckpointError::format(path, message));
     }
     match purpose {
-        Purpose::Read => bail!(
-            "checkpoint {} not found (name a checkpoint file, or a directory holding one{})",
-            path.display(),
-            relative_note(path)
-        ),
+        Purpose::Read => Err(CheckpointError::not_found(
+            path,
+            format!(
+                "checkpoint {} not found (name a checkpoint file, or a directory holding one{})",
+                path.display(),
+                relative_note(path)
+            ),
+        )),
         Purpose::Train if path.extension().is_some() => Ok(path.to_path_buf()),
         Purpose::Train => Ok(ours),
     }
 }
 
 /// The checkpoint file `path` names for reading ([`resolve_for`] with [`Purpose::Read`]).
-pub fn resolve(path: &Path, stem: &str) -> Result<PathBuf> {
+pub fn resolve(path: &Path, stem: &str) -> Result<PathBuf, CheckpointError> {
     resolve_for(path, stem, Purpose::Read)
 }
 
-/// An error unless `path` is a file: "not found" (with how to make one; a relative path also
-/// as the absolute path tried) or, for a directory that [`crate::io::checkpoint_file::resolve`]
-/// could not turn into its one checkpoint, what it holds.
+/// An error unless `path` is a file: "not found" ([`CheckpointError::NotFound`], with how to
+/// make one; a relative path also as the absolute path tried), not a regular file
+/// ([`CheckpointError::Format`]) or, for a directory that
+/// [`crate::io::checkpoint_file::resolve`] could not turn into its one checkpoint, what it holds
+/// ([`CheckpointError::Ambiguous`]; [`CheckpointError::NotFound`] when it holds none). The
+/// error is a [`CheckpointError`] (`downcast_ref` finds it) in an `anyhow::Error`, as
+/// the config layer's `Config::ensure_checkpoint` passes it on.
 pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
     if path.is_dir() {
         let found = checkpoints_in(path)?;
-        bail!(
+        let message = format!(
             "checkpoint {} is a directory holding {} checkpoint files (a directory is taken \
              when it holds exactly one; else name the file)",
             path.display(),
             found.len()
         );
+        return Err(match found.len() {
+            0 => CheckpointError::not_found(path, message),
+            _ => CheckpointError::Ambiguous {
+                dir: path.to_path_buf(),
+                found,
+                message,
+            },
+        }
+        .into());
     }
     if path.exists() && !path.is_file() {
-        bail!(
+        let message = format!(
             "checkpoint {} is not a regular file (a device, FIFO or socket); name a checkpoint file",
             path.display()
         );
+        return Err(CheckpointError::format(path, message).into());
     }
     if !path.is_file() {
-        bail!(
+        let message = format!(
             "checkpoint {} not found (train one with `nerf train --config nerf_lego_fast`{})",
             path.display(),
             relative_note(path)
         );
+        return Err(CheckpointError::not_found(path, message).into());
     }
     Ok(())
 }

@@ -5,6 +5,7 @@ pub mod bounded_read;
 pub mod camera_path;
 pub mod camera_truth;
 pub mod checkpoint;
+pub mod checkpoint_error;
 pub mod checkpoint_file;
 pub mod colmap;
 pub mod dataset;

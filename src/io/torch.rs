@@ -14,6 +14,7 @@ use anyhow::{anyhow, bail, Result};
 use candle_core::Tensor;
 
 use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::checkpoint_error::{format_unless_typed, CheckpointError};
 use crate::io::parameter_shapes::ParameterShapes;
 use crate::io::pickle::Value;
 use crate::io::torch_archive::{tensor_ref, TorchArchive};
@@ -58,10 +59,22 @@ fn state_dict(root: &Value, expected: &[(String, Vec<usize>)]) -> Option<Vec<(Va
 
 /// Reads the NeRF (and, when present, Adam's state and the epoch) from a PyTorch file, by our
 /// names, as f32 on the CPU. Every parameter must be present with the config's shape
-/// (`expected`, in the module's order); an error names a missing, misshapen or non-finite tensor.
-pub fn read_torch_checkpoint(path: &Path, expected: &ParameterShapes) -> Result<TorchCheckpoint> {
+/// (`expected`, in the module's order); an error names a missing, misshapen or non-finite tensor
+/// ([`CheckpointError::MissingParameter`], [`CheckpointError::Shape`],
+/// [`CheckpointError::NonFinite`]), a missing file ([`CheckpointError::NotFound`]), or what is
+/// wrong with a file that does not read ([`CheckpointError::Format`]).
+pub fn read_torch_checkpoint(
+    path: &Path,
+    expected: &ParameterShapes,
+) -> Result<TorchCheckpoint, CheckpointError> {
+    read_checkpoint(path, expected).map_err(|e| format_unless_typed(path, e))
+}
+
+/// [`read_torch_checkpoint`], its typed errors inside an `anyhow::Error`.
+fn read_checkpoint(path: &Path, expected: &ParameterShapes) -> Result<TorchCheckpoint> {
     if !path.exists() {
-        bail!("PyTorch file {} not found", path.display());
+        let message = format!("PyTorch file {} not found", path.display());
+        return Err(CheckpointError::not_found(path, message).into());
     }
     let mut archive = TorchArchive::open(path)?;
     archive.verify()?;
@@ -89,20 +102,29 @@ pub fn read_torch_checkpoint(path: &Path, expected: &ParameterShapes) -> Result<
     let mut model = Vec::with_capacity(expected.len());
     let mut positions = Vec::with_capacity(expected.len());
     for (name, shape) in expected {
-        let i = lookup(&name_refs, name).ok_or_else(|| {
-            anyhow!(
+        let i = lookup(&name_refs, name).ok_or_else(|| CheckpointError::MissingParameter {
+            path: path.to_path_buf(),
+            name: name.clone(),
+            message: format!(
                 "{} has no tensor {name} (a state dict of the homework's NeuralRadianceField is expected)",
                 path.display()
-            )
+            ),
         })?;
         let (_, _, dims, value) = &found[i];
         if dims != shape {
-            bail!(
-                "{}: tensor {name} has shape {:?} but the config needs {:?}",
-                path.display(),
-                dims,
-                shape
-            );
+            return Err(CheckpointError::Shape {
+                path: path.to_path_buf(),
+                name: name.clone(),
+                expected: shape.clone(),
+                found: dims.clone(),
+                message: format!(
+                    "{}: tensor {name} has shape {:?} but the config needs {:?}",
+                    path.display(),
+                    dims,
+                    shape
+                ),
+            }
+            .into());
         }
         let t = archive.tensor(value)?.expect("a tensor reference");
         checkpoint::ensure_finite_values(path, name, &t.flatten_all()?.to_vec1::<f32>()?)?;

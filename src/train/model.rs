@@ -15,6 +15,7 @@ use crate::field::trainable::{
     BoxedField, FieldSpec, ParamGroups, SparseRowsGroup, TrainableField,
 };
 use crate::io::checkpoint::{self, CheckpointInfo};
+use crate::io::checkpoint_error::CheckpointError;
 use crate::io::checkpoint_file;
 use crate::kernels::hash_grid::{HashGridParams, TableGradient};
 use crate::render::occupancy::{
@@ -60,13 +61,15 @@ impl TrainModel {
 
     /// The model of `spec` with the weights of the checkpoint at `path` (ours or a PyTorch
     /// file, told apart by content; names and shapes checked), the checkpoint's tensors
-    /// (optimiser state, grid) and what it says of progress.
+    /// (optimiser state, grid) and what it says of progress. Errors: those of
+    /// [`checkpoint_file::load`], and [`CheckpointError::MissingParameter`] or
+    /// [`CheckpointError::Shape`] for a checkpoint of another model.
     pub fn from_checkpoint(
         spec: &dyn FieldSpec,
         path: &Path,
         device: &Device,
-    ) -> Result<LoadedCheckpoint> {
-        let mut field = spec.seeded(0, device)?;
+    ) -> Result<LoadedCheckpoint, CheckpointError> {
+        let mut field = spec.seeded(0, device).map_err(CheckpointError::Other)?;
         let mut expected = field.parameter_shapes();
         let (tensors, info) = checkpoint_file::load(path, &expected, device)?;
         // Per-image parameters are sized by the images the checkpoint was trained on.
@@ -74,16 +77,18 @@ impl TrainModel {
             .get(crate::field::appearance::EMBEDDING)
             .and_then(|t| t.dims().first().copied());
         if let Some(sized) = images.and_then(|n| spec.for_training_images(n)) {
-            field = sized.seeded(0, device)?;
+            field = sized.seeded(0, device).map_err(CheckpointError::Other)?;
             expected = field.parameter_shapes();
         }
+        checkpoint_file::check_parameters(&tensors, &expected, field.kind(), path)?;
         crate::field::trainable::load_parameters(
             field.varmap(),
             &expected,
             &tensors,
             field.kind(),
             path,
-        )?;
+        )
+        .map_err(CheckpointError::Other)?;
         Ok(LoadedCheckpoint {
             model: Self::new(field),
             tensors,
@@ -92,13 +97,14 @@ impl TrainModel {
     }
 
     /// A trained model for rendering: weights from the checkpoint at `path` and, with `grid`,
-    /// an occupancy grid (the one saved in the checkpoint, or one built from the model).
+    /// an occupancy grid (the one saved in the checkpoint, or one built from the model). Errors
+    /// as [`TrainModel::from_checkpoint`]'s; one building the grid is [`CheckpointError::Other`].
     pub fn load(
         spec: &dyn FieldSpec,
         grid: Option<&OccupancyGridParams>,
         path: &Path,
         device: &Device,
-    ) -> Result<(Self, CheckpointInfo)> {
+    ) -> Result<(Self, CheckpointInfo), CheckpointError> {
         let LoadedCheckpoint {
             mut model,
             tensors,
@@ -107,7 +113,8 @@ impl TrainModel {
         if let Some(grid) = grid {
             let field = &model.field;
             let density = |p: &Tensor| field.density(p);
-            model.occupancy = Some(grid_for_checkpoint(grid, &tensors, &density, device)?);
+            let built = grid_for_checkpoint(grid, &tensors, &density, device);
+            model.occupancy = Some(built.map_err(CheckpointError::Other)?);
         }
         Ok((model, info))
     }

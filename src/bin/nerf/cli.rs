@@ -136,7 +136,7 @@ pub struct ConfigArgs {
 impl ConfigArgs {
     /// The config `--config` names, with the overrides applied.
     pub fn load(&self) -> Result<nerf::config::Config> {
-        nerf::config::Config::load(&self.config, &self.overrides)
+        Ok(nerf::config::Config::load(&self.config, &self.overrides)?)
     }
 }
 

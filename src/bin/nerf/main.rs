@@ -90,18 +90,9 @@ fn main() -> ExitCode {
                 }
             }
             // One line: the chain of causes joined by ": ", each cut to its first non-blank
-            // line (Candle appends a backtrace to its errors' text when RUST_BACKTRACE is set;
-            // some causes' text starts with a line break).
-            let causes: Vec<String> = e
-                .chain()
-                .filter_map(|c| {
-                    let text = c.to_string();
-                    text.lines()
-                        .find(|l| !l.trim().is_empty())
-                        .map(|l| l.trim().to_string())
-                })
-                .collect();
-            nerf::core::term::note(&format!("error: {}", causes.join(": ")));
+            // line (the library's rule, which its typed errors' messages follow too).
+            let line = nerf::core::term::error_line(e.as_ref());
+            nerf::core::term::note(&format!("error: {line}"));
             ExitCode::FAILURE
         }
     }

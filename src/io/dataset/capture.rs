@@ -17,6 +17,7 @@ use std::path::Path;
 use anyhow::{bail, Result};
 
 pub use super::capture_frame::{CaptureFrame, CaptureFrames};
+use super::error::DatasetError;
 use super::normalize::SceneTransform;
 use super::transforms::{Frame, Split};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
@@ -183,15 +184,29 @@ pub fn in_holdout_split(index: usize, split: Split) -> bool {
 }
 
 /// `split` of a capture read as `format` from `dir`, normalised by the transform its cameras
-/// give. Errors name the directory and what is missing or wrong; a split with no frames is an
-/// error.
-pub fn read_capture_split(dir: &Path, format: SceneFormat, split: Split) -> Result<CaptureSplit> {
+/// give. Errors name the directory and what is missing or wrong ([`DatasetError`]); a split
+/// with no frames is an error.
+pub fn read_capture_split(
+    dir: &Path,
+    format: SceneFormat,
+    split: Split,
+) -> Result<CaptureSplit, DatasetError> {
     read_capture_split_with(dir, format, split, None)
 }
 
 /// [`read_capture_split`] normalised by `stored` when given (the transform a model was trained
 /// in, so that its cameras land where that model's did), else by the one the cameras give.
 pub fn read_capture_split_with(
+    dir: &Path,
+    format: SceneFormat,
+    split: Split,
+    stored: Option<SceneTransform>,
+) -> Result<CaptureSplit, DatasetError> {
+    capture_split(dir, format, split, stored).map_err(DatasetError::from_anyhow)
+}
+
+/// [`read_capture_split_with`], its typed errors inside an `anyhow::Error`.
+fn capture_split(
     dir: &Path,
     format: SceneFormat,
     split: Split,
@@ -205,7 +220,10 @@ pub fn read_capture_split_with(
         SceneFormat::Nerfstudio => super::nerfstudio::read_frames(dir)?,
         SceneFormat::Llff => super::llff::read_frames(dir)?,
         SceneFormat::Colmap => super::colmap_scene::read_frames(dir)?,
-        SceneFormat::Blender => bail!("{}: not a capture", dir.display()),
+        SceneFormat::Blender => {
+            let message = format!("{}: not a capture", dir.display());
+            return Err(DatasetError::no_dataset(dir, message).into());
+        }
     };
     if frames.is_empty() {
         // The file that lists the frames (a COLMAP model without images is refused by its
@@ -215,11 +233,12 @@ pub fn read_capture_split_with(
             SceneFormat::Llff => dir.join("poses_bounds.npy"),
             _ => dir.to_path_buf(),
         };
-        bail!(
+        let message = format!(
             "{}: the {} capture has no frames",
             listing.display(),
             format.name()
         );
+        return Err(DatasetError::metadata(&listing, message).into());
     }
     for frame in &frames {
         let files = std::iter::once(&frame.file_path).chain(frame.mask_path.as_ref());

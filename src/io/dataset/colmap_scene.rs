@@ -5,23 +5,30 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{Context, Result};
 
 use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
+use super::error::DatasetError;
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
+use crate::core::term::error_line;
 use crate::io::colmap::find_model;
 
-/// Every registered image of the capture in `dir`, with its camera.
+/// Every registered image of the capture in `dir`, with its camera. A model that does not
+/// read is a [`DatasetError::Metadata`], a missing `images/` a [`DatasetError::MissingFile`]
+/// (inside the `anyhow::Error`); a camera's error keeps its
+/// [`crate::core::camera_error::CameraError`] in the chain.
 pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
-    let (model_dir, model) = find_model(dir)?;
+    let (model_dir, model) =
+        find_model(dir).map_err(|e| DatasetError::metadata(dir, error_line(e.as_ref())))?;
     let images = dir.join("images");
     if !images.is_dir() {
-        bail!(
+        let message = format!(
             "{}: no such folder (a COLMAP capture keeps its photos in images/, beside the \
              sparse model {})",
             images.display(),
             model_dir.display()
         );
+        return Err(DatasetError::missing_file(&images, message).into());
     }
     // The file the cameras were read from: binary files win when both are there.
     let cameras_file = ["cameras.bin", "cameras.txt"]
@@ -35,13 +42,13 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
         .map(|image| {
             let record = model.camera_of(image);
             let what = || format!("{}: image {}", model_dir.display(), image.name);
-            let pose = ColmapPose::from_quaternion(image.qvec, image.tvec)
-                .map_err(|e| anyhow!("{}: {e}", what()))?;
+            // As context, so that a camera's error stays in the chain.
+            let pose = ColmapPose::from_quaternion(image.qvec, image.tvec).with_context(what)?;
             let size = (record.width as usize, record.height as usize);
             let camera = ColmapCamera::from_colmap(&record.model, &record.params, size, pose)
-                .map_err(|e| {
-                    anyhow!(
-                        "{}: camera {} (of image {}): {e}",
+                .with_context(|| {
+                    format!(
+                        "{}: camera {} (of image {})",
                         cameras_file.display(),
                         record.id,
                         image.name

@@ -3,12 +3,12 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{bail, Result};
 use image::imageops::{self, FilterType};
 use image::{ImageBuffer, ImageFormat, Rgba};
 
+use super::error::{read_dataset_file, DatasetError};
 use crate::core::image::RgbImage;
-use crate::io::bounded_read::read_regular_file;
 use crate::io::decode_budget::{file_decode_cost, reserve};
 
 /// Largest image file read (an 800×800 RGBA PNG is about 0.5 MB; 16-bit 4096² is 128 MB).
@@ -30,7 +30,9 @@ pub const MAX_SOURCE_IMAGE_SIDE: u32 = 8192;
 /// first is equivalent to resizing premultiplied colour, so no dark or bright fringes appear
 /// around the object. When the size already matches nothing is resampled.
 ///
-/// Errors (one line, naming the file) for a zero size, a missing file or an undecodable PNG.
+/// Errors (one line, naming the file) for a zero size, a missing file or an undecodable PNG;
+/// the last two are a [`DatasetError::MissingFile`] and a [`DatasetError::Photo`] inside the
+/// `anyhow::Error` (as [`super::Dataset::load`] returns them).
 pub fn load_image(
     path: &Path,
     width: usize,
@@ -82,7 +84,7 @@ pub fn load_frame_image(
     // Decoding is counted against the process's budget, so that the images in flight on
     // rayon's threads stay within it however many threads there are.
     let _reservation = reserve(file_decode_cost(path));
-    let bytes = read_regular_file(path, "image", MAX_IMAGE_FILE_BYTES)?;
+    let bytes = read_dataset_file(path, "image", MAX_IMAGE_FILE_BYTES)?;
     // The decoder's sizes come from the file: bounded before it allocates.
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_SOURCE_IMAGE_SIDE);
@@ -91,16 +93,20 @@ pub fn load_frame_image(
     let (format, name) = match image::guess_format(&bytes) {
         Ok(ImageFormat::Png) => (ImageFormat::Png, "PNG"),
         Ok(ImageFormat::Jpeg) => (ImageFormat::Jpeg, "JPEG"),
-        _ => bail!("{} is not a PNG or JPEG image", path.display()),
+        _ => {
+            let message = format!("{} is not a PNG or JPEG image", path.display());
+            return Err(DatasetError::photo(path, message).into());
+        }
     };
     let mut reader = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format);
     reader.limits(limits);
     let decoded = reader.decode().map_err(|e| {
-        anyhow!(
+        let message = format!(
             "cannot decode {name} {}: {}",
             path.display(),
             e.to_string().replace('\n', " ")
-        )
+        );
+        DatasetError::photo(path, message)
     })?;
     let has_alpha = decoded.color().has_alpha();
     // (H0, W0, 4) RGBA in [0, 1]; the decoded copy is dropped at once.

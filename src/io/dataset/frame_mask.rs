@@ -16,8 +16,8 @@ use anyhow::{anyhow, bail, Result};
 use image::imageops::{self, FilterType};
 use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
 
+use super::error::read_dataset_file;
 use super::frame_image::{MAX_IMAGE_FILE_BYTES, MAX_SOURCE_IMAGE_SIDE};
-use crate::io::bounded_read::read_regular_file;
 use crate::io::decode_budget::{file_decode_cost, reserve};
 
 /// Which pixels of a `width × height` image are used, as flags and as a list.
@@ -62,7 +62,7 @@ pub fn load_mask(
 ) -> Result<PixelMask> {
     // Within the decoding budget, as the photos are (`crate::io::decode_budget`).
     let _reservation = reserve(file_decode_cost(path));
-    let bytes = read_regular_file(path, "mask", MAX_IMAGE_FILE_BYTES)?;
+    let bytes = read_dataset_file(path, "mask", MAX_IMAGE_FILE_BYTES)?;
     if image::guess_format(&bytes).ok() != Some(ImageFormat::Png) {
         bail!("mask {} is not a PNG image", path.display());
     }

@@ -9,20 +9,28 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, bail, Context, Result};
 
 use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
+use super::error::{metadata_unless_camera, read_dataset_file, DatasetError};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
-use crate::io::bounded_read::read_regular_file;
 use crate::io::npy::{parse_npy_header, MAX_HEADER_BYTES};
 
 /// Most photos an LLFF capture may list.
 pub const MAX_LLFF_FRAMES: u64 = 100_000;
 
-/// The frames of the LLFF capture in `dir`.
+/// The frames of the LLFF capture in `dir`. A frame's camera error keeps its
+/// [`crate::core::camera_error::CameraError`] in the chain; a missing `images/` is a
+/// [`DatasetError::MissingFile`], anything else wrong with `poses_bounds.npy` a
+/// [`DatasetError::Metadata`] (inside the `anyhow::Error`).
 pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let path = dir.join("poses_bounds.npy");
-    let rows = read_rows(&path)?;
+    read_capture(dir, &path).map_err(|e| metadata_unless_camera(&path, e))
+}
+
+/// [`read_frames`] of `path`, its errors as they come.
+fn read_capture(dir: &Path, path: &Path) -> Result<CaptureFrames> {
+    let rows = read_rows(path)?;
     let images_dir = dir.join("images");
     let images = image_files(&images_dir)?;
     if images.len() != rows.len() {
@@ -39,8 +47,9 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
         .zip(images)
         .enumerate()
         .map(|(i, (row, file_path))| {
+            // As context, so that a camera's error stays in the chain.
             let camera =
-                camera_of_row(row).map_err(|e| anyhow!("{}: row {i}: {e}", path.display()))?;
+                camera_of_row(row).with_context(|| format!("{}: row {i}", path.display()))?;
             let name = file_path.strip_prefix(&images_dir).unwrap_or(&file_path);
             let mask_path = mask_in_folder(dir, name);
             Ok(CaptureFrame {
@@ -83,7 +92,7 @@ pub fn depth_bounds_of_row(row: &[f64; 17]) -> Option<[f64; 2]> {
 /// The rows of an `(N, 17)` little-endian float64 or float32 array.
 fn read_rows(path: &Path) -> Result<Vec<[f64; 17]>> {
     let max = MAX_LLFF_FRAMES * 17 * 8 + MAX_HEADER_BYTES as u64 + 12;
-    let bytes = read_regular_file(path, "LLFF poses", max)?;
+    let bytes = read_dataset_file(path, "LLFF poses", max)?;
     let npy = parse_npy_header(&bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?;
     let [n, 17] = npy.shape[..] else {
         bail!("{}: shape {:?}, not (N, 17)", path.display(), npy.shape);
@@ -123,8 +132,13 @@ fn read_rows(path: &Path) -> Result<Vec<[f64; 17]>> {
 
 /// The PNG and JPEG files of `dir`, sorted by name.
 fn image_files(dir: &Path) -> Result<Vec<PathBuf>> {
-    let entries =
-        std::fs::read_dir(dir).map_err(|e| anyhow!("cannot list {}: {e}", dir.display()))?;
+    let entries = std::fs::read_dir(dir).map_err(|e| {
+        let message = format!("cannot list {}: {e}", dir.display());
+        match e.kind() {
+            std::io::ErrorKind::NotFound => DatasetError::missing_file(dir, message).into(),
+            _ => anyhow!(message),
+        }
+    })?;
     let mut files: Vec<PathBuf> = entries
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {

@@ -16,6 +16,7 @@ pub mod backdrop;
 pub mod capture;
 pub mod capture_frame;
 pub mod colmap_scene;
+pub mod error;
 pub mod frame_image;
 pub mod frame_mask;
 pub mod llff;
@@ -29,7 +30,7 @@ pub mod transforms_intrinsics;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::Result;
 use rayon::prelude::*;
 
 use crate::core::camera_checks::check_photo_size;
@@ -39,6 +40,7 @@ use frame_mask::load_mask;
 
 pub use capture::{read_capture_split, read_capture_split_with, Normalisation, SceneFormat};
 pub use capture_frame::cameras_from_sfm;
+pub use error::DatasetError;
 pub use frame_image::*;
 pub use frame_mask::PixelMask;
 pub use normalize::SceneTransform;
@@ -49,8 +51,8 @@ pub use transforms::*;
 /// The frames of `split` of the scene in `data_dir`, whatever its format
 /// ([`SceneFormat::detect`]): a NeRF-synthetic split as [`read_blender_split`] reads it, or a
 /// capture's, normalised by the transform its cameras give ([`read_capture_split`]; what was
-/// applied is logged).
-pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
+/// applied is logged). Errors: see [`DatasetError`].
+pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>, DatasetError> {
     Ok(read_split_with(data_dir, split, None)?.frames)
 }
 
@@ -65,8 +67,17 @@ pub struct SplitFrames {
 
 /// [`read_split`] with a capture normalised by `stored` when given (the transform a model
 /// was trained in: see [`read_capture_split_with`]); a NeRF-synthetic scene is never
-/// normalised, so `stored` does not apply to it.
+/// normalised, so `stored` does not apply to it. Errors: see [`DatasetError`].
 pub fn read_split_with(
+    data_dir: &Path,
+    split: Split,
+    stored: Option<SceneTransform>,
+) -> Result<SplitFrames, DatasetError> {
+    split_frames(data_dir, split, stored).map_err(DatasetError::from_anyhow)
+}
+
+/// [`read_split_with`], its typed errors inside an `anyhow::Error`.
+fn split_frames(
     data_dir: &Path,
     split: Split,
     stored: Option<SceneTransform>,
@@ -80,7 +91,7 @@ pub fn read_split_with(
         // A folder of something else (photos without cameras, a file named `sparse`): say
         // what a dataset folder holds rather than only that lego's file is missing.
         let sparse = data_dir.join("sparse");
-        bail!(
+        let message = format!(
             "{} holds no dataset nerf reads: expected transforms_{{train,val,test}}.json \
              (NeRF-synthetic, with transforms_{split}.json), transforms.json (nerfstudio or \
              instant-ngp), poses_bounds.npy (LLFF) or a COLMAP model (sparse/0/ with its \
@@ -93,6 +104,7 @@ pub fn read_split_with(
                 ""
             }
         );
+        return Err(DatasetError::no_dataset(data_dir, message).into());
     }
     if format == SceneFormat::Blender {
         return Ok(SplitFrames {
@@ -161,14 +173,14 @@ impl Dataset {
     }
 
     /// Reads a split's cameras ([`read_split`]) and loads every image ([`load_image`]) in
-    /// parallel. The first failure is returned, naming its file.
+    /// parallel. The first failure is returned, naming its file (see [`DatasetError`]).
     pub fn load(
         data_dir: &Path,
         split: Split,
         width: usize,
         height: usize,
         white_background: bool,
-    ) -> Result<Self> {
+    ) -> Result<Self, DatasetError> {
         Self::load_first(data_dir, split, width, height, white_background, None)
     }
 
@@ -182,7 +194,7 @@ impl Dataset {
         height: usize,
         white_background: bool,
         limit: Option<usize>,
-    ) -> Result<Self> {
+    ) -> Result<Self, DatasetError> {
         let size = (width, height);
         Self::load_first_with(data_dir, split, size, white_background, limit, None)
     }
@@ -190,6 +202,19 @@ impl Dataset {
     /// [`Dataset::load_first`] of `(width, height)` images with a capture normalised by
     /// `stored` when given ([`read_split_with`]): the transform a model was trained in.
     pub fn load_first_with(
+        data_dir: &Path,
+        split: Split,
+        size: (usize, usize),
+        white_background: bool,
+        limit: Option<usize>,
+        stored: Option<SceneTransform>,
+    ) -> Result<Self, DatasetError> {
+        let load = Self::load_images(data_dir, split, size, white_background, limit, stored);
+        load.map_err(DatasetError::from_anyhow)
+    }
+
+    /// [`Dataset::load_first_with`], its typed errors inside an `anyhow::Error`.
+    fn load_images(
         data_dir: &Path,
         split: Split,
         (width, height): (usize, usize),
@@ -255,11 +280,13 @@ fn check_sizes_agree(frames: &[Frame], loaded: &[LoadedImage]) -> Result<()> {
     };
     for (frame, image) in frames.iter().zip(loaded) {
         if let FrameCamera::Colmap(camera) = &frame.camera {
-            check_photo_size(camera.size, image.source_size)
-                .map_err(|e| anyhow!("{}: {e}", frame.file_path.display()))?;
+            check_photo_size(camera.size, image.source_size).map_err(|camera| {
+                let message = format!("{}: {camera}", frame.file_path.display());
+                DatasetError::Camera { camera, message }
+            })?;
         }
         if image.source_size != first.source_size {
-            bail!(
+            let message = format!(
                 "{} is {}x{}, but the split's images are {}x{} ({}): every image of a split must \
                  have the same size",
                 frame.file_path.display(),
@@ -269,6 +296,7 @@ fn check_sizes_agree(frames: &[Frame], loaded: &[LoadedImage]) -> Result<()> {
                 first.source_size.1,
                 frames[0].file_path.display()
             );
+            return Err(DatasetError::photo(&frame.file_path, message).into());
         }
     }
     Ok(())

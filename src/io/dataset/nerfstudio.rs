@@ -16,11 +16,11 @@ use anyhow::{anyhow, bail, Result};
 use serde::Deserialize;
 
 use super::capture_frame::{CaptureFrame, CaptureFrames};
+use super::error::{metadata_unless_camera, read_dataset_file};
 use super::ngp_scene::NgpSceneKeys;
 use super::transforms::Split;
 use super::transforms_intrinsics::Intrinsics;
 use crate::core::camera_colmap::ColmapCamera;
-use crate::io::bounded_read::read_regular_file;
 
 /// Largest `transforms.json` read.
 pub const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
@@ -49,12 +49,19 @@ struct TransformsJson {
 /// The frames of `dir/transforms.json`.
 pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let path = dir.join("transforms.json");
-    let bytes = read_regular_file(&path, "transforms.json", MAX_TRANSFORMS_BYTES)?;
+    let bytes = read_dataset_file(&path, "transforms.json", MAX_TRANSFORMS_BYTES)?;
     parse(&bytes, dir, &path)
 }
 
-/// [`read_frames`] of the file's `bytes` (read from `path`, in `dir`).
+/// [`read_frames`] of the file's `bytes` (read from `path`, in `dir`). A frame's camera error
+/// keeps its [`crate::core::camera_error::CameraError`] in the chain; every other error is a
+/// [`super::DatasetError::Metadata`] (inside the `anyhow::Error`).
 pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
+    parse_frames(bytes, dir, path).map_err(|e| metadata_unless_camera(path, e))
+}
+
+/// [`parse`], its errors as they come.
+fn parse_frames(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
     let mut de = serde_json::Deserializer::from_slice(bytes);
     let file: TransformsJson = serde_path_to_error::deserialize(&mut de)
         .map_err(|e| anyhow!("cannot parse {}: {e}", path.display()))?;
@@ -67,8 +74,13 @@ pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
         .iter()
         .enumerate()
         .map(|(i, entry)| {
+            // As context, so that a camera's error stays in the chain.
             let context = |e: anyhow::Error| {
-                anyhow!("{}: frame {i} ({}): {e}", path.display(), entry.file_path)
+                e.context(format!(
+                    "{}: frame {i} ({})",
+                    path.display(),
+                    entry.file_path
+                ))
             };
             let m = &entry.transform_matrix;
             if m.len() != 3 && m.len() != 4 {

@@ -5,12 +5,13 @@ use std::fmt;
 use std::path::{Component, Path, PathBuf};
 use std::str::FromStr;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, Result};
 use glam::{DMat3, DMat4};
 use serde::Deserialize;
 
-use super::DOWNLOAD_HINT;
+use super::{DatasetError, DOWNLOAD_HINT};
 use crate::core::camera::PerspectiveCamera;
+use crate::core::camera_error::CameraError;
 use crate::core::frame_camera::FrameCamera;
 use crate::io::bounded_read::read_regular_file;
 
@@ -144,17 +145,18 @@ pub const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
 
 /// Checks that the upper 3×3 block of a camera-to-world matrix is a rotation (orthonormal,
 /// determinant +1, to 1e-3), the bottom row is `(0, 0, 0, 1)` and the camera centre is within
-/// [`MAX_CAMERA_DISTANCE`] of the origin.
-pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
+/// [`MAX_CAMERA_DISTANCE`] of the origin; the error is a [`CameraError::Pose`].
+pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<(), CameraError> {
+    let refuse = |message: String| Err(CameraError::Pose { message });
     if c2w.iter().flatten().any(|v| !v.is_finite()) {
-        bail!("transform_matrix has a non-finite entry");
+        return refuse("transform_matrix has a non-finite entry".to_string());
     }
     let centre = [c2w[0][3], c2w[1][3], c2w[2][3]];
     let distance = centre.iter().map(|v| v * v).sum::<f64>().sqrt();
     if distance > MAX_CAMERA_DISTANCE {
-        bail!(
+        return refuse(format!(
             "transform_matrix puts the camera {distance:.3e} from the origin, farther than {MAX_CAMERA_DISTANCE:e} scene units"
-        );
+        ));
     }
     let bottom = c2w[3];
     if bottom
@@ -162,7 +164,9 @@ pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
         .zip([0.0, 0.0, 0.0, 1.0])
         .any(|(a, b)| (a - b).abs() > 1e-6)
     {
-        bail!("transform_matrix bottom row is {bottom:?}, expected [0, 0, 0, 1]");
+        return refuse(format!(
+            "transform_matrix bottom row is {bottom:?}, expected [0, 0, 0, 1]"
+        ));
     }
     let m = DMat3::from_cols_array_2d(&[
         [c2w[0][0], c2w[1][0], c2w[2][0]],
@@ -176,7 +180,7 @@ pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<()> {
         .max(off.y_axis.max_element())
         .max(off.z_axis.max_element());
     if worst > 1e-3 || m.determinant() <= 0.0 {
-        bail!("transform_matrix rotation block is not a rotation (|RᵀR − I| = {worst:.2e}, det = {:.4})", m.determinant());
+        return refuse(format!("transform_matrix rotation block is not a rotation (|RᵀR − I| = {worst:.2e}, det = {:.4})", m.determinant()));
     }
     Ok(())
 }
@@ -199,37 +203,46 @@ fn image_path(data_dir: &Path, file_path: &str) -> PathBuf {
 ///
 /// Errors (one line, naming the file) when the directory or the file is missing (with
 /// [`DOWNLOAD_HINT`]), when the JSON does not parse (with the offending key path), or when a
-/// frame's matrix or the field of view is unusable. Images are not opened here.
-pub fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>> {
+/// frame's matrix or the field of view is unusable. Images are not opened here. The errors
+/// ([`DatasetError`]): [`DatasetError::NoDataset`] for a missing directory,
+/// [`DatasetError::MissingFile`] for a missing transforms file, and those of [`parse_split`].
+pub fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>, DatasetError> {
     if data_dir.exists() && !data_dir.is_dir() {
-        bail!(
+        let message = format!(
             "dataset directory {} is a file, not a directory; {DOWNLOAD_HINT}",
             data_dir.display()
         );
+        return Err(DatasetError::no_dataset(data_dir, message));
     }
     if !data_dir.is_dir() {
-        bail!(
+        let message = format!(
             "dataset directory {} does not exist; {DOWNLOAD_HINT}",
             data_dir.display()
         );
+        return Err(DatasetError::no_dataset(data_dir, message));
     }
     let path = split.transforms_path(data_dir);
     if !path.exists() {
-        bail!(
+        let message = format!(
             "cannot read {}: it does not exist; {DOWNLOAD_HINT}",
             path.display()
         );
+        return Err(DatasetError::missing_file(&path, message));
     }
-    let bytes = read_regular_file(&path, "dataset file", MAX_TRANSFORMS_BYTES)?;
+    let bytes = read_regular_file(&path, "dataset file", MAX_TRANSFORMS_BYTES)
+        .map_err(DatasetError::Other)?;
     parse_split(&bytes, data_dir, &path)
 }
 
 /// Parses the text of a `transforms_{split}.json` (read from `path`, named in errors) into
-/// frames whose image paths are relative to `data_dir`; see [`super::read_split`].
-pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Frame>> {
+/// frames whose image paths are relative to `data_dir`; see [`super::read_split`]. Errors:
+/// [`DatasetError::Metadata`] for JSON that does not parse, an unusable field of view or no
+/// frames, [`DatasetError::Camera`] for a frame's camera.
+pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Frame>, DatasetError> {
+    let metadata = |message: String| DatasetError::metadata(path, message);
     let mut de = serde_json::Deserializer::from_slice(bytes);
     let file: TransformsFile = serde_path_to_error::deserialize(&mut de)
-        .map_err(|e| anyhow!("cannot parse {}: {e}", path.display()))?;
+        .map_err(|e| metadata(format!("cannot parse {}: {e}", path.display())))?;
     let fov = file.camera_angle_x;
     // The NDC focal length 1/tan(fov/2) within the viewer's bounds, 1e-3 to 1e3: a field of
     // view of 1e-300 rad would otherwise score a black view instead of being refused.
@@ -239,20 +252,25 @@ pub fn parse_split(bytes: &[u8], data_dir: &Path, path: &Path) -> Result<Vec<Fra
         && fov < std::f64::consts::PI
         && (1e-3..=1e3).contains(&focal))
     {
-        bail!(
+        return Err(metadata(format!(
             "{}: camera_angle_x = {fov} is not a usable field of view (between 0.002 and 3.139 radians: an NDC focal length from 1e-3 to 1e3)",
             path.display()
-        );
+        )));
     }
     if file.frames.is_empty() {
-        bail!("{}: no frames", path.display());
+        return Err(metadata(format!("{}: no frames", path.display())));
     }
     file.frames
         .iter()
         .enumerate()
         .map(|(i, entry)| {
-            let context = |e: anyhow::Error| {
-                anyhow!("{}: frame {i} ({}): {e}", path.display(), entry.file_path)
+            let context = |camera: CameraError| {
+                let message = format!(
+                    "{}: frame {i} ({}): {camera}",
+                    path.display(),
+                    entry.file_path
+                );
+                DatasetError::Camera { camera, message }
             };
             check_rigid(&entry.transform_matrix).map_err(context)?;
             // The pixel width only enters f_px and cancels in the NDC focal length; the NeRF

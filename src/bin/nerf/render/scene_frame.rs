@@ -28,7 +28,7 @@ pub fn stored_transform(path: &Path) -> Result<Option<SceneTransform>> {
     if !path.is_file() || detect_format(path).ok() != Some(CheckpointFormat::Safetensors) {
         return Ok(None);
     }
-    scene_transform_of(&read_metadata(path)?, path)
+    Ok(scene_transform_of(&read_metadata(path)?, path)?)
 }
 
 /// What a command that shows or scores the model at `checkpoint` takes from it into
