@@ -242,7 +242,7 @@ fn main() -> Result<()> {
             points2d: Vec::new(),
         });
     }
-    let camera = colmap::ColmapCamera {
+    let camera = colmap::ColmapCameraRecord {
         id: 1,
         model: model_name.to_string(),
         width: side as u64,

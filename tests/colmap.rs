@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use nerf::io::colmap::{
-    find_model, find_model_with, read_model, write_binary, write_text, ColmapCamera, ColmapFormat,
-    ColmapImage, ColmapModel, ColmapPoint2D, ColmapPoint3D, ColmapReadOptions,
+    find_model, find_model_with, read_model, write_binary, write_text, ColmapCameraRecord,
+    ColmapFormat, ColmapImage, ColmapModel, ColmapPoint2D, ColmapPoint3D, ColmapReadOptions,
 };
 
 /// Reads everything: 2D features and every point.
@@ -18,8 +18,8 @@ const ALL: ColmapReadOptions = ColmapReadOptions {
     max_points3d: usize::MAX,
 };
 
-fn camera(id: u32, model: &str, params: &[f64]) -> ColmapCamera {
-    ColmapCamera {
+fn camera(id: u32, model: &str, params: &[f64]) -> ColmapCameraRecord {
+    ColmapCameraRecord {
         id,
         model: model.to_string(),
         width: 640 + id as u64,
@@ -48,7 +48,7 @@ fn image(id: u32, camera_id: u32, name: &str, points2d: Vec<ColmapPoint2D>) -> C
 /// subfolders (sorted by name, as read), with and without 2D features, and 3D points, with
 /// numbers that print long.
 fn sample_model(n_images: u32) -> ColmapModel {
-    let cameras: BTreeMap<u32, ColmapCamera> = [
+    let cameras: BTreeMap<u32, ColmapCameraRecord> = [
         camera(1, "PINHOLE", &[500.0, 501.5, 320.0, 240.0]),
         camera(
             2,

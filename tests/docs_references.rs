@@ -146,7 +146,10 @@ fn resolution_finds_modules_items_members_and_reexports() {
         ("README.md", "`nerf::VolumeRenderer::render`"),               // lib.rs's re-export
         ("README.md", "nerf::config::DataConfig::dataset_image_size"), // a relative re-export
         ("README.md", "nerf::candle_core::Tensor"),                    // another crate's item
-        ("src/bin/nerf/bench/row.rs", "crate::bench::ngp::NgpFlops"),  // the binary's tree
+        (
+            "src/bin/nerf/bench/row.rs",
+            "crate::bench::hash_grid_rows::NgpFlops",
+        ), // the binary's tree
     ];
     for (file, written) in found {
         assert_eq!(check(file, written), Ok(()), "{written} in {file}");
@@ -158,7 +161,7 @@ fn resolution_reports_what_is_not_there() {
     let not_found = [
         ("src/lib.rs", "crate::render::field::Field::no_such_method"),
         ("src/lib.rs", "crate::core::no_such_module::Thing"),
-        ("src/lib.rs", "crate::bench::ngp::NgpFlops"), // the binary's, not the library's
+        ("src/lib.rs", "crate::bench::hash_grid_rows::NgpFlops"), // the binary's, not the library's
         ("README.md", "nerf::NoSuchReexport"),
         ("README.md", "nerf::io::dataset::NoSuchItem"),
     ];

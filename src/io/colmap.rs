@@ -32,7 +32,7 @@ mod text;
 pub struct CameraModelInfo {
     /// The model's id in `cameras.bin`.
     pub id: i32,
-    /// The model's name in `cameras.txt` (and in [`ColmapCamera::model`]).
+    /// The model's name in `cameras.txt` (and in [`ColmapCameraRecord::model`]).
     pub name: &'static str,
     /// How many parameters a camera of this model has.
     pub num_params: usize,
@@ -79,9 +79,11 @@ pub fn camera_model_by_id(id: i32) -> Option<&'static CameraModelInfo> {
     CAMERA_MODELS.iter().find(|m| m.id == id)
 }
 
-/// One camera (a set of intrinsics several images may share).
+/// One camera as COLMAP's `cameras.txt` or `cameras.bin` records it (a set of intrinsics several
+/// images may share); the camera model it describes is
+/// [`crate::core::camera_colmap::ColmapCamera`].
 #[derive(Debug, Clone, PartialEq)]
-pub struct ColmapCamera {
+pub struct ColmapCameraRecord {
     /// The camera's id, which images refer to.
     pub id: u32,
     /// COLMAP's model name, e.g. `"OPENCV"` (one of [`CAMERA_MODELS`]).
@@ -143,7 +145,7 @@ pub struct ColmapPoint3D {
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ColmapModel {
     /// The cameras by id.
-    pub cameras: BTreeMap<u32, ColmapCamera>,
+    pub cameras: BTreeMap<u32, ColmapCameraRecord>,
     /// The registered images, sorted by name; each one's camera is in `cameras`.
     pub images: Vec<ColmapImage>,
     /// The 3D points kept (see [`ColmapReadOptions::max_points3d`]), in file order.
@@ -155,7 +157,7 @@ impl ColmapModel {
     ///
     /// # Panics
     /// When the image's camera is not in the model (never for a model read by this module).
-    pub fn camera_of(&self, image: &ColmapImage) -> &ColmapCamera {
+    pub fn camera_of(&self, image: &ColmapImage) -> &ColmapCameraRecord {
         &self.cameras[&image.camera_id]
     }
 }
@@ -265,7 +267,7 @@ fn check_finite(values: &[f64], what: &str) -> Result<(), String> {
 }
 
 /// Checks a camera's model, parameter count, parameters and size.
-fn camera_problem(camera: &ColmapCamera) -> Option<String> {
+fn camera_problem(camera: &ColmapCameraRecord) -> Option<String> {
     let id = camera.id;
     let Some(info) = camera_model_by_name(&camera.model) else {
         return Some(format!(

@@ -115,7 +115,7 @@ pub fn render(args: RenderArgs, device: &Device) -> Result<()> {
     adopt_stored_settings(&mut config, &path, true)?;
     let out_dir = &args.out.out_dir;
     let written = match &args.camera_path {
-        Some(path) => crate::render::camera_path::render_camera_path(
+        Some(path) => crate::render::path_frames::render_camera_path(
             &config, checkpoint, path, out_dir, device,
         )?,
         None => crate::render::scene::render_scene(&config, checkpoint, out_dir, args.raw, device)?,
@@ -146,7 +146,7 @@ fn train_and_say(
     device: &Device,
 ) -> Result<()> {
     let stop = match job {
-        TrainJob::Nerf => Some(crate::train::nerf::stop_on_signal()?),
+        TrainJob::Nerf => Some(crate::train::nerf_run::stop_on_signal()?),
         TrainJob::Sdf => None,
     };
     match jobs::train(config, job, options, out_dir, stop, device)? {
@@ -353,7 +353,7 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
         ExportCommand::Model(a) => {
             let config = a.config.load()?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
-            let e = crate::export::model::export_model(&config, checkpoint, &a.out, device)?;
+            let e = crate::export::model_file::export_model(&config, checkpoint, &a.out, device)?;
             say(&format!(
                 "wrote {} ({} tensors, {:.1} MB; largest f16 rounding of the table {:.1e})",
                 a.out.display(),

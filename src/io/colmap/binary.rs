@@ -22,8 +22,9 @@ use anyhow::{anyhow, bail, Result};
 
 use super::{
     camera_model_by_id, camera_model_by_name, camera_problem, image_problem, point_step,
-    ColmapCamera, ColmapImage, ColmapPoint2D, ColmapPoint3D, MAX_CAMERAS, MAX_CAMERAS_FILE_BYTES,
-    MAX_IMAGES, MAX_IMAGES_FILE_BYTES, MAX_IMAGE_NAME_BYTES, MAX_POINTS3D_FILE_BYTES,
+    ColmapCameraRecord, ColmapImage, ColmapPoint2D, ColmapPoint3D, MAX_CAMERAS,
+    MAX_CAMERAS_FILE_BYTES, MAX_IMAGES, MAX_IMAGES_FILE_BYTES, MAX_IMAGE_NAME_BYTES,
+    MAX_POINTS3D_FILE_BYTES,
 };
 use crate::io::bounded_read::check_regular_file;
 use crate::io::output::write_atomically;
@@ -174,7 +175,7 @@ impl BinaryReader {
 }
 
 /// Reads `cameras.bin`.
-pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
+pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCameraRecord>> {
     let mut r = BinaryReader::open(path, "COLMAP cameras file", MAX_CAMERAS_FILE_BYTES)?;
     let n = r.count("cameras", MIN_CAMERA_BYTES, MAX_CAMERAS as u64)?;
     let mut cameras = BTreeMap::new();
@@ -194,7 +195,7 @@ pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
         for _ in 0..info.num_params {
             params.push(r.finite(&format!("a parameter of camera {id}"))?);
         }
-        let camera = ColmapCamera {
+        let camera = ColmapCameraRecord {
             id,
             model: info.name.to_string(),
             width,
@@ -326,7 +327,10 @@ pub(super) fn read_points3d(path: &Path, max_points: usize) -> Result<Vec<Colmap
 }
 
 /// Writes `cameras.bin` (cameras already checked).
-pub(super) fn write_cameras(path: &Path, cameras: &BTreeMap<u32, ColmapCamera>) -> Result<()> {
+pub(super) fn write_cameras(
+    path: &Path,
+    cameras: &BTreeMap<u32, ColmapCameraRecord>,
+) -> Result<()> {
     write_atomically(path, |w| {
         w.write_all(&(cameras.len() as u64).to_le_bytes())?;
         for c in cameras.values() {

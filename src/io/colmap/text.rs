@@ -22,7 +22,7 @@ use std::str::FromStr;
 use anyhow::{anyhow, Result};
 
 use super::{
-    camera_problem, image_problem, point_step, ColmapCamera, ColmapImage, ColmapPoint2D,
+    camera_problem, image_problem, point_step, ColmapCameraRecord, ColmapImage, ColmapPoint2D,
     ColmapPoint3D, MAX_CAMERAS, MAX_CAMERAS_FILE_BYTES, MAX_IMAGES, MAX_IMAGES_FILE_BYTES,
     MAX_POINTS3D_FILE_BYTES, MAX_TEXT_LINE_BYTES,
 };
@@ -30,11 +30,17 @@ use crate::io::bounded_read::check_regular_file;
 use crate::io::output::write_atomically;
 
 /// Writes `cameras.txt` (cameras already checked).
-pub(super) fn write_cameras(path: &Path, cameras: &BTreeMap<u32, ColmapCamera>) -> Result<()> {
+pub(super) fn write_cameras(
+    path: &Path,
+    cameras: &BTreeMap<u32, ColmapCameraRecord>,
+) -> Result<()> {
     write_atomically(path, |w| write_cameras_to(w, cameras))
 }
 
-fn write_cameras_to(w: &mut BufWriter<File>, cameras: &BTreeMap<u32, ColmapCamera>) -> Result<()> {
+fn write_cameras_to(
+    w: &mut BufWriter<File>,
+    cameras: &BTreeMap<u32, ColmapCameraRecord>,
+) -> Result<()> {
     writeln!(w, "# Camera list with one line of data per camera:")?;
     writeln!(w, "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]")?;
     writeln!(w, "# Number of cameras: {}", cameras.len())?;
@@ -214,7 +220,7 @@ fn split_fields(line: &str, n: usize) -> (Vec<&str>, &str) {
 }
 
 /// Reads `cameras.txt`: one camera per line, `CAMERA_ID MODEL WIDTH HEIGHT PARAMS...`.
-pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
+pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCameraRecord>> {
     let (mut lines, _) = TextLines::open(path, "COLMAP cameras file", MAX_CAMERAS_FILE_BYTES)?;
     let mut cameras = BTreeMap::new();
     while lines.advance_to_data()? {
@@ -230,7 +236,7 @@ pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
             .iter()
             .map(|f| lines.parse_finite(f, "camera parameter"))
             .collect::<Result<Vec<f64>>>()?;
-        let camera = ColmapCamera {
+        let camera = ColmapCameraRecord {
             id,
             model: fields[1].to_string(),
             width: lines.parse(fields[2], "width")?,

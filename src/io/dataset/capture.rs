@@ -17,7 +17,7 @@ use std::path::Path;
 use anyhow::{bail, Result};
 
 pub use super::capture_frame::{CaptureFrame, CaptureFrames};
-use super::error::DatasetError;
+use super::dataset_error::DatasetError;
 use super::normalize::SceneTransform;
 use super::transforms::{Frame, Split};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};

@@ -8,7 +8,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 
 use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
-use super::error::DatasetError;
+use super::dataset_error::DatasetError;
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
 use crate::core::term::error_line;
 use crate::io::colmap::find_model;

@@ -7,7 +7,7 @@ use anyhow::{bail, Result};
 use image::imageops::{self, FilterType};
 use image::{ImageBuffer, ImageFormat, Rgba};
 
-use super::error::{read_dataset_file, DatasetError};
+use super::dataset_error::{read_dataset_file, DatasetError};
 use crate::core::image::RgbImage;
 use crate::io::decode_budget::{file_decode_cost, reserve};
 

@@ -16,7 +16,7 @@ use anyhow::{anyhow, bail, Result};
 use image::imageops::{self, FilterType};
 use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
 
-use super::error::read_dataset_file;
+use super::dataset_error::read_dataset_file;
 use super::frame_image::{MAX_IMAGE_FILE_BYTES, MAX_SOURCE_IMAGE_SIDE};
 use crate::io::decode_budget::{file_decode_cost, reserve};
 

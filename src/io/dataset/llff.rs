@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context, Result};
 
 use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
-use super::error::{metadata_unless_camera, read_dataset_file, DatasetError};
+use super::dataset_error::{metadata_unless_camera, read_dataset_file, DatasetError};
 use crate::core::camera_colmap::{ColmapCamera, ColmapPose};
 use crate::io::npy::{parse_npy_header, MAX_HEADER_BYTES};
 

@@ -16,7 +16,7 @@ pub mod backdrop;
 pub mod capture;
 pub mod capture_frame;
 pub mod colmap_scene;
-pub mod error;
+pub mod dataset_error;
 pub mod frame_image;
 pub mod frame_mask;
 pub mod llff;
@@ -40,7 +40,7 @@ use frame_mask::load_mask;
 
 pub use capture::{read_capture_split, read_capture_split_with, Normalisation, SceneFormat};
 pub use capture_frame::cameras_from_sfm;
-pub use error::DatasetError;
+pub use dataset_error::DatasetError;
 pub use frame_image::*;
 pub use frame_mask::PixelMask;
 pub use normalize::SceneTransform;

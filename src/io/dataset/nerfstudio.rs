@@ -16,7 +16,7 @@ use anyhow::{anyhow, bail, Result};
 use serde::Deserialize;
 
 use super::capture_frame::{CaptureFrame, CaptureFrames};
-use super::error::{metadata_unless_camera, read_dataset_file};
+use super::dataset_error::{metadata_unless_camera, read_dataset_file};
 use super::ngp_scene::NgpSceneKeys;
 use super::transforms::Split;
 use super::transforms_intrinsics::Intrinsics;

@@ -1,8 +1,8 @@
 //! `nerf bench`: wall-clock timings of the main jobs, printed beside their error so a
 //! speed-up that loses accuracy shows.
 
+pub mod hash_grid_rows;
 pub mod memory;
-pub mod ngp;
 pub mod row;
 
 use std::time::Instant;
@@ -11,7 +11,7 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
-pub use crate::bench::ngp::RowGroup;
+pub use crate::bench::hash_grid_rows::RowGroup;
 pub use crate::bench::row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
 use crate::render::scene::render_views;
 use nerf::config::{Config, TrainingConfig};
@@ -230,7 +230,9 @@ pub fn run_benchmarks(
         results = base_rows(config, repeats, lego, device)?;
     }
     if let Some(lego) = lego {
-        results.extend(crate::bench::ngp::hash_grid_rows(lego, only, device)?);
+        results.extend(crate::bench::hash_grid_rows::hash_grid_rows(
+            lego, only, device,
+        )?);
     }
     Ok(BenchReport {
         machine: machine_info(),

@@ -1,6 +1,6 @@
 //! One row of `nerf bench`: what was timed, how long it took, and what that is per second;
 //! and what the rows that render the trained lego models need. Shared by the rows of
-//! [`crate::bench`] and the hash-grid rows of [`crate::bench::ngp`].
+//! [`crate::bench`] and the hash-grid rows of [`crate::bench::hash_grid_rows`].
 
 use serde::Serialize;
 
@@ -24,7 +24,7 @@ pub struct BenchResult {
     /// Error of this run against a reference computation, with its unit, when measured.
     pub error: Option<String>,
     /// Samples, rays and FLOP per second, with the fraction of the machine's matrix-multiply
-    /// rate, for the rows that measure them ([`crate::bench::ngp`]).
+    /// rate, for the rows that measure them ([`crate::bench::hash_grid_rows`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub throughput: Option<Throughput>,
 }
@@ -39,7 +39,7 @@ pub struct Throughput {
     pub drawn_samples_per_second: Option<f64>,
     /// Samples at which the field was evaluated, per second.
     pub evaluated_samples_per_second: Option<f64>,
-    /// The FLOP count of one evaluated sample the row's GFLOP/s assume ([`crate::bench::ngp::NgpFlops`]).
+    /// The FLOP count of one evaluated sample the row's GFLOP/s assume ([`crate::bench::hash_grid_rows::NgpFlops`]).
     pub flop_per_evaluated_sample: Option<f64>,
     /// Random table rows read per second ([`crate::bench::memory`]).
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -2,7 +2,7 @@
 //! mesh (marching cubes on the density), a point cloud (expected depths of the dataset's
 //! views) and depth maps.
 
-pub mod model;
+pub mod model_file;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

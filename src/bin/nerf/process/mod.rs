@@ -31,7 +31,7 @@ use crate::process::inputs::{
 use crate::process::mapper::{MapperRun, MappingOptions};
 use nerf::core::camera_colmap::{ColmapCameraModel, ColmapPose};
 use nerf::core::distortion::LensDistortion;
-use nerf::io::colmap::{ColmapCamera, ColmapModel};
+use nerf::io::colmap::{ColmapCameraRecord, ColmapModel};
 
 pub use crate::process::mapper::MIN_REGISTERED;
 
@@ -412,7 +412,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
 /// SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, and FULL_OPENCV without its
 /// rational terms) or OPENCV_FISHEYE, `fl_x fl_y cx cy w h` and the distortion. An error
 /// naming the model when nerfstudio cannot hold it.
-pub fn intrinsics_json(camera: &ColmapCamera) -> Result<Map<String, Value>> {
+pub fn intrinsics_json(camera: &ColmapCameraRecord) -> Result<Map<String, Value>> {
     let model = ColmapCameraModel::from_name(&camera.model)?;
     let (focal, principal, distortion) = model
         .intrinsics(&camera.params)
@@ -515,7 +515,7 @@ mod tests {
 
     #[test]
     fn intrinsics_convert_or_refuse() {
-        let camera = |model: &str, params: Vec<f64>| ColmapCamera {
+        let camera = |model: &str, params: Vec<f64>| ColmapCameraRecord {
             id: 1,
             model: model.into(),
             width: 40,

@@ -1,6 +1,6 @@
 //! `nerf render` and the scenes every command renders: a config or checkpoint loaded as a field,
 //! its cameras, and camera paths.
 
-pub mod camera_path;
+pub mod path_frames;
 pub mod scene;
 pub mod scene_frame;

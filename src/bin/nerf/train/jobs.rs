@@ -5,7 +5,7 @@
 //! * `render` and `render_nerf` configs render (`nerf render`): an SDF scene's outputs, or a
 //!   NeRF's surround GIF from its checkpoint.
 //! * `train` configs fit an SDF volume to images ([`crate::train::box_fit`]); `train_nerf`
-//!   configs train a NeRF ([`crate::train::nerf`]). `nerf render` of a training config renders
+//!   configs train a NeRF ([`crate::train::nerf_run`]). `nerf render` of a training config renders
 //!   its initial volume or its training checkpoint; `nerf train` of a render config is an
 //!   error that names the command to use.
 //! * A config without `type` (an extension) is trained by its field: an SDF volume is fitted,
@@ -228,8 +228,8 @@ pub fn train(
         TrainJob::Nerf => {
             let data_dir = data_dir_for(config, nerf.data_dir.clone());
             let paths = config.train_paths(out_dir)?;
-            crate::train::nerf::check_fresh_start(config, &paths, nerf.overwrite)?;
-            let outcome = crate::train::nerf::train_nerf(
+            crate::train::nerf_run::check_fresh_start(config, &paths, nerf.overwrite)?;
+            let outcome = crate::train::nerf_run::train_nerf(
                 config,
                 &data_dir,
                 &paths,

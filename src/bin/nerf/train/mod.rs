@@ -3,4 +3,4 @@
 
 pub mod box_fit;
 pub mod jobs;
-pub mod nerf;
+pub mod nerf_run;
