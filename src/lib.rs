@@ -19,6 +19,11 @@
 //! * [`config`]: the homework's config files (YAML) as data, turned into the plain
 //!   parameters above.
 //!
+//! Each boundary a program crosses returns a typed error it can match on: [`CameraError`]
+//! (a camera that cannot be right), [`CheckpointError`] (a checkpoint missing, malformed or
+//! of other sizes), [`DatasetError`] (a dataset or capture folder) and [`ConfigError`] (a
+//! config file or override); every other failure is an `anyhow::Error` whose text is one line.
+//!
 //! The `nerf` command's jobs (render, camera paths, train, eval, bench, report, export,
 //! process and the `nerf view` web viewer) are not part of the library: they live in the
 //! binary's own module tree, `src/bin/nerf/`, and call the library as any user would.
