@@ -22,7 +22,7 @@ use nerf::io::dataset::{Dataset, Split};
 use nerf::kernels::gemm::gemm_f32;
 use nerf::render::occupancy::OccupancyGrid;
 use nerf::render::skipping::SampleCounts;
-use nerf::render::view::render_view;
+use nerf::render::view::{render_view, RenderedView};
 use nerf::train::model::{Optimizer, TrainModel};
 use nerf::train::step::{train_step, TrainRng};
 
@@ -41,7 +41,7 @@ pub struct GemmRates {
 
 impl GemmRates {
     /// A throughput of `gflops` with its fractions of `rates` (none without them).
-    fn throughput(rates: Option<&Self>, gflops: f64) -> Throughput {
+    pub fn throughput(rates: Option<&Self>, gflops: f64) -> Throughput {
         Throughput {
             gflops,
             fraction_of_mlp_gemm: rates.map(|r| gflops / r.mlp),
@@ -429,18 +429,9 @@ pub fn bench_ngp_render_400(
     let counts = frames
         .iter()
         .fold(SampleCounts::default(), |a, f| a + f.samples);
+    let throughput = render_throughput(&flops, &frames, &runs, (w, h), gemm);
     let total: f64 = runs.iter().sum::<f64>().max(1e-12);
     let n = frames.len();
-    let rays = (w * h * n) as f64 / total;
-    let evaluated = counts.evaluated as f64 / total;
-    let gflops = (evaluated * flops.forward_per_sample + rays * flops.forward_per_ray) / 1e9;
-    let throughput = Throughput {
-        rays_per_second: Some(rays),
-        drawn_samples_per_second: Some(counts.total as f64 / total),
-        evaluated_samples_per_second: Some(evaluated),
-        flop_per_evaluated_sample: Some(flops.forward_per_sample),
-        ..GemmRates::throughput(gemm, gflops)
-    };
     let evaluated_pct = 100.0 * counts.evaluated_fraction();
     let error = match truth {
         Some(t) => format!(
@@ -486,23 +477,53 @@ pub enum RowGroup {
 /// Samples per step of the larger hash-grid training row (2^18).
 pub const LARGE_SAMPLES_PER_STEP: usize = 1 << 18;
 
-/// The matrix-multiply rows and every hash-grid row that `lego` allows: the training rows
-/// need the lego dataset, the 400×400 row the `lego_ngp_400` checkpoint (each is skipped with
-/// a note when missing). `lego.quick`: fewer repeats and steps, a smaller square product.
+/// The throughput of hash-grid `frames` of `w`×`h` rendered in `runs` seconds, counted with
+/// `flops`, against the run's gemm `rates`.
+pub fn render_throughput(
+    flops: &NgpFlops,
+    frames: &[RenderedView],
+    runs: &[f64],
+    (w, h): (usize, usize),
+    rates: Option<&GemmRates>,
+) -> Throughput {
+    let counts = frames
+        .iter()
+        .fold(SampleCounts::default(), |a, f| a + f.samples);
+    let total: f64 = runs.iter().sum::<f64>().max(1e-12);
+    let rays = (w * h * frames.len()) as f64 / total;
+    let evaluated = counts.evaluated as f64 / total;
+    let gflops = (evaluated * flops.forward_per_sample + rays * flops.forward_per_ray) / 1e9;
+    Throughput {
+        rays_per_second: Some(rays),
+        drawn_samples_per_second: Some(counts.total as f64 / total),
+        evaluated_samples_per_second: Some(evaluated),
+        flop_per_evaluated_sample: Some(flops.forward_per_sample),
+        ..GemmRates::throughput(rates, gflops)
+    }
+}
+
+/// Repeats and the square product's side of the matrix-multiply rows: fewer and smaller
+/// with `quick`.
+pub fn gemm_sizes(quick: bool) -> (usize, usize) {
+    if quick {
+        (2, 512)
+    } else {
+        (5, 1024)
+    }
+}
+
+/// Every hash-grid row that `lego` allows, with their fractions of the run's gemm `rates`:
+/// the training rows need the lego dataset, the 400×400 row the `lego_ngp_400` checkpoint
+/// (each is skipped with a note when missing). `lego.quick`: fewer repeats and steps.
 pub fn hash_grid_rows(
     lego: &LegoBench,
     only: &[RowGroup],
+    rates: Option<&GemmRates>,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
     let wants = |g: RowGroup| only.is_empty() || only.contains(&g);
-    let (repeats, square) = if lego.quick { (2, 512) } else { (5, 1024) };
-    let (mut rows, rates) = if wants(RowGroup::Matmul) {
-        let (rows, rates) = bench_gemm(repeats, square);
-        (rows, Some(rates))
-    } else {
-        (Vec::new(), None)
-    };
-    let rates = rates.as_ref();
+    let (repeats, _) = gemm_sizes(lego.quick);
+    let mut rows = Vec::new();
     if wants(RowGroup::Memory) {
         rows.extend(crate::bench::memory::bench_table_reads(repeats));
     }

@@ -3,6 +3,7 @@
 
 pub mod hash_grid_rows;
 pub mod memory;
+pub mod mlp_flops;
 pub mod row;
 
 use std::time::Instant;
@@ -12,6 +13,10 @@ use candle_core::Device;
 use serde::Serialize;
 
 pub use crate::bench::hash_grid_rows::RowGroup;
+use crate::bench::hash_grid_rows::{
+    bench_gemm, gemm_sizes, hash_grid_rows, render_throughput, GemmRates,
+};
+use crate::bench::mlp_flops::{forward_flop_per_sample, mlp_throughput, TRAIN_FACTOR};
 pub use crate::bench::row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
 use crate::render::scene::render_views;
 use nerf::config::{Config, TrainingConfig};
@@ -225,14 +230,21 @@ pub fn run_benchmarks(
     device: &Device,
 ) -> Result<BenchReport> {
     let wants = |g: RowGroup| only.is_empty() || only.contains(&g);
+    // The matrix-multiply rates first: every NeRF row reports its fraction of them.
+    let (gemm_rows, rates) = if wants(RowGroup::Matmul) {
+        let (gemm_repeats, square) = gemm_sizes(lego.is_some_and(|l| l.quick));
+        let (rows, rates) = bench_gemm(gemm_repeats, square);
+        (rows, Some(rates))
+    } else {
+        (Vec::new(), None)
+    };
     let mut results = Vec::new();
     if wants(RowGroup::Base) {
-        results = base_rows(config, repeats, lego, device)?;
+        results = base_rows(config, repeats, lego, rates.as_ref(), device)?;
     }
+    results.extend(gemm_rows);
     if let Some(lego) = lego {
-        results.extend(crate::bench::hash_grid_rows::hash_grid_rows(
-            lego, only, device,
-        )?);
+        results.extend(hash_grid_rows(lego, only, rates.as_ref(), device)?);
     }
     Ok(BenchReport {
         machine: machine_info(),
@@ -245,6 +257,7 @@ fn base_rows(
     config: &Config,
     repeats: usize,
     lego: Option<&LegoBench>,
+    rates: Option<&GemmRates>,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
     let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
@@ -274,7 +287,7 @@ fn base_rows(
     results.push(bench_train_box(repeats, device)?);
     if let Some(lego) = lego {
         if lego.checkpoint.is_file() {
-            results.extend(bench_trained_nerf(lego, device)?);
+            results.extend(bench_trained_nerf(lego, rates, device)?);
         } else {
             nerf::core::term::note(&format!(
                 "skipping the trained-NeRF benchmark: checkpoint {} not found",
@@ -285,6 +298,7 @@ fn base_rows(
     results.extend(bench_nerf(
         &Config::load("nerf_lego", &[])?,
         repeats,
+        rates,
         device,
     )?);
     Ok(results)
@@ -292,8 +306,14 @@ fn base_rows(
 
 /// NeRF throughput with the homework model (seeded initial weights; timing does not depend on
 /// them): one training step (batch_size rays × n_pts_per_ray, forward, backward, Adam) and one
-/// rendered frame at the config's size. Errors are not measured here (`nerf eval` does that).
-pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Vec<BenchResult>> {
+/// rendered frame at the config's size, each with its GFLOP/s against the run's gemm `rates`
+/// ([`crate::bench::mlp_flops`]). Errors are not measured here (`nerf eval` does that).
+pub fn bench_nerf(
+    config: &Config,
+    repeats: usize,
+    rates: Option<&GemmRates>,
+    device: &Device,
+) -> Result<Vec<BenchResult>> {
     use rand::SeedableRng;
     let spec = config.field_spec()?;
     let training = config.training()?;
@@ -326,6 +346,11 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
             device,
         )
     })?;
+    let forward = forward_flop_per_sample(&spec.parameter_shapes()?);
+    let step_samples = batch_size * sampler.samples_per_ray();
+    let frame_samples = w * h * sampler.samples_per_ray();
+    let step_seconds = fastest(&step_runs);
+    let frame_seconds = fastest(&frame_runs);
     Ok(vec![
         BenchResult {
             name: "NeRF training step".into(),
@@ -334,14 +359,19 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
                 batch_size,
                 sampler.samples_per_ray()
             ),
-            seconds: fastest(&step_runs),
+            seconds: step_seconds,
             runs: step_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Step(
                 batch_size,
                 sampler.samples_per_ray(),
             )),
             error: None,
-            throughput: None,
+            throughput: Some(mlp_throughput(
+                (batch_size, step_samples, step_samples),
+                TRAIN_FACTOR * forward,
+                step_seconds,
+                rates,
+            )),
         },
         BenchResult {
             name: "NeRF render".into(),
@@ -349,11 +379,16 @@ pub fn bench_nerf(config: &Config, repeats: usize, device: &Device) -> Result<Ve
                 "1 frame {w}x{h} x {} points, dense, untrained",
                 sampler.samples_per_ray()
             ),
-            seconds: fastest(&frame_runs),
+            seconds: frame_seconds,
             runs: frame_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, sampler.samples_per_ray())),
             error: None,
-            throughput: None,
+            throughput: Some(mlp_throughput(
+                (w * h, frame_samples, frame_samples),
+                forward,
+                frame_seconds,
+                rates,
+            )),
         },
     ])
 }
@@ -462,7 +497,11 @@ fn render_run(
 /// The shipped checkpoint rendered densely and with the accelerations of the `lego` config
 /// (occupancy grid, early termination): time per frame, PSNR of each against the ground truth,
 /// and of the accelerated render against the dense one.
-pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<BenchResult>> {
+pub fn bench_trained_nerf(
+    lego: &LegoBench,
+    rates: Option<&GemmRates>,
+    device: &Device,
+) -> Result<Vec<BenchResult>> {
     let fast_config = Config::load("lego", &[])?;
     let dense_config = Config::load("lego", &dense_overrides())?;
     let (w, h) = fast_config.image_size();
@@ -504,7 +543,21 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
         ),
     };
     let points = fast_config.sampler.n_pts_per_ray;
-    let mut rows = ngp_rows(&cameras, truth.as_deref(), lego.quick, device)?;
+    let forward = forward_flop_per_sample(&fast_config.field_spec()?.parameter_shapes()?);
+    let dense_drawn = n * w * h * points;
+    let dense_throughput = mlp_throughput(
+        (n * w * h, dense_drawn, dense_drawn),
+        forward,
+        dense_runs.iter().sum(),
+        rates,
+    );
+    let fast_throughput = mlp_throughput(
+        (n * w * h, counts.total, counts.evaluated),
+        forward,
+        fast_runs.iter().sum(),
+        rates,
+    );
+    let mut rows = ngp_rows(&cameras, truth.as_deref(), lego.quick, rates, device)?;
     rows.splice(0..0, [
         BenchResult {
             name: "trained NeRF render, dense".into(),
@@ -513,7 +566,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
             runs: dense_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             error: Some(dense_error),
-            throughput: None,
+            throughput: Some(dense_throughput),
         },
         BenchResult {
             name: "trained NeRF render, occupancy grid + early termination".into(),
@@ -524,7 +577,7 @@ pub fn bench_trained_nerf(lego: &LegoBench, device: &Device) -> Result<Vec<Bench
             runs: fast_runs,
             pytorch_seconds: pytorch_seconds(ReferenceWork::Frame(w, h, points)),
             error: Some(fast_error),
-            throughput: None,
+            throughput: Some(fast_throughput),
         },
     ]);
     Ok(rows)
@@ -537,6 +590,7 @@ fn ngp_rows(
     cameras: &[PerspectiveCamera],
     truth: Option<&[RgbImage]>,
     quick: bool,
+    rates: Option<&GemmRates>,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
     let checkpoint = std::path::Path::new(nerf::config::SHIPPED_NGP_CHECKPOINT);
@@ -562,6 +616,8 @@ fn ngp_rows(
         ),
         None => format!("field at {evaluated:.1}% of samples"),
     };
+    let flops = crate::bench::hash_grid_rows::NgpFlops::of_config(&config)?;
+    let throughput = render_throughput(&flops, &run.frames, &run.runs, (w, h), rates);
     let frame_row = BenchResult {
         name: "hash-grid render (lego_ngp), grid + early termination".into(),
         work: format!("1 frame {w}x{h} x {points} points (mean of {n})"),
@@ -569,7 +625,7 @@ fn ngp_rows(
         runs: run.runs,
         pytorch_seconds: None,
         error: Some(error),
-        throughput: None,
+        throughput: Some(throughput),
     };
     if quick {
         return Ok(vec![frame_row]);
