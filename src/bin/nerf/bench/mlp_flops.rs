@@ -51,14 +51,8 @@ mod tests {
 
     #[test]
     fn the_homework_nerf_counts_its_layers_by_hand() {
-        let params = NerfParams {
-            n_harmonic_functions_xyz: 6,
-            n_harmonic_functions_dir: 2,
-            n_hidden_neurons_xyz: 128,
-            n_hidden_neurons_dir: 64,
-            n_layers_xyz: 6,
-            append_xyz: vec![3],
-        };
+        // The homework's sizes: 6 and 2 harmonics, widths 128 and 64, 6 trunk layers.
+        let params = NerfParams::default();
         // Point embedding 3 + 3·2·6 = 39, direction embedding 3 + 3·2·2 = 15; the trunk's
         // layer 3 takes the point embedding again.
         let trunk = 39 * 128 + 4 * 128 * 128 + (128 + 39) * 128;
