@@ -148,6 +148,18 @@ fn checkpoint_readers_return_checkpoint_errors() {
         missing.display()
     );
     says(e, &line);
+    // Missing where the config's own training.checkpoint_path points, and a directory of none.
+    let configured = d.join("configured.safetensors");
+    let key = format!("training.checkpoint_path={}", configured.display());
+    let config = Config::load("nerf_lego", &[key]).unwrap();
+    let e = config.ensure_checkpoint(&configured).unwrap_err();
+    assert!(matches!(&e, CheckpointError::NotFound { path, .. } if *path == configured));
+    assert!(text(e).contains("training.checkpoint_path"));
+    let e = checkpoint_file::ensure_checkpoint_file(d).unwrap_err();
+    assert!(
+        matches!(&e, CheckpointError::NotFound { path, .. } if path == d),
+        "{e:?}"
+    );
     // Not a checkpoint.
     let garbage = d.join("garbage.safetensors");
     std::fs::write(&garbage, b"hello world, not a checkpoint").unwrap();

@@ -4,10 +4,11 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 
 use super::training::TrainingConfig;
 use super::Config;
+use crate::io::checkpoint_error::CheckpointError;
 use crate::train::fit::TrainPaths;
 
 /// The NeRF shipped with the project, the default of every command that loads a model when
@@ -59,7 +60,7 @@ impl Config {
     /// An error when `path` (from [`Config::checkpoint`]) is not a checkpoint file: for the
     /// config's own `training.checkpoint_path`, it names that key and what may be put there;
     /// for a directory, the one rule's error (none, or several, naming them).
-    pub fn ensure_checkpoint(&self, path: &Path) -> Result<()> {
+    pub fn ensure_checkpoint(&self, path: &Path) -> Result<(), CheckpointError> {
         use crate::io::checkpoint_file::{relative_note, resolve};
         if path.is_file() {
             return Ok(());
@@ -67,12 +68,13 @@ impl Config {
         let configured = self.training.as_ref().and_then(|t| t.checkpoint());
         if let Some(c) = configured.filter(|c| !c.exists()) {
             if path == self.checkpoint(None) {
-                bail!(
+                let message = format!(
                     "checkpoint {} not found (training.checkpoint_path; put a checkpoint there, ours or the homework's torch.save file, or pass --checkpoint{}){}",
                     c.display(),
                     self.shipped_model_hint(),
                     relative_note(c)
                 );
+                return Err(CheckpointError::not_found(c, message));
             }
         }
         if path.is_dir() {

@@ -254,10 +254,8 @@ pub fn resolve(path: &Path, stem: &str) -> Result<PathBuf, CheckpointError> {
 /// make one; a relative path also as the absolute path tried), not a regular file
 /// ([`CheckpointError::Format`]) or, for a directory that
 /// [`crate::io::checkpoint_file::resolve`] could not turn into its one checkpoint, what it holds
-/// ([`CheckpointError::Ambiguous`]; [`CheckpointError::NotFound`] when it holds none). The
-/// error is a [`CheckpointError`] (`downcast_ref` finds it) in an `anyhow::Error`, as
-/// the config layer's `Config::ensure_checkpoint` passes it on.
-pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
+/// ([`CheckpointError::Ambiguous`]; [`CheckpointError::NotFound`] when it holds none).
+pub fn ensure_checkpoint_file(path: &Path) -> Result<(), CheckpointError> {
     if path.is_dir() {
         let found = checkpoints_in(path)?;
         let message = format!(
@@ -273,15 +271,14 @@ pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
                 found,
                 message,
             },
-        }
-        .into());
+        });
     }
     if path.exists() && !path.is_file() {
         let message = format!(
             "checkpoint {} is not a regular file (a device, FIFO or socket); name a checkpoint file",
             path.display()
         );
-        return Err(CheckpointError::format(path, message).into());
+        return Err(CheckpointError::format(path, message));
     }
     if !path.is_file() {
         let message = format!(
@@ -289,7 +286,7 @@ pub fn ensure_checkpoint_file(path: &Path) -> Result<()> {
             path.display(),
             relative_note(path)
         );
-        return Err(CheckpointError::not_found(path, message).into());
+        return Err(CheckpointError::not_found(path, message));
     }
     Ok(())
 }
