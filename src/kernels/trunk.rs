@@ -233,6 +233,10 @@ impl CpuKernel<2> for FusedTrunk {
         };
         let mut g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
         let mut dparams = vec![0f32; s.n_parameters()];
+        // The next layer's gradient is written over the buffer of the gradient before it
+        // (the two swap each layer): one `(M, H)` allocation for the whole pass, not one a
+        // layer.
+        let mut spare: Vec<f32> = Vec::new();
         for i in (0..s.skip.len()).rev() {
             let in_i = s.in_dim(i);
             let off = s.offset(i);
@@ -271,10 +275,10 @@ impl CpuKernel<2> for FusedTrunk {
             if i > 0 {
                 // G_{i-1} = G · W[:, :h]: rhs(k = h_out, n) = W[h_out][n].
                 let w = &ps[off..off + h * in_i];
-                let mut prev = vec![0f32; m * h];
+                spare.resize(m * h, 0.0);
                 gemm_f32(
                     (m, h, h),
-                    &mut prev,
+                    &mut spare,
                     h,
                     false,
                     &g,
@@ -283,7 +287,7 @@ impl CpuKernel<2> for FusedTrunk {
                     (in_i, 1),
                     true,
                 );
-                g = prev;
+                std::mem::swap(&mut g, &mut spare);
             }
         }
         let dparams = Tensor::from_vec(dparams, s.n_parameters(), params.device())?;
