@@ -55,7 +55,7 @@ impl ImplicitFunctionConfig {
     /// Whether the section describes a field rendered from its own parameters (the analytic
     /// SDF volume, no checkpoint) rather than a trainable field loaded from a checkpoint.
     pub fn is_sdf_volume(&self) -> bool {
-        self.0.field_spec().is_none()
+        find_kind(self.kind()).is_some_and(|kind| !kind.trainable)
     }
 }
 
