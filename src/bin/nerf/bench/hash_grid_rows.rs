@@ -455,8 +455,7 @@ pub fn bench_ngp_render_400(
 }
 
 /// Groups of `nerf bench` rows (`--only`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum RowGroup {
     /// The rows before the hash-grid ones: the box, its fit, the NeRF step and frames, the
     /// trained NeRF and the 128x128 hash-grid model.
@@ -470,7 +469,7 @@ pub enum RowGroup {
     /// Hash-grid training at 2^18 samples per step.
     NgpTrainLarge,
     /// A 400x400 frame of the shipped lego_ngp_400.
-    #[cfg_attr(feature = "cli", value(name = "ngp-render-400"))]
+    #[value(name = "ngp-render-400")]
     NgpRender400,
 }
 

@@ -42,7 +42,6 @@ pub fn check_fresh_start(config: &Config, paths: &TrainPaths, overwrite: bool) -
     Ok(())
 }
 
-#[cfg(feature = "cli")]
 /// Installs the SIGINT/SIGTERM handler of a training run: the first signal sets the returned
 /// flag (the loop finishes its step and writes a checkpoint); a second one exits at once with
 /// status 130, removing the temporary file of a write under way (every file is written
