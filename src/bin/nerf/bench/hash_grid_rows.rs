@@ -460,7 +460,7 @@ pub enum RowGroup {
     /// The rows before the hash-grid ones: the box, its fit, the NeRF step and frames, the
     /// trained NeRF and the 128x128 hash-grid model.
     Base,
-    /// The f32 matrix-multiply rates (without them, the hash-grid rows have no fractions).
+    /// The f32 matrix-multiply rates (without them, the NeRF and hash-grid rows have no fractions).
     Matmul,
     /// Random row reads from hash tables of one and of 16 levels.
     Memory,
