@@ -80,7 +80,8 @@ impl TrainModel {
             field = sized.seeded(0, device).map_err(CheckpointError::Other)?;
             expected = field.parameter_shapes();
         }
-        checkpoint_file::check_parameters(&tensors, &expected, field.kind(), path)?;
+        // Names and shapes are checked there (`checkpoint_file::check_parameters`); its
+        // typed error comes back out of the anyhow chain.
         crate::field::trainable::load_parameters(
             field.varmap(),
             &expected,
@@ -88,7 +89,7 @@ impl TrainModel {
             field.kind(),
             path,
         )
-        .map_err(CheckpointError::Other)?;
+        .map_err(CheckpointError::from_anyhow)?;
         Ok(LoadedCheckpoint {
             model: Self::new(field),
             tensors,
