@@ -36,8 +36,12 @@ pub struct Consensus {
     pub scores: Vec<Option<f64>>,
     /// Images of the chosen run that more than half of the other compared runs place more
     /// than `outlier` (a fraction of the spread) away, with their median disagreement,
-    /// largest first.
+    /// largest first; empty when the runs disagree on most cameras (see `split`).
     pub outliers: Vec<(String, f64)>,
+    /// The compared runs place half or more of the chosen run's cameras apart: they disagree
+    /// as wholes (a bent or differently scaled reconstruction), so no single camera can be
+    /// named as the misplaced one, and none is.
+    pub split: bool,
 }
 
 /// The RMS distance of `centres` from their mean.
@@ -124,8 +128,11 @@ fn robust_centre_errors(pairs: &[CameraPair]) -> Vec<f64> {
 /// The run of `runs` to keep: among the runs that registered at least `min_fraction` of the
 /// most any run registered, the one whose largest disagreement with each other such run is
 /// smallest on average; with its images that most other runs place more than `outlier` away
-/// (see [`Consensus`]). A single comparable run is chosen as it is. `None` when no run
-/// registered any image.
+/// (see [`Consensus`]). A single comparable run is chosen as it is. Cameras are named
+/// outliers only when they are fewer than half of the chosen run's: a misplaced camera stands
+/// out against the rest agreeing, while runs that disagree nearly everywhere (two runs, one of
+/// them bent) give no majority to tell which cameras are wrong, and leaving all of them out
+/// would leave nothing. `None` when no run registered any image.
 pub fn consensus(runs: &[Centres], min_fraction: f64, outlier: f64) -> Option<Consensus> {
     let most = runs.iter().map(BTreeMap::len).max().filter(|&m| m > 0)?;
     let comparable: Vec<usize> = (0..runs.len())
@@ -169,10 +176,15 @@ pub fn consensus(runs: &[Centres], min_fraction: f64, outlier: f64) -> Option<Co
         })
         .collect();
     outliers.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let split = 2 * outliers.len() >= runs[chosen].len();
+    if split {
+        outliers.clear();
+    }
     Some(Consensus {
         chosen,
         scores,
         outliers,
+        split,
     })
 }
 
@@ -253,5 +265,23 @@ mod tests {
         let names: Vec<&str> = chosen.outliers.iter().map(|o| o.0.as_str()).collect();
         assert_eq!(names, ["r_3"], "{chosen:?}");
         assert!(chosen.outliers[0].1 > 0.2, "{chosen:?}");
+        assert!(!chosen.split);
+    }
+
+    #[test]
+    fn two_runs_that_disagree_everywhere_name_no_outlier() {
+        // One run bent: every camera's height grows with its angle, so no similarity maps
+        // it onto the other and every shared camera lies far off.
+        let mut bent = ring();
+        for (k, c) in bent.values_mut().enumerate() {
+            c.z += 0.8 * (k as f64 * 1.7).sin();
+        }
+        let runs = [bent, regauged(&ring())];
+        let d = disagreement(&runs[0], &runs[1]).unwrap();
+        let far = d.iter().filter(|e| e.1 > 0.05).count();
+        assert!(2 * far >= d.len(), "the runs must disagree on most cameras: {d:?}");
+        let chosen = consensus(&runs, 0.9, 0.05).unwrap();
+        assert!(chosen.split, "{chosen:?}");
+        assert!(chosen.outliers.is_empty(), "{chosen:?}");
     }
 }

@@ -265,6 +265,12 @@ pub fn map(
         runs[agreed.chosen].seed,
         scores.join(", ")
     );
+    if agreed.split {
+        log::warn!(
+            "the mapper runs disagree on most cameras (no majority to name a misplaced one): kept seed {}'s cameras as they are; check the result, or run again with more --mapper-runs",
+            runs[agreed.chosen].seed
+        );
+    }
     let seeds: Vec<u64> = runs.iter().map(|r| r.seed).collect();
     keep_run(colmap, &seeds, runs[agreed.chosen].seed)?;
     let refine_seconds = if runs[agreed.chosen].registered >= MIN_REGISTERED {
