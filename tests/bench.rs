@@ -49,7 +49,7 @@ fn bench_quick_has_matmul_and_hash_grid_rows_with_positive_rates() {
     for r in &reads {
         positive(r, "row_reads_per_second");
     }
-    let Some(_) = lego_dir("bench_quick_has_matmul_and_hash_grid_rows_with_positive_rates") else {
+    let Some(_) = lego_dir() else {
         return;
     };
     let training = rows(&report, "hash-grid training");

@@ -53,11 +53,10 @@ const CHROMIUM_FLAGS: [&str; 5] = [
 
 #[test]
 fn viewer_in_headless_chromium() -> Result<()> {
-    let test = "viewer_in_headless_chromium";
-    let Some(chromium) = common::chromium(test) else {
+    let Some(chromium) = common::chromium() else {
         return Ok(());
     };
-    if common::lego_dir(test).is_none() {
+    if common::lego_dir().is_none() {
         return Ok(());
     }
     let started = Instant::now();

@@ -54,9 +54,8 @@ fn train_and_score(capture: &Path, checkpoint: &Path, overrides: &[String]) -> (
             recovery (exact 21.31, perturbed 20.77, refined 20.92 dB); run with \
             CAMERA_REFINEMENT_VIEWS=100 and a larger CAMERA_REFINEMENT_SIZE (issue 29)"]
 fn refined_cameras_recover_most_of_the_psnr_that_perturbed_cameras_lose() {
-    let test = "refined_cameras_recover_most_of_the_psnr_that_perturbed_cameras_lose";
     let views = env_or("CAMERA_REFINEMENT_VIEWS", 32).min(100);
-    let Some(lego) = lego_views(test, views) else {
+    let Some(lego) = lego_views(views) else {
         return;
     };
     let size = env_or("CAMERA_REFINEMENT_SIZE", 48);

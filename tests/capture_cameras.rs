@@ -58,8 +58,7 @@ fn refused(root: &Path, name: &str, dir: &Path, named: &Path, says: &[&str]) {
 
 #[test]
 fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
-    let test = "cameras_that_cannot_be_right_are_refused_by_every_loader";
-    let Some((lego, root)) = lego_root(test, 4) else {
+    let Some((lego, root)) = lego_root(4) else {
         return;
     };
     let root = root.path();
@@ -225,8 +224,7 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
 
 #[test]
 fn checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint() {
-    let test = "checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint";
-    let Some((lego, root)) = lego_root(test, 9) else {
+    let Some((lego, root)) = lego_root(9) else {
         return;
     };
     let dir = root.path().join("capture");

@@ -48,8 +48,7 @@ fn add_mask_paths(dir: &Path) {
 
 #[test]
 fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
-    let test = "masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named";
-    let Some((lego, root)) = lego_root(test, FRAMES) else {
+    let Some((lego, root)) = lego_root(FRAMES) else {
         return;
     };
     let cut = lego.size.0 / 2;
@@ -134,8 +133,7 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
 
 #[test]
 fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model() {
-    let test = "one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model";
-    let Some((lego, root)) = lego_root(test, FRAMES) else {
+    let Some((lego, root)) = lego_root(FRAMES) else {
         return;
     };
     let text = root.path().join("text");
@@ -167,8 +165,7 @@ fn edit(path: &Path, from: &str, to: &str) {
 
 #[test]
 fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
-    let test = "each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written";
-    let Some((lego, root)) = lego_root(test, 4) else {
+    let Some((lego, root)) = lego_root(4) else {
         return;
     };
     // A way to break a capture, returning the file the error must name.

@@ -62,8 +62,7 @@ fn check_capture(lego: &Lego, dir: &Path, format: SceneFormat) {
 
 #[test]
 fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
-    let test = "colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras";
-    let Some((lego, root)) = lego_root(test, FRAMES) else {
+    let Some((lego, root)) = lego_root(FRAMES) else {
         return;
     };
     let text = root.path().join("colmap_text");
@@ -85,8 +84,7 @@ fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
 
 #[test]
 fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
-    let test = "a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene";
-    let Some((lego, root)) = lego_root(test, FRAMES) else {
+    let Some((lego, root)) = lego_root(FRAMES) else {
         return;
     };
     let capture = root.path().join("capture");
@@ -133,8 +131,7 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
 
 #[test]
 fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
-    let test = "the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in";
-    let Some((lego, root)) = lego_root(test, FRAMES) else {
+    let Some((lego, root)) = lego_root(FRAMES) else {
         return;
     };
     let full = root.path().join("full");
@@ -247,8 +244,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
 
 #[test]
 fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
-    let test = "an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains";
-    let Some((lego, root)) = lego_root(test, FRAMES) else {
+    let Some((lego, root)) = lego_root(FRAMES) else {
         return;
     };
     let ns = root.path().join("nerfstudio");

@@ -94,9 +94,7 @@ fn a_missing_relative_checkpoint_says_where_it_was_looked_for() {
 
 #[test]
 fn training_refuses_several_checkpoints_and_starts_fresh_in_an_empty_directory() {
-    let Some((data, dir)) =
-        lego_scratch("training_refuses_several_checkpoints_and_starts_fresh_in_an_empty_directory")
-    else {
+    let Some((data, dir)) = lego_scratch() else {
         return;
     };
     let ckpts = dir.path().join("ckpts");
@@ -137,12 +135,7 @@ fn safetensors_bytes(header: &str, data: &[u8]) -> Vec<u8> {
 
 #[test]
 fn counts_in_a_checkpoint_are_checked_before_anything_is_sized_by_them() {
-    let Some((data, dir, good)) = common::lego_trained(
-        "counts_in_a_checkpoint_are_checked_before_anything_is_sized_by_them",
-        "good",
-        1,
-        1,
-    ) else {
+    let Some((data, dir, good)) = common::lego_trained("good", 1, 1) else {
         return;
     };
     let (tensors, info) = common::load_trained(&good);
@@ -229,12 +222,7 @@ fn with_file_size_limit(command: &mut std::process::Command, bytes: u64) {
 
 #[test]
 fn a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_the_log_stays_behind() {
-    let Some((data, _dir, ckpt)) = common::lego_trained(
-        "a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_the_log_stays_behind",
-        "c",
-        1,
-        5,
-    ) else {
+    let Some((data, _dir, ckpt)) = common::lego_trained("c", 1, 5) else {
         return;
     };
     let file = ckpt.join("nerf_lego.safetensors");

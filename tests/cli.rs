@@ -182,9 +182,7 @@ fn rgb_of_rgba(v: &[u8]) -> Vec<u8> {
 
 #[test]
 fn box_render_agrees_with_the_homework_reference_images() {
-    let Some(reference) =
-        common::reference_dir("box_render_agrees_with_the_homework_reference_images")
-    else {
+    let Some(reference) = common::reference_dir() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -349,7 +347,7 @@ fn bad_checkpoints_and_missing_data_give_one_clear_line() {
 #[test]
 fn shipped_checkpoint_renders_and_scores_on_test_views() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let Some(data) = common::lego_dir("shipped_checkpoint_renders_and_scores_on_test_views") else {
+    let Some(data) = common::lego_dir() else {
         return;
     };
     let checkpoint = root.join("checkpoints/nerf_lego.safetensors");
@@ -528,4 +526,9 @@ fn config_name_is_shown_in_help_and_means_config() {
         assert!(o.status.success(), "{cmd:?}");
         assert!(help.contains("--config-name"), "{cmd:?}: {help}");
     }
+}
+
+#[test]
+fn skip_messages_name_the_running_test() {
+    assert_eq!(common::test_name(), "skip_messages_name_the_running_test");
 }

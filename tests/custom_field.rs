@@ -14,7 +14,7 @@ use nerf::{fit, FieldSpec, Hooks, RunLimits, TrainModel, TrainPaths};
 
 #[test]
 fn a_field_kind_from_outside_the_crate_trains_and_resumes_with_the_library_trainer() {
-    let Some(lego) = common::lego_dir("custom field training") else {
+    let Some(lego) = common::lego_dir() else {
         return;
     };
     let config = Config::load(

@@ -22,8 +22,7 @@ fn children_peak_bytes() -> u64 {
 
 #[test]
 fn a_capture_of_large_photos_loads_in_the_same_memory_on_8_threads_as_on_2() {
-    let test = "a_capture_of_large_photos_loads_in_the_same_memory_on_8_threads_as_on_2";
-    let Some(lego) = lego(test) else { return };
+    let Some(lego) = lego() else { return };
     let lego = lego.first(9);
     let root = tempfile::tempdir().unwrap();
     let dir = root.path().join("capture");

@@ -134,7 +134,7 @@ fn iou(a: &[bool], b: &[bool]) -> f64 {
 
 #[test]
 fn lego_mesh_covers_the_test_masks() {
-    let Some((lego, dir)) = lego_scratch("lego_mesh_covers_the_test_masks") else {
+    let Some((lego, dir)) = lego_scratch() else {
         return;
     };
     let out = dir.path().join("lego.ply");
@@ -330,7 +330,7 @@ const TINY_NGP: [&str; 7] = [
 
 #[test]
 fn ngp_trains_for_minutes_then_exports_a_half_precision_model_that_evaluates_the_same() {
-    let Some((data, dir)) = lego_scratch("ngp export") else {
+    let Some((data, dir)) = lego_scratch() else {
         return;
     };
     let ckpt = dir.path().join("ngp.safetensors");

@@ -261,10 +261,7 @@ fn commands_and_types_agree_or_name_the_command_to_use() {
 /// safetensors checkpoint. The overrides only shrink the work (16x16, 2 views, 16 points).
 #[test]
 fn nerf_lego_render_reads_a_pytorch_checkpoint_where_the_config_points() {
-    let Some(config) = homework_config(
-        "nerf_lego_render",
-        "nerf_lego_render_reads_a_pytorch_checkpoint",
-    ) else {
+    let Some(config) = homework_config("nerf_lego_render") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -404,8 +401,7 @@ fn pytorch_made_checkpoint_renders_as_its_safetensors_twin() {
 /// state, and writes the checkpoint back in PyTorch's format.
 #[test]
 fn training_resumes_from_a_pytorch_checkpoint_and_keeps_its_format() {
-    let Some((data, dir)) = common::lego_scratch("training_resumes_from_a_pytorch_checkpoint")
-    else {
+    let Some((data, dir)) = common::lego_scratch() else {
         return;
     };
     let d = dir.path();
@@ -465,19 +461,12 @@ fn training_resumes_from_a_pytorch_checkpoint_and_keeps_its_format() {
 /// runs are in docs/homework.md.
 #[test]
 fn every_homework_config_runs_as_it_is() {
-    let name = "every_homework_config_runs_as_it_is";
-    let Some(box_yaml) = homework_config("box", name) else {
+    let Some(box_yaml) = homework_config("box") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let cfg = |n: &str| {
-        homework_config(n, name)
-            .unwrap()
-            .to_str()
-            .unwrap()
-            .to_string()
-    };
+    let cfg = |n: &str| homework_config(n).unwrap().to_str().unwrap().to_string();
     // box.yaml (type: render), exactly as it is: the homework's five outputs in images/.
     ok(
         &nerf_in(d, &["run", "--config", box_yaml.to_str().unwrap()]),
@@ -512,7 +501,7 @@ fn every_homework_config_runs_as_it_is() {
     assert!(d.join("fit/render_box_after_training_3.png").is_file());
     // nerf_lego.yaml and nerf_lego_highres.yaml (type: train_nerf): one small epoch each into
     // ./checkpoints, then `nerf render` of the training config renders that checkpoint.
-    let Some(data) = common::lego_dir(name) else {
+    let Some(data) = common::lego_dir() else {
         return;
     };
     // Both keep ./checkpoints with resume: True, so the second continues the first.

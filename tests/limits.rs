@@ -178,7 +178,7 @@ fn sizes_over_a_limit_and_bad_pieces_are_refused_before_anything_is_written() {
 
 #[test]
 fn a_point_cloud_of_more_rays_than_its_limit_is_refused_before_rendering() {
-    let Some((data, dir)) = lego_scratch("point cloud limit") else {
+    let Some((data, dir)) = lego_scratch() else {
         return;
     };
     // 100 training views of 2048² pixels: 419M rays, over 2^27.

@@ -335,7 +335,7 @@ fn checkpoint_round_trips_bit_exactly() {
 }
 
 fn lego_dir() -> Option<PathBuf> {
-    common::lego_dir("nerf lego tests")
+    common::lego_dir()
 }
 
 fn weights_of(path: &Path) -> HashMap<String, Vec<f32>> {

@@ -199,13 +199,9 @@ fn failed_stage_and_nothing_registered_are_one_line_errors() {
 /// Whether the tool `what` runs here (`$env`, else `program` on PATH, run with `arg`); else a
 /// visible skip, and a failure under `CI=true` (`.ci/install` installs Debian's package of
 /// `package`), as for Chromium.
-fn tool_installed(
-    test: &str,
-    what: &str,
-    (env, program, arg): (&str, &str, &str),
-    package: &str,
-) -> bool {
+fn tool_installed(what: &str, (env, program, arg): (&str, &str, &str), package: &str) -> bool {
     use std::io::Write;
+    let test = common::test_name();
     let program = std::env::var_os(env).unwrap_or_else(|| program.into());
     let runs = Command::new(&program)
         .arg(arg)
@@ -227,9 +223,9 @@ fn tool_installed(
 
 /// Whether COLMAP runs here (`colmap` on PATH, or `$NERF_COLMAP`); else a visible skip, and
 /// a failure under `CI=true` ([`tool_installed`]).
-fn colmap_installed(test: &str) -> bool {
+fn colmap_installed() -> bool {
     let command = ("NERF_COLMAP", "colmap", "help");
-    tool_installed(test, "COLMAP", command, "colmap")
+    tool_installed("COLMAP", command, "colmap")
 }
 
 /// Lego's views of `split` (`train`; `test`, a spiral around the model, 3.6° a view) as
@@ -297,10 +293,10 @@ fn rotation_and_centre(m: &serde_json::Value) -> (DMat3, DVec3) {
 #[test]
 fn colmap_recovers_lego_cameras() {
     let _alone = alone();
-    let Some(lego) = common::lego_dir("colmap_recovers_lego_cameras") else {
+    let Some(lego) = common::lego_dir() else {
         return;
     };
-    if !colmap_installed("colmap_recovers_lego_cameras") {
+    if !colmap_installed() {
         return;
     }
     // The 24 views nearest r_0's (within about 47°): lego's 100 views spread over a hemisphere
@@ -522,13 +518,8 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
 
 /// Whether ffmpeg runs here (`ffmpeg` on PATH, or `$NERF_FFMPEG`); else a visible skip, and a
 /// failure under `CI=true` ([`tool_installed`]).
-fn ffmpeg_installed(test: &str) -> bool {
-    tool_installed(
-        test,
-        "ffmpeg",
-        ("NERF_FFMPEG", "ffmpeg", "-version"),
-        "ffmpeg",
-    )
+fn ffmpeg_installed() -> bool {
+    tool_installed("ffmpeg", ("NERF_FFMPEG", "ffmpeg", "-version"), "ffmpeg")
 }
 
 /// Encodes `dir/<pattern>` (an ffmpeg image sequence, numbered from 0) at `fps` frames a
@@ -585,7 +576,7 @@ fn process_video(video: &Path, out: &Path, extra: &[&str], env: &[(&str, &Path)]
 #[test]
 fn video_frames_are_the_sharpest_of_each_stretch_and_matched_sequentially() {
     let _alone = alone();
-    if !ffmpeg_installed("video_frames_are_the_sharpest_of_each_stretch_and_matched_sequentially") {
+    if !ffmpeg_installed() {
         return;
     }
     // 40 frames of a texture sliding 3 px a frame; in each run of 4, one sharp frame (at a
@@ -686,7 +677,7 @@ fn bad_video_inputs_are_one_line_errors() {
     assert!(err.contains("no_tree.bin: not a file"), "{err}");
     assert!(!out.exists());
 
-    if ffmpeg_installed("bad_video_inputs_are_one_line_errors") {
+    if ffmpeg_installed() {
         for file in [&text, &still] {
             let err = common::one_line_error(&process_video(file, &out, &[], &colmap));
             assert!(err.contains("not a video ffmpeg can read"), "{err}");
@@ -712,11 +703,10 @@ fn bad_video_inputs_are_one_line_errors() {
             (it asks 15); sequential matching on this clip needs looking into (issue 29)"]
 fn colmap_recovers_lego_cameras_from_a_video() {
     let _alone = alone();
-    let test = "colmap_recovers_lego_cameras_from_a_video";
-    let Some(lego) = common::lego_dir(test) else {
+    let Some(lego) = common::lego_dir() else {
         return;
     };
-    if !colmap_installed(test) || !ffmpeg_installed(test) {
+    if !colmap_installed() || !ffmpeg_installed() {
         return;
     }
     // Lego's first 60 test views on white (a 216° arc coming down from 47° to 25° of

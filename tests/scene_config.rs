@@ -16,17 +16,13 @@ const SIDE: u32 = 40;
 /// A nerfstudio capture of the first 16 lego views as `SIDE`² JPEGs composited on white (no
 /// alpha), with the true cameras, in `name` of a fresh scratch directory: the directory and
 /// the capture, or a visible skip.
-fn white_capture(test: &str, name: &str) -> Option<(TempDir, PathBuf)> {
-    capture_on(test, name, |_, _| [1.0; 3])
+fn white_capture(name: &str) -> Option<(TempDir, PathBuf)> {
+    capture_on(name, |_, _| [1.0; 3])
 }
 
 /// [`white_capture`] with the views composited on `backdrop(x, y)` (RGB in [0, 1]).
-fn capture_on(
-    test: &str,
-    name: &str,
-    backdrop: fn(u32, u32) -> [f32; 3],
-) -> Option<(TempDir, PathBuf)> {
-    let (lego, root) = lego_root(test, 16)?;
+fn capture_on(name: &str, backdrop: fn(u32, u32) -> [f32; 3]) -> Option<(TempDir, PathBuf)> {
+    let (lego, root) = lego_root(16)?;
     let dir = root.path().join(name);
     std::fs::create_dir_all(dir.join("images")).unwrap();
     let scale = SIDE as f64 / lego.size.0 as f64;
@@ -74,8 +70,7 @@ fn metadata(path: &Path, key: &str) -> Option<String> {
 
 #[test]
 fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white() {
-    let test = "a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white";
-    let Some((root, data)) = white_capture(test, "white") else {
+    let Some((root, data)) = white_capture("white") else {
         return;
     };
     let ckpt = root.path().join("ck").join("scene.safetensors");
@@ -131,13 +126,12 @@ fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white(
 
 #[test]
 fn a_capture_without_a_backdrop_trains_without_camera_clearance() {
-    let test = "a_capture_without_a_backdrop_trains_without_camera_clearance";
     // A busy surround: a colour pattern no border reads as one plain backdrop.
     let busy = |x: u32, y: u32| {
         let v = |k: u32| ((x * 7 + y * 13 + k * 5) % 11) as f32 / 10.0;
         [v(0), v(1), v(2)]
     };
-    let Some((root, data)) = capture_on(test, "busy", busy) else {
+    let Some((root, data)) = capture_on("busy", busy) else {
         return;
     };
     let train = |extra: &[&str]| {
@@ -161,8 +155,7 @@ fn a_capture_without_a_backdrop_trains_without_camera_clearance() {
 
 #[test]
 fn a_pixel_budget_scales_the_photos_by_a_whole_factor_and_bad_values_are_named() {
-    let test = "a_pixel_budget_scales_the_photos_by_a_whole_factor_and_bad_values_are_named";
-    let Some((root, data)) = white_capture(test, "white") else {
+    let Some((root, data)) = white_capture("white") else {
         return;
     };
     let ckpt = root.path().join("scene.safetensors");

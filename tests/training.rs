@@ -9,7 +9,7 @@ use common::{gif_frames, nerf, nerf_ok, render_args, stderr};
 
 #[test]
 fn train_render_and_eval_a_tiny_nerf() {
-    let Some((_lego, dir)) = common::lego_scratch("train_render_and_eval_a_tiny_nerf") else {
+    let Some((_lego, dir)) = common::lego_scratch() else {
         return;
     };
     let ckpt_dir = dir.path().join("ckpt");
@@ -85,12 +85,7 @@ fn train_render_and_eval_a_tiny_nerf() {
 fn killed_training_leaves_a_whole_checkpoint_and_resumes_exactly() {
     // A checkpoint after each epoch: kills land anywhere, writes included.
     let epochs = 30;
-    let Some((data, dir, straight)) = common::lego_trained(
-        "killed_training_leaves_a_whole_checkpoint_and_resumes_exactly",
-        "straight",
-        epochs,
-        1,
-    ) else {
+    let Some((data, dir, straight)) = common::lego_trained("straight", epochs, 1) else {
         return;
     };
     let (_, straight_info) = common::load_trained(&straight);
@@ -243,7 +238,7 @@ fn last_logged_step(log: &std::path::Path) -> u64 {
 
 #[test]
 fn training_logs_test_psnr_at_checkpoints() {
-    let Some((data, dir)) = common::lego_scratch("training_logs_test_psnr_at_checkpoints") else {
+    let Some((data, dir)) = common::lego_scratch() else {
         return;
     };
     let status = common::tiny_train(dir.path(), &data, 2, 1)
@@ -333,8 +328,7 @@ fn run_takes_training_options_and_refuses_them_for_render_configs() {
 /// does; and `--checkpoint DIR` reads back what training wrote there.
 #[test]
 fn train_checkpoint_is_the_config_checkpoint_path() {
-    let Some((data, dir)) = common::lego_scratch("train_checkpoint_is_the_config_checkpoint_path")
-    else {
+    let Some((data, dir)) = common::lego_scratch() else {
         return;
     };
     let train = |cmd: &str, place: &[&str]| {

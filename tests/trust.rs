@@ -149,12 +149,7 @@ impl Watched {
 #[test]
 fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
     let epochs = 4;
-    let Some((data, dir, straight)) = common::lego_trained(
-        "sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact",
-        "straight",
-        epochs,
-        5,
-    ) else {
+    let Some((data, dir, straight)) = common::lego_trained("straight", epochs, 5) else {
         return;
     };
     for (signal, name) in [(libc::SIGINT, "int"), (libc::SIGTERM, "term")] {
@@ -197,8 +192,7 @@ fn sigint_writes_a_checkpoint_mid_epoch_and_resume_is_exact() {
 
 #[test]
 fn a_second_sigint_exits_at_once_and_leaves_whole_files() {
-    let Some((data, dir)) = lego_scratch("a_second_sigint_exits_at_once_and_leaves_whole_files")
-    else {
+    let Some((data, dir)) = lego_scratch() else {
         return;
     };
     let ckpt = dir.path().join("c");
@@ -229,12 +223,7 @@ fn a_second_sigint_exits_at_once_and_leaves_whole_files() {
 
 #[test]
 fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() {
-    let Some((data, _dir, ckpt)) = common::lego_trained(
-        "a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files",
-        "c",
-        2,
-        5,
-    ) else {
+    let Some((data, _dir, ckpt)) = common::lego_trained("c", 2, 5) else {
         return;
     };
     assert_eq!(log_lines(&ckpt), 200);
@@ -273,8 +262,7 @@ fn a_fresh_run_over_a_checkpoint_needs_overwrite_and_then_replaces_both_files() 
 
 #[test]
 fn training_without_a_terminal_prints_progress_lines() {
-    let Some((data, dir)) = lego_scratch("training_without_a_terminal_prints_progress_lines")
-    else {
+    let Some((data, dir)) = lego_scratch() else {
         return;
     };
     let out = tiny_train(&dir.path().join("c"), &data, 2)
@@ -294,7 +282,7 @@ fn training_without_a_terminal_prints_progress_lines() {
 #[test]
 fn eval_json_into_a_closed_pipe_exits_quietly() {
     // The case: `nerf eval --config lego --limit 1 --json | head -c0`.
-    let Some(data) = lego_dir("eval_json_into_a_closed_pipe_exits_quietly") else {
+    let Some(data) = lego_dir() else {
         return;
     };
     let mut child = Command::new(env!("CARGO_BIN_EXE_nerf"))

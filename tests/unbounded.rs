@@ -44,8 +44,7 @@ fn write_capture(lego: &Path, dir: &Path) {
 
 #[test]
 fn an_unbounded_capture_trains_evaluates_and_renders_and_views_from_its_orbit() {
-    let test = "an_unbounded_capture_trains_evaluates_and_renders_and_views_from_its_orbit";
-    let Some(lego) = common::lego_dir(test) else {
+    let Some(lego) = common::lego_dir() else {
         return;
     };
     let root = tempfile::tempdir().unwrap();

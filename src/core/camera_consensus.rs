@@ -279,7 +279,10 @@ mod tests {
         let runs = [bent, regauged(&ring())];
         let d = disagreement(&runs[0], &runs[1]).unwrap();
         let far = d.iter().filter(|e| e.1 > 0.05).count();
-        assert!(2 * far >= d.len(), "the runs must disagree on most cameras: {d:?}");
+        assert!(
+            2 * far >= d.len(),
+            "the runs must disagree on most cameras: {d:?}"
+        );
         let chosen = consensus(&runs, 0.9, 0.05).unwrap();
         assert!(chosen.split, "{chosen:?}");
         assert!(chosen.outliers.is_empty(), "{chosen:?}");

@@ -20,13 +20,13 @@ pub struct Lego {
     pub size: (u32, u32),
 }
 
-pub fn lego(test: &str) -> Option<Lego> {
-    lego_views(test, FRAMES)
+pub fn lego() -> Option<Lego> {
+    lego_views(FRAMES)
 }
 
 /// The first `n` (at most 100) lego training views, or a visible skip.
-pub fn lego_views(test: &str, n: usize) -> Option<Lego> {
-    let dir = super::lego_dir(test)?;
+pub fn lego_views(n: usize) -> Option<Lego> {
+    let dir = super::lego_dir()?;
     let text = std::fs::read_to_string(dir.join("transforms_train.json")).unwrap();
     let json: serde_json::Value = serde_json::from_str(&text).unwrap();
     let fov = json["camera_angle_x"].as_f64().unwrap();
@@ -392,8 +392,8 @@ pub fn write_colmap2nerf(lego: &Lego, dir: &Path, moved: Option<(f64, [f64; 3])>
 
 /// The first `n` lego training views ([`lego_views`]) and a fresh scratch directory for the
 /// test's captures, or a visible skip.
-pub fn lego_root(test: &str, n: usize) -> Option<(Lego, tempfile::TempDir)> {
-    Some((lego_views(test, n)?, tempfile::tempdir().unwrap()))
+pub fn lego_root(n: usize) -> Option<(Lego, tempfile::TempDir)> {
+    Some((lego_views(n)?, tempfile::tempdir().unwrap()))
 }
 
 /// Applies `change` to the JSON of `dir/transforms.json`, which it returns.

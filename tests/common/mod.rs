@@ -35,9 +35,8 @@ pub fn nerf_in(dir: &Path, args: &[&str]) -> Output {
 
 /// The homework's verbatim config `name` (`../shared/homework/configs/<name>.yaml`), or a
 /// visible skip.
-pub fn homework_config(name: &str, test: &str) -> Option<PathBuf> {
-    shared("homework/configs", &format!("{name}.yaml"), test)
-        .map(|d| d.join(format!("{name}.yaml")))
+pub fn homework_config(name: &str) -> Option<PathBuf> {
+    shared("homework/configs", &format!("{name}.yaml")).map(|d| d.join(format!("{name}.yaml")))
 }
 
 /// The error of a run that failed cleanly: exit code 1, one line on stderr, no panic (each
@@ -63,11 +62,20 @@ pub fn read_npy(path: &Path) -> (Vec<u64>, Vec<f32>) {
     (shape, npy.into_vec::<f32>().unwrap())
 }
 
+/// The name of the running test (libtest runs each test on a thread named by its path), for
+/// skip and failure messages, so that no test writes its own name again.
+pub fn test_name() -> String {
+    let thread = std::thread::current();
+    let path = thread.name().unwrap_or("this test");
+    path.rsplit("::").next().unwrap_or(path).to_string()
+}
+
 /// `../shared/<relative>` beside the checkout, when `marker` exists inside it. When it does
 /// not, the test says so on the terminal (written past the test harness's capture, so a
 /// reader of `cargo test` sees it) and is skipped — except under CI (`CI=true`), where the
 /// shared data must be present and its absence fails the test.
-pub fn shared(relative: &str, marker: &str, test: &str) -> Option<PathBuf> {
+pub fn shared(relative: &str, marker: &str) -> Option<PathBuf> {
+    let test = test_name();
     let p = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared")
         .join(relative);
@@ -89,13 +97,13 @@ pub fn shared(relative: &str, marker: &str, test: &str) -> Option<PathBuf> {
 }
 
 /// The lego scene in `../shared/data/lego`, or a visible skip.
-pub fn lego_dir(test: &str) -> Option<PathBuf> {
-    shared("data/lego", "transforms_train.json", test)
+pub fn lego_dir() -> Option<PathBuf> {
+    shared("data/lego", "transforms_train.json")
 }
 
 /// The homework's reference images in `../shared/reference_images`, or a visible skip.
-pub fn reference_dir(test: &str) -> Option<PathBuf> {
-    shared("reference_images", "render_cube.gif", test)
+pub fn reference_dir() -> Option<PathBuf> {
+    shared("reference_images", "render_cube.gif")
 }
 
 /// Largest absolute difference between two equally long slices.
@@ -207,7 +215,8 @@ pub fn tiny_train(
 /// The Chromium executable for the browser test: `$CHROMIUM`, else `/usr/bin/chromium`
 /// (Debian's package, which `.ci/install` installs), or a visible skip — a failure under
 /// `CI=true`, like the shared data.
-pub fn chromium(test: &str) -> Option<PathBuf> {
+pub fn chromium() -> Option<PathBuf> {
+    let test = test_name();
     let path = std::env::var_os("CHROMIUM")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
@@ -294,8 +303,8 @@ pub fn load_trained(
 
 /// The lego scene in `../shared/data/lego` and a fresh scratch directory for the test's
 /// files, or a visible skip (as [`lego_dir`]).
-pub fn lego_scratch(test: &str) -> Option<(PathBuf, tempfile::TempDir)> {
-    let data = lego_dir(test)?;
+pub fn lego_scratch() -> Option<(PathBuf, tempfile::TempDir)> {
+    let data = lego_dir()?;
     Some((data, tempfile::tempdir().unwrap()))
 }
 
@@ -339,12 +348,11 @@ pub fn export_args<'a>(
 /// [`tiny_train_ok`] (`epochs` epochs, a checkpoint every `checkpoint_interval`): the data, the
 /// scratch directory and that checkpoint directory, or a visible skip.
 pub fn lego_trained(
-    test: &str,
     name: &str,
     epochs: usize,
     checkpoint_interval: usize,
 ) -> Option<(PathBuf, tempfile::TempDir, PathBuf)> {
-    let (data, dir) = lego_scratch(test)?;
+    let (data, dir) = lego_scratch()?;
     let ckpt_dir = dir.path().join(name);
     tiny_train_ok(&ckpt_dir, &data, epochs, checkpoint_interval);
     Some((data, dir, ckpt_dir))
