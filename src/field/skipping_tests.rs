@@ -268,6 +268,55 @@ fn marching_keeps_exactly_the_samples_in_occupied_cells() {
     assert_marching_keeps_the_occupied_samples(&grid, &rays, &sampler, &mut rng, check);
 }
 
+#[test]
+fn cell_by_cell_marching_keeps_exactly_the_samples_of_grazing_and_face_parallel_rays() {
+    use rand::{Rng, SeedableRng};
+    // Half the cells occupied at random, so nearly every cell crossed changes the answer,
+    // and some blocks empty; rays along cell faces (origins on a face plane, directions in
+    // it or a hair off it), along the axes, and at random, with 512 samples so that several
+    // share each cell.
+    let mut grid = grid(16, 1.5, Contraction::None);
+    let mut rng = rand::rngs::StdRng::seed_from_u64(21);
+    for (c, o) in grid.occupied.iter_mut().enumerate() {
+        *o = c / 256 >= 8 && rng.random::<f32>() < 0.5;
+    }
+    let face = -1.5 + 5.0 * 3.0 / 16.0;
+    let mut origins: Vec<f32> = Vec::new();
+    let mut directions: Vec<f32> = Vec::new();
+    let mut ray = |o: [f64; 3], d: [f64; 3]| {
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        origins.extend(o.map(|v| v as f32));
+        directions.extend(d.map(|v| (v / n) as f32));
+    };
+    for tilt in [0.0, 1e-7, -1e-7, 1e-4, 1e-2] {
+        ray([-4.0, face, 0.1], [1.0, tilt, 0.0]);
+        ray([0.2, -4.0, face], [tilt, 1.0, -tilt]);
+        ray([face, face, 4.0], [tilt, 0.0, -1.0]);
+        ray([4.0, 0.3, face], [-1.0, tilt, tilt]);
+    }
+    for _ in 0..200 {
+        let o = std::array::from_fn(|_| rng.random_range(-4.0..4.0));
+        let target: [f64; 3] = std::array::from_fn(|_| rng.random_range(-1.5..1.5));
+        ray(o, std::array::from_fn(|k| target[k] - o[k]));
+    }
+    let n = origins.len() / 3;
+    let rays = Rays::new(
+        Tensor::from_vec(origins, (n, 3), &Device::Cpu).unwrap(),
+        Tensor::from_vec(directions, (n, 3), &Device::Cpu).unwrap(),
+    );
+    let sampler = StratifiedSampler::new(512, 0.5, 9.0).unwrap();
+    let check = |packed: &PackedSamples, _: &[f32], expected: &[u32]| {
+        assert!(expected.len() > 1000, "{}", expected.len());
+        // Far fewer lookups than samples in the box: one or two per cell crossed.
+        assert!(
+            packed.counts.examined < expected.len(),
+            "{:?}",
+            packed.counts
+        );
+    };
+    assert_marching_keeps_the_occupied_samples(&grid, &rays, &sampler, &mut rng, check);
+}
+
 /// Asserts that `grid` has empty blocks and that marching `rays` at `sampler`'s depths through
 /// a field with `grid`, unjittered and then jittered by `rng`, keeps exactly the samples in
 /// occupied cells, every sample materialised and tested on its own ([`occupied_samples`]);

@@ -39,6 +39,51 @@ pub struct EmptyBlocks {
     pub empty: Vec<bool>,
 }
 
+/// Where one ray leaves the cells it crosses, from [`OccupancyGrid::ray_faces`]: per axis,
+/// the exit face of cell 0 less the margin, relative to the origin, the cell size (0 on an
+/// axis the ray does not move along, whose `first` is +∞) and `1 / direction`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RayFaces {
+    first: [f64; 3],
+    first_block: [f64; 3],
+    size: [f64; 3],
+    inverse_direction: [f64; 3],
+}
+
+impl RayFaces {
+    /// The depth before which every sample past a point found in the cell at coordinates
+    /// `cell` ([`OccupancyGrid::cell_coordinates`]) lies in that cell too (see
+    /// [`OccupancyGrid::ray_faces`]).
+    #[inline]
+    pub fn exit(&self, cell: [usize; 3]) -> f64 {
+        (0..3)
+            .map(|k| (self.first[k] + cell[k] as f64 * self.size[k]) * self.inverse_direction[k])
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// [`RayFaces::exit`] for the block of [`BLOCK`]³ cells holding the cell at coordinates
+    /// `cell` (past the grid's box where the last block is partial: no point there is
+    /// occupied).
+    #[inline]
+    pub fn block_exit(&self, cell: [usize; 3]) -> f64 {
+        (0..3)
+            .map(|k| {
+                let block = (cell[k] / BLOCK * BLOCK) as f64;
+                (self.first_block[k] + block * self.size[k]) * self.inverse_direction[k]
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+}
+
+impl EmptyBlocks {
+    /// Whether the block holding the cell at coordinates `cell` has no occupied cell.
+    #[inline]
+    pub fn holds_empty(&self, cell: [usize; 3]) -> bool {
+        let [x, y, z] = cell.map(|c| c / BLOCK);
+        self.empty[(x * self.per_side + y) * self.per_side + z]
+    }
+}
+
 /// The occupancy grid of one field.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OccupancyGrid {
@@ -275,6 +320,52 @@ impl OccupancyGrid {
             }
         }
         Some((enter, exit))
+    }
+
+    /// The faces of the cells the ray `origin + t·direction` crosses ([`RayFaces::exit`]);
+    /// `None` with a contraction, where a cell is not a world box.
+    ///
+    /// Each exit face is moved into its cell by a margin above the rounding of `o + t·d` in
+    /// f32 and of the cell lookup, so a sample before a cell's exit depth has every coordinate
+    /// short of the cell's exit faces. Along each axis the f32 point and its cell index only
+    /// move one way as `t` grows, so from a point found in a cell on, the samples before its
+    /// exit depth stay in it: no face-parallel ray, however grazing, is misplaced (for it the
+    /// depth comes out at or before the found point, and nothing is skipped).
+    pub fn ray_faces(&self, origin: [f32; 3], direction: [f32; 3]) -> Option<RayFaces> {
+        if self.contraction != Contraction::None {
+            return None;
+        }
+        let extent = (0..3)
+            .map(|k| self.aabb_min[k].abs().max(self.aabb_max[k].abs()).max(origin[k].abs()))
+            .fold(0f32, f32::max);
+        let rounding = 16.0 * f64::from(f32::EPSILON) * f64::from(extent);
+        let mut faces = RayFaces {
+            first: [f64::INFINITY; 3],
+            first_block: [f64::INFINITY; 3],
+            size: [0.0; 3],
+            inverse_direction: [1.0; 3],
+        };
+        for k in 0..3 {
+            let d = f64::from(direction[k]);
+            if d == 0.0 || !d.is_finite() {
+                continue;
+            }
+            let (lo, hi) = (f64::from(self.aabb_min[k]), f64::from(self.aabb_max[k]));
+            let size = (hi - lo) / self.resolution as f64;
+            let margin = 1e-3 * size + rounding;
+            // Cell 0's exit face along the direction of travel, less the margin.
+            let face = match d > 0.0 {
+                true => lo + size - margin,
+                false => lo + margin,
+            };
+            faces.first[k] = face - f64::from(origin[k]);
+            // Block 0's: BLOCK cells further along a positive direction.
+            let block_face = face + if d > 0.0 { (BLOCK - 1) as f64 * size } else { 0.0 };
+            faces.first_block[k] = block_face - f64::from(origin[k]);
+            faces.size[k] = size;
+            faces.inverse_direction[k] = 1.0 / d;
+        }
+        Some(faces)
     }
 
     /// Fraction of cells marked occupied.

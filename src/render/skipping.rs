@@ -28,7 +28,7 @@ use crate::core::volume::{clamped_optical_depth, spacing};
 use crate::kernels::composite::{composite_packed, Composited, PackedValues};
 use crate::kernels::distortion_loss::distortion_loss_packed;
 use crate::render::field::{Field, FieldOutput};
-use crate::render::occupancy::{EmptyBlocks, OccupancyGrid};
+use crate::render::occupancy::{EmptyBlocks, OccupancyGrid, RayFaces};
 
 /// The most occupied samples per ray evaluated between early-termination checks.
 pub const SEGMENT: usize = 16;
@@ -311,13 +311,20 @@ struct MarchGrid<'a> {
 const BLOCK_MARGIN: f64 = 1e-4;
 
 /// One ray's walk over its samples, front to back: the next sample to test, the end of the
-/// samples that can lie in the grid's box, and how many were tested.
+/// samples that can lie in the grid's box, how many were tested, and the cell of the last
+/// tested sample with the depth before which later samples are known to share it.
 struct RayMarch {
     origin: [f32; 3],
     direction: [f32; 3],
+    faces: Option<RayFaces>,
     next: usize,
     end: usize,
     examined: usize,
+    /// Samples deeper than the last tested one and shallower than this lie in its cell
+    /// ([`RayFaces::exit`]); −∞ when no cell is known.
+    cell_end: f64,
+    /// Whether that cell is occupied.
+    cell_occupied: bool,
 }
 
 impl RayMarch {
@@ -337,44 +344,81 @@ impl RayMarch {
         Self {
             origin,
             direction,
+            faces: grid.and_then(|g| g.grid.ray_faces(origin, direction)),
             next,
             end,
             examined: 0,
+            cell_end: f64::NEG_INFINITY,
+            cell_occupied: false,
+        }
+    }
+
+    /// The point `o + t·d` (the same f32 arithmetic as [`crate::kernels::sample_points`]).
+    #[inline]
+    fn point(&self, t: f32) -> [f32; 3] {
+        std::array::from_fn(|k| self.origin[k] + t * self.direction[k])
+    }
+
+    /// With a contraction, where [`RayFaces`] do not apply: the depth to pass over to when the
+    /// cell at coordinates `cell` lies in an empty block inside the unit cube
+    /// ([`OccupancyGrid::empty_block_crossing`]), keeping [`BLOCK_MARGIN`] from its faces; −∞
+    /// (nothing passed over) otherwise, or when the next sample is within the margin of the
+    /// block's entry.
+    fn contracted_block_end(&self, g: &MarchGrid, cell: [usize; 3], t: &[f32]) -> f64 {
+        let crossing = g
+            .grid
+            .empty_block_crossing(&g.blocks, cell, self.origin, self.direction);
+        match crossing {
+            Some((enter, exit))
+                if self.next < self.end && f64::from(t[self.next]) > enter + BLOCK_MARGIN =>
+            {
+                exit - BLOCK_MARGIN
+            }
+            _ => f64::NEG_INFINITY,
         }
     }
 
     /// The next sample in an occupied cell (all samples without a grid): its index along the
-    /// ray and its point `o + t·d` (the same f32 arithmetic as
-    /// [`crate::kernels::sample_points`]), or `None` when the ray has no more. Samples in an
-    /// empty block are passed over without a test, except within [`BLOCK_MARGIN`] of its
-    /// faces; the result is exactly the per-sample test's.
+    /// ray and its point, or `None` when the ray has no more. Marching goes cell by cell: a
+    /// sample is looked up in the grid only when it is not known to share the cell of the
+    /// last one looked up ([`RayFaces::exit`]), and samples in an empty block are
+    /// passed over without a test, except within [`BLOCK_MARGIN`] of its faces; the result is
+    /// exactly the per-sample test's.
     fn next_occupied(&mut self, grid: Option<&MarchGrid>, t: &[f32]) -> Option<(usize, [f32; 3])> {
         while self.next < self.end {
             let i = self.next;
             self.next += 1;
+            if f64::from(t[i]) < self.cell_end {
+                if self.cell_occupied {
+                    return Some((i, self.point(t[i])));
+                }
+                continue;
+            }
             self.examined += 1;
-            let p = std::array::from_fn(|k| self.origin[k] + t[i] * self.direction[k]);
+            let p = self.point(t[i]);
             let Some(g) = grid else {
                 return Some((i, p));
             };
-            // [`OccupancyGrid::is_occupied`], keeping the cell for the block test.
+            // [`OccupancyGrid::is_occupied`], keeping the cell for the skips.
             let Some(cell) = g.grid.cell_coordinates(p) else {
                 continue;
             };
-            if g.grid.occupied[g.grid.cell_index(cell)] {
+            let occupied = g.grid.occupied[g.grid.cell_index(cell)];
+            if let Some(faces) = &self.faces {
+                self.cell_end = faces.exit(cell);
+                self.cell_occupied = occupied;
+            }
+            if occupied {
                 return Some((i, p));
             }
-            let crossing =
-                g.grid
-                    .empty_block_crossing(&g.blocks, cell, self.origin, self.direction);
-            if let Some((enter, exit)) = crossing {
-                while self.next < self.end {
-                    let v = f64::from(t[self.next]);
-                    if v <= enter + BLOCK_MARGIN || v >= exit - BLOCK_MARGIN {
-                        break;
-                    }
-                    self.next += 1;
-                }
+            // Pass over the rest of the empty cell, and of its block when that is empty too.
+            let skip_to = match &self.faces {
+                Some(faces) if g.blocks.holds_empty(cell) => faces.block_exit(cell),
+                Some(_) => self.cell_end,
+                None => self.contracted_block_end(g, cell, t),
+            };
+            while self.next < self.end && f64::from(t[self.next]) < skip_to {
+                self.next += 1;
             }
         }
         None
