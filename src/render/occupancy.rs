@@ -336,7 +336,12 @@ impl OccupancyGrid {
             return None;
         }
         let extent = (0..3)
-            .map(|k| self.aabb_min[k].abs().max(self.aabb_max[k].abs()).max(origin[k].abs()))
+            .map(|k| {
+                self.aabb_min[k]
+                    .abs()
+                    .max(self.aabb_max[k].abs())
+                    .max(origin[k].abs())
+            })
             .fold(0f32, f32::max);
         let rounding = 16.0 * f64::from(f32::EPSILON) * f64::from(extent);
         let mut faces = RayFaces {
@@ -360,7 +365,12 @@ impl OccupancyGrid {
             };
             faces.first[k] = face - f64::from(origin[k]);
             // Block 0's: BLOCK cells further along a positive direction.
-            let block_face = face + if d > 0.0 { (BLOCK - 1) as f64 * size } else { 0.0 };
+            let block_face = face
+                + if d > 0.0 {
+                    (BLOCK - 1) as f64 * size
+                } else {
+                    0.0
+                };
             faces.first_block[k] = block_face - f64::from(origin[k]);
             faces.size[k] = size;
             faces.inverse_direction[k] = 1.0 / d;

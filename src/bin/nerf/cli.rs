@@ -429,7 +429,8 @@ pub struct BenchArgs {
     #[arg(long, value_parser = at_least_one)]
     pub train_steps: Option<usize>,
     /// Only these groups of rows (repeat or separate with commas; all when not given).
-    /// Without matmul, the NeRF and hash-grid rows give no fraction of the matmul rate.
+    /// Without matmul, the NeRF and hash-grid rows give no fraction of the matmul rate; without
+    /// memory, the hash-grid rows give no fraction of the random-read rate.
     #[arg(long, value_enum, value_delimiter = ',')]
     pub only: Vec<crate::bench::RowGroup>,
 }

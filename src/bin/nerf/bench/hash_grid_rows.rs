@@ -51,6 +51,17 @@ impl GemmRates {
     }
 }
 
+/// What the same run measured the machine can do, for the hash-grid rows' fractions: the gemm
+/// rates (`--only matmul`) and the random row reads per second from a 16-level table
+/// (`--only memory`); either is `None` when its rows were not run.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MachineRates<'a> {
+    /// The matrix-multiply rates.
+    pub gemm: Option<&'a GemmRates>,
+    /// Random table rows read per second ([`crate::bench::memory::bench_table_reads`]).
+    pub table_reads: Option<f64>,
+}
+
 /// Floating-point operations of the NGP field ([`nerf::field::ngp`]), counted from its layer
 /// sizes; a multiply-add counts 2.
 ///
@@ -81,12 +92,19 @@ impl GemmRates {
 /// gradient only: 2× forward. The fused MLP's backward pass recomputes the forward
 /// activations ([`nerf::kernels::ngp_mlp`]); that recomputation is not useful work and is
 /// not counted, so the fractions below are of useful work.
+///
+/// Table traffic, counted the same way: a sample reads the rows of its 8 corners on each
+/// level forward (`8·L`, 128 at the shipped sizes), and training adds its gradient into the
+/// same rows backward (another `8·L` random row accesses). The sparse Adam's row updates are
+/// not counted: it walks the touched rows in address order, not at random.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NgpFlops {
     /// FLOP per evaluated sample, forward.
     pub forward_per_sample: f64,
     /// FLOP per ray, forward (the per-ray part of the colour MLP).
     pub forward_per_ray: f64,
+    /// Random table rows a sample reads forward (`8·L`).
+    pub table_rows_per_sample: f64,
 }
 
 impl NgpFlops {
@@ -100,6 +118,7 @@ impl NgpFlops {
         Self {
             forward_per_sample: encoding + density + colour,
             forward_per_ray: 2.0 * SH_DIM as f64 * h,
+            table_rows_per_sample: 8.0 * l,
         }
     }
 
@@ -120,6 +139,18 @@ impl NgpFlops {
     pub fn train_per_ray(&self) -> f64 {
         2.0 * self.forward_per_ray
     }
+
+    /// Random table rows a training sample touches: read forward, added into backward.
+    pub fn train_table_rows_per_sample(&self) -> f64 {
+        2.0 * self.table_rows_per_sample
+    }
+}
+
+/// Table rows per second and, with the run's random-read rate `reads` (rows per second), their
+/// fraction of it.
+fn table_traffic(rows_per_second: f64, reads: Option<f64>) -> (Option<f64>, Option<f64>) {
+    let fraction = reads.filter(|r| *r > 0.0).map(|r| rows_per_second / r);
+    (Some(rows_per_second), fraction)
 }
 
 /// Best seconds of `calls` calls of `f`, over `repeats` repeats, divided by `calls`.
@@ -264,7 +295,7 @@ pub fn bench_ngp_training(
     data_dir: &Path,
     samples_per_step: Option<usize>,
     steps: StepCounts,
-    gemm: Option<&GemmRates>,
+    rates: MachineRates,
     device: &Device,
 ) -> Result<BenchResult> {
     let overrides: Vec<String> = samples_per_step
@@ -344,12 +375,18 @@ pub fn bench_ngp_training(
     let evaluated = per_s(counts.evaluated);
     let ray_rate = per_s(rays_timed);
     let gflops = (evaluated * flops.train_per_sample() + ray_rate * flops.train_per_ray()) / 1e9;
+    let (table_rows_per_second, fraction_of_random_reads) = table_traffic(
+        evaluated * flops.train_table_rows_per_sample(),
+        rates.table_reads,
+    );
     let throughput = Throughput {
         rays_per_second: Some(ray_rate),
         drawn_samples_per_second: Some(per_s(counts.total)),
         evaluated_samples_per_second: Some(evaluated),
         flop_per_evaluated_sample: Some(flops.train_per_sample()),
-        ..GemmRates::throughput(gemm, gflops)
+        table_rows_per_second,
+        fraction_of_random_reads,
+        ..GemmRates::throughput(rates.gemm, gflops)
     };
     let timed = runs.len().max(1);
     let target_text = target.map_or("the config's rays".to_string(), |t| format!("{t}"));
@@ -382,7 +419,7 @@ pub fn bench_ngp_render_400(
     checkpoint: &Path,
     data_dir: &Path,
     views: usize,
-    gemm: Option<&GemmRates>,
+    rates: MachineRates,
     device: &Device,
 ) -> Result<BenchResult> {
     let config = Config::load("lego_ngp_400", &[])?;
@@ -429,7 +466,7 @@ pub fn bench_ngp_render_400(
     let counts = frames
         .iter()
         .fold(SampleCounts::default(), |a, f| a + f.samples);
-    let throughput = render_throughput(&flops, &frames, &runs, (w, h), gemm);
+    let throughput = render_throughput(&flops, &frames, &runs, (w, h), rates);
     let total: f64 = runs.iter().sum::<f64>().max(1e-12);
     let n = frames.len();
     let evaluated_pct = 100.0 * counts.evaluated_fraction();
@@ -462,7 +499,8 @@ pub enum RowGroup {
     Base,
     /// The f32 matrix-multiply rates (without them, the NeRF and hash-grid rows have no fractions).
     Matmul,
-    /// Random row reads from hash tables of one and of 16 levels.
+    /// Random row reads from hash tables of one and of 16 levels (without them, the hash-grid
+    /// rows have no fraction of the random-read rate).
     Memory,
     /// Hash-grid training at the shipped samples per step.
     NgpTrain,
@@ -477,13 +515,13 @@ pub enum RowGroup {
 pub const LARGE_SAMPLES_PER_STEP: usize = 1 << 18;
 
 /// The throughput of hash-grid `frames` of `w`×`h` rendered in `runs` seconds, counted with
-/// `flops`, against the run's gemm `rates`.
+/// `flops`, against the run's `rates`.
 pub fn render_throughput(
     flops: &NgpFlops,
     frames: &[RenderedView],
     runs: &[f64],
     (w, h): (usize, usize),
-    rates: Option<&GemmRates>,
+    rates: MachineRates,
 ) -> Throughput {
     let counts = frames
         .iter()
@@ -492,12 +530,16 @@ pub fn render_throughput(
     let rays = (w * h * frames.len()) as f64 / total;
     let evaluated = counts.evaluated as f64 / total;
     let gflops = (evaluated * flops.forward_per_sample + rays * flops.forward_per_ray) / 1e9;
+    let (table_rows_per_second, fraction_of_random_reads) =
+        table_traffic(evaluated * flops.table_rows_per_sample, rates.table_reads);
     Throughput {
         rays_per_second: Some(rays),
         drawn_samples_per_second: Some(counts.total as f64 / total),
         evaluated_samples_per_second: Some(evaluated),
         flop_per_evaluated_sample: Some(flops.forward_per_sample),
-        ..GemmRates::throughput(rates, gflops)
+        table_rows_per_second,
+        fraction_of_random_reads,
+        ..GemmRates::throughput(rates.gemm, gflops)
     }
 }
 
@@ -511,21 +553,18 @@ pub fn gemm_sizes(quick: bool) -> (usize, usize) {
     }
 }
 
-/// Every hash-grid row that `lego` allows, with their fractions of the run's gemm `rates`:
-/// the training rows need the lego dataset, the 400×400 row the `lego_ngp_400` checkpoint
-/// (each is skipped with a note when missing). `lego.quick`: fewer repeats and steps.
+/// Every hash-grid training and 400×400 row that `lego` allows, with their fractions of what
+/// the run measured the `machine` can do: the training rows need the lego dataset, the
+/// 400×400 row the `lego_ngp_400` checkpoint (each is skipped with a note when missing).
+/// `lego.quick`: fewer steps.
 pub fn hash_grid_rows(
     lego: &LegoBench,
     only: &[RowGroup],
-    rates: Option<&GemmRates>,
+    machine: MachineRates,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
     let wants = |g: RowGroup| only.is_empty() || only.contains(&g);
-    let (repeats, _) = gemm_sizes(lego.quick);
     let mut rows = Vec::new();
-    if wants(RowGroup::Memory) {
-        rows.extend(crate::bench::memory::bench_table_reads(repeats));
-    }
     let (mut shipped, mut large) = if lego.quick {
         let s = StepCounts {
             warmup: 2,
@@ -559,7 +598,7 @@ pub fn hash_grid_rows(
                 &lego.data_dir,
                 samples,
                 steps,
-                rates,
+                machine,
                 device,
             )?);
         }
@@ -576,7 +615,7 @@ pub fn hash_grid_rows(
             &checkpoint,
             &lego.data_dir,
             lego.views,
-            rates,
+            machine,
             device,
         )?);
     } else if render {
@@ -598,6 +637,9 @@ mod tests {
         assert_eq!(flops.forward_per_sample, 17408.0);
         assert_eq!(flops.forward_per_ray, 2048.0);
         assert_eq!(flops.train_per_sample(), 3.0 * 17408.0);
+        // 16 levels × 8 corners read forward; training adds into as many backward.
+        assert_eq!(flops.table_rows_per_sample, 128.0);
+        assert_eq!(flops.train_table_rows_per_sample(), 256.0);
         assert!(NgpFlops::of_config(&Config::load("nerf_lego", &[]).unwrap()).is_err());
     }
 
@@ -612,5 +654,21 @@ mod tests {
         assert_eq!(t.fraction_of_square_gemm, Some(0.25));
         assert!(t.describe().contains("50.0% of the MLP-shaped gemm"));
         assert_eq!(GemmRates::throughput(None, 50.0).fraction_of_mlp_gemm, None);
+        let (rows, fraction) = table_traffic(120e6, Some(300e6));
+        assert_eq!((rows, fraction), (Some(120e6), Some(0.4)));
+        let row = Throughput {
+            table_rows_per_second: rows,
+            fraction_of_random_reads: fraction,
+            ..t
+        };
+        assert!(
+            row.describe()
+                .contains("120.00M table rows/s = 40.0% of the random-read rate"),
+            "{}",
+            row.describe()
+        );
+        // Without the memory rows (or with a rate of 0): rows per second and no fraction.
+        assert_eq!(table_traffic(120e6, None).1, None);
+        assert_eq!(table_traffic(120e6, Some(0.0)).1, None);
     }
 }

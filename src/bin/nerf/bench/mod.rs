@@ -14,8 +14,9 @@ use serde::Serialize;
 
 pub use crate::bench::hash_grid_rows::RowGroup;
 use crate::bench::hash_grid_rows::{
-    bench_gemm, gemm_sizes, hash_grid_rows, render_throughput, GemmRates,
+    bench_gemm, gemm_sizes, hash_grid_rows, render_throughput, GemmRates, MachineRates,
 };
+use crate::bench::memory::bench_table_reads;
 use crate::bench::mlp_flops::{forward_flop_per_sample, mlp_throughput, TRAIN_FACTOR};
 pub use crate::bench::row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
 use crate::render::scene::render_views;
@@ -238,13 +239,26 @@ pub fn run_benchmarks(
     } else {
         (Vec::new(), None)
     };
+    // And the random-read rate: every hash-grid row reports its table traffic's fraction of it.
+    let (memory_rows, table_reads) = match lego {
+        Some(l) if wants(RowGroup::Memory) => {
+            let (rows, all_levels) = bench_table_reads(gemm_sizes(l.quick).0);
+            (rows, Some(all_levels))
+        }
+        _ => (Vec::new(), None),
+    };
+    let machine = MachineRates {
+        gemm: rates.as_ref(),
+        table_reads,
+    };
     let mut results = Vec::new();
     if wants(RowGroup::Base) {
-        results = base_rows(config, repeats, lego, rates.as_ref(), device)?;
+        results = base_rows(config, repeats, lego, machine, device)?;
     }
     results.extend(gemm_rows);
+    results.extend(memory_rows);
     if let Some(lego) = lego {
-        results.extend(hash_grid_rows(lego, only, rates.as_ref(), device)?);
+        results.extend(hash_grid_rows(lego, only, machine, device)?);
     }
     Ok(BenchReport {
         machine: machine_info(),
@@ -257,7 +271,7 @@ fn base_rows(
     config: &Config,
     repeats: usize,
     lego: Option<&LegoBench>,
-    rates: Option<&GemmRates>,
+    rates: MachineRates,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
     let (mut result, frames) = bench_sdf_render(config, repeats, device)?;
@@ -298,7 +312,7 @@ fn base_rows(
     results.extend(bench_nerf(
         &Config::load("nerf_lego", &[])?,
         repeats,
-        rates,
+        rates.gemm,
         device,
     )?);
     Ok(results)
@@ -499,7 +513,7 @@ fn render_run(
 /// and of the accelerated render against the dense one.
 pub fn bench_trained_nerf(
     lego: &LegoBench,
-    rates: Option<&GemmRates>,
+    rates: MachineRates,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
     let fast_config = Config::load("lego", &[])?;
@@ -549,13 +563,13 @@ pub fn bench_trained_nerf(
         (n * w * h, dense_drawn, dense_drawn),
         forward,
         dense_runs.iter().sum(),
-        rates,
+        rates.gemm,
     );
     let fast_throughput = mlp_throughput(
         (n * w * h, counts.total, counts.evaluated),
         forward,
         fast_runs.iter().sum(),
-        rates,
+        rates.gemm,
     );
     let mut rows = ngp_rows(&cameras, truth.as_deref(), lego.quick, rates, device)?;
     rows.splice(0..0, [
@@ -590,7 +604,7 @@ fn ngp_rows(
     cameras: &[PerspectiveCamera],
     truth: Option<&[RgbImage]>,
     quick: bool,
-    rates: Option<&GemmRates>,
+    rates: MachineRates,
     device: &Device,
 ) -> Result<Vec<BenchResult>> {
     let checkpoint = std::path::Path::new(nerf::config::SHIPPED_NGP_CHECKPOINT);

@@ -44,6 +44,14 @@ pub struct Throughput {
     /// Random table rows read per second ([`crate::bench::memory`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub row_reads_per_second: Option<f64>,
+    /// Random hash-table row accesses per second of a hash-grid row ([`crate::bench::hash_grid_rows::NgpFlops`]
+    /// counts them).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub table_rows_per_second: Option<f64>,
+    /// `table_rows_per_second` over the same run's random-read rate from a table of 16
+    /// levels ([`crate::bench::memory`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fraction_of_random_reads: Option<f64>,
     /// Useful floating-point operations per second, in 10^9 (0 for rows that count none).
     pub gflops: f64,
     /// `gflops` over the MLP-shaped matrix product's rate (65536×64 by 64×64).
@@ -79,6 +87,13 @@ impl Throughput {
         }
         if let Some(v) = self.row_reads_per_second {
             parts.push(format!("{} random row reads/s", si(v)));
+        }
+        if let Some(v) = self.table_rows_per_second {
+            let mut table = format!("{} table rows/s", si(v));
+            if let Some(f) = self.fraction_of_random_reads {
+                table += &format!(" = {:.1}% of the random-read rate", 100.0 * f);
+            }
+            parts.push(table);
         }
         if self.gflops == 0.0 && !parts.is_empty() {
             return parts.join(", ");
