@@ -490,12 +490,9 @@ impl<'a> Machine<'a> {
                 let v = s.parse().map_err(|_| anyhow!("bad LONG {s:?}"))?;
                 self.push(Value::Int(v))?
             }
-            0x8a => {
-                let n = self.len(1)?;
-                self.long(n)?
-            }
-            0x8b => {
-                let n = self.len(4)?;
+            // LONG1, LONG4
+            0x8a | 0x8b => {
+                let n = self.len(length_width(op))?;
                 self.long(n)?
             }
             b'F' => {
@@ -526,45 +523,41 @@ impl<'a> Machine<'a> {
                 let s = String::from_utf8_lossy(self.line()?).into_owned();
                 self.push(Value::Str(Rc::from(s)))?
             }
-            b'T' => {
-                let n = self.len(4)?;
+            // BINSTRING, SHORT_BINSTRING (Python 2 strings: text when UTF-8)
+            b'T' | b'U' => {
+                let n = self.len(length_width(op))?;
                 self.bytes(n, true)?
             }
-            b'U' => {
-                let n = self.len(1)?;
-                self.bytes(n, true)?
-            }
-            b'X' => {
-                let n = self.len(4)?;
+            // BINUNICODE, SHORT_BINUNICODE, BINUNICODE8
+            b'X' | 0x8c | 0x8d => {
+                let n = self.len(length_width(op))?;
                 self.unicode(n)?
             }
-            0x8c => {
-                let n = self.len(1)?;
-                self.unicode(n)?
-            }
-            0x8d => {
-                let n = self.len(8)?;
-                self.unicode(n)?
-            }
-            b'B' => {
-                let n = self.len(4)?;
+            // BINBYTES, SHORT_BINBYTES, BINBYTES8, BYTEARRAY8
+            b'B' | b'C' | 0x8e | 0x96 => {
+                let n = self.len(length_width(op))?;
                 self.bytes(n, false)?
             }
-            b'C' => {
-                let n = self.len(1)?;
-                self.bytes(n, false)?
-            }
-            0x8e | 0x96 => {
-                let n = self.len(8)?;
-                self.bytes(n, false)?
-            }
-            b')' => {
-                let v = self.node(Kind::Tuple, Vec::new())?;
+            // EMPTY_TUPLE, EMPTY_LIST, EMPTY_DICT, EMPTY_SET
+            b')' | b']' | b'}' | 0x8f => {
+                let kind = match op {
+                    b')' => Kind::Tuple,
+                    b']' => Kind::List,
+                    b'}' => Kind::Dict,
+                    _ => Kind::Set,
+                };
+                let v = self.node(kind, Vec::new())?;
                 self.push(v)?
             }
-            b't' => {
+            // TUPLE, LIST, FROZENSET: the items since the mark
+            b't' | b'l' | 0x91 => {
+                let kind = match op {
+                    b't' => Kind::Tuple,
+                    b'l' => Kind::List,
+                    _ => Kind::Set,
+                };
                 let items = self.pop_mark()?;
-                let v = self.node(Kind::Tuple, items)?;
+                let v = self.node(kind, items)?;
                 self.push(v)?
             }
             0x85..=0x87 => {
@@ -574,15 +567,6 @@ impl<'a> Machine<'a> {
                 let v = self.node(Kind::Tuple, items)?;
                 self.push(v)?
             }
-            b']' => {
-                let v = self.node(Kind::List, Vec::new())?;
-                self.push(v)?
-            }
-            b'l' => {
-                let items = self.pop_mark()?;
-                let v = self.node(Kind::List, items)?;
-                self.push(v)?
-            }
             b'a' => {
                 let v = self.pop()?;
                 self.extend_top(Kind::List, vec![v])?
@@ -590,10 +574,6 @@ impl<'a> Machine<'a> {
             b'e' => {
                 let items = self.pop_mark()?;
                 self.extend_top(Kind::List, items)?
-            }
-            b'}' => {
-                let v = self.node(Kind::Dict, Vec::new())?;
-                self.push(v)?
             }
             b'd' => {
                 let items = self.pop_mark()?;
@@ -615,18 +595,9 @@ impl<'a> Machine<'a> {
                 }
                 self.extend_top(Kind::Dict, items)?
             }
-            0x8f => {
-                let v = self.node(Kind::Set, Vec::new())?;
-                self.push(v)?
-            }
             0x90 => {
                 let items = self.pop_mark()?;
                 self.extend_top(Kind::Set, items)?
-            }
-            0x91 => {
-                let items = self.pop_mark()?;
-                let v = self.node(Kind::Set, items)?;
-                self.push(v)?
             }
             b'g' | b'h' | b'j' => {
                 let key = self.memo_key(op, "GET")?;
@@ -653,21 +624,15 @@ impl<'a> Machine<'a> {
                     _ => bail!("STACK_GLOBAL of names that are not strings"),
                 }
             }
-            b'R' => {
+            // REDUCE, NEWOBJ, NEWOBJ_EX (whose keyword arguments are dropped): a callable or
+            // class and its arguments
+            b'R' | 0x81 | 0x92 => {
+                if op == 0x92 {
+                    self.pop()?;
+                }
                 let args = self.pop()?;
                 let callable = self.pop()?;
                 self.reduce(callable, args)?
-            }
-            0x81 => {
-                let args = self.pop()?;
-                let class = self.pop()?;
-                self.reduce(class, args)?
-            }
-            0x92 => {
-                let _kwargs = self.pop()?;
-                let args = self.pop()?;
-                let class = self.pop()?;
-                self.reduce(class, args)?
             }
             b'b' => {
                 let state = self.pop()?;
@@ -719,5 +684,92 @@ pub fn describe(v: &Value) -> &'static str {
             Kind::Build => "object",
             Kind::PersistentId => "persistent id",
         },
+    }
+}
+
+/// Bytes of the little-endian length that follows a length-prefixed opcode: 1 for the
+/// SHORT_ forms (and LONG1), 8 for the protocol 4 forms (`…8`), 4 for the rest.
+fn length_width(op: u8) -> usize {
+    match op {
+        0x8a | b'U' | 0x8c | b'C' => 1,
+        0x8d | 0x8e | 0x96 => 8,
+        _ => 4,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bytes_of(hex: &str) -> Vec<u8> {
+        (0..hex.len())
+            .step_by(2)
+            .map(|i| u8::from_str_radix(&hex[i..i + 2], 16).unwrap())
+            .collect()
+    }
+
+    /// Written by CPython 3's `pickle.dumps(obj, protocol=5)` for `obj = ([], (), {}, set(),
+    /// frozenset({1}), b"ab", bytearray(b"cd"), "ü", 2**70, [1, 2], (3, 4, 5, 6),
+    /// collections.OrderedDict())`: the EMPTY_* opcodes, FROZENSET, TUPLE, SHORT_BINBYTES,
+    /// BYTEARRAY8, SHORT_BINUNICODE, LONG1 and REDUCE.
+    #[test]
+    fn protocol_5_containers_strings_and_numbers_read_as_python_wrote_them() {
+        let data = bytes_of(concat!(
+            "8005956500000000000000285d94297d948f94284b01919443026162949602000000000000006364",
+            "948c02c3bc948a090000000000000000405d94284b014b0265284b034b044b054b0674948c0b636f",
+            "6c6c656374696f6e73948c0b4f7264657265644469637494939429529474942e"
+        ));
+        let v = unpickle(&data).unwrap();
+        let items = v.tuple().unwrap();
+        assert_eq!(items.len(), 12);
+        assert!(items[0].list().unwrap().is_empty());
+        assert!(items[1].tuple().unwrap().is_empty());
+        assert!(items[2].dict().unwrap().is_empty());
+        let set = |v: &Value| v.node(Kind::Set).map(|n| n.items.borrow().len());
+        assert_eq!(set(&items[3]), Some(0));
+        assert_eq!(set(&items[4]), Some(1));
+        assert!(matches!(&items[5], Value::Bytes(b) if &b[..] == b"ab"));
+        assert!(matches!(&items[6], Value::Bytes(b) if &b[..] == b"cd"));
+        assert_eq!(items[7].as_str(), Some("ü"));
+        // 2^70 does not fit in 64 bits: its 9 little-endian bytes.
+        assert!(matches!(&items[8], Value::BigInt(b) if b[..] == [0, 0, 0, 0, 0, 0, 0, 0, 0x40]));
+        let ints = |v: &Value| -> Vec<i64> {
+            v.sequence()
+                .unwrap()
+                .iter()
+                .map(|i| i.as_int().unwrap())
+                .collect()
+        };
+        assert_eq!(ints(&items[9]), [1, 2]);
+        assert_eq!(ints(&items[10]), [3, 4, 5, 6]);
+        // REDUCE of `collections.OrderedDict` on no arguments: an empty dict.
+        assert!(items[11].dict().unwrap().is_empty());
+    }
+
+    /// CPython 3's pickles of a `__main__` class instance: protocol 2 (GLOBAL, NEWOBJ, BUILD
+    /// with the instance dict) and protocol 4 with `__getnewargs_ex__` returning `((7,),
+    /// {"k": 8})` (NEWOBJ_EX: the keyword arguments are dropped).
+    #[test]
+    fn newobj_and_newobj_ex_read_as_calls_of_the_class() {
+        let v2 = unpickle(&bytes_of(concat!(
+            "8002635f5f6d61696e5f5f0a4b0a7100298171017d710258010000006171034b0173622e"
+        )))
+        .unwrap();
+        let build = v2.node(Kind::Build).unwrap().items.borrow().clone();
+        let (class, args) = build[0].reduce().unwrap();
+        assert_eq!(class.as_global(), Some(("__main__", "K")));
+        assert!(args.tuple().unwrap().is_empty());
+        assert_eq!(build[1].get("a").and_then(|a| a.as_int()), Some(1));
+
+        let v4 = unpickle(&bytes_of(concat!(
+            "80049521000000000000008c085f5f6d61696e5f5f948c01459493944b0785947d948c016b944b08",
+            "7392942e"
+        )))
+        .unwrap();
+        let (class, args) = v4.reduce().unwrap();
+        assert_eq!(class.as_global(), Some(("__main__", "E")));
+        let args = args.tuple().unwrap();
+        assert_eq!(args.len(), 1);
+        assert_eq!(args[0].as_int(), Some(7));
     }
 }
