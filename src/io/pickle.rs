@@ -751,10 +751,8 @@ mod tests {
     /// {"k": 8})` (NEWOBJ_EX: the keyword arguments are dropped).
     #[test]
     fn newobj_and_newobj_ex_read_as_calls_of_the_class() {
-        let v2 = unpickle(&bytes_of(concat!(
-            "8002635f5f6d61696e5f5f0a4b0a7100298171017d710258010000006171034b0173622e"
-        )))
-        .unwrap();
+        let v2 = "8002635f5f6d61696e5f5f0a4b0a7100298171017d710258010000006171034b0173622e";
+        let v2 = unpickle(&bytes_of(v2)).unwrap();
         let build = v2.node(Kind::Build).unwrap().items.borrow().clone();
         let (class, args) = build[0].reduce().unwrap();
         assert_eq!(class.as_global(), Some(("__main__", "K")));
