@@ -434,20 +434,15 @@ fn child_module(module: &Module, name: &str, sources: &mut Sources) -> Option<Mo
             path,
         });
     }
-    let flat = module.children_dir.join(format!("{name}.rs"));
-    if flat.is_file() {
-        let children_dir = module.children_dir.join(name);
+    // `name.rs` beside its parent, or `name/mod.rs`; either way its children are in `name/`.
+    let children_dir = module.children_dir.join(name);
+    let files = [
+        module.children_dir.join(format!("{name}.rs")),
+        children_dir.join("mod.rs"),
+    ];
+    if let Some(file) = files.into_iter().find(|f| f.is_file()) {
         return Some(Module {
-            file: flat,
-            children_dir,
-            path,
-        });
-    }
-    let folder = module.children_dir.join(name).join("mod.rs");
-    if folder.is_file() {
-        let children_dir = module.children_dir.join(name);
-        return Some(Module {
-            file: folder,
+            file,
             children_dir,
             path,
         });

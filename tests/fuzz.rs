@@ -59,6 +59,15 @@ fn words(words: &'static [&'static str]) -> impl Strategy<Value = String> {
     prop::sample::select(words).prop_map(str::to_string)
 }
 
+/// A JSON matrix entry: a random float or one of `words`, each of these 1 + n choices as likely.
+fn matrix_entry(words: &'static [&'static str]) -> impl Strategy<Value = String> {
+    let n = words.len() as u32;
+    prop_oneof![
+        1 => any::<f64>().prop_map(|v| format!("{v:e}")),
+        n => self::words(words),
+    ]
+}
+
 /// YAML scalars and fragments that stress parsers: huge, negative, special floats, wrong
 /// types, nesting, unicode.
 fn nasty_value() -> impl Strategy<Value = String> {
@@ -151,13 +160,7 @@ proptest! {
     #[test]
     fn transforms_json_never_panics(
         fov in prop_oneof![Just("0.69".to_string()), nasty_value()],
-        matrix in prop::collection::vec(prop_oneof![
-            any::<f64>().prop_map(|v| format!("{v:e}")),
-            Just("0".to_string()),
-            Just("1".to_string()),
-            Just("null".to_string()),
-            Just("\"x\"".to_string()),
-        ], 0..20),
+        matrix in prop::collection::vec(matrix_entry(&["0", "1", "null", "\"x\""]), 0..20),
         path in "[ -~]{0,20}",
         truncate in 0usize..400,
     ) {
@@ -183,12 +186,7 @@ proptest! {
         fov in prop_oneof![Just("50".to_string()), nasty_value()],
         size in prop_oneof![Just("64".to_string()), nasty_value()],
         fps in prop_oneof![Just("24".to_string()), nasty_value()],
-        matrix in prop::collection::vec(prop_oneof![
-            any::<f64>().prop_map(|v| format!("{v:e}")),
-            Just("0".to_string()),
-            Just("1".to_string()),
-            Just("null".to_string()),
-        ], 0..20),
+        matrix in prop::collection::vec(matrix_entry(&["0", "1", "null"]), 0..20),
         truncate in 0usize..400,
     ) {
         let json = format!(
