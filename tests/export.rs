@@ -358,11 +358,12 @@ fn ngp_trains_for_minutes_then_exports_a_half_precision_model_that_evaluates_the
         "--minutes",
         "0.05",
     ]));
-    // Three seconds of training end mid-epoch (which epoch depends on the machine's speed),
-    // in a checkpoint that says so: "trained to epoch N step K".
+    // Three seconds of training end in whichever epoch this machine's speed reaches, in a
+    // checkpoint that says where: "trained to epoch N step K" mid-epoch, or "trained to epoch
+    // N (…)" when the limit falls on an epoch's end (seen once in a full suite run, at epoch
+    // 1 after 100 steps).
     assert!(
-        out.lines()
-            .any(|l| l.contains("trained to epoch ") && l.contains(" step ")),
+        out.lines().any(|l| l.contains("trained to epoch ")),
         "{out}"
     );
     let model = dir.path().join("model.safetensors");
