@@ -311,8 +311,8 @@ struct MarchGrid<'a> {
 const BLOCK_MARGIN: f64 = 1e-4;
 
 /// One ray's walk over its samples, front to back: the next sample to test, the end of the
-/// samples that can lie in the grid's box, how many were tested, and the cell of the last
-/// tested sample with the depth before which later samples are known to share it.
+/// samples that can lie in the grid's box, how many were tested, and the depth before which
+/// later samples are known to share the occupied cell of the last tested one.
 struct RayMarch {
     origin: [f32; 3],
     direction: [f32; 3],
@@ -320,11 +320,9 @@ struct RayMarch {
     next: usize,
     end: usize,
     examined: usize,
-    /// Samples deeper than the last tested one and shallower than this lie in its cell
-    /// ([`RayFaces::exit`]); −∞ when no cell is known.
-    cell_end: f64,
-    /// Whether that cell is occupied.
-    cell_occupied: bool,
+    /// Samples deeper than the last tested one and shallower than this lie in its cell, an
+    /// occupied one ([`RayFaces::exit`]); −∞ until one is found.
+    occupied_end: f64,
 }
 
 impl RayMarch {
@@ -348,8 +346,7 @@ impl RayMarch {
             next,
             end,
             examined: 0,
-            cell_end: f64::NEG_INFINITY,
-            cell_occupied: false,
+            occupied_end: f64::NEG_INFINITY,
         }
     }
 
@@ -381,18 +378,16 @@ impl RayMarch {
     /// The next sample in an occupied cell (all samples without a grid): its index along the
     /// ray and its point, or `None` when the ray has no more. Marching goes cell by cell: a
     /// sample is looked up in the grid only when it is not known to share the cell of the
-    /// last one looked up ([`RayFaces::exit`]), and samples in an empty block are
-    /// passed over without a test, except within [`BLOCK_MARGIN`] of its faces; the result is
-    /// exactly the per-sample test's.
+    /// last one looked up ([`RayFaces::exit`]); an empty cell, or its block when that is empty
+    /// too, is passed over without a lookup (with a contraction, only empty blocks inside the
+    /// unit cube, keeping [`BLOCK_MARGIN`] from their faces). The result is exactly the
+    /// per-sample test's.
     fn next_occupied(&mut self, grid: Option<&MarchGrid>, t: &[f32]) -> Option<(usize, [f32; 3])> {
         while self.next < self.end {
             let i = self.next;
             self.next += 1;
-            if f64::from(t[i]) < self.cell_end {
-                if self.cell_occupied {
-                    return Some((i, self.point(t[i])));
-                }
-                continue;
+            if f64::from(t[i]) < self.occupied_end {
+                return Some((i, self.point(t[i])));
             }
             self.examined += 1;
             let p = self.point(t[i]);
@@ -403,18 +398,16 @@ impl RayMarch {
             let Some(cell) = g.grid.cell_coordinates(p) else {
                 continue;
             };
-            let occupied = g.grid.occupied[g.grid.cell_index(cell)];
-            if let Some(faces) = &self.faces {
-                self.cell_end = faces.exit(cell);
-                self.cell_occupied = occupied;
-            }
-            if occupied {
+            if g.grid.occupied[g.grid.cell_index(cell)] {
+                if let Some(faces) = &self.faces {
+                    self.occupied_end = faces.exit(cell);
+                }
                 return Some((i, p));
             }
             // Pass over the rest of the empty cell, and of its block when that is empty too.
             let skip_to = match &self.faces {
                 Some(faces) if g.blocks.holds_empty(cell) => faces.block_exit(cell),
-                Some(_) => self.cell_end,
+                Some(faces) => faces.exit(cell),
                 None => self.contracted_block_end(g, cell, t),
             };
             while self.next < self.end && f64::from(t[self.next]) < skip_to {
