@@ -89,15 +89,11 @@ fn encode_level<const DENSE: bool>(
         let c = block_corners::<DENSE>(level, pts);
         for (j, o) in out.chunks_exact_mut(width).enumerate() {
             let o = &mut o[l * f..(l + 1) * f];
+            // F = 2 (the usual choice) and 4: the sums in registers.
             if let Ok(o) = <&mut [f32; 2]>::try_from(&mut *o) {
-                // F = 2 (the usual choice): the sums in registers.
-                let mut sum = [0f32; 2];
-                for k in 0..8 {
-                    let (row, w) = (c.rows[k][j] as usize * 2, c.weights[k][j]);
-                    sum[0] += w * table[row];
-                    sum[1] += w * table[row + 1];
-                }
-                *o = sum;
+                *o = blend_corners(&c, j, table);
+            } else if let Ok(o) = <&mut [f32; 4]>::try_from(&mut *o) {
+                *o = blend_corners(&c, j, table);
             } else {
                 o.fill(0.0);
                 for k in 0..8 {
@@ -109,6 +105,21 @@ fn encode_level<const DENSE: bool>(
             }
         }
     }
+}
+
+/// Point `j`'s `F` features from the rows of `table` (`(T, F)`) at its 8 corners `c`,
+/// weighted, summed in corner order from 0 (as the loop for any `F` sums them).
+#[inline(always)]
+fn blend_corners<const F: usize>(c: &BlockCorners, j: usize, table: &[f32]) -> [f32; F] {
+    let mut sum = [0f32; F];
+    for k in 0..8 {
+        let (row, w) = (c.rows[k][j] as usize * F, c.weights[k][j]);
+        let values: &[f32; F] = table[row..row + F].try_into().expect("F values");
+        for (s, v) in sum.iter_mut().zip(values) {
+            *s += w * v;
+        }
+    }
+    sum
 }
 
 /// Adds level `l`'s share of the output gradient `grads` `(m, width)` of `points` `(m, 3)` into
@@ -127,13 +138,41 @@ fn scatter_level<const DENSE: bool>(
         let c = block_corners::<DENSE>(level, pts);
         for (j, g) in grads.chunks_exact(width).enumerate() {
             let g = &g[l * f..(l + 1) * f];
-            for k in 0..8 {
-                let (i, w) = (c.rows[k][j] as usize, c.weights[k][j]);
-                touched[i / 64] |= 1 << (i % 64);
-                for (d, g) in d[i * f..(i + 1) * f].iter_mut().zip(g) {
-                    *d += w * g;
+            match f {
+                2 => add_to_corners::<2>(&c, j, d, touched, g),
+                4 => add_to_corners::<4>(&c, j, d, touched, g),
+                _ => {
+                    for k in 0..8 {
+                        let (i, w) = (c.rows[k][j] as usize, c.weights[k][j]);
+                        touched[i / 64] |= 1 << (i % 64);
+                        for (d, g) in d[i * f..(i + 1) * f].iter_mut().zip(g) {
+                            *d += w * g;
+                        }
+                    }
                 }
             }
+        }
+    }
+}
+
+/// Adds point `j`'s output gradient `g` (its `F` values on this level), weighted, into the
+/// rows of `d` (`(T, F)`) at its 8 corners `c` in corner order, and sets their bits in
+/// `touched` (as the loop for any `F` does).
+#[inline(always)]
+fn add_to_corners<const F: usize>(
+    c: &BlockCorners,
+    j: usize,
+    d: &mut [f32],
+    touched: &mut [u64],
+    g: &[f32],
+) {
+    let g: &[f32; F] = g.try_into().expect("F values");
+    for k in 0..8 {
+        let (i, w) = (c.rows[k][j] as usize, c.weights[k][j]);
+        touched[i / 64] |= 1 << (i % 64);
+        let row: &mut [f32; F] = (&mut d[i * F..(i + 1) * F]).try_into().expect("F values");
+        for (d, g) in row.iter_mut().zip(g) {
+            *d += w * g;
         }
     }
 }
@@ -246,7 +285,7 @@ mod tests {
 
     #[test]
     fn blocks_encode_bit_for_bit_as_the_point_at_a_time_loop() {
-        for f in [2, 3] {
+        for f in [2, 3, 4] {
             let (p, levels) = levels(f);
             let t = p.table_size();
             let table = values(p.n_rows() * f, 7, -1.0, 1.0);
@@ -279,7 +318,7 @@ mod tests {
 
     #[test]
     fn blocks_scatter_bit_for_bit_as_the_point_at_a_time_loop() {
-        for f in [2, 3] {
+        for f in [2, 3, 4] {
             let (p, levels) = levels(f);
             let (t, width, m) = (p.table_size(), p.output_dim(), 41);
             let pts = points(m);
