@@ -142,7 +142,7 @@ fn counts_in_a_checkpoint_are_checked_before_anything_is_sized_by_them() {
     let mut tensors: Vec<(String, candle_core::Tensor)> = tensors.into_iter().collect();
     tensors.sort_by(|a, b| a.0.cmp(&b.0));
     let crafted = |name: &str, edit: &dyn Fn(&mut nerf::CheckpointInfo)| {
-        let mut info = info;
+        let mut info = info.clone();
         edit(&mut info);
         let d = dir.path().join(name);
         nerf::io::checkpoint::save(&d.join("nerf_lego.safetensors"), &tensors, info).unwrap();

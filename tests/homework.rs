@@ -295,7 +295,7 @@ fn nerf_lego_render_reads_a_pytorch_checkpoint_where_the_config_points() {
         &d.join("nerf_checkpoints"),
         &parameter_shapes(&params),
         &map,
-        info,
+        info.clone(),
         optimizer,
     )
     .unwrap();

@@ -305,8 +305,14 @@ fn checkpoint_round_trips_bit_exactly() {
         }),
         background: Some([0.1, 0.5, 1.0]),
         image_size: Some((320, 180)),
+        field_layout: Some("a layout line".to_string()),
     };
-    checkpoint::save(&path, &checkpoint::model_tensors(&state.varmap), info).unwrap();
+    checkpoint::save(
+        &path,
+        &checkpoint::model_tensors(&state.varmap),
+        info.clone(),
+    )
+    .unwrap();
     let (loaded, back) = load_nerf(&nerf_cfg, &path).unwrap();
     assert_eq!(back, info);
     let a: HashMap<String, Tensor> = checkpoint::model_tensors(&state.varmap)

@@ -243,6 +243,60 @@ fn checkpoint_readers_return_checkpoint_errors() {
 }
 
 #[test]
+fn a_checkpoint_of_another_hash_grid_layout_is_refused() {
+    // Two hash grids of the same parameter shapes, read at other resolutions: the second
+    // would load the first's table and render garbage.
+    let dir = tempfile::tempdir().unwrap();
+    let device = Device::Cpu;
+    let small = |max_resolution: u32| {
+        let overrides = [
+            "implicit_function.n_levels=3".to_string(),
+            "implicit_function.log2_hashmap_size=8".to_string(),
+            format!("implicit_function.max_resolution={max_resolution}"),
+        ];
+        Config::load("nerf_lego_ngp", &overrides)
+            .unwrap()
+            .field_spec()
+            .unwrap()
+    };
+    let (trained, other) = (small(64), small(32));
+    let model = trained.seeded(3, &device).unwrap();
+    let layout = model.layout().unwrap();
+    assert_ne!(
+        Some(layout.clone()),
+        other.seeded(3, &device).unwrap().layout()
+    );
+    let path = dir.path().join("grid.safetensors");
+    let info = CheckpointInfo {
+        field_layout: Some(layout.clone()),
+        ..CheckpointInfo::default()
+    };
+    checkpoint::save(&path, &checkpoint::model_tensors(model.varmap()), info).unwrap();
+    let loaded = TrainModel::from_checkpoint(&*trained, &path, &device).unwrap();
+    assert_eq!(loaded.info.field_layout.as_deref(), Some(layout.as_str()));
+    let e = TrainModel::from_checkpoint(&*other, &path, &device)
+        .err()
+        .unwrap();
+    assert!(
+        matches!(&e, CheckpointError::Metadata { key, .. } if key == "field_layout"),
+        "{e:?}"
+    );
+    let line = text(e);
+    assert!(
+        line.contains("resolution 16 to 64") && line.contains("resolution 16 to 32"),
+        "{line}"
+    );
+    // A checkpoint that stored no layout (older ones) loads as it did.
+    checkpoint::save(
+        &path,
+        &checkpoint::model_tensors(model.varmap()),
+        CheckpointInfo::default(),
+    )
+    .unwrap();
+    assert!(TrainModel::from_checkpoint(&*other, &path, &device).is_ok());
+}
+
+#[test]
 fn config_loaders_return_config_errors() {
     let e = Config::load("no_such_config", &[]).unwrap_err();
     assert!(

@@ -457,6 +457,21 @@ impl TrainableField for NgpState {
         KIND
     }
 
+    fn layout(&self) -> Option<String> {
+        let NgpParams {
+            grid: g,
+            aabb,
+            density_activation,
+            contraction,
+            ..
+        } = &self.model.params;
+        Some(format!(
+            "hash grid of {} levels x {} features, 2^{} rows a level, resolution {} to {}; \
+             box {aabb:?}; contraction {contraction:?}; density {density_activation:?}",
+            g.n_levels, g.n_features, g.log2_table_size, g.base_resolution, g.max_resolution
+        ))
+    }
+
     fn varmap(&self) -> &VarMap {
         &self.varmap
     }

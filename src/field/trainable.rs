@@ -101,6 +101,14 @@ pub trait TrainableField: Send + Sync {
         Ok(None)
     }
 
+    /// What the parameters' names and shapes do not say about how they are read (a hash
+    /// grid's resolutions, the box it covers), as one line: a checkpoint stores it and a model
+    /// whose layout differs refuses to load it, where it would otherwise load and render
+    /// garbage. `None` (the default) for a kind whose shapes say it all.
+    fn layout(&self) -> Option<String> {
+        None
+    }
+
     /// How the optimiser treats the parameters. The default: PyTorch's Adam on all of them.
     fn param_groups(&self) -> ParamGroups {
         ParamGroups {

@@ -37,11 +37,17 @@ pub const BACKGROUND_KEY: &str = "background";
 /// The metadata key of the image size a model was trained at (`width height`).
 pub const IMAGE_SIZE_KEY: &str = "image_size";
 
+/// The metadata key of the field's layout ([`CheckpointInfo::field_layout`]).
+pub const FIELD_LAYOUT_KEY: &str = "field_layout";
+
+/// The longest field layout line a checkpoint may store.
+pub const MAX_LAYOUT_BYTES: usize = 4096;
+
 /// The largest side a stored training image size may have.
 pub const MAX_STORED_SIDE: usize = 1 << 16;
 
 /// What a checkpoint holds besides tensors.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct CheckpointInfo {
     /// Epochs completed when it was written.
     pub epoch: usize,
@@ -75,6 +81,10 @@ pub struct CheckpointInfo {
     /// The training images' size (`None` in a checkpoint written before it was stored): what
     /// renders of a config without `data.image_size` take.
     pub image_size: Option<(usize, usize)>,
+    /// What the model's parameter shapes do not say about how they are read
+    /// ([`crate::field::trainable::TrainableField::layout`]; `None` for a kind without one, or
+    /// a checkpoint written before it was stored): a model of another layout must not load it.
+    pub field_layout: Option<String>,
 }
 
 /// The largest counts a checkpoint's metadata may hold: far past any real run, and small
@@ -121,6 +131,19 @@ impl CheckpointInfo {
                 self.wall_seconds
             );
             return Err(CheckpointError::metadata(origin, "wall_seconds", message));
+        }
+        if let Some(layout) = self
+            .field_layout
+            .as_ref()
+            .filter(|l| l.len() > MAX_LAYOUT_BYTES)
+        {
+            let message = format!(
+                "checkpoint {}: metadata {FIELD_LAYOUT_KEY} is {} bytes, past the {MAX_LAYOUT_BYTES} \
+                 a layout line can have; the file is corrupt or crafted",
+                origin.display(),
+                layout.len()
+            );
+            return Err(CheckpointError::metadata(origin, FIELD_LAYOUT_KEY, message));
         }
         Ok(())
     }
@@ -179,6 +202,9 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     }
     if let Some((w, h)) = info.image_size {
         metadata.insert(IMAGE_SIZE_KEY.to_string(), format!("{w} {h}"));
+    }
+    if let Some(layout) = &info.field_layout {
+        metadata.insert(FIELD_LAYOUT_KEY.to_string(), layout.clone());
     }
     let bytes = safetensors::serialize(views, Some(metadata))?;
     if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -246,6 +272,7 @@ fn load_safetensors(
         capture_spiral: capture_spiral_of(&meta, path)?,
         background: background_of(&meta, path)?,
         image_size: image_size_of(&meta, path)?,
+        field_layout: meta.get(FIELD_LAYOUT_KEY).cloned(),
     };
     info.validate(path)?;
     let mut tensors = HashMap::new();
@@ -468,9 +495,10 @@ mod tests {
             scene_transform: Some(transform),
             background: Some([0.25, 1.0, 0.0]),
             image_size: Some((640, 360)),
+            field_layout: Some("hash grid of 2 levels".to_string()),
             ..CheckpointInfo::default()
         };
-        save(&path, &[("w".to_string(), w.clone())], info).unwrap();
+        save(&path, &[("w".to_string(), w.clone())], info.clone()).unwrap();
         let (_, read) = load(&path, &Device::Cpu).unwrap();
         assert_eq!(read, info);
         let meta = read_metadata(&path).unwrap();

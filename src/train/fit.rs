@@ -297,11 +297,17 @@ fn save(
         };
         let tensors = tensors.into_iter().collect();
         let expected = state.field.parameter_shapes();
-        return write_torch_checkpoint(&paths.checkpoint, &expected, &tensors, *info, optimizer);
+        return write_torch_checkpoint(
+            &paths.checkpoint,
+            &expected,
+            &tensors,
+            info.clone(),
+            optimizer,
+        );
     }
     let mut tensors = state.tensors(device)?;
     tensors.extend(adam.state_tensors()?);
-    checkpoint::save(&paths.checkpoint, &tensors, *info)
+    checkpoint::save(&paths.checkpoint, &tensors, info.clone())
 }
 
 /// One step's log line (`rays`: the step's rays).
@@ -592,6 +598,7 @@ impl Run<'_> {
             capture_spiral: self.capture_spiral(),
             background: Some(self.settings.step.renderer.background),
             image_size: Some((self.dataset.width, self.dataset.height)),
+            field_layout: self.state.field.layout(),
             ..CheckpointInfo::default()
         };
         if (epoch + 1).is_multiple_of(s.checkpoint_interval) {
@@ -644,7 +651,7 @@ pub struct RunLimits {
 }
 
 /// How a call to [`fit`] ended.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum FitOutcome {
     /// Every planned epoch ran, or the time limit was reached; the checkpoint holds the last
     /// step.
@@ -657,7 +664,7 @@ impl FitOutcome {
     /// What the checkpoint now holds.
     pub fn info(&self) -> CheckpointInfo {
         match self {
-            FitOutcome::Finished(i) | FitOutcome::Stopped(i) => *i,
+            FitOutcome::Finished(i) | FitOutcome::Stopped(i) => i.clone(),
         }
     }
 }
@@ -717,7 +724,7 @@ pub fn fit(
         device,
         state,
         adam,
-        info,
+        info: info.clone(),
         log,
         pending: Vec::new(),
         // Its own plain lines (step, loss, time left), not the bar's.
@@ -762,9 +769,10 @@ pub fn fit(
                 capture_spiral: run.capture_spiral(),
                 background: Some(run.settings.step.renderer.background),
                 image_size: Some((run.dataset.width, run.dataset.height)),
+                field_layout: run.state.field.layout(),
             };
             run.finish()?;
-            return Ok(ended(run.info));
+            return Ok(ended(run.info.clone()));
         }
         run.after_epoch(epoch, mean_loss, &mut hooks)?;
         if (signalled || run.out_of_time()) && epoch + 1 < first + planned {

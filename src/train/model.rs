@@ -45,6 +45,33 @@ pub struct TrainModel {
     pub occupancy: Option<OccupancyGrid>,
 }
 
+/// [`CheckpointError::Metadata`] (key [`checkpoint::FIELD_LAYOUT_KEY`]) when the checkpoint at
+/// `path` stored a layout ([`TrainableField::layout`]) other than `field`'s: the same shapes
+/// read another way (a hash grid of other resolutions) would render garbage. A checkpoint
+/// without one (older, or a PyTorch file) is taken as it is.
+fn check_layout(
+    field: &dyn TrainableField,
+    info: &CheckpointInfo,
+    path: &Path,
+) -> Result<(), CheckpointError> {
+    let (Some(saved), Some(wanted)) = (&info.field_layout, field.layout()) else {
+        return Ok(());
+    };
+    if *saved == wanted {
+        return Ok(());
+    }
+    let message = format!(
+        "checkpoint {} holds a model of another layout: it was trained as {saved}, the config \
+         makes {wanted}; set the config's implicit_function to the checkpoint's",
+        path.display()
+    );
+    Err(CheckpointError::metadata(
+        path,
+        checkpoint::FIELD_LAYOUT_KEY,
+        message,
+    ))
+}
+
 impl TrainModel {
     /// A model without an occupancy grid.
     pub fn new(field: Box<dyn TrainableField>) -> Self {
@@ -90,6 +117,7 @@ impl TrainModel {
             path,
         )
         .map_err(CheckpointError::from_anyhow)?;
+        check_layout(field.as_ref(), &info, path)?;
         Ok(LoadedCheckpoint {
             model: Self::new(field),
             tensors,
