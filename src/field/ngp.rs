@@ -528,18 +528,13 @@ impl TrainableField for NgpState {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::test_support::abs_sum;
     use candle_core::{Device, Var};
     use candle_nn::VarMap;
 
     /// `Σ |∂loss/∂table|`: whether a backward pass reached the hash table.
     fn table_gradient_size(grads: &candle_core::backprop::GradStore, model: &Ngp) -> f32 {
-        let g = grads.get(model.table()).expect("a table gradient");
-        g.abs()
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
+        abs_sum(grads.get(model.table()).expect("a table gradient"))
     }
 
     fn small() -> NgpParams {

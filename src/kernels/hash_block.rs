@@ -244,18 +244,7 @@ fn scatter_points_portable(
 mod tests {
     use super::*;
     use crate::kernels::hash_level::HashGridParams;
-
-    fn values(n: usize, seed: u32, lo: f32, hi: f32) -> Vec<f32> {
-        let mut s = seed.wrapping_mul(2_654_435_761) | 1;
-        (0..n)
-            .map(|_| {
-                s ^= s << 13;
-                s ^= s >> 17;
-                s ^= s << 5;
-                lo + (hi - lo) * (s >> 8) as f32 / (1u32 << 24) as f32
-            })
-            .collect()
-    }
+    use crate::kernels::test_support::uniform_values;
 
     /// The bit patterns (NaN equal to itself).
     fn bits(v: &[f32]) -> Vec<u32> {
@@ -278,7 +267,7 @@ mod tests {
 
     /// `m` points in and around [0, 1]³ (clamped), with a NaN and the box's faces.
     fn points(m: usize) -> Vec<f32> {
-        let mut pts = values(3 * m, 5, -0.2, 1.2);
+        let mut pts = uniform_values(3 * m, 5, -0.2f32, 1.2);
         pts[..6].copy_from_slice(&[0.0, 1.0, 0.5, f32::NAN, 0.25, 1.0]);
         pts
     }
@@ -288,7 +277,7 @@ mod tests {
         for f in [2, 3, 4] {
             let (p, levels) = levels(f);
             let t = p.table_size();
-            let table = values(p.n_rows() * f, 7, -1.0, 1.0);
+            let table = uniform_values(p.n_rows() * f, 7, -1.0f32, 1.0);
             // A multiple of the block and two remainders.
             for m in [BLOCK * 3, 37, 5] {
                 let pts = points(m);
@@ -322,7 +311,7 @@ mod tests {
             let (p, levels) = levels(f);
             let (t, width, m) = (p.table_size(), p.output_dim(), 41);
             let pts = points(m);
-            let grads = values(m * width, 9, -1.0, 1.0);
+            let grads = uniform_values(m * width, 9, -1.0f32, 1.0);
             for (l, level) in levels.iter().enumerate() {
                 let mut d = vec![0f32; t * f];
                 let mut touched = vec![0u64; t.div_ceil(64)];

@@ -323,7 +323,7 @@ pub fn touched_rows(points: &Tensor, params: &HashGridParams) -> candle_core::Re
 mod tests {
     use super::*;
     use crate::kernels::test_support::{
-        gradient_values, hash_encoding_f64, weighted_sum_gradients,
+        gradient_values, hash_encoding_f64, uniform_values, weighted_sum_gradients,
     };
     use crate::kernels::{with_kernel_choice, KernelChoice};
     use candle_core::{Device, Var};
@@ -338,27 +338,12 @@ mod tests {
         }
     }
 
-    /// Deterministic pseudo-random values in [lo, hi).
-    fn values(n: usize, seed: u64, lo: f32, hi: f32) -> Vec<f32> {
-        let mut s = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (0..n)
-            .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                lo + (hi - lo) * ((s >> 40) as f32 / (1u64 << 24) as f32)
-            })
-            .collect()
-    }
-
     fn inputs(p: &HashGridParams, m: usize) -> (Tensor, Var) {
         let dev = Device::Cpu;
-        let mut pts = values(m * 3, 1, 0.0, 1.0);
+        let mut pts = uniform_values(m * 3, 1, 0.0f32, 1.0);
         pts[0..3].copy_from_slice(&[0.0, 1.0, 0.5]); // the box's faces
         let points = Tensor::from_vec(pts, (m, 3), &dev).unwrap();
-        let table = values(p.n_rows() * p.n_features, 2, -1.0, 1.0);
+        let table = uniform_values(p.n_rows() * p.n_features, 2, -1.0f32, 1.0);
         let table =
             Var::from_tensor(&Tensor::from_vec(table, (p.n_rows(), p.n_features), &dev).unwrap())
                 .unwrap();
@@ -378,7 +363,7 @@ mod tests {
         for log2_t in [6, 10] {
             for level in params(log2_t).levels() {
                 let n = level.resolution;
-                for (j, q) in values(3 * 50, 7, -0.1, 1.1).chunks(3).enumerate() {
+                for (j, q) in uniform_values(3 * 50, 7, -0.1f32, 1.1).chunks(3).enumerate() {
                     let q = [q[0], q[1], q[2]];
                     let corners = level.corners(q);
                     let x = q.map(|v| v.clamp(0.0, 1.0) as f64 * n as f64);
@@ -460,7 +445,7 @@ mod tests {
         let p = params(6); // small: many hash collisions
         let (points, table) = inputs(&p, 40);
         let dev = Device::Cpu;
-        let proj = Tensor::from_vec(values(40 * 8, 3, -1.0, 1.0), (40, 8), &dev).unwrap();
+        let proj = Tensor::from_vec(uniform_values(40 * 8, 3, -1.0f32, 1.0), (40, 8), &dev).unwrap();
         let loss = |t: &Tensor| -> f64 {
             let t64 = t.to_dtype(DType::F64).unwrap();
             let enc = hash_encode_generic(&points, &t64, &p).unwrap();
@@ -495,7 +480,7 @@ mod tests {
         let p = params(8);
         let (points, table) = inputs(&p, 500);
         let dev = Device::Cpu;
-        let proj = Tensor::from_vec(values(500 * 8, 4, -1.0, 1.0), (500, 8), &dev).unwrap();
+        let proj = Tensor::from_vec(uniform_values(500 * 8, 4, -1.0f32, 1.0), (500, 8), &dev).unwrap();
         let run = |choice| {
             with_kernel_choice(choice, || {
                 let enc = hash_encode(&points, &table, &p, None).unwrap();

@@ -115,7 +115,7 @@ pub fn tracked_corner_weights(
 mod tests {
     use super::*;
     use crate::kernels::hash_grid::{hash_encode, hash_encode_generic};
-    use crate::kernels::test_support::hash_encoding_f64;
+    use crate::kernels::test_support::{hash_encoding_f64, uniform_values};
     use crate::kernels::{with_kernel_choice, KernelChoice};
     use candle_core::{Device, Var};
 
@@ -129,19 +129,6 @@ mod tests {
         }
     }
 
-    /// Deterministic pseudo-random values in [lo, hi).
-    fn values(n: usize, seed: u64, lo: f64, hi: f64) -> Vec<f64> {
-        let mut s = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
-        (0..n)
-            .map(|_| {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                lo + (hi - lo) * ((s >> 11) as f64 / (1u64 << 53) as f64)
-            })
-            .collect()
-    }
-
     /// Points at least 1e-3 of a cell from every cell face of every level (so that a small
     /// step stays in its cell), some outside the box on an axis (clamped: no gradient there).
     fn points(p: &HashGridParams, m: usize) -> Vec<f32> {
@@ -152,7 +139,7 @@ mod tests {
                 (x - x.round()).abs() < 1e-3
             })
         };
-        values(3 * m, 11, -0.1, 1.1)
+        uniform_values(3 * m, 11, -0.1, 1.1)
             .into_iter()
             .map(|v| {
                 let mut v = v as f32;
@@ -165,7 +152,7 @@ mod tests {
     }
 
     fn table(p: &HashGridParams) -> Var {
-        let v: Vec<f32> = values(p.n_rows() * p.n_features, 5, -1.0, 1.0)
+        let v: Vec<f32> = uniform_values(p.n_rows() * p.n_features, 5, -1.0, 1.0)
             .into_iter()
             .map(|v| v as f32)
             .collect();
@@ -195,7 +182,7 @@ mod tests {
         let pts = points(&p, m);
         let table = table(&p);
         let host_table: Vec<f32> = table.flatten_all().unwrap().to_vec1().unwrap();
-        let proj: Vec<f64> = values(m * p.output_dim(), 3, -1.0, 1.0);
+        let proj: Vec<f64> = uniform_values(m * p.output_dim(), 3, -1.0, 1.0);
         let proj_t = Tensor::from_vec(
             proj.iter().map(|&v| v as f32).collect::<Vec<_>>(),
             (m, p.output_dim()),
@@ -240,12 +227,12 @@ mod tests {
     fn fused_and_twin_point_gradients_agree_and_the_twin_forward_is_unchanged() {
         let p = params();
         let m = 700;
-        let pts: Vec<f32> = values(3 * m, 21, -0.05, 1.05)
+        let pts: Vec<f32> = uniform_values(3 * m, 21, -0.05, 1.05)
             .into_iter()
             .map(|v| v as f32)
             .collect();
         let table = table(&p);
-        let proj: Vec<f32> = values(m * p.output_dim(), 4, -1.0, 1.0)
+        let proj: Vec<f32> = uniform_values(m * p.output_dim(), 4, -1.0, 1.0)
             .into_iter()
             .map(|v| v as f32)
             .collect();

@@ -3,6 +3,9 @@
 
 use candle_core::backprop::GradStore;
 use candle_core::Tensor;
+use rand::distr::uniform::SampleUniform;
+use rand::distr::{Distribution, Uniform};
+use rand::SeedableRng;
 
 use crate::kernels::hash_level::HashGridParams;
 
@@ -25,6 +28,24 @@ pub fn gradient_values(grads: &GradStore, t: &Tensor) -> Vec<f32> {
         .flatten_all()
         .unwrap()
         .to_vec1::<f32>()
+        .unwrap()
+}
+
+/// `n` values drawn uniformly from `[lo, hi)` by a generator seeded with `seed`: the same
+/// values on every run.
+pub fn uniform_values<T: SampleUniform>(n: usize, seed: u64, lo: T, hi: T) -> Vec<T> {
+    let range = Uniform::new(lo, hi).expect("lo < hi");
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    (0..n).map(|_| range.sample(&mut rng)).collect()
+}
+
+/// `Σ |t|` as an f32 (panics on a tensor that is not f32).
+pub fn abs_sum(t: &Tensor) -> f32 {
+    t.abs()
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .to_scalar::<f32>()
         .unwrap()
 }
 
