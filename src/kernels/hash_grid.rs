@@ -363,7 +363,10 @@ mod tests {
         for log2_t in [6, 10] {
             for level in params(log2_t).levels() {
                 let n = level.resolution;
-                for (j, q) in uniform_values(3 * 50, 7, -0.1f32, 1.1).chunks(3).enumerate() {
+                for (j, q) in uniform_values(3 * 50, 7, -0.1f32, 1.1)
+                    .chunks(3)
+                    .enumerate()
+                {
                     let q = [q[0], q[1], q[2]];
                     let corners = level.corners(q);
                     let x = q.map(|v| v.clamp(0.0, 1.0) as f64 * n as f64);
@@ -445,7 +448,8 @@ mod tests {
         let p = params(6); // small: many hash collisions
         let (points, table) = inputs(&p, 40);
         let dev = Device::Cpu;
-        let proj = Tensor::from_vec(uniform_values(40 * 8, 3, -1.0f32, 1.0), (40, 8), &dev).unwrap();
+        let proj =
+            Tensor::from_vec(uniform_values(40 * 8, 3, -1.0f32, 1.0), (40, 8), &dev).unwrap();
         let loss = |t: &Tensor| -> f64 {
             let t64 = t.to_dtype(DType::F64).unwrap();
             let enc = hash_encode_generic(&points, &t64, &p).unwrap();
@@ -480,7 +484,8 @@ mod tests {
         let p = params(8);
         let (points, table) = inputs(&p, 500);
         let dev = Device::Cpu;
-        let proj = Tensor::from_vec(uniform_values(500 * 8, 4, -1.0f32, 1.0), (500, 8), &dev).unwrap();
+        let proj =
+            Tensor::from_vec(uniform_values(500 * 8, 4, -1.0f32, 1.0), (500, 8), &dev).unwrap();
         let run = |choice| {
             with_kernel_choice(choice, || {
                 let enc = hash_encode(&points, &table, &p, None).unwrap();
