@@ -1,5 +1,5 @@
-//! What the fused kernels' tests share: the gradients of a weighted-sum loss and a gradient's
-//! values.
+//! What the kernels' and fields' tests share: seeded uniform inputs, the gradients of a
+//! weighted-sum loss, a gradient's values and size, and the hash encoding in float64.
 
 use candle_core::backprop::GradStore;
 use candle_core::Tensor;
