@@ -772,7 +772,7 @@ pub fn fit(
                 field_layout: run.state.field.layout(),
             };
             run.finish()?;
-            return Ok(ended(run.info.clone()));
+            return Ok(ended(run.info));
         }
         run.after_epoch(epoch, mean_loss, &mut hooks)?;
         if (signalled || run.out_of_time()) && epoch + 1 < first + planned {
