@@ -1,6 +1,6 @@
 //! Marching cubes: the surface where a scalar field sampled on a regular grid crosses a level.
 //!
-//! The cube cases and triangle tables are the `mcubes` crate's
+//! The cube cases and their triangles are the `mcubes` crate's
 //! ([`crate::core::marching_tables`]). Cubes are visited in the grid, in place, and each cube's
 //! triangles are welded into the mesh as they are made: the copies that neighbouring cubes make
 //! of the same edge crossing become one vertex (positions quantised to 1/1024 of a cell), the
@@ -11,7 +11,9 @@ use std::collections::HashMap;
 
 use anyhow::{ensure, Result};
 
-use crate::core::marching_tables::{CUBE_CORNER_OFFSETS, EDGE_TABLE, EDGE_VERTEX_PAIRS, TRI_TABLE};
+use crate::core::marching_tables::{
+    case_triangles, crossed_edges, CUBE_CORNER_OFFSETS, EDGE_VERTEX_PAIRS,
+};
 
 /// A scalar field sampled at the points of a regular grid.
 ///
@@ -166,7 +168,7 @@ impl<'a> CubeSurfaces<'a> {
         let case = (0..8)
             .filter(|&i| values[i] < self.level)
             .fold(0usize, |c, i| c | 1 << i);
-        let edges = EDGE_TABLE[case];
+        let edges = crossed_edges(case);
         if edges == 0 {
             return;
         }
@@ -182,11 +184,8 @@ impl<'a> CubeSurfaces<'a> {
                 ca + (cb - ca) * mu + self.grid.aabb[k]
             });
         }
-        for tri in TRI_TABLE[case].chunks(3) {
-            if tri[0] == -1 {
-                break;
-            }
-            emit([0, 1, 2].map(|c| crossing[tri[c] as usize]));
+        for tri in case_triangles(case) {
+            emit(tri.map(|e| crossing[e as usize]));
         }
     }
 }
