@@ -23,6 +23,7 @@ pub mod marching_tables;
 pub mod metrics;
 pub mod pixel_grid;
 pub mod rays;
+pub mod registry;
 pub mod sdf;
 pub mod term;
 pub mod volume;

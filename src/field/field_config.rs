@@ -27,6 +27,12 @@ pub struct FieldKind {
     pub parse: fn(Value) -> Result<Box<dyn FieldConfig>, SectionError>,
 }
 
+impl crate::core::registry::Named for FieldKind {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+}
+
 impl FieldKind {
     /// The kind `name` whose config is `T`, read with serde.
     pub const fn new<T: FieldConfig + DeserializeOwned>(

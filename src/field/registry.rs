@@ -4,6 +4,7 @@
 //! line here. The config layer asks this list which kinds exist, and every message that
 //! lists them is written from it. What a kind is: [`crate::field::field_config`].
 
+use crate::core::registry::{find_named, listed_names};
 use crate::field::field_config::FieldKind;
 
 /// The built-in field kinds, in the order messages list them: one line each.
@@ -15,18 +16,17 @@ pub const FIELD_KINDS: &[FieldKind] = &[
 
 /// The registered kind called `name`.
 pub fn find_kind(name: &str) -> Option<&'static FieldKind> {
-    FIELD_KINDS.iter().find(|k| k.name == name)
+    find_named(FIELD_KINDS, name)
 }
 
 /// The names of the registered kinds (only the trainable ones when `trainable_only`) as a
 /// message lists them: `sdf_volume, nerf or ngp`.
 pub fn kind_names(trainable_only: bool) -> String {
-    let names: Vec<&str> = FIELD_KINDS
-        .iter()
-        .filter(|k| k.trainable || !trainable_only)
-        .map(|k| k.name)
-        .collect();
-    crate::core::term::or_list(&names)
+    listed_names(
+        FIELD_KINDS
+            .iter()
+            .filter(|k| k.trainable || !trainable_only),
+    )
 }
 
 #[cfg(test)]
@@ -35,9 +35,7 @@ mod tests {
 
     #[test]
     fn every_kind_is_registered_once_and_listed() {
-        for kind in FIELD_KINDS {
-            assert_eq!(find_kind(kind.name).map(|k| k.name), Some(kind.name));
-        }
+        assert_eq!(crate::core::registry::repeated_name(FIELD_KINDS), None);
         assert_eq!(kind_names(false), "sdf_volume, nerf or ngp");
         assert_eq!(kind_names(true), "nerf or ngp");
         assert!(find_kind("mesh").is_none());

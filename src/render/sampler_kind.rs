@@ -35,3 +35,9 @@ pub struct SamplerKind {
     /// kind does not take or a bad value.
     pub build: fn(&SamplerSettings) -> Result<Arc<dyn RaySampler>>,
 }
+
+impl crate::core::registry::Named for SamplerKind {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+}

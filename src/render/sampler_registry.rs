@@ -3,6 +3,7 @@
 //! list the kinds are written from this list. What a kind is:
 //! [`crate::render::sampler_kind`].
 
+use crate::core::registry::{find_named, listed_names};
 use crate::render::sampler_kind::SamplerKind;
 
 /// The built-in sampler kinds, the default first: one line each.
@@ -13,13 +14,12 @@ pub const SAMPLER_KINDS: &[SamplerKind] = &[
 
 /// The registered kind called `name`.
 pub fn find_sampler_kind(name: &str) -> Option<&'static SamplerKind> {
-    SAMPLER_KINDS.iter().find(|k| k.name == name)
+    find_named(SAMPLER_KINDS, name)
 }
 
 /// The registered kinds' names as a message lists them: `stratified or depth_then_disparity`.
 pub fn sampler_kind_names() -> String {
-    let names: Vec<&str> = SAMPLER_KINDS.iter().map(|k| k.name).collect();
-    crate::core::term::or_list(&names)
+    listed_names(SAMPLER_KINDS)
 }
 
 #[cfg(test)]
@@ -28,12 +28,7 @@ mod tests {
 
     #[test]
     fn every_kind_is_registered_once_and_listed() {
-        for kind in SAMPLER_KINDS {
-            assert_eq!(
-                find_sampler_kind(kind.name).map(|k| k.name),
-                Some(kind.name)
-            );
-        }
+        assert_eq!(crate::core::registry::repeated_name(SAMPLER_KINDS), None);
         assert_eq!(sampler_kind_names(), "stratified or depth_then_disparity");
         assert!(find_sampler_kind("pdf").is_none());
     }
