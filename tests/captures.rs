@@ -158,7 +158,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     // Stored exactly.
     let meta = checkpoint::read_metadata(ckpt).unwrap();
     assert_eq!(
-        checkpoint::scene_transform_of(&meta, ckpt).unwrap(),
+        checkpoint::SCENE_TRANSFORM.read(&meta, ckpt).unwrap(),
         Some(trained_in)
     );
 
@@ -237,7 +237,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     let meta = checkpoint::read_metadata(ckpt).unwrap();
     assert_eq!(meta["epoch"], "3");
     assert_eq!(
-        checkpoint::scene_transform_of(&meta, ckpt).unwrap(),
+        checkpoint::SCENE_TRANSFORM.read(&meta, ckpt).unwrap(),
         Some(trained_in)
     );
 }

@@ -13,7 +13,7 @@ use std::path::Path;
 use glam::DVec3;
 use nerf::core::camera::PerspectiveCamera;
 use nerf::core::camera_model::CameraModel;
-use nerf::io::checkpoint::{self, capture_orbit_of, capture_spiral_of, read_metadata};
+use nerf::io::checkpoint::{self, read_metadata};
 use nerf::io::dataset::SceneTransform;
 
 /// Photo size and NDC focal length (75° across) of every camera.
@@ -234,9 +234,16 @@ fn a_forward_facing_capture_renders_and_views_from_a_spiral_that_sees_the_scene(
 
     // The checkpoint stores a spiral (the capture is forward-facing) beside the orbit.
     let meta = read_metadata(&ckpt).unwrap();
-    let spiral = capture_spiral_of(&meta, &ckpt).unwrap().expect("a spiral");
-    let orbit = capture_orbit_of(&meta, &ckpt).unwrap().expect("an orbit");
-    let transform = checkpoint::scene_transform_of(&meta, &ckpt)
+    let spiral = checkpoint::CAPTURE_SPIRAL
+        .read(&meta, &ckpt)
+        .unwrap()
+        .expect("a spiral");
+    let orbit = checkpoint::CAPTURE_ORBIT
+        .read(&meta, &ckpt)
+        .unwrap()
+        .expect("an orbit");
+    let transform = checkpoint::SCENE_TRANSFORM
+        .read(&meta, &ckpt)
         .unwrap()
         .unwrap();
     // The mean camera looks along the capture's −z, and the focus lies among the spheres.

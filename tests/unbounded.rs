@@ -8,7 +8,7 @@ mod common;
 
 use std::path::Path;
 
-use nerf::io::checkpoint::{capture_orbit_of, read_metadata};
+use nerf::io::checkpoint::{self, read_metadata};
 use nerf::io::dataset::{read_capture_split, CaptureOrbit, SceneFormat, Split};
 
 const FRAMES: usize = 16;
@@ -86,7 +86,9 @@ fn an_unbounded_capture_trains_evaluates_and_renders_and_views_from_its_orbit() 
         .unwrap()
         .frames;
     let expected = CaptureOrbit::from_frames(&train_frames).unwrap();
-    let stored = capture_orbit_of(&read_metadata(&ckpt).unwrap(), &ckpt).unwrap();
+    let stored = checkpoint::CAPTURE_ORBIT
+        .read(&read_metadata(&ckpt).unwrap(), &ckpt)
+        .unwrap();
     assert_eq!(stored, Some(expected));
     // Lego's views stand on a sphere: the orbit lies inside the normalised frame's unit ball.
     assert!(

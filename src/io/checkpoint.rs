@@ -267,11 +267,11 @@ fn load_safetensors(
         step_in_epoch: metadata_value(&meta, "step_in_epoch", path)?,
         rng_word_pos: metadata_value(&meta, "rng_word_pos", path)?,
         rays_per_step: metadata_value(&meta, "rays_per_step", path)?,
-        scene_transform: scene_transform_of(&meta, path)?,
-        capture_orbit: capture_orbit_of(&meta, path)?,
-        capture_spiral: capture_spiral_of(&meta, path)?,
-        background: background_of(&meta, path)?,
-        image_size: image_size_of(&meta, path)?,
+        scene_transform: SCENE_TRANSFORM.read(&meta, path)?,
+        capture_orbit: CAPTURE_ORBIT.read(&meta, path)?,
+        capture_spiral: CAPTURE_SPIRAL.read(&meta, path)?,
+        background: BACKGROUND.read(&meta, path)?,
+        image_size: IMAGE_SIZE.read(&meta, path)?,
         field_layout: meta.get(FIELD_LAYOUT_KEY).cloned(),
     };
     info.validate(path)?;
@@ -375,88 +375,85 @@ pub fn read_metadata(path: &Path) -> Result<HashMap<String, String>, CheckpointE
     serde_json::from_value(meta.clone()).map_err(|e| corrupt(&format!("metadata: {e}")))
 }
 
-/// The value of metadata entry `key` of the checkpoint at `path` read by `parse`; `None`
-/// when there is none, an error naming the key ([`CheckpointError::Metadata`]) when it does not
-/// read.
-fn parsed_metadata<T>(
-    meta: &HashMap<String, String>,
-    key: &str,
-    path: &Path,
-    parse: fn(&str) -> Result<T>,
-) -> Result<Option<T>, CheckpointError> {
-    meta.get(key)
-        .map(|text| {
-            parse(text).map_err(|e| {
-                let message = format!("checkpoint {}: bad metadata {key}: {e}", path.display());
-                CheckpointError::metadata(path, key, message)
+/// A metadata entry a checkpoint may store: its key and how its text reads.
+pub struct StoredEntry<T> {
+    /// The metadata key.
+    pub key: &'static str,
+    /// The value of the entry's text, or why it is not one.
+    pub parse: fn(&str) -> Result<T>,
+}
+
+/// The scene normalisation a capture's model was trained in.
+pub const SCENE_TRANSFORM: StoredEntry<SceneTransform> = StoredEntry {
+    key: SCENE_TRANSFORM_KEY,
+    parse: SceneTransform::from_text,
+};
+/// The orbit `nerf render` and `nerf view` show a capture's model from.
+pub const CAPTURE_ORBIT: StoredEntry<CaptureOrbit> = StoredEntry {
+    key: CAPTURE_ORBIT_KEY,
+    parse: CaptureOrbit::from_text,
+};
+/// The spiral in front of a forward-facing capture.
+pub const CAPTURE_SPIRAL: StoredEntry<CaptureSpiral> = StoredEntry {
+    key: CAPTURE_SPIRAL_KEY,
+    parse: CaptureSpiral::from_text,
+};
+/// The background colour (three numbers in [0, 1]).
+pub const BACKGROUND: StoredEntry<[f32; 3]> = StoredEntry {
+    key: BACKGROUND_KEY,
+    parse: background_from_text,
+};
+/// The training image size (two whole numbers, 1 to [`MAX_STORED_SIDE`]).
+pub const IMAGE_SIZE: StoredEntry<(usize, usize)> = StoredEntry {
+    key: IMAGE_SIZE_KEY,
+    parse: image_size_from_text,
+};
+
+impl<T> StoredEntry<T> {
+    /// The entry's value in the metadata `meta` of the checkpoint at `path`; `None` when
+    /// there is none, an error naming the key ([`CheckpointError::Metadata`]) when it does not
+    /// read.
+    pub fn read(
+        &self,
+        meta: &HashMap<String, String>,
+        path: &Path,
+    ) -> Result<Option<T>, CheckpointError> {
+        let key = self.key;
+        meta.get(key)
+            .map(|text| {
+                (self.parse)(text).map_err(|e| {
+                    let message = format!("checkpoint {}: bad metadata {key}: {e}", path.display());
+                    CheckpointError::metadata(path, key, message)
+                })
             })
-        })
-        .transpose()
+            .transpose()
+    }
 }
 
-/// The scene normalisation stored in the metadata `meta` of the checkpoint at `path`;
-/// `None` when there is none, an error naming the key when it does not read as one.
-pub fn scene_transform_of(
-    meta: &HashMap<String, String>,
-    path: &Path,
-) -> Result<Option<SceneTransform>, CheckpointError> {
-    parsed_metadata(meta, SCENE_TRANSFORM_KEY, path, SceneTransform::from_text)
+/// The whitespace-separated numbers of `text`; an error saying it expected `what`.
+fn numbers<T: std::str::FromStr>(text: &str, what: &str) -> Result<Vec<T>> {
+    text.split_whitespace()
+        .map(|t| t.parse::<T>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| anyhow::anyhow!("expected {what}"))
 }
 
-/// The capture orbit stored in the metadata `meta` of the checkpoint at `path`; `None` when
-/// there is none, an error naming the key when it does not read as one.
-pub fn capture_orbit_of(
-    meta: &HashMap<String, String>,
-    path: &Path,
-) -> Result<Option<CaptureOrbit>, CheckpointError> {
-    parsed_metadata(meta, CAPTURE_ORBIT_KEY, path, CaptureOrbit::from_text)
+/// `r g b`, each in [0, 1].
+fn background_from_text(text: &str) -> Result<[f32; 3]> {
+    let what = "three numbers in [0, 1]";
+    match numbers::<f32>(text, what)?[..] {
+        [r, g, b] if [r, g, b].iter().all(|c| (0.0..=1.0).contains(c)) => Ok([r, g, b]),
+        _ => bail!("expected {what}"),
+    }
 }
 
-/// The capture spiral stored in the metadata `meta` of the checkpoint at `path`; `None` when
-/// there is none, an error naming the key when it does not read as one.
-pub fn capture_spiral_of(
-    meta: &HashMap<String, String>,
-    path: &Path,
-) -> Result<Option<CaptureSpiral>, CheckpointError> {
-    parsed_metadata(meta, CAPTURE_SPIRAL_KEY, path, CaptureSpiral::from_text)
-}
-
-/// The stored background colour (three numbers in [0, 1]), if any.
-pub fn background_of(
-    meta: &HashMap<String, String>,
-    path: &Path,
-) -> Result<Option<[f32; 3]>, CheckpointError> {
-    parsed_metadata(meta, BACKGROUND_KEY, path, |text| {
-        let v: Vec<f32> = text
-            .split_whitespace()
-            .map(|t| t.parse::<f32>())
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|_| anyhow::anyhow!("expected three numbers in [0, 1]"))?;
-        match v[..] {
-            [r, g, b] if v.iter().all(|c| (0.0..=1.0).contains(c)) => Ok([r, g, b]),
-            _ => bail!("expected three numbers in [0, 1]"),
-        }
-    })
-}
-
-/// The stored training image size (two whole numbers, 1 to [`MAX_STORED_SIDE`]), if any.
-pub fn image_size_of(
-    meta: &HashMap<String, String>,
-    path: &Path,
-) -> Result<Option<(usize, usize)>, CheckpointError> {
-    parsed_metadata(meta, IMAGE_SIZE_KEY, path, |text| {
-        let v: Vec<usize> = text
-            .split_whitespace()
-            .map(|t| t.parse::<usize>())
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|_| anyhow::anyhow!("expected a width and a height"))?;
-        match v[..] {
-            [w, h] if (1..=MAX_STORED_SIDE).contains(&w) && (1..=MAX_STORED_SIDE).contains(&h) => {
-                Ok((w, h))
-            }
-            _ => bail!("expected a width and a height, each 1 to {MAX_STORED_SIDE}"),
-        }
-    })
+/// `width height`, each 1 to [`MAX_STORED_SIDE`].
+fn image_size_from_text(text: &str) -> Result<(usize, usize)> {
+    let side = 1..=MAX_STORED_SIDE;
+    match numbers::<usize>(text, "a width and a height")?[..] {
+        [w, h] if side.contains(&w) && side.contains(&h) => Ok((w, h)),
+        _ => bail!("expected a width and a height, each 1 to {MAX_STORED_SIDE}"),
+    }
 }
 
 /// The metadata entry `key` of the checkpoint at `path` parsed as a `T`, its default (0)
@@ -502,7 +499,7 @@ mod tests {
         let (_, read) = load(&path, &Device::Cpu).unwrap();
         assert_eq!(read, info);
         let meta = read_metadata(&path).unwrap();
-        assert_eq!(scene_transform_of(&meta, &path).unwrap(), Some(transform));
+        assert_eq!(SCENE_TRANSFORM.read(&meta, &path).unwrap(), Some(transform));
         // Without one (a NeRF-synthetic run), none is written or read.
         save(&path, &[("w".to_string(), w)], CheckpointInfo::default()).unwrap();
         assert!(!read_metadata(&path)
@@ -512,7 +509,7 @@ mod tests {
         // A bad one names the key.
         let bad: HashMap<String, String> =
             [(SCENE_TRANSFORM_KEY.to_string(), "1 2 3".to_string())].into();
-        let err = scene_transform_of(&bad, &path).unwrap_err().to_string();
+        let err = SCENE_TRANSFORM.read(&bad, &path).unwrap_err().to_string();
         assert!(
             err.contains(SCENE_TRANSFORM_KEY) && err.contains("13"),
             "{err}"

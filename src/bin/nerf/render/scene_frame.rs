@@ -13,10 +13,7 @@ use glam::DVec3;
 
 use nerf::config::{BackgroundConfig, Config};
 use nerf::core::camera::PerspectiveCamera;
-use nerf::io::checkpoint::{
-    background_of, capture_orbit_of, capture_spiral_of, image_size_of, read_metadata,
-    scene_transform_of,
-};
+use nerf::io::checkpoint::{self, read_metadata};
 use nerf::io::checkpoint_file::{detect_format, CheckpointFormat};
 use nerf::io::dataset::{CaptureOrbit, CaptureSpiral, Normalisation, SceneTransform};
 
@@ -28,7 +25,7 @@ pub fn stored_transform(path: &Path) -> Result<Option<SceneTransform>> {
     if !path.is_file() || detect_format(path).ok() != Some(CheckpointFormat::Safetensors) {
         return Ok(None);
     }
-    Ok(scene_transform_of(&read_metadata(path)?, path)?)
+    Ok(checkpoint::SCENE_TRANSFORM.read(&read_metadata(path)?, path)?)
 }
 
 /// What a command that shows or scores the model at `checkpoint` takes from it into
@@ -48,12 +45,12 @@ pub fn adopt_stored_settings(
     }
     let meta = read_metadata(checkpoint)?;
     if config.renderer.background_is_auto() {
-        if let Some(c) = background_of(&meta, checkpoint)? {
+        if let Some(c) = checkpoint::BACKGROUND.read(&meta, checkpoint)? {
             config.renderer.background = Some(BackgroundConfig::Colour(c));
         }
     }
     if image_size_too && config.data.image_size.is_none() {
-        if let Some((w, h)) = image_size_of(&meta, checkpoint)? {
+        if let Some((w, h)) = checkpoint::IMAGE_SIZE.read(&meta, checkpoint)? {
             config.data.image_size = Some([w, h]);
         }
     }
@@ -162,12 +159,16 @@ pub fn render_cameras(config: &Config, checkpoint: &Path) -> Result<DefaultViews
         return Ok(DefaultViews::surround(config));
     }
     let meta = read_metadata(checkpoint)?;
-    let spiral = capture_spiral_of(&meta, checkpoint)?;
-    let orbit = capture_orbit_of(&meta, checkpoint)?;
+    let spiral = checkpoint::CAPTURE_SPIRAL.read(&meta, checkpoint)?;
+    let orbit = checkpoint::CAPTURE_ORBIT.read(&meta, checkpoint)?;
     let path = match (spiral, orbit) {
         (Some(spiral), _) => CapturePath::Spiral(spiral),
         (None, Some(orbit)) => CapturePath::Orbit(orbit),
-        (None, None) if scene_transform_of(&meta, checkpoint)?.is_some() => {
+        (None, None)
+            if checkpoint::SCENE_TRANSFORM
+                .read(&meta, checkpoint)?
+                .is_some() =>
+        {
             nerf::core::term::note(&format!(
                 "note: {} was trained on a capture but stores no orbit (written before orbits \
                  were stored): using a default one in the normalised frame",
