@@ -19,6 +19,8 @@
 //! [`check_regular_file`]: crate::io::bounded_read::check_regular_file
 
 use std::collections::{BTreeMap, HashSet};
+use std::fs::File;
+use std::io::BufWriter;
 use std::path::{Component, Path, PathBuf};
 
 use anyhow::{anyhow, bail, Result};
@@ -548,6 +550,21 @@ pub fn find_model_folder(dir: &Path) -> Option<PathBuf> {
     model_places(dir)
         .into_iter()
         .find(|place| model_format(place).is_some() || !model_subdirs(place).is_empty())
+}
+
+/// Writes a model file at `path` (atomically): `head` with the number of records, then each
+/// record by `write_record`. The text and binary writers share it.
+fn write_records<'a, T: 'a>(
+    path: &Path,
+    records: impl IntoIterator<Item = &'a T, IntoIter: ExactSizeIterator>,
+    head: impl FnOnce(&mut BufWriter<File>, usize) -> Result<()>,
+    write_record: impl Fn(&mut BufWriter<File>, &T) -> Result<()>,
+) -> Result<()> {
+    let mut records = records.into_iter();
+    crate::io::output::write_atomically(path, |w| {
+        head(w, records.len())?;
+        records.try_for_each(|record| write_record(w, record))
+    })
 }
 
 /// Checks `model` before writing it to `dir` in `format` (never write what could not be

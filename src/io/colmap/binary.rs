@@ -22,12 +22,11 @@ use anyhow::{anyhow, bail, Result};
 
 use super::{
     camera_model_by_id, camera_model_by_name, camera_problem, image_problem, point_step,
-    ColmapCameraRecord, ColmapImage, ColmapPoint2D, ColmapPoint3D, MAX_CAMERAS,
+    write_records, ColmapCameraRecord, ColmapImage, ColmapPoint2D, ColmapPoint3D, MAX_CAMERAS,
     MAX_CAMERAS_FILE_BYTES, MAX_IMAGES, MAX_IMAGES_FILE_BYTES, MAX_IMAGE_NAME_BYTES,
     MAX_POINTS3D_FILE_BYTES,
 };
 use crate::io::bounded_read::check_regular_file;
-use crate::io::output::write_atomically;
 
 /// The 3D point id COLMAP writes for a feature with no 3D point.
 const NO_POINT3D: u64 = u64::MAX;
@@ -66,6 +65,12 @@ impl BinaryReader {
             len,
             pos: 0,
         })
+    }
+
+    /// An error at byte `at` (where the record it is about starts).
+    fn error_at(&mut self, at: u64, message: impl std::fmt::Display) -> anyhow::Error {
+        self.pos = at;
+        self.error(message)
     }
 
     /// An error at the current byte.
@@ -203,12 +208,10 @@ pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCameraReco
             params,
         };
         if let Some(p) = camera_problem(&camera) {
-            r.pos = start;
-            return Err(r.error(p));
+            return Err(r.error_at(start, p));
         }
         if cameras.insert(id, camera).is_some() {
-            r.pos = start;
-            return Err(r.error(format!("a second camera with id {id}")));
+            return Err(r.error_at(start, format!("a second camera with id {id}")));
         }
     }
     r.finish()?;
@@ -225,17 +228,13 @@ fn read_name(r: &mut BinaryReader, id: u32) -> Result<String> {
             break;
         }
         if bytes.len() == MAX_IMAGE_NAME_BYTES {
-            r.pos = start;
-            return Err(r.error(format!(
-                "the name of image {id} is longer than {MAX_IMAGE_NAME_BYTES} bytes"
-            )));
+            let why = format!("the name of image {id} is longer than {MAX_IMAGE_NAME_BYTES} bytes");
+            return Err(r.error_at(start, why));
         }
         bytes.push(b);
     }
-    String::from_utf8(bytes).map_err(|_| {
-        r.pos = start;
-        r.error(format!("the name of image {id} is not UTF-8"))
-    })
+    String::from_utf8(bytes)
+        .map_err(|_| r.error_at(start, format!("the name of image {id} is not UTF-8")))
 }
 
 /// Reads `images.bin`, keeping each image's 2D features when `keep_points2d`.
@@ -282,8 +281,7 @@ pub(super) fn read_images(path: &Path, keep_points2d: bool) -> Result<Vec<Colmap
             points2d,
         };
         if let Some(p) = image_problem(&image) {
-            r.pos = start;
-            return Err(r.error(p));
+            return Err(r.error_at(start, p));
         }
         images.push(image);
     }
@@ -331,42 +329,35 @@ pub(super) fn write_cameras(
     path: &Path,
     cameras: &BTreeMap<u32, ColmapCameraRecord>,
 ) -> Result<()> {
-    write_atomically(path, |w| {
-        w.write_all(&(cameras.len() as u64).to_le_bytes())?;
-        for c in cameras.values() {
-            let Some(info) = camera_model_by_name(&c.model) else {
-                bail!(
-                    "camera {} has model {:?}, which COLMAP does not define",
-                    c.id,
-                    c.model
-                );
-            };
-            w.write_all(&c.id.to_le_bytes())?;
-            w.write_all(&info.id.to_le_bytes())?;
-            w.write_all(&c.width.to_le_bytes())?;
-            w.write_all(&c.height.to_le_bytes())?;
-            write_f64s(w, &c.params)?;
-        }
-        Ok(())
+    write_records(path, cameras.values(), write_count, |w, c| {
+        let Some(info) = camera_model_by_name(&c.model) else {
+            bail!(
+                "camera {} has model {:?}, which COLMAP does not define",
+                c.id,
+                c.model
+            );
+        };
+        w.write_all(&c.id.to_le_bytes())?;
+        w.write_all(&info.id.to_le_bytes())?;
+        w.write_all(&c.width.to_le_bytes())?;
+        w.write_all(&c.height.to_le_bytes())?;
+        write_f64s(w, &c.params)
     })
 }
 
 /// Writes `images.bin` (images already checked).
 pub(super) fn write_images(path: &Path, images: &[ColmapImage]) -> Result<()> {
-    write_atomically(path, |w| {
-        w.write_all(&(images.len() as u64).to_le_bytes())?;
-        for image in images {
-            w.write_all(&image.id.to_le_bytes())?;
-            write_f64s(w, &image.qvec)?;
-            write_f64s(w, &image.tvec)?;
-            w.write_all(&image.camera_id.to_le_bytes())?;
-            w.write_all(image.name.as_bytes())?;
-            w.write_all(&[0])?;
-            w.write_all(&(image.points2d.len() as u64).to_le_bytes())?;
-            for p in &image.points2d {
-                write_f64s(w, &p.xy)?;
-                w.write_all(&p.point3d_id.unwrap_or(NO_POINT3D).to_le_bytes())?;
-            }
+    write_records(path, images, write_count, |w, image| {
+        w.write_all(&image.id.to_le_bytes())?;
+        write_f64s(w, &image.qvec)?;
+        write_f64s(w, &image.tvec)?;
+        w.write_all(&image.camera_id.to_le_bytes())?;
+        w.write_all(image.name.as_bytes())?;
+        w.write_all(&[0])?;
+        w.write_all(&(image.points2d.len() as u64).to_le_bytes())?;
+        for p in &image.points2d {
+            write_f64s(w, &p.xy)?;
+            w.write_all(&p.point3d_id.unwrap_or(NO_POINT3D).to_le_bytes())?;
         }
         Ok(())
     })
@@ -374,17 +365,18 @@ pub(super) fn write_images(path: &Path, images: &[ColmapImage]) -> Result<()> {
 
 /// Writes `points3D.bin` with empty tracks (points already checked).
 pub(super) fn write_points3d(path: &Path, points: &[ColmapPoint3D]) -> Result<()> {
-    write_atomically(path, |w| {
-        w.write_all(&(points.len() as u64).to_le_bytes())?;
-        for p in points {
-            w.write_all(&p.id.to_le_bytes())?;
-            write_f64s(w, &p.xyz)?;
-            w.write_all(&p.rgb)?;
-            write_f64s(w, &[p.error])?;
-            w.write_all(&0u64.to_le_bytes())?;
-        }
-        Ok(())
+    write_records(path, points, write_count, |w, p| {
+        w.write_all(&p.id.to_le_bytes())?;
+        write_f64s(w, &p.xyz)?;
+        w.write_all(&p.rgb)?;
+        write_f64s(w, &[p.error])?;
+        Ok(w.write_all(&0u64.to_le_bytes())?)
     })
+}
+
+/// The record count of a binary model file (`u64`).
+fn write_count(w: &mut BufWriter<File>, n: usize) -> Result<()> {
+    Ok(w.write_all(&(n as u64).to_le_bytes())?)
 }
 
 fn write_f64s(w: &mut BufWriter<File>, values: &[f64]) -> Result<()> {

@@ -22,53 +22,39 @@ use std::str::FromStr;
 use anyhow::{anyhow, Result};
 
 use super::{
-    camera_problem, image_problem, point_step, ColmapCameraRecord, ColmapImage, ColmapPoint2D,
-    ColmapPoint3D, MAX_CAMERAS, MAX_CAMERAS_FILE_BYTES, MAX_IMAGES, MAX_IMAGES_FILE_BYTES,
-    MAX_POINTS3D_FILE_BYTES, MAX_TEXT_LINE_BYTES,
+    camera_problem, image_problem, point_step, write_records, ColmapCameraRecord, ColmapImage,
+    ColmapPoint2D, ColmapPoint3D, MAX_CAMERAS, MAX_CAMERAS_FILE_BYTES, MAX_IMAGES,
+    MAX_IMAGES_FILE_BYTES, MAX_POINTS3D_FILE_BYTES, MAX_TEXT_LINE_BYTES,
 };
 use crate::io::bounded_read::check_regular_file;
-use crate::io::output::write_atomically;
 
 /// Writes `cameras.txt` (cameras already checked).
 pub(super) fn write_cameras(
     path: &Path,
     cameras: &BTreeMap<u32, ColmapCameraRecord>,
 ) -> Result<()> {
-    write_atomically(path, |w| write_cameras_to(w, cameras))
-}
-
-fn write_cameras_to(
-    w: &mut BufWriter<File>,
-    cameras: &BTreeMap<u32, ColmapCameraRecord>,
-) -> Result<()> {
-    writeln!(w, "# Camera list with one line of data per camera:")?;
-    writeln!(w, "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]")?;
-    writeln!(w, "# Number of cameras: {}", cameras.len())?;
-    for c in cameras.values() {
+    let header = [
+        "Camera list with one line of data per camera:",
+        "  CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
+    ];
+    write_text(path, &header, "cameras", cameras.values(), |w, c| {
         write!(w, "{} {} {} {}", c.id, c.model, c.width, c.height)?;
         for p in &c.params {
             write!(w, " {p:?}")?;
         }
-        writeln!(w)?;
-    }
-    Ok(())
+        Ok(writeln!(w)?)
+    })
 }
 
 /// Writes `images.txt` (images already checked): two lines per image, the second empty when
 /// it has no 2D features.
 pub(super) fn write_images(path: &Path, images: &[ColmapImage]) -> Result<()> {
-    write_atomically(path, |w| write_images_to(w, images))
-}
-
-fn write_images_to(w: &mut BufWriter<File>, images: &[ColmapImage]) -> Result<()> {
-    writeln!(w, "# Image list with two lines of data per image:")?;
-    writeln!(
-        w,
-        "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME"
-    )?;
-    writeln!(w, "#   POINTS2D[] as (X, Y, POINT3D_ID)")?;
-    writeln!(w, "# Number of images: {}", images.len())?;
-    for image in images {
+    let header = [
+        "Image list with two lines of data per image:",
+        "  IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
+        "  POINTS2D[] as (X, Y, POINT3D_ID)",
+    ];
+    write_text(path, &header, "images", images, |w, image| {
         write!(w, "{}", image.id)?;
         for v in image.qvec.iter().chain(&image.tvec) {
             write!(w, " {v:?}")?;
@@ -81,29 +67,43 @@ fn write_images_to(w: &mut BufWriter<File>, images: &[ColmapImage]) -> Result<()
                 None => write!(w, "{sep}{:?} {:?} -1", p.xy[0], p.xy[1])?,
             }
         }
-        writeln!(w)?;
-    }
-    Ok(())
+        Ok(writeln!(w)?)
+    })
 }
 
 /// Writes `points3D.txt` with empty tracks (points already checked).
 pub(super) fn write_points3d(path: &Path, points: &[ColmapPoint3D]) -> Result<()> {
-    write_atomically(path, |w| write_points3d_to(w, points))
-}
-
-fn write_points3d_to(w: &mut BufWriter<File>, points: &[ColmapPoint3D]) -> Result<()> {
-    writeln!(w, "# 3D point list with one line of data per point:")?;
-    writeln!(
-        w,
-        "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"
-    )?;
-    writeln!(w, "# Number of points: {}", points.len())?;
-    for p in points {
+    let header = [
+        "3D point list with one line of data per point:",
+        "  POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
+    ];
+    write_text(path, &header, "points", points, |w, p| {
         let [x, y, z] = p.xyz;
         let [r, g, b] = p.rgb;
-        writeln!(w, "{} {x:?} {y:?} {z:?} {r} {g} {b} {:?}", p.id, p.error)?;
-    }
-    Ok(())
+        Ok(writeln!(
+            w,
+            "{} {x:?} {y:?} {z:?} {r} {g} {b} {:?}",
+            p.id, p.error
+        )?)
+    })
+}
+
+/// Writes a model file at `path` as COLMAP does: the `header` lines and a `# Number of
+/// {what}: N` line as comments, then each record by `write_record`.
+fn write_text<'a, T: 'a>(
+    path: &Path,
+    header: &[&str],
+    what: &str,
+    records: impl IntoIterator<Item = &'a T, IntoIter: ExactSizeIterator>,
+    write_record: impl Fn(&mut BufWriter<File>, &T) -> Result<()>,
+) -> Result<()> {
+    let head = |w: &mut BufWriter<File>, n: usize| -> Result<()> {
+        for line in header {
+            writeln!(w, "# {line}")?;
+        }
+        Ok(writeln!(w, "# Number of {what}: {n}")?)
+    };
+    write_records(path, records, head, write_record)
 }
 
 /// A text file read line by line, each line bounded by [`MAX_TEXT_LINE_BYTES`]; errors name
