@@ -571,12 +571,18 @@ mod tests {
         }
     }
 
+    /// A model of `params` on the CPU, with its variables.
+    fn model_of(params: &NgpParams) -> (VarMap, Ngp) {
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let model = Ngp::new(params, vb).unwrap();
+        (varmap, model)
+    }
+
     #[test]
     fn field_shapes_ranges_packing_and_box() {
-        let varmap = VarMap::new();
         let dev = Device::Cpu;
-        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
-        let model = Ngp::new(&small(), vb).unwrap();
+        let (varmap, model) = model_of(&small());
         let points = Tensor::rand(-2f32, 2.0, (5, 7, 3), &dev).unwrap();
         let dirs = Tensor::randn(0f32, 1.0, (5, 3), &dev).unwrap();
         let dirs = dirs.broadcast_div(&dirs.sqr().unwrap().sum_keepdim(1).unwrap().sqrt().unwrap());
@@ -615,14 +621,11 @@ mod tests {
 
     #[test]
     fn appearance_moves_colour_per_image_and_trains() {
-        let varmap = VarMap::new();
         let dev = Device::Cpu;
-        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
-        let params = NgpParams {
+        let (varmap, model) = model_of(&NgpParams {
             appearance: Some(AppearanceParams { dim: 4, images: 3 }),
             ..small()
-        };
-        let model = Ngp::new(&params, vb).unwrap();
+        });
         let points = Tensor::rand(-1f32, 1.0, (6, 3), &dev).unwrap();
         let ray_index = Tensor::new(&[0u32, 0, 1, 1, 2, 2], &dev).unwrap();
         let dirs = Tensor::new(&[[0f32, 0.0, 1.0]; 3], &dev).unwrap();
@@ -667,15 +670,13 @@ mod tests {
 
     #[test]
     fn contracted_field_covers_all_space_and_trains_through_the_contraction() {
-        let varmap = VarMap::new();
         let dev = Device::Cpu;
-        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
         let params = NgpParams {
             aabb: [[-2.0; 3], [2.0; 3]],
             contraction: Contraction::LInf,
             ..small()
         };
-        let model = Ngp::new(&params, vb).unwrap();
+        let (_, model) = model_of(&params);
         // Far points only: outside the unit cube, some hundreds of units away.
         let far = Tensor::new(
             &[[3.0f32, 0.5, -1.0], [-40.0, 2.0, 7.0], [0.0, 900.0, -100.0]],

@@ -83,8 +83,7 @@ impl RowAdamState {
             grad.dims(),
             table.dims()
         );
-        check_rows(table, rows)?;
-        let mut state = self.state.lock().expect("sparse Adam lock");
+        let mut state = self.checked_state(table, grad.elem_count(), rows)?;
         match &mut *state {
             Moments::Host { .. } => {
                 let grad = grad
@@ -113,14 +112,7 @@ impl RowAdamState {
         rows: &[u32],
         c: AdamConstants,
     ) -> Result<()> {
-        ensure!(
-            g.len() == table.elem_count(),
-            "sparse Adam: {} gradient values for a parameter of {}",
-            g.len(),
-            table.elem_count()
-        );
-        check_rows(table, rows)?;
-        let mut state = self.state.lock().expect("sparse Adam lock");
+        let mut state = self.checked_state(table, g.len(), rows)?;
         match &mut *state {
             Moments::Host { .. } => update_host(table, &mut state, self.width, g, rows, c),
             Moments::Device { m, v, steps } => {
@@ -129,6 +121,23 @@ impl RowAdamState {
                 update_tensor_ops(table, (m, v, steps), &grad, rows, c)
             }
         }
+    }
+
+    /// The moments, locked, once `rows` and a gradient of `values` values are checked against
+    /// `table`.
+    fn checked_state(
+        &self,
+        table: &Var,
+        values: usize,
+        rows: &[u32],
+    ) -> Result<std::sync::MutexGuard<'_, Moments>> {
+        ensure!(
+            values == table.elem_count(),
+            "sparse Adam: {values} gradient values for a parameter of {}",
+            table.elem_count()
+        );
+        check_rows(table, rows)?;
+        Ok(self.state.lock().expect("sparse Adam lock"))
     }
 
     /// The moments `(R, F)` f32 and step counts `(R,)` u32, on `table`'s device.

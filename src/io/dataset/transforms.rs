@@ -207,16 +207,13 @@ fn image_path(data_dir: &Path, file_path: &str) -> PathBuf {
 /// ([`DatasetError`]): [`DatasetError::NoDataset`] for a missing directory,
 /// [`DatasetError::MissingFile`] for a missing transforms file, and those of [`parse_split`].
 pub fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>, DatasetError> {
-    if data_dir.exists() && !data_dir.is_dir() {
-        let message = format!(
-            "dataset directory {} is a file, not a directory; {DOWNLOAD_HINT}",
-            data_dir.display()
-        );
-        return Err(DatasetError::no_dataset(data_dir, message));
-    }
     if !data_dir.is_dir() {
+        let why = match data_dir.exists() {
+            true => "is a file, not a directory",
+            false => "does not exist",
+        };
         let message = format!(
-            "dataset directory {} does not exist; {DOWNLOAD_HINT}",
+            "dataset directory {} {why}; {DOWNLOAD_HINT}",
             data_dir.display()
         );
         return Err(DatasetError::no_dataset(data_dir, message));
