@@ -156,6 +156,11 @@ fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model(
     assert_eq!(files_of(&a), files_of(&b));
 }
 
+/// The COLMAP model file `name` of the capture `d` (`sparse/0/name`).
+fn model_file(d: &Path, name: &str) -> PathBuf {
+    d.join("sparse").join("0").join(name)
+}
+
 /// Replaces `from` by `to` in the text file `path` (once, which must match).
 fn edit(path: &Path, from: &str, to: &str) {
     let text = std::fs::read_to_string(path).unwrap();
@@ -187,11 +192,10 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
         ("missing images/", missing_images, ""),
         (
             "unknown camera model",
+            // COLMAP's FOV model (fx fy cx cy omega), which no loader here supports.
             |d| {
-                let cameras = d.join("sparse").join("0").join("cameras.txt");
-                // COLMAP's FOV model (fx fy cx cy omega), which no loader here supports.
                 edit_line(
-                    cameras,
+                    model_file(d, "cameras.txt"),
                     |l| l.contains("PINHOLE"),
                     |line| format!("{} 0.1", line.replace("PINHOLE", "FOV")),
                 )
@@ -202,9 +206,8 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
         (
             "NaN pose",
             |d| {
-                let images = d.join("sparse").join("0").join("images.txt");
                 edit_line(
-                    images,
+                    model_file(d, "images.txt"),
                     |l| l.starts_with("2 "),
                     |line| {
                         let mut fields: Vec<&str> = line.split(' ').collect();
@@ -218,7 +221,7 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
         (
             "zero registered images",
             |d| {
-                let images = d.join("sparse").join("0").join("images.txt");
+                let images = model_file(d, "images.txt");
                 std::fs::write(&images, "# no images\n").unwrap();
                 images
             },
