@@ -489,10 +489,6 @@ impl TrainableField for NerfState {
     fn render_field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> BoxedField {
         Box::new(self.field(occupancy))
     }
-
-    fn density(&self, points: &Tensor) -> Result<Tensor> {
-        self.model.detached().density(points)
-    }
 }
 
 #[cfg(test)]

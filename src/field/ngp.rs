@@ -496,10 +496,6 @@ impl TrainableField for NgpState {
         })
     }
 
-    fn density(&self, points: &Tensor) -> Result<Tensor> {
-        self.model.detached().density(points)
-    }
-
     /// Dense Adam on the MLPs and sparse Adam on the hash table, both with instant-ngp's
     /// β₂ = 0.99 and ε = 1e‑15 (rows whose gradient is exactly zero are left alone, values
     /// and moments, as tiny-cuda-nn's Adam leaves zero-gradient parameters).

@@ -78,8 +78,11 @@ pub trait TrainableField: Send + Sync {
     /// The field to render or score: detached parameters (no gradient graph), no noise.
     fn render_field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> BoxedField;
 
-    /// Density σ `(M, 1)` at points `(M, 3)`, detached (the occupancy grid's probe).
-    fn density(&self, points: &Tensor) -> Result<Tensor>;
+    /// Density σ `(M, 1)` at points `(M, 3)`, detached (the occupancy grid's probe). The
+    /// default asks the render field ([`Field::density`]).
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        self.render_field(None).density(points)
+    }
 
     /// After each optimiser step: holds the parameters inside the range where the field is
     /// defined (the SDF volume clamps α, β and its sizes). The default does nothing.
