@@ -125,7 +125,7 @@ fn a_white_backdrop_capture_trains_for_its_time_at_its_size_and_scores_on_white(
 }
 
 #[test]
-fn a_capture_without_a_backdrop_trains_without_camera_clearance() {
+fn a_capture_without_a_backdrop_trains_without_camera_clearance_and_with_its_own_decay() {
     // A busy surround: a colour pattern no border reads as one plain backdrop.
     let busy = |x: u32, y: u32| {
         let v = |k: u32| ((x * 7 + y * 13 + k * 5) % 11) as f32 / 10.0;
@@ -144,9 +144,11 @@ fn a_capture_without_a_backdrop_trains_without_camera_clearance() {
     let err = train(&[]);
     assert!(err.contains("no plain backdrop"), "{err}");
     assert!(err.contains("no camera clearance"), "{err}");
+    assert!(err.contains("occupancy-grid decay 0.8"), "{err}");
     assert!(!err.contains("kept empty around"), "{err}");
-    // A background given explicitly keeps the configured clearance.
+    // A background given explicitly keeps the configured clearance and decay.
     let err = train(&["renderer.background=black"]);
+    assert!(!err.contains("occupancy-grid decay"), "{err}");
     assert!(
         err.contains("kept empty around the 14 training cameras"),
         "{err}"

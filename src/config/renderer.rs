@@ -106,6 +106,10 @@ pub struct OccupancyGridConfig {
     /// Training: decay of each cell's running density maximum per update.
     #[serde(default = "default_decay")]
     pub decay: f64,
+    /// Training with `renderer.background: auto` on photos that show no plain backdrop (a
+    /// room, a street): the decay used instead of `decay` (default: `decay`).
+    #[serde(default)]
+    pub decay_without_backdrop: Option<f64>,
     /// Training: keep empty the cells within this fraction of each training camera's
     /// distance from the origin around that camera (0 = off, the default; in [0, 1)).
     #[serde(default)]
@@ -121,6 +125,7 @@ impl Default for OccupancyGridConfig {
             update_interval: d16(),
             warmup_steps: d256(),
             decay: default_decay(),
+            decay_without_backdrop: None,
             camera_clearance: 0.0,
         }
     }

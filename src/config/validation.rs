@@ -243,9 +243,15 @@ fn validate_occupancy_grid(g: &OccupancyGridConfig) -> Result<()> {
             g.alpha_threshold
         );
     }
-    finite(&format!("{key}.decay"), g.decay)?;
-    if !(g.decay > 0.0 && g.decay <= 1.0) {
-        bail!("{key}.decay: must be in (0, 1] (got {})", g.decay);
+    for (name, decay) in [
+        ("decay", Some(g.decay)),
+        ("decay_without_backdrop", g.decay_without_backdrop),
+    ] {
+        let Some(decay) = decay else { continue };
+        finite(&format!("{key}.{name}"), decay)?;
+        if !(decay > 0.0 && decay <= 1.0) {
+            bail!("{key}.{name}: must be in (0, 1] (got {decay})");
+        }
     }
     if g.update_interval == 0 {
         bail!("{key}.update_interval: must be at least 1");
@@ -286,6 +292,14 @@ mod tests {
             ("implicit_function.sdf.colour=1", "implicit_function.sdf"),
             ("implicit_function.type=mesh", "implicit_function.type"),
             ("cameras.radius=.nan", "cameras"),
+            (
+                "renderer.occupancy_grid.decay=0",
+                "renderer.occupancy_grid.decay",
+            ),
+            (
+                "renderer.occupancy_grid.decay_without_backdrop=1.5",
+                "renderer.occupancy_grid.decay_without_backdrop: must be in (0, 1]",
+            ),
             ("nokey", "key.sub=value"),
         ] {
             let e = err(&[setting]);

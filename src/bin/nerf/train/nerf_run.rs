@@ -94,7 +94,9 @@ pub fn train_nerf(
     if config.renderer.background_is_auto() {
         let backdrop = choose_background(&mut settings.step, &dataset, data_dir);
         if !backdrop {
-            keep_clearance_off(&mut settings, data_dir);
+            let decay = config.renderer.occupancy_grid.as_ref();
+            let decay = decay.and_then(|g| g.decay_without_backdrop);
+            settings_without_backdrop(&mut settings, decay, data_dir);
         }
     }
     let frame = dataset.normalisation.map(|n| n.applied);
@@ -168,15 +170,28 @@ fn choose_background(step: &mut StepSettings, dataset: &Dataset, data_dir: &Path
 /// cameras stand among the scene's own geometry (the floor, the ground in front of a
 /// building), which the camera clearance would keep empty, so it is left off
 /// (a facade's capture scored better held out without it, where a capture on a black
-/// backdrop scored better with it; measured: docs/own-scene.md#background). An explicit
-/// `renderer.background` keeps the configured clearance.
-fn keep_clearance_off(settings: &mut TrainSettings, data_dir: &Path) {
-    if let Some(grid) = settings.grid.as_mut().filter(|g| g.camera_clearance > 0.0) {
+/// backdrop scored better with it; measured: docs/own-scene.md#background); and the grid
+/// decays by `decay` (`renderer.occupancy_grid.decay_without_backdrop`) when one is given. An
+/// explicit `renderer.background` keeps the configured grid.
+fn settings_without_backdrop(settings: &mut TrainSettings, decay: Option<f64>, data_dir: &Path) {
+    let Some(grid) = settings.grid.as_mut() else {
+        return;
+    };
+    let mut changed = Vec::new();
+    if grid.camera_clearance > 0.0 {
         grid.camera_clearance = 0.0;
+        changed.push("no camera clearance".to_string());
+    }
+    if let Some(decay) = decay.filter(|&d| d != grid.decay) {
+        grid.decay = decay;
+        changed.push(format!("occupancy-grid decay {decay}"));
+    }
+    if !changed.is_empty() {
         nerf::core::term::note(&format!(
-            "{}: no camera clearance (no backdrop: the cameras stand among the scene; \
-             renderer.background=black keeps renderer.occupancy_grid.camera_clearance)",
-            data_dir.display()
+            "{}: {} (no backdrop: the cameras stand among the scene; an explicit \
+             renderer.background keeps renderer.occupancy_grid as configured)",
+            data_dir.display(),
+            changed.join(", ")
         ));
     }
 }
