@@ -72,79 +72,44 @@ fn to_storage((values, shape): (Vec<f32>, Shape)) -> Result<(CpuStorage, Shape)>
     Ok((CpuStorage::F32(values), shape))
 }
 
-impl<K: CpuKernel<1>> CustomOp1 for Fused<K> {
-    fn name(&self) -> &'static str {
-        K::NAME
-    }
+/// `Fused<K>` as Candle's `CustomOpN` for `K: CpuKernel<N>`: the three traits differ only in
+/// how many (storage, layout) and argument pairs their methods take, so one body serves all.
+macro_rules! custom_op {
+    ($op:ident, $n:literal, $(($storage:ident, $layout:ident, $arg:ident, $grad:ident)),+) => {
+        impl<K: CpuKernel<$n>> $op for Fused<K> {
+            fn name(&self) -> &'static str {
+                K::NAME
+            }
 
-    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
-        to_storage(self.0.cpu_forward([CpuInput { storage, layout }])?)
-    }
+            fn cpu_fwd(
+                &self,
+                $($storage: &CpuStorage, $layout: &Layout),+
+            ) -> Result<(CpuStorage, Shape)> {
+                let inputs = [$(CpuInput { storage: $storage, layout: $layout }),+];
+                to_storage(self.0.cpu_forward(inputs)?)
+            }
 
-    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
-        let [g] = self.0.gradients([arg], grad)?;
-        Ok(g)
-    }
+            #[allow(unused_parens)] // one input: `(Option<Tensor>)` is CustomOp1's `Option<Tensor>`
+            fn bwd(
+                &self,
+                $($arg: &Tensor,)+
+                _res: &Tensor,
+                grad: &Tensor,
+            ) -> Result<($(custom_op!(@option $arg)),+)> {
+                let [$($grad),+] = self.0.gradients([$($arg),+], grad)?;
+                Ok(($($grad),+))
+            }
+        }
+    };
+    (@option $arg:ident) => { Option<Tensor> };
 }
 
-impl<K: CpuKernel<2>> CustomOp2 for Fused<K> {
-    fn name(&self) -> &'static str {
-        K::NAME
-    }
-
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> Result<(CpuStorage, Shape)> {
-        let input = |storage, layout| CpuInput { storage, layout };
-        to_storage(self.0.cpu_forward([input(s1, l1), input(s2, l2)])?)
-    }
-
-    fn bwd(
-        &self,
-        a1: &Tensor,
-        a2: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
-        let [g1, g2] = self.0.gradients([a1, a2], grad)?;
-        Ok((g1, g2))
-    }
-}
-
-impl<K: CpuKernel<3>> CustomOp3 for Fused<K> {
-    fn name(&self) -> &'static str {
-        K::NAME
-    }
-
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> Result<(CpuStorage, Shape)> {
-        let input = |storage, layout| CpuInput { storage, layout };
-        to_storage(
-            self.0
-                .cpu_forward([input(s1, l1), input(s2, l2), input(s3, l3)])?,
-        )
-    }
-
-    fn bwd(
-        &self,
-        a1: &Tensor,
-        a2: &Tensor,
-        a3: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        let [g1, g2, g3] = self.0.gradients([a1, a2, a3], grad)?;
-        Ok((g1, g2, g3))
-    }
-}
+custom_op!(CustomOp1, 1, (s1, l1, a1, g1));
+custom_op!(CustomOp2, 2, (s1, l1, a1, g1), (s2, l2, a2, g2));
+custom_op!(
+    CustomOp3,
+    3,
+    (s1, l1, a1, g1),
+    (s2, l2, a2, g2),
+    (s3, l3, a3, g3)
+);
