@@ -26,6 +26,7 @@ use crate::field::trainable::{
     linear_init_bound, load_parameters, seed_uniform, BoxedField, FieldSpec, TrainableField,
 };
 use crate::io::parameter_shapes::ParameterShapes;
+use crate::kernels::nerf_mlp::{self, NerfLayers, NerfMlpShape};
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
@@ -87,6 +88,18 @@ pub fn harmonic_embedding(x: &Tensor, n_harmonic_functions: usize) -> Result<Ten
 /// Output width of [`harmonic_embedding`] for 3-D input.
 pub fn embedding_dim(n_harmonic_functions: usize) -> usize {
     3 * 2 * n_harmonic_functions + 3
+}
+
+/// The density's activation, `relu(raw + noise)`, with Gaussian noise of standard deviation
+/// `noise` (the homework's training regulariser; 0 = none).
+///
+/// `raw`: any shape; returns the same shape.
+fn density_activation(raw: &Tensor, noise: f64) -> Result<Tensor> {
+    let raw = match noise > 0.0 {
+        true => (raw + raw.randn_like(0.0, noise)?)?,
+        false => raw.clone(),
+    };
+    Ok(raw.relu()?)
 }
 
 /// `nn.Linear(in_dim, out_dim)` with PyTorch's default initialisation, under `vb`.
@@ -157,66 +170,54 @@ impl Nerf {
         })
     }
 
-    /// The shared trunk: harmonic embedding of the points and `mlp_xyz` (with the `append_xyz`
-    /// skip connections).
-    ///
-    /// `points`: `(M, 3)`; returns `(M, n_hidden_neurons_xyz)`.
-    fn trunk(&self, points: &Tensor) -> Result<Tensor> {
-        let xyz = harmonic_embedding(points, self.config.n_harmonic_functions_xyz)?;
-        let shape = crate::kernels::trunk::TrunkShape {
-            input_dim: xyz.dim(1)?,
-            hidden: self.config.n_hidden_neurons_xyz,
-            skip: (0..self.mlp_xyz.len())
-                .map(|i| i > 0 && self.config.append_xyz.contains(&i))
-                .collect(),
-        };
-        Ok(crate::kernels::trunk::trunk_forward(
-            &xyz,
-            &self.mlp_xyz,
-            &shape,
-        )?)
-    }
-
-    /// Density head: `relu(density_layer(y) + noise)`.
-    ///
-    /// `trunk`: `(M, hidden)`; returns `(M, 1)`.
-    fn density_head(&self, trunk: &Tensor, density_noise: f64) -> Result<Tensor> {
-        let mut raw_density = linear(&self.density_layer, trunk)?;
-        if density_noise > 0.0 {
-            raw_density = (&raw_density + raw_density.randn_like(0.0, density_noise)?)?;
-        }
-        Ok(raw_density.relu()?)
-    }
-
-    /// `color_layer.0` on `[features, dir_embedding]` = `W_f·features + (W_d·dir_embedding + b)`,
-    /// split into its per-sample part and its per-ray part (computed once per ray).
-    ///
-    /// `trunk`: `(M, hidden)`, `directions`: `(N, 3)`; returns `(M, dir_hidden)` and
-    /// `(N, dir_hidden)`, to be added (then ReLU) by the caller.
-    fn color_hidden_parts(&self, trunk: &Tensor, directions: &Tensor) -> Result<(Tensor, Tensor)> {
+    /// The layers as the fused MLP ([`crate::kernels::nerf_mlp`]) takes them, and its shape.
+    fn mlp_layers(&self) -> Result<(NerfLayers<'_>, NerfMlpShape)> {
         let hidden = self.config.n_hidden_neurons_xyz;
-        let features = linear(&self.intermediate_linear, trunk)?;
-        let w = self.color_layer_0.weight();
-        let (w_feat, w_dir) = (
-            w.narrow(1, 0, hidden)?,
-            w.narrow(1, hidden, w.dim(1)? - hidden)?,
-        );
-        let dir = harmonic_embedding(directions, self.config.n_harmonic_functions_dir)?;
-        let mut per_ray = dir.matmul(&w_dir.t()?)?;
-        if let Some(b) = self.color_layer_0.bias() {
-            per_ray = per_ray.broadcast_add(b)?;
-        }
-        Ok((features.matmul(&w_feat.t()?)?, per_ray))
+        let layers = NerfLayers {
+            trunk: &self.mlp_xyz,
+            density: &self.density_layer,
+            feature: &self.intermediate_linear,
+            colour_feature_weight: self.color_layer_0.weight().narrow(1, 0, hidden)?,
+            colour_out: &self.color_layer_2,
+        };
+        let skip = (0..self.mlp_xyz.len())
+            .map(|i| i > 0 && self.config.append_xyz.contains(&i))
+            .collect();
+        let shape = nerf_mlp::shape_of(&layers, skip)?;
+        Ok((layers, shape))
     }
 
-    /// `sigmoid(color_layer.2(relu(h)))`.
+    /// The per-ray part of `color_layer.0` on `[features, dir_embedding]`:
+    /// `W_d·dir_embedding + b`, computed once per ray (the MLP adds `W_f·features`).
     ///
-    /// `pre_activation`: `(M, dir_hidden)`; returns `(M, 3)`.
-    fn color_head(&self, pre_activation: &Tensor) -> Result<Tensor> {
-        Ok(candle_nn::ops::sigmoid(&linear(
-            &self.color_layer_2,
-            &pre_activation.relu()?,
-        )?)?)
+    /// `directions`: `(N, 3)`; returns `(N, n_hidden_neurons_dir)`.
+    fn colour_per_ray(&self, directions: &Tensor) -> Result<Tensor> {
+        let hidden = self.config.n_hidden_neurons_xyz;
+        let w = self.color_layer_0.weight();
+        let w_dir = w.narrow(1, hidden, w.dim(1)? - hidden)?;
+        let dir = harmonic_embedding(directions, self.config.n_harmonic_functions_dir)?;
+        let per_ray = dir.matmul(&w_dir.t()?)?;
+        Ok(match self.color_layer_0.bias() {
+            Some(b) => per_ray.broadcast_add(b)?,
+            None => per_ray,
+        })
+    }
+
+    /// Density `(M, 1)` and colour `(M, 3)` at `points` `(M, 3)` whose rays are `ray_index`
+    /// (`(M,)` u32, and the same values on the host) among `directions` `(N, 3)`.
+    fn density_and_colour(
+        &self,
+        points: &Tensor,
+        (ray_index, rays): (&Tensor, &[u32]),
+        directions: &Tensor,
+        density_noise: f64,
+    ) -> Result<(Tensor, Tensor)> {
+        let x = harmonic_embedding(points, self.config.n_harmonic_functions_xyz)?;
+        let (layers, shape) = self.mlp_layers()?;
+        let per_ray = self.colour_per_ray(directions)?;
+        let out = nerf_mlp::mlp_forward(&x, &per_ray, (ray_index, rays), &layers, &shape)?;
+        let density = density_activation(&out.narrow(1, 0, 1)?, density_noise)?;
+        Ok((density, out.narrow(1, 1, 3)?))
     }
 
     /// Density and colour at every sample.
@@ -230,14 +231,8 @@ impl Nerf {
         directions: &Tensor,
         density_noise: f64,
     ) -> Result<FieldOutput> {
-        let (n, s, _) = points.dims3()?;
-        let y = self.trunk(&points.reshape((n * s, 3))?)?;
-        let density = self.density_head(&y, density_noise)?.reshape((n, s, 1))?;
-        let (per_sample, per_ray) = self.color_hidden_parts(&y, directions)?;
-        let h = crate::kernels::bias::add_per_group(&per_sample, &per_ray, s)?;
-        Ok(FieldOutput {
-            density,
-            feature: self.color_head(&h)?.reshape((n, s, 3))?,
+        FieldOutput::from_packed(points, |flat, rays| {
+            self.density_and_colour(flat, rays, directions, density_noise)
         })
     }
 
@@ -253,18 +248,17 @@ impl Nerf {
         directions: &Tensor,
         density_noise: f64,
     ) -> Result<(Tensor, Tensor)> {
-        let y = self.trunk(points)?;
-        let density = self.density_head(&y, density_noise)?;
-        let (per_sample, per_ray) = self.color_hidden_parts(&y, directions)?;
-        let h = per_sample.add(&per_ray.index_select(ray_index, 0)?)?;
-        Ok((density, self.color_head(&h)?))
+        let rays = ray_index.to_vec1::<u32>()?;
+        self.density_and_colour(points, (ray_index, &rays), directions, density_noise)
     }
 
     /// Density alone (no colour branch, no noise), as the occupancy grid needs it.
     ///
     /// `points`: `(M, 3)`; returns `(M, 1)`.
     pub fn density(&self, points: &Tensor) -> Result<Tensor> {
-        self.density_head(&self.trunk(points)?, 0.0)
+        let x = harmonic_embedding(points, self.config.n_harmonic_functions_xyz)?;
+        let (layers, shape) = self.mlp_layers()?;
+        Ok(nerf_mlp::density_forward(&x, &layers, &shape)?.relu()?)
     }
 
     /// The same model with weights detached from the autograd graph, for rendering: ops on it

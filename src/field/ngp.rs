@@ -270,18 +270,8 @@ impl Ngp {
         directions: &Tensor,
         camera_index: Option<&Tensor>,
     ) -> Result<FieldOutput> {
-        let (n, s, _) = points.dims3()?;
-        let ray_index: Vec<u32> = (0..(n * s) as u32).map(|i| i / s as u32).collect();
-        let ray_index = Tensor::from_vec(ray_index, n * s, points.device())?;
-        let (sigma, rgb) = self.forward_packed(
-            &points.reshape((n * s, 3))?,
-            &ray_index,
-            directions,
-            camera_index,
-        )?;
-        Ok(FieldOutput {
-            density: sigma.reshape((n, s, 1))?,
-            feature: rgb.reshape((n, s, 3))?,
+        FieldOutput::from_packed(points, |flat, (ray_index, _)| {
+            self.forward_packed(flat, ray_index, directions, camera_index)
         })
     }
 

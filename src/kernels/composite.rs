@@ -21,6 +21,7 @@ use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use crate::kernels::storage::host_values;
 
 use crate::core::volume::{
     aggregate, clamped_optical_depth, deltas, ray_weights, spacing, weights, MAX_OPTICAL_DEPTH,
@@ -283,9 +284,7 @@ impl CpuKernel<2> for PackedComposite {
     fn gradients(&self, [density, feature]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let (rays, c) = (&self.rays, self.c);
         let width = c + 2;
-        let sigma = density.flatten_all()?.to_vec1::<f32>()?;
-        let values = feature.flatten_all()?.to_vec1::<f32>()?;
-        let go_all = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let [sigma, values, go_all] = host_values([density, feature, grad])?;
         // Per ray: (entry, ∂L/∂σ, ∂L/∂v) of each of its samples.
         let per_ray: Vec<Vec<(usize, f32, Vec<f32>)>> = (0..rays.n)
             .into_par_iter()

@@ -23,6 +23,7 @@ use crate::core::volume::{
 };
 use crate::kernels::composite::PackedRays;
 use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use crate::kernels::storage::host_values;
 use crate::kernels::use_fused;
 
 /// One ray's loss from its listed samples' densities σ, depths t and spacings Δ (k each); with
@@ -144,9 +145,7 @@ impl CpuKernel<2> for DenseDistortion {
 
     fn gradients(&self, [density, lengths]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let (n, s, _) = density.dims3()?;
-        let sigma = density.flatten_all()?.to_vec1::<f32>()?;
-        let lens = lengths.flatten_all()?.to_vec1::<f32>()?;
-        let upstream = grad.flatten_all()?.to_vec1::<f32>()?;
+        let [sigma, lens, upstream] = host_values([density, lengths, grad])?;
         let mut g_sigma = vec![0f32; n * s];
         g_sigma
             .par_chunks_mut(s.max(1))
@@ -270,8 +269,7 @@ impl CpuKernel<1> for PackedDistortion {
     }
 
     fn gradients(&self, [density]: [&Tensor; 1], grad: &Tensor) -> KernelGradients<1> {
-        let sigma_all = density.flatten_all()?.to_vec1::<f32>()?;
-        let upstream = grad.flatten_all()?.to_vec1::<f32>()?;
+        let [sigma_all, upstream] = host_values([density, grad])?;
         let per_ray: Vec<(Vec<usize>, Vec<f32>)> = (0..self.rays.n)
             .into_par_iter()
             .map(|ray| {

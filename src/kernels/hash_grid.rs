@@ -23,6 +23,7 @@ use rayon::prelude::*;
 
 use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 pub use crate::kernels::hash_level::{HashGridParams, Level, HASH_PRIMES};
+use crate::kernels::storage::host_values;
 use crate::kernels::{hash_block, hash_point_gradient, use_fused};
 
 /// Points per task of the fused forward pass. A task walks its points one level at a time, so
@@ -243,8 +244,7 @@ impl CpuKernel<2> for HashEncode {
     fn gradients(&self, [points, table]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
         let p = &self.params;
         let (levels, t, f) = (p.levels(), p.table_size(), p.n_features);
-        let pts = points.flatten_all()?.to_vec1::<f32>()?;
-        let g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let [pts, g] = host_values([points, grad])?;
         let dpoints = match points.track_op() {
             true => Some(self.point_gradient(points, table, &pts, &g)?),
             false => None,

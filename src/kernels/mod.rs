@@ -25,6 +25,8 @@ pub mod hash_block;
 pub mod hash_grid;
 pub mod hash_level;
 pub mod hash_point_gradient;
+mod mlp_block;
+pub mod nerf_mlp;
 pub mod ngp_mlp;
 pub mod sample_points;
 pub mod sdf_ray;
@@ -35,7 +37,6 @@ pub mod sparse_adam;
 pub mod storage;
 #[cfg(test)]
 pub(crate) mod test_support;
-pub mod trunk;
 
 /// Which implementation of the fused ops runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

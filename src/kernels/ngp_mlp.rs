@@ -24,12 +24,12 @@ use rayon::prelude::*;
 
 use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::gemm::gemm_f32;
-
-const ROWS_PER_TASK: usize = 256;
-
-/// Tasks of [`ROWS_PER_TASK`] rows whose gradients one backward block sums before the blocks
-/// are added in order.
-const BLOCKS_PER_SUM: usize = 8;
+use crate::kernels::mlp_block::{
+    add_by_ray, add_per_ray_relu, as_is, check_rays, linear, mask, recycle, relu, rgb_head,
+    rgb_head_backward, task_buffer, times, transposed, weight_grad, GradientSums, BLOCKS_PER_SUM,
+    ROWS_PER_TASK,
+};
+use crate::kernels::storage::host_values;
 
 /// Widths of the two MLPs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -55,7 +55,6 @@ struct Offsets {
     w2: usize,
     b2: usize,
     w3: usize,
-    b3: usize,
     end: usize,
 }
 
@@ -85,7 +84,6 @@ impl MlpShape {
             w2,
             b2,
             w3,
-            b3,
             end: b3 + 3,
         }
     }
@@ -125,17 +123,11 @@ pub fn ngp_mlp(
 ) -> candle_core::Result<Tensor> {
     let (m, e) = enc.dims2()?;
     let (n, h) = per_ray.dims2()?;
-    if e != shape.enc || h != shape.hidden || ray_index.len() != m {
-        candle_core::bail!(
-            "ngp-mlp: encoding {:?}, per-ray {:?}, {} ray indices for shape {shape:?}",
-            enc.dims(),
-            per_ray.dims(),
-            ray_index.len()
-        );
+    if e != shape.enc || h != shape.hidden {
+        let (x, p) = (enc.dims(), per_ray.dims());
+        candle_core::bail!("ngp-mlp: encoding {x:?}, per-ray {p:?} for shape {shape:?}");
     }
-    if let Some(bad) = ray_index.iter().find(|&&r| r as usize >= n) {
-        candle_core::bail!("ngp-mlp: ray index {bad} of {n} rays");
-    }
+    check_rays("ngp-mlp", ray_index, m, n)?;
     let op = Fused(NgpMlp {
         shape,
         rays: ray_index.to_vec(),
@@ -237,16 +229,11 @@ struct Activations {
     rgb: Vec<f32>,
 }
 
-/// `out (c×n) = x · Wᵀ + b` for `W` `(n, k)` row-major and `b` `(n)`, on the calling thread.
-fn linear(out: &mut [f32], x: &[f32], (c, k, n): (usize, usize, usize), w: &[f32], b: &[f32]) {
-    gemm_f32((c, n, k), out, n, false, x, (k, 1), w, (1, k), false);
-    for row in out.chunks_exact_mut(n) {
-        row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
+impl Activations {
+    /// Hands the buffers back for reuse ([`recycle`]).
+    fn recycle(self) {
+        recycle([self.h0, self.o1, self.h1, self.h2, self.rgb]);
     }
-}
-
-fn relu(v: &mut [f32]) {
-    v.iter_mut().for_each(|x| *x = x.max(0.0));
 }
 
 impl NgpMlp {
@@ -256,11 +243,11 @@ impl NgpMlp {
         let o = self.shape.offsets();
         let c = rays.len();
         let mut a = Activations {
-            h0: vec![0.0; c * h],
-            o1: vec![0.0; c * (1 + g)],
-            h1: vec![0.0; c * h],
-            h2: vec![0.0; c * h],
-            rgb: vec![0.0; c * 3],
+            h0: task_buffer(c * h),
+            o1: task_buffer(c * (1 + g)),
+            h1: task_buffer(c * h),
+            h2: task_buffer(c * h),
+            rgb: Vec::new(),
         };
         linear(&mut a.h0, enc, (c, e, h), &p[o.w0..o.b0], &p[o.b0..o.w1]);
         relu(&mut a.h0);
@@ -272,77 +259,14 @@ impl NgpMlp {
             &p[o.b1..o.wg],
         );
         // h1 = Wg·geo + p_ray: geo is o1 from column 1, row stride 1 + G.
-        gemm_f32(
-            (c, h, g),
-            &mut a.h1,
-            h,
-            false,
-            &a.o1[1..],
-            (1 + g, 1),
-            &p[o.wg..o.w2],
-            (1, g),
-            false,
-        );
-        for (row, &r) in a.h1.chunks_exact_mut(h).zip(rays) {
-            let pr = &per_ray[r as usize * h..(r as usize + 1) * h];
-            row.iter_mut()
-                .zip(pr)
-                .for_each(|(v, q)| *v = (*v + q).max(0.0));
-        }
+        let wg = transposed(&p[o.wg..o.w2], g);
+        times(&mut a.h1, false, (&a.o1[1..], 1 + g), wg, (c, g, h));
+        add_per_ray_relu(&mut a.h1, rays, per_ray);
         linear(&mut a.h2, &a.h1, (c, h, h), &p[o.w2..o.b2], &p[o.b2..o.w3]);
         relu(&mut a.h2);
-        linear(
-            &mut a.rgb,
-            &a.h2,
-            (c, h, 3),
-            &p[o.w3..o.b3],
-            &p[o.b3..o.end],
-        );
-        a.rgb
-            .iter_mut()
-            .for_each(|v| *v = 1.0 / (1.0 + (-*v).exp()));
+        a.rgb = rgb_head(&a.h2, &p[o.w3..o.end]);
         a
     }
-}
-
-/// Per-thread gradient sums of the backward pass.
-struct Sums {
-    params: Vec<f32>,
-    per_ray: Vec<f32>,
-}
-
-/// `dW (n_out×k) += Dᵀ · X` for `D` `(c, n_out)` and `X` `(c, k)` (row strides given), and
-/// `db += Σ_rows D`.
-#[allow(clippy::too_many_arguments)]
-fn weight_grad(
-    dw: &mut [f32],
-    db: Option<&mut [f32]>,
-    d: &[f32],
-    x: &[f32],
-    x_rs: usize,
-    (c, n_out, k): (usize, usize, usize),
-) {
-    gemm_f32(
-        (n_out, k, c),
-        dw,
-        k,
-        true,
-        d,
-        (1, n_out),
-        x,
-        (x_rs, 1),
-        false,
-    );
-    if let Some(db) = db {
-        for row in d.chunks_exact(n_out) {
-            db.iter_mut().zip(row).for_each(|(b, v)| *b += v);
-        }
-    }
-}
-
-/// `out (c×k) = D · W` for `D` `(c, n)` and `W` `(n, k)` row-major.
-fn input_grad(out: &mut [f32], d: &[f32], w: &[f32], (c, n, k): (usize, usize, usize)) {
-    gemm_f32((c, k, n), out, k, false, d, (n, 1), w, (k, 1), false);
 }
 
 impl NgpMlp {
@@ -357,43 +281,39 @@ impl NgpMlp {
         per_ray: &[f32],
         p: &[f32],
         d_enc: &mut [f32],
-        sums: &mut Sums,
+        sums: &mut GradientSums,
     ) {
         let (e, h, g) = self.shape.dims();
         let o = self.shape.offsets();
         let c = rays.len();
         let a = self.forward(enc, rays, per_ray, p);
         let dp = &mut sums.params;
-        // Colour head: sigmoid, then the two ReLU layers.
-        let d_c2: Vec<f32> = grad
-            .chunks_exact(4)
-            .zip(a.rgb.chunks_exact(3))
-            .flat_map(|(gr, y)| (0..3).map(move |j| gr[1 + j] * y[j] * (1.0 - y[j])))
-            .collect();
-        let (dw3, db3) = dp[o.w3..o.end].split_at_mut(3 * h);
-        weight_grad(dw3, Some(db3), &d_c2, &a.h2, h, (c, 3, h));
-        let mut d_c1 = vec![0f32; c * h];
-        input_grad(&mut d_c1, &d_c2, &p[o.w3..o.b3], (c, 3, h));
-        mask(&mut d_c1, &a.h2);
+        // Colour head: the sigmoid and output layer, then the two ReLU layers.
+        let d_c1 = rgb_head_backward(
+            (grad, &a.rgb, &a.h2),
+            (&p[o.w3..o.end], &mut dp[o.w3..o.end]),
+        );
         let (dw2, db2) = dp[o.w2..o.w3].split_at_mut(h * h);
-        weight_grad(dw2, Some(db2), &d_c1, &a.h1, h, (c, h, h));
-        let mut d_c0 = vec![0f32; c * h];
-        input_grad(&mut d_c0, &d_c1, &p[o.w2..o.b2], (c, h, h));
+        weight_grad((dw2, h), Some(db2), &d_c1, (&a.h1, h), (c, h, h));
+        let mut d_c0 = task_buffer(c * h);
+        times(
+            &mut d_c0,
+            false,
+            (&d_c1, h),
+            as_is(&p[o.w2..o.b2], h),
+            (c, h, h),
+        );
         mask(&mut d_c0, &a.h1);
         weight_grad(
-            &mut dp[o.wg..o.w2],
+            (&mut dp[o.wg..o.w2], g),
             None,
             &d_c0,
-            &a.o1[1..],
-            1 + g,
+            (&a.o1[1..], 1 + g),
             (c, h, g),
         );
-        for (row, &r) in d_c0.chunks_exact(h).zip(rays) {
-            let dst = &mut sums.per_ray[r as usize * h..(r as usize + 1) * h];
-            dst.iter_mut().zip(row).for_each(|(d, v)| *d += v);
-        }
+        add_by_ray(&mut sums.per_ray, &d_c0, rays);
         // Density MLP: the raw density's gradient and the geometry features'.
-        let mut d_o1 = vec![0f32; c * (1 + g)];
+        let mut d_o1 = task_buffer(c * (1 + g));
         for (i, row) in d_o1.chunks_exact_mut(1 + g).enumerate() {
             row[0] = grad[4 * i];
         }
@@ -409,21 +329,28 @@ impl NgpMlp {
             false,
         );
         let (dw1, db1) = dp[o.w1..o.wg].split_at_mut((1 + g) * h);
-        weight_grad(dw1, Some(db1), &d_o1, &a.h0, h, (c, 1 + g, h));
-        let mut d_a0 = vec![0f32; c * h];
-        input_grad(&mut d_a0, &d_o1, &p[o.w1..o.b1], (c, 1 + g, h));
+        weight_grad((dw1, h), Some(db1), &d_o1, (&a.h0, h), (c, 1 + g, h));
+        let mut d_a0 = task_buffer(c * h);
+        times(
+            &mut d_a0,
+            false,
+            (&d_o1, 1 + g),
+            as_is(&p[o.w1..o.b1], h),
+            (c, 1 + g, h),
+        );
         mask(&mut d_a0, &a.h0);
         let (dw0, db0) = dp[o.w0..o.w1].split_at_mut(h * e);
-        weight_grad(dw0, Some(db0), &d_a0, enc, e, (c, h, e));
-        input_grad(d_enc, &d_a0, &p[o.w0..o.b0], (c, h, e));
+        weight_grad((dw0, e), Some(db0), &d_a0, (enc, e), (c, h, e));
+        times(
+            d_enc,
+            false,
+            (&d_a0, h),
+            as_is(&p[o.w0..o.b0], e),
+            (c, h, e),
+        );
+        recycle([d_c1, d_c0, d_o1, d_a0]);
+        a.recycle();
     }
-}
-
-/// `d ⊙ [y > 0]` (the ReLU's backward through its output `y`).
-fn mask(d: &mut [f32], y: &[f32]) {
-    d.iter_mut()
-        .zip(y)
-        .for_each(|(d, y)| *d = if *y > 0.0 { *d } else { 0.0 });
 }
 
 impl CpuKernel<3> for NgpMlp {
@@ -451,6 +378,7 @@ impl CpuKernel<3> for NgpMlp {
                     row[0] = a.o1[i * g1];
                     row[1..].copy_from_slice(&a.rgb[3 * i..3 * i + 3]);
                 }
+                a.recycle();
             });
         Ok((out, Shape::from((m, 4))))
     }
@@ -459,25 +387,17 @@ impl CpuKernel<3> for NgpMlp {
         let e = self.shape.enc;
         let n_params = self.shape.n_parameters();
         let per_ray_len = per_ray.elem_count();
-        let enc_v = enc.flatten_all()?.to_vec1::<f32>()?;
-        let per_ray_v = per_ray.flatten_all()?.to_vec1::<f32>()?;
-        let p = params.flatten_all()?.to_vec1::<f32>()?;
-        let g = grad.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let [enc_v, per_ray_v, p, g] = host_values([enc, per_ray, params, grad])?;
         let mut d_enc = vec![0f32; enc_v.len()];
-        let new_sums = || Sums {
-            params: vec![0f32; n_params],
-            per_ray: vec![0f32; per_ray_len],
-        };
-        // Fixed blocks summed in order, so the gradients do not depend on how the work was
-        // shared between threads (a resumed run repeats an uninterrupted one bit for bit).
+        // Fixed blocks summed in order (see `mlp_block`).
         let block = ROWS_PER_TASK * BLOCKS_PER_SUM;
-        let partial: Vec<Sums> = d_enc
+        let partial: Vec<GradientSums> = d_enc
             .par_chunks_mut(block * e)
             .zip(enc_v.par_chunks(block * e))
             .zip(self.rays.par_chunks(block))
             .zip(g.par_chunks(block * 4))
             .map(|(((d_enc, enc), rays), g)| {
-                let mut sums = new_sums();
+                let mut sums = GradientSums::zeros(n_params, per_ray_len);
                 for (((d_enc, enc), rays), g) in d_enc
                     .chunks_mut(ROWS_PER_TASK * e)
                     .zip(enc.chunks(ROWS_PER_TASK * e))
@@ -489,20 +409,7 @@ impl CpuKernel<3> for NgpMlp {
                 sums
             })
             .collect();
-        let sums = partial
-            .into_iter()
-            .reduce(|mut a, b| {
-                a.params
-                    .iter_mut()
-                    .zip(&b.params)
-                    .for_each(|(x, y)| *x += y);
-                a.per_ray
-                    .iter_mut()
-                    .zip(&b.per_ray)
-                    .for_each(|(x, y)| *x += y);
-                a
-            })
-            .unwrap_or_else(new_sums);
+        let sums = GradientSums::add_in_order(partial, n_params, per_ray_len);
         let dev = enc.device();
         Ok([
             Some(Tensor::from_vec(d_enc, enc.shape(), dev)?),

@@ -18,6 +18,28 @@ pub struct FieldOutput {
     pub feature: Tensor,
 }
 
+impl FieldOutput {
+    /// A packed evaluation run on dense samples. `points` `(N, S, 3)` are flattened to
+    /// `(N·S, 3)`, sample `i` of that order on ray `i / S`; `evaluate` gets them with each
+    /// sample's ray, as a `(N·S,)` u32 tensor on the points' device and as the same values on
+    /// the host, and returns density `(N·S, 1)` and feature `(N·S, 3)`, reshaped here to
+    /// `(N, S, 1)` and `(N, S, 3)`.
+    pub fn from_packed(
+        points: &Tensor,
+        evaluate: impl FnOnce(&Tensor, (&Tensor, &[u32])) -> Result<(Tensor, Tensor)>,
+    ) -> Result<Self> {
+        let (n, s, _) = points.dims3()?;
+        let rays: Vec<u32> = (0..n * s).map(|i| (i / s) as u32).collect();
+        let ray_index = Tensor::new(rays.as_slice(), points.device())?;
+        let flat = points.reshape((n * s, 3))?;
+        let (density, feature) = evaluate(&flat, (&ray_index, &rays))?;
+        Ok(Self {
+            density: density.reshape((n, s, 1))?,
+            feature: feature.reshape((n, s, 3))?,
+        })
+    }
+}
+
 pub use crate::kernels::composite::Composited;
 
 /// A radiance field.
