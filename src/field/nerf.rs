@@ -301,11 +301,12 @@ pub struct NerfField {
 
 impl Field for NerfField {
     fn max_samples_per_chunk(&self) -> usize {
-        // Activations of 128 floats per sample per layer: 2^15 samples are 16 MiB each,
-        // small enough for the allocator to reuse instead of mapping fresh pages each time,
-        // which made the dense training step faster than at 2^18 (measured:
-        // docs/speed-and-report.md#allocators).
-        1 << 15
+        // The fused MLP runs a chunk in 256-sample tasks, so the chunk bounds only the Candle
+        // tensors around it (about 80 MiB at 2^17, the embedding the largest) and, when
+        // training, the kept activations (about 4 KiB a sample). The homework's whole training
+        // step in one chunk was 10% faster than in four of 2^15
+        // (docs/speed-and-report.md#allocators).
+        1 << 17
     }
 
     fn evaluate(

@@ -63,8 +63,7 @@ use nerf::render::view::{render_view_interruptible, Interrupt, RenderSettings};
 /// The page, built into the binary.
 const PAGE: &str = include_str!("viewer.html");
 
-/// Rays rendered between two checks whether a frame is still wanted (the NeRF renderer's own
-/// chunk: 2^15 samples at 4 per ray).
+/// Rays rendered between two checks whether a frame is still wanted.
 const BAND: usize = 8192;
 
 /// Raises a job's cancel flag when the request's handler is dropped (the reply was sent, or the
