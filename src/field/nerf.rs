@@ -65,24 +65,15 @@ impl Default for NerfParams {
     }
 }
 
-/// `[sin(x·f), cos(x·f), x]` with `f = 2^0 … 2^(L−1)`.
+/// `[sin(x·f), cos(x·f), x]` with `f = 2^0 … 2^(L−1)`, in pytorch3d's order (the fused
+/// [`crate::kernels::harmonic`] op, or its tensor-op twin).
 ///
 /// `x`: `(M, 3)`; returns `(M, 3·2L + 3)`.
 pub fn harmonic_embedding(x: &Tensor, n_harmonic_functions: usize) -> Result<Tensor> {
-    let (m, c) = x.dims2()?;
-    if n_harmonic_functions == 0 {
-        return Ok(x.clone());
-    }
-    let freqs: Vec<f32> = (0..n_harmonic_functions)
-        .map(|i| 2f32.powi(i as i32))
-        .collect();
-    let freqs =
-        Tensor::from_vec(freqs, (1, 1, n_harmonic_functions), x.device())?.to_dtype(x.dtype())?;
-    let embed = x
-        .unsqueeze(2)?
-        .broadcast_mul(&freqs)?
-        .reshape((m, c * n_harmonic_functions))?;
-    Ok(Tensor::cat(&[&embed.sin()?, &embed.cos()?, x], 1)?)
+    Ok(crate::kernels::harmonic::harmonic_embedding(
+        x,
+        n_harmonic_functions,
+    )?)
 }
 
 /// Output width of [`harmonic_embedding`] for 3-D input.

@@ -21,6 +21,7 @@ mod cpu_dispatch;
 pub mod cpu_kernel;
 pub mod distortion_loss;
 pub mod gemm;
+pub mod harmonic;
 pub mod hash_block;
 pub mod hash_grid;
 pub mod hash_level;
