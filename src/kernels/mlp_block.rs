@@ -95,6 +95,12 @@ pub(crate) fn times(
     (b, b_strides): Strided,
     (c, k, n): (usize, usize, usize),
 ) {
+    if k == 0 && !accumulate {
+        // An empty product: `out` may be a reused buffer ([`task_buffer`]), so it is cleared
+        // here rather than left to what `gemm` does with no terms.
+        out[..c * n].fill(0.0);
+        return;
+    }
     gemm_f32(
         (c, n, k),
         out,
@@ -272,5 +278,28 @@ impl GradientSums {
                 sum
             })
             .unwrap_or_else(|| Self::zeros(n_params, n_per_ray))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn products_overwrite_reused_buffers_in_full() {
+        // A stale buffer, as task_buffer may hand out.
+        let mut out = vec![7f32; 6];
+        let x = [1f32, 2.0, 3.0, 4.0]; // (2, 2)
+        let w = [1f32, 0.0, 0.0, 1.0, 1.0, 1.0]; // W (3, 2)
+        times(&mut out, false, (&x, 2), transposed(&w, 2), (2, 2, 3));
+        assert_eq!(out, [1.0, 2.0, 3.0, 3.0, 4.0, 7.0]);
+        // No terms (k = 0): zeros, not the stale values.
+        let mut out = vec![7f32; 6];
+        times(&mut out, false, (&[], 0), transposed(&[], 0), (2, 0, 3));
+        assert_eq!(out, [0.0; 6]);
+        // D·W with W (2, 3) as it is: [1 2]·W, [3 4]·W.
+        let mut out = vec![7f32; 6];
+        times(&mut out, false, (&x, 2), as_is(&w, 3), (2, 2, 3));
+        assert_eq!(out, [1.0 + 2.0, 0.0 + 2.0, 0.0 + 2.0, 3.0 + 4.0, 4.0, 4.0]);
     }
 }
