@@ -46,6 +46,8 @@ pub fn harmonic_embedding(x: &Tensor, n_frequencies: usize) -> candle_core::Resu
 }
 
 /// The tensor-op twin of [`harmonic_embedding`] (any device and dtype, differentiable).
+///
+/// `x`: `(M, C)`; returns `(M, C·2L + C)`.
 pub fn harmonic_embedding_tensor_ops(
     x: &Tensor,
     n_frequencies: usize,

@@ -159,7 +159,8 @@ pub fn pack_parameters(layers: &NerfLayers) -> candle_core::Result<Tensor> {
     Tensor::cat(&parts, 0)
 }
 
-/// The shape of `layers` on the embedding width `input_dim`, with skip layers `skip`.
+/// The shape of `layers`, the widths read from their weights (the embedding's `E` from the
+/// first trunk layer's `(H, E)`); `skip[l]`: trunk layer `l` takes `[y, x]`.
 pub fn shape_of(layers: &NerfLayers, skip: Vec<bool>) -> candle_core::Result<NerfMlpShape> {
     Ok(NerfMlpShape {
         trunk: TrunkShape {
