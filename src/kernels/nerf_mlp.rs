@@ -198,8 +198,11 @@ pub fn density_forward(
     layers: &NerfLayers,
     shape: &NerfMlpShape,
 ) -> candle_core::Result<Tensor> {
+    if !use_fused(x) || crate::kernels::needs_grad(x) {
+        return nerf_mlp_tensor_ops(x, None, layers, &shape.trunk);
+    }
     let packed = pack_parameters(layers)?;
-    if use_fused(x) && !crate::kernels::needs_grad(&packed) && !crate::kernels::needs_grad(x) {
+    if !crate::kernels::needs_grad(&packed) {
         let op = DensityOnly(NerfMlp {
             shape: shape.clone(),
             rays: Vec::new(),
