@@ -31,8 +31,7 @@ const SURROUND_0: [f64; 16] = [
 
 #[test]
 fn a_path_through_a_surround_pose_renders_that_surround_frame() {
-    let dir = tempfile::tempdir().unwrap();
-    let json = dir.path().join("path.json");
+    let (dir, json) = common::scratch("path.json");
     // The second pose: the same camera moved to (0, 0, −4), so the box looks smaller.
     let mut farther = SURROUND_0;
     farther[11] = -4.0;
@@ -75,8 +74,7 @@ fn a_path_through_a_surround_pose_renders_that_surround_frame() {
 
 #[test]
 fn bad_camera_paths_fail_in_one_line() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (dir, out) = common::scratch("out");
     let cases: Vec<(String, &str)> = vec![
         ("{\"render_width\": 8}".into(), "missing field"),
         ("not json".into(), "expected"),

@@ -58,13 +58,14 @@ fn refused(root: &Path, name: &str, dir: &Path, named: &Path, says: &[&str]) {
 
 #[test]
 fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
-    let Some((lego, root)) = lego_root(4) else {
+    let Some(scratch) = lego_root(4) else {
         return;
     };
-    let root = root.path();
+    let lego = &scratch.lego;
+    let root = scratch.root.path();
     let fresh = |name: &str, write: fn(&Lego, &Path)| {
         let dir = root.join(name);
-        write(&lego, &dir);
+        write(lego, &dir);
         dir
     };
 
@@ -130,7 +131,7 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
         refused(root, &format!("colmap, {what}"), &dir, &named, says);
         // The same model as COLMAP's binary files.
         let binary = root.join(format!("colmap_binary_{i}"));
-        write_colmap_binary(&lego, &dir, &binary);
+        write_colmap_binary(lego, &dir, &binary);
         let sparse = binary.join("sparse").join("0");
         let named = match says[0] {
             "frame_" => binary.join("images"),
@@ -202,7 +203,7 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
 
     // instant-ngp: a field of view of 179.9° (inside instant-ngp's (0, π), not a lens's).
     let dir = root.join("ngp");
-    write_colmap2nerf(&lego, &dir, None);
+    write_colmap2nerf(lego, &dir, None);
     let json = edit_transforms(&dir, |v| {
         v.as_object_mut().unwrap().remove("fl_x");
         v.as_object_mut().unwrap().remove("fl_y");
@@ -224,16 +225,11 @@ fn cameras_that_cannot_be_right_are_refused_by_every_loader() {
 
 #[test]
 fn checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint() {
-    let Some((lego, root)) = lego_root(9) else {
+    let Some(scratch) = lego_root(9) else {
         return;
     };
-    let dir = root.path().join("capture");
-    write_colmap_text(&lego, &dir);
-    let scene = TinyScene::new(
-        "nerf_scene_bounded",
-        root.path().join("model.safetensors"),
-        1,
-    );
+    let dir = scratch.colmap_text("capture");
+    let scene = TinyScene::new("nerf_scene_bounded", scratch.path("model.safetensors"), 1);
     scene.run_ok("train", &dir, &[]);
     let ckpt = &scene.checkpoint;
     let (_, info) = nerf::io::checkpoint::load(ckpt, &candle_core::Device::Cpu).unwrap();
@@ -294,10 +290,10 @@ fn checkpoint_metadata_that_cannot_be_right_is_refused_naming_the_checkpoint() {
         ),
     ];
     for (n, (what, edit, command, says)) in cases.into_iter().enumerate() {
-        let bad = root.path().join(format!("bad_{n}.safetensors"));
+        let bad = scratch.path(&format!("bad_{n}.safetensors"));
         resave_checkpoint(ckpt, &bad, edit);
         let before = std::fs::read(&bad).unwrap();
-        let out = root.path().join(format!("out_{n}"));
+        let out = scratch.path(&format!("out_{n}"));
         let ckpt_arg = format!("training.checkpoint_path={}", bad.display());
         // `render` and `view` read the stored path through the same function
         // (`render::scene_frame::render_cameras` of the binary): `render` stands for both.

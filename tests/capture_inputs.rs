@@ -48,18 +48,18 @@ fn add_mask_paths(dir: &Path) {
 
 #[test]
 fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
-    let Some((lego, root)) = lego_root(FRAMES) else {
+    let Some(scratch) = lego_root(FRAMES) else {
         return;
     };
+    let lego = &scratch.lego;
     let cut = lego.size.0 / 2;
     // nerfstudio: mask_path per frame.
-    let ns = root.path().join("nerfstudio");
-    write_nerfstudio(&lego, &ns);
+    let ns = scratch.path("nerfstudio");
+    write_nerfstudio(lego, &ns);
     write_masks(&ns, FRAMES, lego.size, cut, false);
     add_mask_paths(&ns);
     // COLMAP: masks/ beside images/, and the ignored halves of the photos painted over.
-    let painted = root.path().join("colmap");
-    write_colmap_text(&lego, &painted);
+    let painted = scratch.colmap_text("colmap");
     write_masks(&painted, FRAMES, lego.size, cut, true);
     for dir in [&ns, &painted] {
         let data = Dataset::load(dir, Split::Test, 20, 10, false).unwrap();
@@ -72,11 +72,7 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
         assert!((0..200).all(|p| used[p] == (p % 20 >= first)), "{used:?}");
     }
 
-    let scene = TinyScene::new(
-        "nerf_scene_bounded",
-        root.path().join("scene.safetensors"),
-        1,
-    );
+    let scene = scratch.tiny_scene("nerf_scene_bounded", 1);
     let run = |command: &str, dir: &Path| {
         let mut args = scene.args(command, dir, &[]);
         if command == "eval" {
@@ -92,8 +88,7 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
         let at = out.find("PSNR mean ").unwrap() + "PSNR mean ".len();
         out[at..].split_whitespace().next().unwrap().to_string()
     };
-    let plain = root.path().join("plain");
-    write_colmap_text(&lego, &plain);
+    let plain = scratch.colmap_text("plain");
     write_masks(&plain, FRAMES, lego.size, cut, false);
     let on_painted = psnr_of(run("eval", &painted));
     assert_eq!(on_painted, psnr_of(run("eval", &plain)));
@@ -106,7 +101,7 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
     );
 
     // A mask of another size, and a missing one: one line naming the file; nothing written.
-    let fresh = root.path().join("fresh.safetensors");
+    let fresh = scratch.path("fresh.safetensors");
     let fresh_arg = format!("training.checkpoint_path={}", fresh.display());
     let bad_size = plain.join("masks").join("frame_03.png");
     image::GrayImage::new(7, 5).save(&bad_size).unwrap();
@@ -133,21 +128,17 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
 
 #[test]
 fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model() {
-    let Some((lego, root)) = lego_root(FRAMES) else {
+    let Some(scratch) = lego_root(FRAMES) else {
         return;
     };
-    let text = root.path().join("text");
-    write_colmap_text(&lego, &text);
-    let binary = root.path().join("binary");
-    write_colmap_binary(&lego, &text, &binary);
+    let lego = &scratch.lego;
+    let text = scratch.colmap_text("text");
+    let binary = scratch.path("binary");
+    write_colmap_binary(lego, &text, &binary);
     assert!(binary.join("sparse/0/images.bin").is_file());
-    let scene = TinyScene::new(
-        "nerf_scene_bounded",
-        root.path().join("scene.safetensors"),
-        1,
-    );
+    let scene = scratch.tiny_scene("nerf_scene_bounded", 1);
     scene.run_ok("train", &text, &[]);
-    let (a, b) = (root.path().join("a"), root.path().join("b"));
+    let (a, b) = (scratch.path("a"), scratch.path("b"));
     for (dir, saved) in [(&text, &a), (&binary, &b)] {
         let saved = saved.to_str().unwrap();
         scene.run_ok("eval", dir, &["--split", "test", "--save-images", saved]);
@@ -170,9 +161,10 @@ fn edit(path: &Path, from: &str, to: &str) {
 
 #[test]
 fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
-    let Some((lego, root)) = lego_root(4) else {
+    let Some(scratch) = lego_root(4) else {
         return;
     };
+    let lego = &scratch.lego;
     // A way to break a capture, returning the file the error must name.
     type Breakage = fn(&Path) -> PathBuf;
     // What is broken, how, and what the error must also say.
@@ -330,10 +322,10 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
     ];
     for (format, write, breakages) in writers {
         for (i, (what, breakage, says)) in breakages.iter().enumerate() {
-            let dir = root.path().join(format!("{format}_{i}"));
-            write(&lego, &dir);
+            let dir = scratch.path(&format!("{format}_{i}"));
+            write(lego, &dir);
             let named = breakage(&dir);
-            let out = root.path().join(format!("out_{format}_{i}"));
+            let out = scratch.path(&format!("out_{format}_{i}"));
             let ckpt = format!("training.checkpoint_path={}", out.join("ck").display());
             let out_dir = out.join("images");
             let more = ["--out-dir", out_dir.to_str().unwrap(), &ckpt];

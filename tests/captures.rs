@@ -62,44 +62,40 @@ fn check_capture(lego: &Lego, dir: &Path, format: SceneFormat) {
 
 #[test]
 fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
-    let Some((lego, root)) = lego_root(FRAMES) else {
+    let Some(scratch) = lego_root(FRAMES) else {
         return;
     };
-    let text = root.path().join("colmap_text");
-    write_colmap_text(&lego, &text);
-    check_capture(&lego, &text, SceneFormat::Colmap);
+    let lego = &scratch.lego;
+    let text = scratch.colmap_text("colmap_text");
+    check_capture(lego, &text, SceneFormat::Colmap);
     // The same model written as binary, beside a second, smaller model: the larger is chosen.
-    let binary = root.path().join("colmap_binary");
-    let mut model = write_colmap_binary(&lego, &text, &binary);
+    let binary = scratch.path("colmap_binary");
+    let mut model = write_colmap_binary(lego, &text, &binary);
     model.images.truncate(3);
     nerf::io::colmap::write_binary(&binary.join("sparse").join("1"), &model).unwrap();
-    check_capture(&lego, &binary, SceneFormat::Colmap);
-    let ns = root.path().join("nerfstudio");
-    write_nerfstudio(&lego, &ns);
-    check_capture(&lego, &ns, SceneFormat::Nerfstudio);
-    let llff = root.path().join("llff");
-    write_llff(&lego, &llff);
-    check_capture(&lego, &llff, SceneFormat::Llff);
+    check_capture(lego, &binary, SceneFormat::Colmap);
+    let ns = scratch.path("nerfstudio");
+    write_nerfstudio(lego, &ns);
+    check_capture(lego, &ns, SceneFormat::Nerfstudio);
+    let llff = scratch.path("llff");
+    write_llff(lego, &llff);
+    check_capture(lego, &llff, SceneFormat::Llff);
 }
 
 #[test]
 fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
-    let Some((lego, root)) = lego_root(FRAMES) else {
+    let Some(scratch) = lego_root(FRAMES) else {
         return;
     };
-    let capture = root.path().join("capture");
-    write_colmap_text(&lego, &capture);
+    let lego = &scratch.lego;
+    let capture = scratch.colmap_text("capture");
     let data = Dataset::load(&capture, Split::Test, 20, 20, false).unwrap();
     assert_eq!(data.frames.len(), 2);
     assert!(data
         .images
         .iter()
         .all(|im| im.width == 20 && im.height == 20));
-    let scene = TinyScene::new(
-        "nerf_scene_bounded",
-        root.path().join("scene.safetensors"),
-        1,
-    );
+    let scene = scratch.tiny_scene("nerf_scene_bounded", 1);
     let o = scene.run_ok("train", &capture, &[]);
     assert!(scene.checkpoint.is_file());
     let log = common::stderr(&o);
@@ -112,7 +108,7 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.contains("PSNR"), "{out}");
     // At the photos' own size over data.downscale, written under their own names.
-    let saved = root.path().join("saved");
+    let saved = scratch.path("saved");
     let saved_arg = saved.to_str().unwrap();
     args.extend(["data.downscale=16", "--save-images", saved_arg]);
     common::nerf_ok(&args);
@@ -131,14 +127,14 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
 
 #[test]
 fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
-    let Some((lego, root)) = lego_root(FRAMES) else {
+    let Some(scratch) = lego_root(FRAMES) else {
         return;
     };
-    let full = root.path().join("full");
-    write_colmap_text(&lego, &full);
+    let lego = &scratch.lego;
+    let full = scratch.colmap_text("full");
     // The first 9 photos only: the same held-out frames (frame_00 and frame_08), but the
     // cameras give another normalisation.
-    let subset = root.path().join("subset");
+    let subset = scratch.path("subset");
     write_colmap_text(&lego.first(9), &subset);
     let trained_in = read_capture_split(&full, SceneFormat::Colmap, Split::Test)
         .unwrap()
@@ -148,11 +144,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         .transform;
     assert!(!trained_in.agrees_with(&recomputed, 1e-3));
 
-    let scene = TinyScene::new(
-        "nerf_scene_bounded",
-        root.path().join("scene.safetensors"),
-        2,
-    );
+    let scene = scratch.tiny_scene("nerf_scene_bounded", 2);
     scene.run_ok("train", &full, &[]);
     let (ckpt, overrides) = (&scene.checkpoint, scene.overrides());
     // Stored exactly.
@@ -189,7 +181,7 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         args.extend(overrides);
         common::stderr(&common::nerf_ok(&args))
     };
-    let (on_full, on_subset) = (root.path().join("a"), root.path().join("b"));
+    let (on_full, on_subset) = (scratch.path("a"), scratch.path("b"));
     let log = eval(&full, ckpt, &on_full);
     assert!(!log.contains("not the one these cameras give"), "{log}");
     let log = eval(&subset, ckpt, &on_subset);
@@ -216,14 +208,14 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
         common::nerf_ok(&args);
         files_of(out)
     };
-    let depth = export(&full, &root.path().join("depth_a"));
+    let depth = export(&full, &scratch.path("depth_a"));
     assert_eq!(depth.len(), 4);
-    assert_eq!(export(&subset, &root.path().join("depth_b")), depth);
+    assert_eq!(export(&subset, &scratch.path("depth_b")), depth);
     // Without the stored transform (a checkpoint from before it was stored), the subset's
     // recomputed frame renders other images: the check above can tell them apart.
-    let old = root.path().join("old.safetensors");
+    let old = scratch.path("old.safetensors");
     resave_checkpoint(ckpt, &old, |info| info.scene_transform = None);
-    let recomputed_images = root.path().join("c");
+    let recomputed_images = scratch.path("c");
     let log = eval(&subset, &old, &recomputed_images);
     assert!(log.contains("stores no scene normalisation"), "{log}");
     assert_ne!(files_of(&recomputed_images), files_of(&on_full));
@@ -244,19 +236,20 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
 
 #[test]
 fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
-    let Some((lego, root)) = lego_root(FRAMES) else {
+    let Some(scratch) = lego_root(FRAMES) else {
         return;
     };
-    let ns = root.path().join("nerfstudio");
-    write_nerfstudio(&lego, &ns);
+    let lego = &scratch.lego;
+    let ns = scratch.path("nerfstudio");
+    write_nerfstudio(lego, &ns);
     // In colmap2nerf's own gauge (centres scaled and moved, scale and offset written), and in
     // the nerfstudio file's.
-    let moved = root.path().join("ngp_moved");
-    write_colmap2nerf(&lego, &moved, Some((2.5, [0.5, -1.0, 3.0])));
-    let same = root.path().join("ngp");
-    write_colmap2nerf(&lego, &same, None);
+    let moved = scratch.path("ngp_moved");
+    write_colmap2nerf(lego, &moved, Some((2.5, [0.5, -1.0, 3.0])));
+    let same = scratch.path("ngp");
+    write_colmap2nerf(lego, &same, None);
     // The lego projection check holds in the lego world frame, which `same` keeps.
-    check_capture(&lego, &same, SceneFormat::Nerfstudio);
+    check_capture(lego, &same, SceneFormat::Nerfstudio);
     for dir in [&moved, &same] {
         for split in [Split::Train, Split::Test] {
             let a = read_capture_split(&ns, SceneFormat::Nerfstudio, split).unwrap();
@@ -288,13 +281,13 @@ fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
 
     // The command: a model trained on the colmap2nerf file renders its held-out views as it
     // renders the nerfstudio file's (the same cameras, to float64 rounding).
-    let scene = TinyScene::new("nerf_scene", root.path().join("scene.safetensors"), 1);
+    let scene = scratch.tiny_scene("nerf_scene", 1);
     let run = |command: &str, dir: &Path, extra: &[&str]| {
         common::stderr(&scene.run_ok(command, dir, extra))
     };
     let log = run("train", &same, &[]);
     assert!(log.contains("instant-ngp (transforms.json)"), "{log}");
-    let (a, b) = (root.path().join("a"), root.path().join("b"));
+    let (a, b) = (scratch.path("a"), scratch.path("b"));
     for (dir, saved) in [(&same, &a), (&ns, &b)] {
         let saved = saved.to_str().unwrap();
         let log = run("eval", dir, &["--split", "test", "--save-images", saved]);

@@ -30,8 +30,7 @@ fn render(checkpoint: &Path, out: &Path) -> std::process::Output {
 
 #[test]
 fn a_directory_gives_its_one_checkpoint_and_names_several() {
-    let dir = tempfile::tempdir().unwrap();
-    let ckpts = dir.path().join("ckpts");
+    let (dir, ckpts) = common::scratch("ckpts");
     let out = dir.path().join("out");
     // Empty: an error naming the directory.
     std::fs::create_dir(&ckpts).unwrap();
@@ -308,8 +307,7 @@ fn a_missing_checkpoint_points_to_a_shipped_model_that_renders_well_with_this_co
 
 #[test]
 fn a_fifo_as_checkpoint_is_refused_without_blocking() {
-    let dir = tempfile::tempdir().unwrap();
-    let fifo = dir.path().join("model.safetensors");
+    let (dir, fifo) = common::scratch("model.safetensors");
     common::make_fifo(&fifo);
     let out = dir.path().join("out");
     let err = one_line_error(&render(&fifo, &out));

@@ -7,8 +7,7 @@ use common::{gif_frames, max_channel_difference, nerf, nerf_ok, read_npy, render
 
 #[test]
 fn render_box_writes_every_output() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("imgs");
+    let (_dir, out) = common::scratch("imgs");
     nerf_ok(&render_args(
         "box",
         &out,
@@ -51,8 +50,7 @@ fn render_box_writes_every_output() {
 
 #[test]
 fn config_file_path_and_sphere_work() {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("my.yaml");
+    let (dir, cfg) = common::scratch("my.yaml");
     let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/sphere.yaml"))
         .unwrap();
     std::fs::write(&cfg, text).unwrap();
@@ -144,16 +142,14 @@ fn bad_input_gives_one_clear_line() {
         };
         assert_clean_failure(&["--config", config, &arg], &needle);
     }
-    let dir = tempfile::tempdir().unwrap();
-    let bad = dir.path().join("bad.yaml");
+    let (_dir, bad) = common::scratch("bad.yaml");
     std::fs::write(&bad, "data: [1, 2\nsampler: {").unwrap();
     assert_clean_failure(&["--config", bad.to_str().unwrap()], "malformed YAML");
 }
 
 #[test]
 fn unwritable_output_directory_is_an_error() {
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("a_file");
+    let (_dir, file) = common::scratch("a_file");
     std::fs::write(&file, b"x").unwrap();
     let target = file.join("sub");
     let o = nerf(&render_args("box", &target, &["data.image_size=[8,8]"]));
@@ -405,8 +401,7 @@ fn shipped_checkpoint_renders_and_scores_on_test_views() {
         stderr(&o)
     );
     // The render command writes the GIF from the checkpoint alone (no dataset).
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (_dir, out) = common::scratch("out");
     nerf_ok(&render_args(
         "lego",
         &out,

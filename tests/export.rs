@@ -184,8 +184,7 @@ fn lego_mesh_covers_the_test_masks() {
 
 #[test]
 fn sphere_mesh_lies_on_the_radius_with_its_rainbow_colours() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("sphere.ply");
+    let (_dir, out) = common::scratch("sphere.ply");
     nerf_ok(&mesh_args("sphere", "48", out.to_str().unwrap()));
     let ply = read_ply(&out);
     assert!(!ply.vertices.is_empty() && !ply.faces.is_empty());
@@ -211,8 +210,7 @@ fn sphere_mesh_lies_on_the_radius_with_its_rainbow_colours() {
 
 #[test]
 fn points_and_depth_export_the_box_views() {
-    let dir = tempfile::tempdir().unwrap();
-    let ply_path = dir.path().join("box_points.ply");
+    let (dir, ply_path) = common::scratch("box_points.ply");
     // `nerf export KIND` of the first `limit` box views, small, into `out`.
     let export_box = |kind: &str, limit: &str, out: &Path| {
         let mut args = export_args(kind, "box", &["--limit", limit], out.to_str().unwrap());
@@ -266,8 +264,7 @@ fn refused(args: &[&str], out: &Path, expect: &str) {
 
 #[test]
 fn export_refuses_bad_input_in_one_line_and_writes_nothing() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("m.ply");
+    let (dir, out) = common::scratch("m.ply");
     let o = out.to_str().unwrap();
     refused(
         &mesh_args("sphere", "0", o),

@@ -45,8 +45,7 @@ fn deep_or_large_yaml_is_refused_quickly() {
     );
     assert!(err.contains("more than 64 parts"), "{err}");
     assert!(start.elapsed() < std::time::Duration::from_secs(1));
-    let dir = tempfile::tempdir().unwrap();
-    let big = dir.path().join("big.yaml");
+    let (dir, big) = common::scratch("big.yaml");
     std::fs::write(&big, "# ".repeat(MAX_YAML_BYTES)).unwrap();
     let err = format!(
         "{:#}",
@@ -64,8 +63,7 @@ fn deep_or_large_yaml_is_refused_quickly() {
 
 #[test]
 fn far_cameras_fifos_and_huge_images_are_refused_with_one_line() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("transforms_train.json");
+    let (dir, path) = common::scratch("transforms_train.json");
     let with_z = |z: &str| {
         format!(
             r#"{{"camera_angle_x": 0.69, "frames": [{{"file_path": "./train/r_0"}},

@@ -88,8 +88,7 @@ fn fused_kernels_see_a_different_graph_than_generic_ones() {
 
 /// `nerf [--kernels K] render ... --raw` into a fresh directory; the frames' colour and depth.
 fn raw_render(kernels: &str, args: &[&str]) -> Vec<(Vec<f32>, Vec<f32>)> {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (_dir, out) = common::scratch("out");
     let mut full = vec!["--kernels", kernels, "render"];
     full.extend(args);
     full.extend(["--raw", "--out-dir", out.to_str().unwrap()]);

@@ -139,8 +139,7 @@ fn a_mesh_and_a_point_cloud_in_tiny_pieces_equal_them_in_one() {
 
 #[test]
 fn sizes_over_a_limit_and_bad_pieces_are_refused_before_anything_is_written() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (dir, out) = common::scratch("out");
     // (NERF_WORK_CHUNK, overrides, what the refusal says) of a box render.
     let too_large: [(Option<&str>, &[&str], &str); 2] = [
         (

@@ -280,8 +280,7 @@ fn checkpoint_round_trips_bit_exactly() {
     let config = tiny_config(&[]);
     let nerf_cfg = config.nerf_params().unwrap();
     let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("m.safetensors");
+    let (_dir, path) = common::scratch("m.safetensors");
     let info = CheckpointInfo {
         epoch: 7,
         adam_step: 700,
@@ -524,8 +523,7 @@ fn pytorch_state_dict_of_the_wrong_size_names_the_tensor() {
     // The homework-size config against the tiny state dict.
     let config = Config::load("nerf_lego", &[]).unwrap();
     let nerf_cfg = config.nerf_params().unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("x.safetensors");
+    let (dir, out) = common::scratch("x.safetensors");
     let err = nerf::io::torch::import_torch(
         &fixtures().join("tiny_nerf.pth"),
         &parameter_shapes(&nerf_cfg),

@@ -21,8 +21,7 @@ fn export_mesh(out: &Path) -> std::process::Output {
 
 #[test]
 fn export_onto_a_link_writes_its_target_and_keeps_the_link() {
-    let dir = tempfile::tempdir().unwrap();
-    let real = dir.path().join("meshes");
+    let (dir, real) = common::scratch("meshes");
     std::fs::create_dir(&real).unwrap();
     std::fs::write(real.join("sphere.ply"), "old").unwrap();
     let link = dir.path().join("latest.ply");
@@ -63,8 +62,7 @@ fn export_onto_dev_null_writes_the_device() {
 
 #[test]
 fn export_onto_a_directory_is_refused_in_one_line() {
-    let dir = tempfile::tempdir().unwrap();
-    let target = dir.path().join("out.ply");
+    let (dir, target) = common::scratch("out.ply");
     std::fs::create_dir(&target).unwrap();
     let o = export_mesh(&target);
     let err = stderr(&o);
@@ -87,8 +85,7 @@ fn export_model(checkpoint: &Path, out: &Path) -> std::process::Output {
 
 #[test]
 fn export_model_onto_a_device_keeps_the_device() {
-    let dir = tempfile::tempdir().unwrap();
-    let node = dir.path().join("null");
+    let (_dir, node) = common::scratch("null");
     let c = std::ffi::CString::new(node.to_str().unwrap()).unwrap();
     let made = unsafe { libc::mknod(c.as_ptr(), libc::S_IFCHR | 0o666, libc::makedev(1, 3)) };
     if made != 0 {

@@ -72,8 +72,7 @@ fn fake_colmap(dir: &Path, body: &str) -> PathBuf {
 #[test]
 fn no_photos_and_missing_colmap_are_one_line_errors() {
     let _alone = alone();
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (dir, out) = common::scratch("out");
     let empty = dir.path().join("empty");
     std::fs::create_dir_all(empty.join("sub")).unwrap();
     std::fs::write(empty.join("notes.txt"), "not a photo").unwrap();
@@ -309,8 +308,7 @@ fn colmap_recovers_lego_cameras() {
         angle(a.2).total_cmp(&angle(b.2))
     });
     nearest.truncate(24);
-    let dir = tempfile::tempdir().unwrap();
-    let photos = dir.path().join("photos");
+    let (dir, photos) = common::scratch("photos");
     std::fs::create_dir_all(&photos).unwrap();
     for (name, _, _) in &nearest {
         std::fs::copy(lego.join("train").join(name), photos.join(name)).unwrap();
@@ -582,8 +580,7 @@ fn video_frames_are_the_sharpest_of_each_stretch_and_matched_sequentially() {
     // 40 frames of a texture sliding 3 px a frame; in each run of 4, one sharp frame (at a
     // place that moves from run to run) and three blurred. At 10 fps and 10 frames kept,
     // the candidates are the clip's 40 frames and the stretches these runs of 4.
-    let dir = tempfile::tempdir().unwrap();
-    let frames = dir.path().join("frames");
+    let (dir, frames) = common::scratch("frames");
     std::fs::create_dir_all(&frames).unwrap();
     let texture = image::RgbImage::from_fn(400, 120, |x, y| {
         let v = ((x / 6 * 7919 + y / 6 * 104_729) % 251) as u8;
@@ -648,8 +645,7 @@ fn video_frames_are_the_sharpest_of_each_stretch_and_matched_sequentially() {
 #[test]
 fn bad_video_inputs_are_one_line_errors() {
     let _alone = alone();
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (dir, out) = common::scratch("out");
     let text = dir.path().join("notes.txt");
     std::fs::write(&text, "not a video").unwrap();
     let still = dir.path().join("still.png");
@@ -712,8 +708,7 @@ fn colmap_recovers_lego_cameras_from_a_video() {
     // Lego's first 60 test views on white (a 216° arc coming down from 47° to 25° of
     // elevation) as a 10 fps clip, of which 20 frames are kept.
     let truth = lego_cameras(&lego, "test");
-    let dir = tempfile::tempdir().unwrap();
-    let frames = dir.path().join("frames");
+    let (dir, frames) = common::scratch("frames");
     std::fs::create_dir_all(&frames).unwrap();
     let mut sources = Vec::new();
     for (i, (name, _, _)) in truth.iter().take(60).enumerate() {

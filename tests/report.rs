@@ -20,8 +20,7 @@ fn quick_report_args<'a>(out: &'a Path, more: &[&'a str]) -> Vec<&'a str> {
 fn report_quick_measures_and_writes_markdown_json_and_plots() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let data = root.join("../shared/data/lego");
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("report");
+    let (dir, out) = common::scratch("report");
     let missing_log = dir.path().join("no_such.log.jsonl");
     let checkpoint = root.join("checkpoints/nerf_lego.safetensors");
     let shipped_log = root.join("checkpoints/nerf_lego.log.jsonl");
@@ -128,8 +127,7 @@ fn report_quick_measures_and_writes_markdown_json_and_plots() {
 
 #[test]
 fn report_rejects_an_unusable_output_directory_in_one_line() {
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("a_file");
+    let (_dir, file) = common::scratch("a_file");
     std::fs::write(&file, b"x").unwrap();
     let o = nerf(&quick_report_args(&file.join("sub"), &["--no-lego"]));
     let err = common::one_line_error(&o);
@@ -138,8 +136,7 @@ fn report_rejects_an_unusable_output_directory_in_one_line() {
 
 #[test]
 fn report_without_its_lego_inputs_is_one_line_naming_them_and_writes_nothing() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("report");
+    let (dir, out) = common::scratch("report");
     // Run from an empty directory, as a user outside the repository would: the default
     // checkpoint and dataset paths are relative and missing there.
     let o = nerf_in(dir.path(), &quick_report_args(&out, &[]));

@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::lego_capture::lego_root;
+use common::lego_capture::{lego_root, LegoRoot};
 use tempfile::TempDir;
 
 const SIDE: u32 = 40;
@@ -22,7 +22,7 @@ fn white_capture(name: &str) -> Option<(TempDir, PathBuf)> {
 
 /// [`white_capture`] with the views composited on `backdrop(x, y)` (RGB in [0, 1]).
 fn capture_on(name: &str, backdrop: fn(u32, u32) -> [f32; 3]) -> Option<(TempDir, PathBuf)> {
-    let (lego, root) = lego_root(16)?;
+    let LegoRoot { lego, root } = lego_root(16)?;
     let dir = root.path().join(name);
     std::fs::create_dir_all(dir.join("images")).unwrap();
     let scale = SIDE as f64 / lego.size.0 as f64;

@@ -276,8 +276,7 @@ fn training_logs_test_psnr_at_checkpoints() {
 /// given is named in a one-line error, and nothing is written.
 #[test]
 fn run_takes_training_options_and_refuses_them_for_render_configs() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (_dir, out) = common::scratch("out");
     for (config, flags, named) in [
         (
             "box",

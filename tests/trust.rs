@@ -533,8 +533,7 @@ fn messages_speak_the_users_language() {
         &["render", "--config", "/abs/dir/nope.yaml"],
         "error: config file /abs/dir/nope.yaml not found",
     );
-    let dir = tempfile::tempdir().unwrap();
-    let bad = dir.path().join("bad.yaml");
+    let (dir, bad) = common::scratch("bad.yaml");
     std::fs::write(
         &bad,
         "data:\n  image_size: [8, 8]\nrenderer:\n  chunk_size: 0\nsampler:\n  n_pts_per_ray: 4\n  min_depth: 0\n  max_depth: 1\nimplicit_function:\n  type: nerf\n",
@@ -592,8 +591,7 @@ fn every_subcommand_takes_config_the_same_way() {
 
 #[test]
 fn raw_frames_are_one_clean_set() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("o");
+    let (_dir, out) = common::scratch("o");
     let render = |poses: &str| {
         let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
             .args([

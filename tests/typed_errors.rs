@@ -32,6 +32,13 @@ where
     assert_eq!(printed(error), line);
 }
 
+/// Asserts that the error `$e` matches the pattern (and guard) after it, printing it if not.
+macro_rules! assert_is {
+    ($e:expr, $($pattern:tt)+) => {
+        assert!(matches!($e, $($pattern)+), "{:?}", $e)
+    };
+}
+
 /// The text of `error`, checked to be what the binary prints.
 fn text<E>(error: E) -> String
 where
@@ -46,16 +53,13 @@ where
 fn camera_checks_return_camera_errors() {
     let none = LensDistortion::None;
     let e = check_intrinsics((64, 48), [1e-300, 50.0], [32.0, 24.0], &none).unwrap_err();
-    assert!(
-        matches!(
-            e,
-            CameraError::FieldOfView {
-                axis: "x",
-                fisheye: false,
-                ..
-            }
-        ),
-        "{e:?}"
+    assert_is!(
+        e,
+        CameraError::FieldOfView {
+            axis: "x",
+            fisheye: false,
+            ..
+        }
     );
     says(
         e,
@@ -63,10 +67,7 @@ fn camera_checks_return_camera_errors() {
          it must be 0.5° to 179°",
     );
     let e = check_intrinsics((64, 48), [50.0, 50.0], [3200.0, 24.0], &none).unwrap_err();
-    assert!(
-        matches!(e, CameraError::PrincipalPoint { axis: "cx", value, .. } if value == 3200.0),
-        "{e:?}"
-    );
+    assert_is!(e, CameraError::PrincipalPoint { axis: "cx", value, .. } if value == 3200.0);
     says(
         e,
         "the principal point's cx = 3200 px lies outside the image (0 to 64 px) by more than 25% \
@@ -74,19 +75,16 @@ fn camera_checks_return_camera_errors() {
     );
     let folding = LensDistortion::polynomial([-0.5, 0.0, 0.0, 0.0], [0.0; 2]);
     let e = check_intrinsics((400, 400), [400.0; 2], [200.0; 2], &folding).unwrap_err();
-    assert!(matches!(e, CameraError::Distortion { .. }), "{e:?}");
+    assert_is!(e, CameraError::Distortion { .. });
     assert!(text(e).starts_with("the lens distortion is not "));
     let e = check_photo_size((400, 100), (400, 400)).unwrap_err();
-    assert!(
-        matches!(
-            e,
-            CameraError::PhotoSize {
-                camera: (400, 100),
-                photo: (400, 400),
-                ..
-            }
-        ),
-        "{e:?}"
+    assert_is!(
+        e,
+        CameraError::PhotoSize {
+            camera: (400, 100),
+            photo: (400, 400),
+            ..
+        }
     );
     says(
         e,
@@ -97,7 +95,7 @@ fn camera_checks_return_camera_errors() {
     let mut camera = nerf::surround_cameras(3.0, 1, glam::DVec3::Y, 1.0)[0];
     camera.t[1] = f64::NAN;
     let e = camera.validate().unwrap_err();
-    assert!(matches!(e, CameraError::NotFinite { .. }), "{e:?}");
+    assert_is!(e, CameraError::NotFinite { .. });
     says(
         e,
         "camera has a non-finite value in R, T, focal length or principal point",
@@ -108,15 +106,12 @@ fn camera_checks_return_camera_errors() {
         ..camera
     };
     let e = camera.validate().unwrap_err();
-    assert!(
-        matches!(
-            e,
-            CameraError::FocalLength {
-                focal: [0.0, 1.0],
-                ..
-            }
-        ),
-        "{e:?}"
+    assert_is!(
+        e,
+        CameraError::FocalLength {
+            focal: [0.0, 1.0],
+            ..
+        }
     );
     says(e, "camera focal length must be non-zero");
 }
@@ -156,15 +151,12 @@ fn checkpoint_readers_return_checkpoint_errors() {
     assert!(matches!(&e, CheckpointError::NotFound { path, .. } if *path == configured));
     assert!(text(e).contains("training.checkpoint_path"));
     let e = checkpoint_file::ensure_checkpoint_file(d).unwrap_err();
-    assert!(
-        matches!(&e, CheckpointError::NotFound { path, .. } if path == d),
-        "{e:?}"
-    );
+    assert_is!(&e, CheckpointError::NotFound { path, .. } if path == d);
     // Not a checkpoint.
     let garbage = d.join("garbage.safetensors");
     std::fs::write(&garbage, b"hello world, not a checkpoint").unwrap();
     let e = checkpoint_file::load(&garbage, &Vec::new(), &device).unwrap_err();
-    assert!(matches!(e, CheckpointError::Format { .. }), "{e:?}");
+    assert_is!(e, CheckpointError::Format { .. });
     let line = format!(
         "checkpoint {} is corrupt or not a checkpoint (neither safetensors nor a PyTorch file)",
         garbage.display()
@@ -184,10 +176,7 @@ fn checkpoint_readers_return_checkpoint_errors() {
     let e = TrainModel::from_checkpoint(&*spec, &other, &device)
         .err()
         .unwrap();
-    assert!(
-        matches!(&e, CheckpointError::MissingParameter { name, .. } if *name == first),
-        "{e:?}"
-    );
+    assert_is!(&e, CheckpointError::MissingParameter { name, .. } if *name == first);
     let line = format!(
         "checkpoint {} lacks tensor {first} (is it a nerf checkpoint of this config's sizes?)",
         other.display()
@@ -197,10 +186,10 @@ fn checkpoint_readers_return_checkpoint_errors() {
     let e = TrainModel::from_checkpoint(&*spec, &other, &device)
         .err()
         .unwrap();
-    assert!(
-        matches!(&e, CheckpointError::Shape { name, expected, found, .. }
-            if *name == first && *expected == shape && *found == [3]),
-        "{e:?}"
+    assert_is!(
+        &e,
+        CheckpointError::Shape { name, expected, found, .. }
+            if *name == first && *expected == shape && *found == [3]
     );
     let line = format!(
         "checkpoint {}: tensor {first} has shape [3] but the config needs {shape:?}",
@@ -214,10 +203,7 @@ fn checkpoint_readers_return_checkpoint_errors() {
     };
     checkpoint::save(&other, &[], info).unwrap();
     let e = checkpoint::load(&other, &device).unwrap_err();
-    assert!(
-        matches!(&e, CheckpointError::Metadata { key, .. } if key == "epoch"),
-        "{e:?}"
-    );
+    assert_is!(&e, CheckpointError::Metadata { key, .. } if key == "epoch");
     let line = format!(
         "checkpoint {}: metadata epoch = 1073741824 is past the most a run can have (1048576); \
          the file is corrupt or crafted",
@@ -230,10 +216,7 @@ fn checkpoint_readers_return_checkpoint_errors() {
         checkpoint::save(&several.join(name), &[], CheckpointInfo::default()).unwrap();
     }
     let e = checkpoint_file::resolve(&several, "nerf_lego").unwrap_err();
-    assert!(
-        matches!(&e, CheckpointError::Ambiguous { found, .. } if found.len() == 2),
-        "{e:?}"
-    );
+    assert_is!(&e, CheckpointError::Ambiguous { found, .. } if found.len() == 2);
     let line = format!(
         "checkpoint directory {} holds several checkpoints (a.safetensors, b.safetensors); \
          name one with --checkpoint",
@@ -277,10 +260,7 @@ fn a_checkpoint_of_another_hash_grid_layout_is_refused() {
     let e = TrainModel::from_checkpoint(&*other, &path, &device)
         .err()
         .unwrap();
-    assert!(
-        matches!(&e, CheckpointError::Metadata { key, .. } if key == "field_layout"),
-        "{e:?}"
-    );
+    assert_is!(&e, CheckpointError::Metadata { key, .. } if key == "field_layout");
     let line = text(e);
     assert!(
         line.contains("resolution 16 to 64") && line.contains("resolution 16 to 32"),
@@ -299,19 +279,16 @@ fn a_checkpoint_of_another_hash_grid_layout_is_refused() {
 #[test]
 fn config_loaders_return_config_errors() {
     let e = Config::load("no_such_config", &[]).unwrap_err();
-    assert!(
-        matches!(&e, ConfigError::NotFound { name, .. } if name == "no_such_config"),
-        "{e:?}"
-    );
+    assert_is!(&e, ConfigError::NotFound { name, .. } if name == "no_such_config");
     assert!(text(e).starts_with(
         "config `no_such_config` not found (not a file, not configs/no_such_config.yaml; \
          built-in configs: box, "
     ));
     let e = Config::load("/nonexistent.yaml", &[]).unwrap_err();
-    assert!(matches!(e, ConfigError::NotFound { .. }), "{e:?}");
+    assert_is!(e, ConfigError::NotFound { .. });
     says(e, "config file /nonexistent.yaml not found");
     let e = Config::from_yaml("data: [1, 2", &[]).unwrap_err();
-    assert!(matches!(e, ConfigError::Syntax { .. }), "{e:?}");
+    assert_is!(e, ConfigError::Syntax { .. });
     says(
         e,
         "malformed YAML: did not find expected ',' or ']' at line 2 column 1, while parsing a \
@@ -320,24 +297,20 @@ fn config_loaders_return_config_errors() {
     // A bad value, blamed on the override that gave it or the file line that holds it.
     let o = ["sampler.n_pts_per_ray=0".to_string()];
     let e = Config::load("box", &o).unwrap_err();
-    assert!(
-        matches!(&e, ConfigError::Invalid { key, .. } if key == "sampler.n_pts_per_ray"),
-        "{e:?}"
-    );
+    assert_is!(&e, ConfigError::Invalid { key, .. } if key == "sampler.n_pts_per_ray");
     says(
         e,
         "override `sampler.n_pts_per_ray=0`: sampler.n_pts_per_ray: must be 1 to 16384 (got 0)",
     );
     let o = ["sampler.n_pts_per_ray=x".to_string()];
     let e = Config::load("box", &o).unwrap_err();
-    assert!(matches!(e, ConfigError::Invalid { .. }), "{e:?}");
+    assert_is!(e, ConfigError::Invalid { .. });
     says(
         e,
         "override `sampler.n_pts_per_ray=x`: sampler.n_pts_per_ray: invalid type: string \"x\", \
          expected a whole number",
     );
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("bad.yaml");
+    let (_dir, file) = common::scratch("bad.yaml");
     let text = nerf::config::config_text("box").unwrap().0;
     let text = text.replace("n_pts_per_ray: 64", "n_pts_per_ray: 0");
     std::fs::write(&file, &text).unwrap();
@@ -346,7 +319,7 @@ fn config_loaders_return_config_errors() {
         .position(|l| l.contains("n_pts_per_ray"))
         .unwrap();
     let e = Config::load(file.to_str().unwrap(), &[]).unwrap_err();
-    assert!(matches!(e, ConfigError::Invalid { .. }), "{e:?}");
+    assert_is!(e, ConfigError::Invalid { .. });
     let expected = format!(
         "config {}, line {line}: sampler.n_pts_per_ray: must be 1 to 16384 (got 0)",
         file.display()
@@ -354,14 +327,11 @@ fn config_loaders_return_config_errors() {
     says(e, &expected);
     // An override that does not parse.
     let e = Config::load("box", &["x".to_string()]).unwrap_err();
-    assert!(
-        matches!(&e, ConfigError::Override { assignment, .. } if assignment == "x"),
-        "{e:?}"
-    );
+    assert_is!(&e, ConfigError::Override { assignment, .. } if assignment == "x");
     says(e, "override `x`: not of the form key.sub=value");
     let mut root = serde_yaml_ng::Value::Null;
     let e = apply_override(&mut root, "a..b=1").unwrap_err();
-    assert!(matches!(e, ConfigError::Override { .. }), "{e:?}");
+    assert_is!(e, ConfigError::Override { .. });
     says(e, "override `a..b=1`: empty key");
 }
 
@@ -403,25 +373,19 @@ fn dataset_loaders_return_dataset_errors() {
     let d = dir.path();
     // A folder of something else.
     let e = read_split(d, Split::Test).unwrap_err();
-    assert!(
-        matches!(&e, DatasetError::NoDataset { dir, .. } if dir == d),
-        "{e:?}"
-    );
+    assert_is!(&e, DatasetError::NoDataset { dir, .. } if dir == d);
     let line = text(e);
     assert!(line.starts_with(&format!("{} holds no dataset nerf reads: ", d.display())));
     // A camera no lens has, in a capture: the camera's own error inside.
     let ns = d.join("ns");
     nerfstudio_capture(&ns, r#""fl_x": 1e-300, "fl_y": 50, "cx": 32, "cy": 24"#);
     let e = read_split(&ns, Split::Train).unwrap_err();
-    assert!(
-        matches!(
-            &e,
-            DatasetError::Camera {
-                camera: CameraError::FieldOfView { axis: "x", .. },
-                ..
-            }
-        ),
-        "{e:?}"
+    assert_is!(
+        &e,
+        DatasetError::Camera {
+            camera: CameraError::FieldOfView { axis: "x", .. },
+            ..
+        }
     );
     let line = format!(
         "{}: frame 0 (images/f0.png): nerfstudio camera_model OPENCV: a field of view of 180° \
@@ -432,7 +396,7 @@ fn dataset_loaders_return_dataset_errors() {
     // JSON that does not parse.
     std::fs::write(ns.join("transforms.json"), r#"{"frames": [1, 2"#).unwrap();
     let e = read_split(&ns, Split::Train).unwrap_err();
-    assert!(matches!(e, DatasetError::Metadata { .. }), "{e:?}");
+    assert_is!(e, DatasetError::Metadata { .. });
     let line = format!(
         "cannot parse {}: frames[0]: invalid type: integer `1`, expected struct FrameEntry at \
          line 1 column 13",
@@ -452,17 +416,11 @@ fn dataset_loaders_return_dataset_errors() {
     let f1 = photos.join("images/f1.png");
     std::fs::write(&f1, b"not a png").unwrap();
     let e = Dataset::load(&photos, Split::Train, 8, 6, false).unwrap_err();
-    assert!(
-        matches!(&e, DatasetError::Photo { path, .. } if *path == f1),
-        "{e:?}"
-    );
+    assert_is!(&e, DatasetError::Photo { path, .. } if *path == f1);
     says(e, &format!("{} is not a PNG or JPEG image", f1.display()));
     std::fs::remove_file(&f1).unwrap();
     let e = Dataset::load(&photos, Split::Train, 8, 6, false).unwrap_err();
-    assert!(
-        matches!(&e, DatasetError::MissingFile { path, .. } if *path == f1),
-        "{e:?}"
-    );
+    assert_is!(&e, DatasetError::MissingFile { path, .. } if *path == f1);
     let line = format!(
         "cannot read image {}: No such file or directory (os error 2)",
         f1.display()
@@ -483,15 +441,12 @@ fn dataset_loaders_return_dataset_errors() {
     )
     .unwrap();
     let e = read_split(&colmap, Split::Train).unwrap_err();
-    assert!(
-        matches!(
-            &e,
-            DatasetError::Camera {
-                camera: CameraError::FieldOfView { .. },
-                ..
-            }
-        ),
-        "{e:?}"
+    assert_is!(
+        &e,
+        DatasetError::Camera {
+            camera: CameraError::FieldOfView { .. },
+            ..
+        }
     );
     let line = format!(
         "{}: camera 1 (of image a.png): COLMAP camera model PINHOLE: a field of view of 180° \
@@ -509,8 +464,7 @@ fn the_binary_prints_typed_errors_as_the_one_line_it_printed() {
         common::stderr(&o).trim_end(),
         "error: config file /nonexistent.yaml not found"
     );
-    let dir = tempfile::tempdir().unwrap();
-    let bad = dir.path().join("bad.safetensors");
+    let (dir, bad) = common::scratch("bad.safetensors");
     std::fs::write(&bad, b"hello world, not a checkpoint").unwrap();
     let o = common::nerf(&[
         "render",

@@ -390,10 +390,41 @@ pub fn write_colmap2nerf(lego: &Lego, dir: &Path, moved: Option<(f64, [f64; 3])>
     std::fs::write(dir.join("transforms.json"), text).unwrap();
 }
 
+/// The first `n` lego training views and a scratch directory a test writes its captures,
+/// checkpoints and outputs into.
+pub struct LegoRoot {
+    /// The views ([`lego_views`]).
+    pub lego: Lego,
+    /// The scratch directory, removed when the test ends.
+    pub root: tempfile::TempDir,
+}
+
+impl LegoRoot {
+    /// `name` inside the scratch directory.
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.root.path().join(name)
+    }
+
+    /// The views written as a COLMAP text capture in the folder `name`, which it returns.
+    pub fn colmap_text(&self, name: &str) -> PathBuf {
+        let dir = self.path(name);
+        write_colmap_text(&self.lego, &dir);
+        dir
+    }
+
+    /// A [`TinyScene`] of `config` for `epochs` that writes `scene.safetensors` here.
+    pub fn tiny_scene(&self, config: &'static str, epochs: usize) -> TinyScene {
+        TinyScene::new(config, self.path("scene.safetensors"), epochs)
+    }
+}
+
 /// The first `n` lego training views ([`lego_views`]) and a fresh scratch directory for the
 /// test's captures, or a visible skip.
-pub fn lego_root(n: usize) -> Option<(Lego, tempfile::TempDir)> {
-    Some((lego_views(n)?, tempfile::tempdir().unwrap()))
+pub fn lego_root(n: usize) -> Option<LegoRoot> {
+    Some(LegoRoot {
+        lego: lego_views(n)?,
+        root: tempfile::tempdir().unwrap(),
+    })
 }
 
 /// Applies `change` to the JSON of `dir/transforms.json`, which it returns.

@@ -7,6 +7,13 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+/// A fresh scratch directory (removed when the `TempDir` drops) and the path `name` inside it.
+pub fn scratch(name: &str) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    (dir, path)
+}
+
 /// Runs the `nerf` binary with `args`.
 pub fn nerf(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_nerf"))
