@@ -27,7 +27,7 @@ fn nerf_gradients(config: &Config, choice: KernelChoice) -> Vec<(String, Vec<f32
         let out = config
             .renderer()
             .unwrap()
-            .render(&field, &config.sampler().unwrap(), &rays, None)
+            .render(&field, config.sampler().unwrap().as_ref(), &rays, None)
             .unwrap();
         let loss = (out.color.sum_all().unwrap() + out.depth.sum_all().unwrap()).unwrap();
         let grads = loss.backward().unwrap();

@@ -139,7 +139,7 @@ fn gradients_reach_every_parameter() {
                     density_noise: 0.0,
                     occupancy,
                 },
-                &config.sampler().unwrap(),
+                config.sampler().unwrap().as_ref(),
                 &rays,
                 Some(&mut rng),
             )

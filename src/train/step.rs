@@ -224,7 +224,7 @@ pub fn train_step(
     } else {
         None
     };
-    let out = renderer.render(&*field, &settings.sampler, &rays, Some(rng))?;
+    let out = renderer.render(&*field, settings.sampler.as_ref(), &rays, Some(rng))?;
     let color = match &background {
         Some(b) => out
             .color

@@ -346,7 +346,7 @@ pub fn bench_nerf(
         let rays = nerf::core::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
         let target = candle_core::Tensor::full(0.5f32, (pixels.len(), 3), device)?;
         let field = state.training_field(0.0);
-        let out = renderer.render(&*field, &sampler, &rays, Some(&mut rng))?;
+        let out = renderer.render(&*field, sampler.as_ref(), &rays, Some(&mut rng))?;
         let loss = out.color.sub(&target)?.sqr()?.mean_all()?;
         adam.step(&loss.backward()?)?;
         Ok(())

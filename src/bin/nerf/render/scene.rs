@@ -279,7 +279,14 @@ pub fn render_sdf_scene(
     prepare_out_dir(out_dir)?;
     let grid = grid_image(w, h, chunks.rays, device)?;
     let rays = ray_image(&cameras[0], (w, h), chunks.rays, device)?;
-    let points = point_image(&cameras[0], (w, h), &sampler, 256, chunks.points, device)?;
+    let points = point_image(
+        &cameras[0],
+        (w, h),
+        sampler.as_ref(),
+        256,
+        chunks.points,
+        device,
+    )?;
     let frames = render_views_in_bands(
         &Pipeline::new(&field, &*sampler, &renderer),
         &cameras,
