@@ -68,6 +68,18 @@ pub struct PackedValues {
     pub feature: Tensor,
 }
 
+/// The densities alone of a skipping render's packed samples, as [`PackedValues`] lists them:
+/// what the packed distortion loss reads.
+#[derive(Debug, Clone)]
+pub struct PackedDensities {
+    /// Flat sample index `ray · S + i` of each density.
+    pub index: Vec<u32>,
+    /// Rays N.
+    pub n_rays: usize,
+    /// Densities `(M, 1)`.
+    pub density: Tensor,
+}
+
 /// Colour, depth and opacity of each ray from its samples: the weights and their weighted
 /// sums, with spacings derived from the lengths ([`crate::core::volume::deltas`]). The fused
 /// [`Composite`] kernel (forward and backward) where [`use_fused`] allows, else
@@ -98,6 +110,27 @@ pub(crate) struct PackedRays {
 }
 
 impl PackedRays {
+    /// The samples `index` of `n_rays` rays grouped by ray, given `lengths` `(N, S, 1)`, or
+    /// `(1, S, 1)` shared by all rays (read as f32); `what` names the caller when the lengths
+    /// have neither N rows nor one.
+    pub(crate) fn with_lengths(
+        index: Vec<u32>,
+        n_rays: usize,
+        lengths: &Tensor,
+        what: &str,
+    ) -> Result<Self> {
+        let (rows, s, _) = lengths.dims3()?;
+        anyhow::ensure!(
+            rows == n_rays || rows == 1,
+            "{what}: lengths have {rows} rows for {n_rays} rays"
+        );
+        let lengths = lengths
+            .to_dtype(DType::F32)?
+            .flatten_all()?
+            .to_vec1::<f32>()?;
+        Ok(Self::new(index, lengths, (n_rays, s)))
+    }
+
     pub(crate) fn new(index: Vec<u32>, lengths: Vec<f32>, (n, s): (usize, usize)) -> Self {
         // A counting sort by ray, then sample order within each ray.
         let mut start = vec![0usize; n + 1];
@@ -183,27 +216,17 @@ fn packed_forward(rays: &PackedRays, density: &[f32], feature: &[f32], c: usize)
 /// and `feature`. The fused kernel where [`use_fused`] allows, else its twin
 /// [`composite_packed_tensor_ops`].
 pub fn composite_packed(values: PackedValues, lengths: &Tensor) -> Result<Composited> {
-    let (rows, s, _) = lengths.dims3()?;
-    let n = values.n_rays;
-    anyhow::ensure!(
-        rows == n || rows == 1,
-        "composite_packed: lengths have {rows} rows for {n} rays"
-    );
     if !use_fused(&values.density) {
         return composite_packed_tensor_ops(values, lengths);
     }
     let PackedValues {
         index,
+        n_rays,
         density,
         feature,
-        ..
     } = values;
     let c = feature.dim(1)?;
-    let lengths_v = lengths
-        .to_dtype(DType::F32)?
-        .flatten_all()?
-        .to_vec1::<f32>()?;
-    let rays = PackedRays::new(index, lengths_v, (n, s));
+    let rays = PackedRays::with_lengths(index, n_rays, lengths, "composite_packed")?;
     let (density, feature) = (density.contiguous()?, feature.contiguous()?);
     let op = Fused(PackedComposite { rays, c });
     let out = if density.track_op() || feature.track_op() {
@@ -218,19 +241,42 @@ pub fn composite_packed(values: PackedValues, lengths: &Tensor) -> Result<Compos
 /// dense `(N, S, ·)` tensors, zeros at the samples not listed (`index_add`, differentiable),
 /// then [`composite_tensor_ops`].
 pub fn composite_packed_tensor_ops(values: PackedValues, lengths: &Tensor) -> Result<Composited> {
-    let s = lengths.dim(1)?;
-    let PackedValues {
-        index,
-        n_rays,
-        density,
-        feature,
-    } = values;
-    let (dense_density, dense_feature) = scatter_packed(index, (n_rays, s), &density, &feature)?;
-    let lengths = lengths
-        .to_dtype(density.dtype())?
+    let rays = (values.n_rays, lengths.dim(1)?);
+    let (density, feature) = scatter_packed(values.index, rays, &values.density, &values.feature)?;
+    let lengths = lengths_per_ray(lengths, rays.0, density.dtype())?;
+    composite_tensor_ops(&density, &feature, &lengths)
+}
+
+/// `lengths` `(N, S, 1)`, or `(1, S, 1)` shared by all rays, as a contiguous `(N, S, 1)`
+/// tensor of `dtype` for `n_rays` rays.
+pub(crate) fn lengths_per_ray(lengths: &Tensor, n_rays: usize, dtype: DType) -> Result<Tensor> {
+    let (rows, s, _) = lengths.dims3()?;
+    anyhow::ensure!(
+        rows == n_rays || rows == 1,
+        "packed samples: lengths have {rows} rows for {n_rays} rays"
+    );
+    Ok(lengths
+        .to_dtype(dtype)?
         .broadcast_as((n_rays, s, 1))?
-        .contiguous()?;
-    composite_tensor_ops(&dense_density, &dense_feature, &lengths)
+        .contiguous()?)
+}
+
+/// Packed rows `values` `(M, C)`, listed by flat sample index `ray · S + i` in `index` (no
+/// repeats), scattered into `(N, S, C)` with zeros at the samples not listed; differentiable
+/// (`index_add`), any device and dtype.
+pub(crate) fn scatter_rows(
+    index: &[u32],
+    (n_rays, s): (usize, usize),
+    values: &Tensor,
+) -> Result<Tensor> {
+    let c = values.dim(1)?;
+    let (device, dtype) = (values.device(), values.dtype());
+    let mut dense = Tensor::zeros((n_rays * s, c), dtype, device)?;
+    if !index.is_empty() {
+        let index = Tensor::from_slice(index, index.len(), device)?;
+        dense = dense.index_add(&index, &values.contiguous()?, 0)?;
+    }
+    Ok(dense.reshape((n_rays, s, c))?)
 }
 
 /// Packed values scattered into dense tensors: `density` `(M, 1)` and `feature` `(M, C)`,
@@ -239,22 +285,13 @@ pub fn composite_packed_tensor_ops(values: PackedValues, lengths: &Tensor) -> Re
 /// and dtype.
 pub fn scatter_packed(
     index: Vec<u32>,
-    (n_rays, s): (usize, usize),
+    rays: (usize, usize),
     density: &Tensor,
     feature: &Tensor,
 ) -> Result<(Tensor, Tensor)> {
-    let (c, device, dtype) = (feature.dim(1)?, density.device(), density.dtype());
-    let mut dense_density = Tensor::zeros((n_rays * s, 1), dtype, device)?;
-    let mut dense_feature = Tensor::zeros((n_rays * s, c), dtype, device)?;
-    if !index.is_empty() {
-        let m = index.len();
-        let index = Tensor::from_vec(index, m, device)?;
-        dense_density = dense_density.index_add(&index, &density.contiguous()?, 0)?;
-        dense_feature = dense_feature.index_add(&index, &feature.contiguous()?, 0)?;
-    }
     Ok((
-        dense_density.reshape((n_rays, s, 1))?,
-        dense_feature.reshape((n_rays, s, c))?,
+        scatter_rows(&index, rays, density)?,
+        scatter_rows(&index, rays, feature)?,
     ))
 }
 

@@ -21,7 +21,7 @@ use crate::core::volume::{
     clamped_optical_depth, deltas, exclusive_cumsum, ray_weights, spacing, weights,
     MAX_OPTICAL_DEPTH,
 };
-use crate::kernels::composite::PackedRays;
+use crate::kernels::composite::{lengths_per_ray, scatter_rows, PackedDensities, PackedRays};
 use crate::kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use crate::kernels::storage::host_values;
 use crate::kernels::use_fused;
@@ -166,32 +166,25 @@ impl CpuKernel<2> for DenseDistortion {
     }
 }
 
-/// Each ray's distortion loss `(N, 1)` from the packed samples of a skipping render: `index`
-/// holds the flat sample index `ray · S + i` of each density in `density` `(M, 1)` (no
-/// repeats), over `n_rays` rays whose lengths are `lengths` `(N, S, 1)` (or `(1, S, 1)`
-/// shared). Samples not listed have σ = 0. Differentiable in `density`; only the listed
-/// samples are visited. The fused kernel where [`use_fused`] allows, else its twin
-/// [`distortion_loss_packed_tensor_ops`].
+/// Each ray's distortion loss `(N, 1)` from the packed densities of a skipping render
+/// (`samples.density` `(M, 1)` at the flat sample indices `samples.index`, no repeats) over
+/// rays whose lengths are `lengths` `(N, S, 1)` (or `(1, S, 1)` shared). Samples not listed
+/// have σ = 0. Differentiable in the densities; only the listed samples are visited. The fused
+/// kernel where [`use_fused`] allows, else its twin [`distortion_loss_packed_tensor_ops`].
 pub fn distortion_loss_packed(
-    index: Vec<u32>,
-    n_rays: usize,
-    density: &Tensor,
+    samples: PackedDensities,
     lengths: &Tensor,
     spacing: RaySpacing,
 ) -> Result<Tensor> {
-    let (rows, s, _) = lengths.dims3()?;
-    anyhow::ensure!(
-        rows == n_rays || rows == 1,
-        "distortion loss: lengths have {rows} rows for {n_rays} rays"
-    );
-    if !use_fused(density) {
-        return distortion_loss_packed_tensor_ops(index, n_rays, density, lengths, spacing);
+    if !use_fused(&samples.density) {
+        return distortion_loss_packed_tensor_ops(samples, lengths, spacing);
     }
-    let lengths_v = lengths
-        .to_dtype(DType::F32)?
-        .flatten_all()?
-        .to_vec1::<f32>()?;
-    let rays = PackedRays::new(index, lengths_v, (n_rays, s));
+    let PackedDensities {
+        index,
+        n_rays,
+        density,
+    } = samples;
+    let rays = PackedRays::with_lengths(index, n_rays, lengths, "distortion loss")?;
     let density = density.contiguous()?;
     let op = Fused(PackedDistortion { rays, spacing });
     Ok(if density.track_op() {
@@ -205,24 +198,14 @@ pub fn distortion_loss_packed(
 /// a dense `(N, S, 1)` tensor, zeros at the samples not listed (`index_add`,
 /// differentiable), then [`distortion_loss_tensor_ops`].
 pub fn distortion_loss_packed_tensor_ops(
-    index: Vec<u32>,
-    n_rays: usize,
-    density: &Tensor,
+    samples: PackedDensities,
     lengths: &Tensor,
     spacing: RaySpacing,
 ) -> Result<Tensor> {
-    let s = lengths.dim(1)?;
-    let mut dense = Tensor::zeros((n_rays * s, 1), density.dtype(), density.device())?;
-    if !index.is_empty() {
-        let m = index.len();
-        let index = Tensor::from_vec(index, m, density.device())?;
-        dense = dense.index_add(&index, &density.contiguous()?, 0)?;
-    }
-    let lengths = lengths
-        .to_dtype(density.dtype())?
-        .broadcast_as((n_rays, s, 1))?
-        .contiguous()?;
-    distortion_loss_tensor_ops(&dense.reshape((n_rays, s, 1))?, &lengths, spacing)
+    let (n, s) = (samples.n_rays, lengths.dim(1)?);
+    let dense = scatter_rows(&samples.index, (n, s), &samples.density)?;
+    let lengths = lengths_per_ray(lengths, n, dense.dtype())?;
+    distortion_loss_tensor_ops(&dense, &lengths, spacing)
 }
 
 struct PackedDistortion {
@@ -457,11 +440,14 @@ mod tests {
         let dev = &Device::Cpu;
         let sigma = Var::from_tensor(&Tensor::rand(0.01f32, 3.0, (m, 1), dev).unwrap()).unwrap();
         let mix = Tensor::rand(0.5f32, 1.5, (n, 1), dev).unwrap();
+        let packed = |index| PackedDensities {
+            index,
+            n_rays: n,
+            density: sigma.as_tensor().clone(),
+        };
         let run = |choice| {
             with_kernel_choice(choice, || {
-                let l =
-                    distortion_loss_packed(index.clone(), n, sigma.as_tensor(), &lengths, SPACING)
-                        .unwrap();
+                let l = distortion_loss_packed(packed(index.clone()), &lengths, SPACING).unwrap();
                 let g = l.mul(&mix).unwrap().sum_all().unwrap().backward().unwrap();
                 (l, g.get(&sigma).unwrap().clone())
             })
@@ -477,8 +463,8 @@ mod tests {
             .unwrap()
             .contiguous()
             .unwrap();
-        let a = distortion_loss_packed(index.clone(), n, sigma.as_tensor(), &shared, SPACING);
-        let b = distortion_loss_packed(index, n, sigma.as_tensor(), &per_ray, SPACING);
+        let a = distortion_loss_packed(packed(index.clone()), &shared, SPACING);
+        let b = distortion_loss_packed(packed(index), &per_ray, SPACING);
         assert_eq!(
             a.unwrap().to_vec2::<f32>().unwrap(),
             b.unwrap().to_vec2::<f32>().unwrap()

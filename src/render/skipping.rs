@@ -25,7 +25,7 @@ use rayon::prelude::*;
 use crate::core::distortion_loss::RaySpacing;
 use crate::core::rays::Rays;
 use crate::core::volume::{clamped_optical_depth, spacing};
-use crate::kernels::composite::{composite_packed, Composited, PackedValues};
+use crate::kernels::composite::{composite_packed, Composited, PackedDensities, PackedValues};
 use crate::kernels::distortion_loss::distortion_loss_packed;
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::{EmptyBlocks, OccupancyGrid, RayFaces};
@@ -462,8 +462,12 @@ impl PackedSamples {
     /// ([`distortion_loss_packed`]; differentiable), given `lengths` as
     /// [`PackedSamples::composite`] takes them, measured in `spacing`.
     pub fn distortion(&self, lengths: &Tensor, spacing: RaySpacing) -> Result<Tensor> {
-        let density = concat_segments(&self.densities, 1, lengths.device())?;
-        distortion_loss_packed(self.index.clone(), self.rays, &density, lengths, spacing)
+        let samples = PackedDensities {
+            index: self.index.clone(),
+            n_rays: self.rays,
+            density: concat_segments(&self.densities, 1, lengths.device())?,
+        };
+        distortion_loss_packed(samples, lengths, spacing)
     }
 
     /// The values scattered into dense density `(N, S, 1)` and colour `(N, S, 3)`, zeros at
