@@ -479,8 +479,7 @@ mod tests {
 
     #[test]
     fn the_scene_transform_is_stored_and_read_back_exactly() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("ck.safetensors");
+        let (_dir, path) = crate::io::test_files::temp_file("ck.safetensors");
         let w = Tensor::new(&[1.0f32, 2.0], &Device::Cpu).unwrap();
         let transform = SceneTransform {
             rotation: DMat3::from_axis_angle(DVec3::new(1.0, 2.0, 3.0).normalize(), 0.7),

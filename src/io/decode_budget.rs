@@ -117,8 +117,7 @@ mod tests {
     #[test]
     fn the_cost_counts_the_file_and_every_copy() {
         assert_eq!(decode_cost(2, 3, 10), 10 + 6 * 40);
-        let dir = tempfile::tempdir().unwrap();
-        let png = dir.path().join("a.png");
+        let (dir, png) = crate::io::test_files::temp_file("a.png");
         image::RgbImage::new(5, 7).save(&png).unwrap();
         let len = std::fs::metadata(&png).unwrap().len();
         assert_eq!(file_decode_cost(&png), decode_cost(5, 7, len));

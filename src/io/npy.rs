@@ -290,8 +290,7 @@ mod tests {
 
     #[test]
     fn round_trips_and_names_bad_shapes() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("t.npy");
+        let (dir, p) = crate::io::test_files::temp_file("t.npy");
         let values: Vec<f32> = (0..2 * 3 * 3).map(|i| i as f32 / 18.0).collect();
         write_npy(&p, &[2, 3, 3], &values).unwrap();
         let img = read_npy_image(&p, 3, 2).unwrap();
@@ -330,8 +329,7 @@ mod tests {
         assert_eq!(h.shape, vec![2, 1, 3]);
         assert_eq!(h.descr, "<f8");
         assert_eq!(h.data_offset % 64, 0);
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("a.npy");
+        let (_dir, p) = crate::io::test_files::temp_file("a.npy");
         std::fs::write(&p, &file).unwrap();
         let img = read_npy_image(&p, 1, 2).unwrap();
         let expected: Vec<f32> = values.iter().map(|&v| v as f32).collect();
@@ -405,8 +403,7 @@ mod tests {
 
     #[test]
     fn data_of_another_length_than_the_shape_is_refused() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("a.npy");
+        let (_dir, p) = crate::io::test_files::temp_file("a.npy");
         let dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2, 3), }";
         for n in [0, 47, 49] {
             std::fs::write(&p, numpy_file(dict, &vec![0u8; n])).unwrap();

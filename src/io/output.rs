@@ -385,8 +385,7 @@ mod tests {
 
     #[test]
     fn a_fifo_is_written_directly_and_stays_one() {
-        let dir = tempfile::tempdir().unwrap();
-        let fifo = dir.path().join("pipe");
+        let (dir, fifo) = crate::io::test_files::temp_file("pipe");
         crate::io::bounded_read::make_fifo(&fifo);
         let reader = {
             let fifo = fifo.clone();
@@ -400,8 +399,7 @@ mod tests {
 
     #[test]
     fn a_directory_is_refused_and_nothing_is_written() {
-        let dir = tempfile::tempdir().unwrap();
-        let sub = dir.path().join("out.png");
+        let (dir, sub) = crate::io::test_files::temp_file("out.png");
         std::fs::create_dir(&sub).unwrap();
         let err = write_text(&sub, "x").unwrap_err().to_string();
         assert!(err.contains("is a directory"), "{err}");
@@ -418,8 +416,7 @@ mod tests {
 
     #[test]
     fn no_temporary_file_is_left_by_an_error_a_panic_or_a_failed_rename() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("x.png");
+        let (dir, path) = crate::io::test_files::temp_file("x.png");
         std::fs::write(&path, "old").unwrap();
         let r = write_atomically(&path, |w| {
             w.write_all(b"partial")?;
@@ -455,8 +452,7 @@ mod tests {
 
     #[test]
     fn temporary_names_are_unique_per_call() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("a.json");
+        let (dir, path) = crate::io::test_files::temp_file("a.json");
         // A write of the same file inside another: each has its own temporary file.
         write_atomically(&path, |outer| {
             write_text(&path, "inner")?;
@@ -469,8 +465,7 @@ mod tests {
 
     #[test]
     fn a_path_taking_writer_fills_a_temporary_file_that_is_renamed() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("camera_path.mp4");
+        let (dir, path) = crate::io::test_files::temp_file("camera_path.mp4");
         std::fs::write(&path, "old").unwrap();
         let mut seen = PathBuf::new();
         write_through_path(&path, |tmp| {

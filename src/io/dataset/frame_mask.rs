@@ -157,8 +157,7 @@ mod tests {
 
     #[test]
     fn zero_is_ignored_and_a_resized_pixel_touched_by_an_ignored_one_is_ignored() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("m.png");
+        let (_dir, path) = crate::io::test_files::temp_file("m.png");
         // The left quarter ignored, the rest used (any non-zero value).
         write_mask(&path, 8, 4, |x, _| if x < 2 { 0 } else { 7 });
         let image = Path::new("a.jpg");
@@ -177,8 +176,7 @@ mod tests {
 
     #[test]
     fn a_mask_of_another_size_or_all_zero_is_an_error_naming_it() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("m.png");
+        let (dir, path) = crate::io::test_files::temp_file("m.png");
         write_mask(&path, 8, 4, |_, _| 255);
         let err = load_mask(&path, Path::new("a.jpg"), (8, 5), (8, 5))
             .unwrap_err()
@@ -202,8 +200,7 @@ mod tests {
 
     /// The mask of `m.png` written as `image`, at its own size: the used flags.
     fn flags_of(image: DynamicImage) -> Vec<bool> {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("m.png");
+        let (_dir, path) = crate::io::test_files::temp_file("m.png");
         image.save(&path).unwrap();
         let (w, h) = (image.width(), image.height());
         let mask = load_mask(&path, Path::new("a.jpg"), (w, h), (w as usize, h as usize));
@@ -248,8 +245,7 @@ mod tests {
     #[test]
     fn a_palette_mask_is_read_by_the_colour_its_index_names() {
         // Index 0 names white and index 1 black: the black one is ignored, whatever its index.
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("m.png");
+        let (_dir, path) = crate::io::test_files::temp_file("m.png");
         {
             let file = std::fs::File::create(&path).unwrap();
             let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), 4, 1);

@@ -351,8 +351,7 @@ mod tests {
 
     #[test]
     fn missing_directory_says_where_to_get_the_data() {
-        let dir = tempfile::tempdir().unwrap();
-        let missing = dir.path().join("lego");
+        let (dir, missing) = crate::io::test_files::temp_file("lego");
         let err = read_split(&missing, Split::Train).unwrap_err().to_string();
         eprintln!("{err}");
         assert!(err.contains(&missing.display().to_string()), "{err}");

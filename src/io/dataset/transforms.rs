@@ -424,8 +424,7 @@ mod tests {
 
     #[test]
     fn bad_json_names_the_file_and_key() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("transforms_train.json");
+        let (dir, path) = crate::io::test_files::temp_file("transforms_train.json");
         std::fs::write(
             &path,
             r#"{"camera_angle_x": 0.69, "frames": [{"file_path": "./train/r_0",
