@@ -442,8 +442,7 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
     // other runs' models are gone.
     let out = dir.path().join("three");
     let o = process(&photos, &out, Some(&colmap));
-    assert!(o.status.success(), "{}", common::stderr(&o));
-    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stdout = common::succeeded_stdout(&o);
     assert!(
         stdout.contains("8 of 8 images registered;") && stdout.contains("4 mapper runs"),
         "{stdout}"
@@ -478,8 +477,7 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
         .env("NERF_COLMAP", &colmap)
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", common::stderr(&o));
-    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stdout = common::succeeded_stdout(&o);
     assert!(
         stdout.contains("8 of 8 images registered, 1 of them left out")
             && stdout.contains("p3.png"),
@@ -499,8 +497,7 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
     }
     let out = dir.path().join("on_white");
     let o = process(&white, &out, Some(&colmap));
-    assert!(o.status.success(), "{}", common::stderr(&o));
-    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stdout = common::succeeded_stdout(&o);
     assert!(
         stdout.contains("plain white (100% of border pixels)")
             && stdout.contains("nerf train --config nerf_scene --data-dir"),
@@ -610,8 +607,7 @@ fn video_frames_are_the_sharpest_of_each_stretch_and_matched_sequentially() {
     let out = dir.path().join("capture");
     let extra = ["--frames", "10", "--vocab-tree", tree.to_str().unwrap()];
     let o = process_video(&video, &out, &extra, &[("NERF_COLMAP", &colmap)]);
-    assert!(o.status.success(), "{}", common::stderr(&o));
-    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stdout = common::succeeded_stdout(&o);
     assert!(stdout.contains("10 of 10 images registered"), "{stdout}");
     let written = common::sorted_names(&out.join("images"));
     assert_eq!(written, names);

@@ -22,6 +22,12 @@ pub fn nerf(args: &[&str]) -> Output {
         .expect("run nerf")
 }
 
+/// The standard output of a run that must have succeeded (a failure shows its stderr).
+pub fn succeeded_stdout(o: &Output) -> String {
+    assert!(o.status.success(), "{}", stderr(o));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
 /// Runs the `nerf` binary with `args` and asserts that it succeeded (a failure shows its
 /// stderr).
 pub fn nerf_ok(args: &[&str]) -> Output {
