@@ -326,6 +326,7 @@ impl CpuKernel<2> for FusedSdfVolume {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::volume::MAX_OPTICAL_DEPTH;
     use crate::kernels::{with_kernel_choice, KernelChoice};
     use candle_core::Device;
 
@@ -355,12 +356,23 @@ mod tests {
         Tensor::from_vec(flat, (1, v.len(), 3), &Device::Cpu).unwrap()
     }
 
+    /// Whether the fused σ `x` and the twin's `y` of a sample of spacing `delta` agree: the
+    /// sample's opacity `1 − e^(−σΔ)`, which compositing uses, to 1e-6, and σ itself to 1e-5
+    /// (relative) where the sample is not near-opaque. Near-opaque (`σΔ ≥ 5`: the density
+    /// within 7e-3 of 1), the twin's `1 − density` in f32 cancels, as the homework's does,
+    /// and moves σ by more; deep inside, where `1 − density` rounds to 0, the fused op gives
+    /// σ = +inf (the homework's −ln 0) and the twin a finite σ whose opacity is 1 all the same.
+    fn same_sigma(x: f32, y: f32, delta: f32) -> bool {
+        let depth = |s: f32| (s as f64 * delta as f64).min(MAX_OPTICAL_DEPTH);
+        let opacity = |s: f32| 1.0 - (-depth(s)).exp();
+        let close_opacity = (opacity(x) - opacity(y)).abs() <= 1e-6;
+        let close_sigma = depth(y) >= 5.0 || (x - y).abs() <= 1e-5 * y.abs().max(1.0);
+        x == y || (close_opacity && close_sigma)
+    }
+
     #[test]
     fn fused_kernel_matches_tensor_ops() {
         let dev = &Device::Cpu;
-        // Seeded: an unseeded draw failed once in a few hundred runs (not reproduced since).
-        let seeded = crate::kernels::test_support::uniform_values(13 * 17 * 3, 7, -2f32, 2.0);
-        let points = Tensor::from_vec(seeded, (13, 17, 3), dev).unwrap();
         let lengths = Tensor::arange(0f32, 17.0, dev)
             .unwrap()
             .affine(0.3, 0.0)
@@ -372,7 +384,8 @@ mod tests {
             .contiguous()
             .unwrap();
         let deltas = crate::core::volume::deltas(&lengths).unwrap();
-        for (sdf, rainbow) in [
+        let spacing = values(&deltas);
+        let shapes = [
             (
                 Sdf::Box {
                     center: [0.1, 0.0, -0.2],
@@ -387,31 +400,34 @@ mod tests {
                 },
                 false,
             ),
-        ] {
-            let v = tensors(&SdfVolume {
-                sdf,
-                alpha: 1.0,
-                beta: 0.05,
-                rainbow,
-                feature: [1.0, 0.5, 0.25],
-            });
-            let (sa, fa) = sdf_volume(&points, &deltas, &v).unwrap();
-            let (sb, fb) = with_kernel_choice(KernelChoice::Generic, || {
-                sdf_volume(&points, &deltas, &v).unwrap()
-            });
-            assert_eq!(sa.dims(), sb.dims());
-            assert_eq!(fa.dims(), fb.dims());
-            for (x, y) in values(&sa).iter().zip(values(&sb)) {
-                // Deep inside (1 − density rounds to 0 in f32) the fused op gives σ = +inf, as
-                // the homework's −ln(0); the twin clamps ln 0 to a large finite σ. Both
-                // composite to an opaque sample.
-                let both_opaque = x.is_infinite() && *x > 0.0 && y > 100.0;
-                assert!(
-                    x == &y || both_opaque || (x - y).abs() <= 1e-5 * y.abs().max(1.0),
-                    "{x} vs {y}"
-                );
+        ];
+        // Many draws: near-opaque samples and deep-inside last samples (Δ = 1e10) turn up in
+        // a few of every hundred.
+        for seed in 0..200 {
+            let drawn = crate::kernels::test_support::uniform_values(13 * 17 * 3, seed, -2f32, 2.0);
+            let points = Tensor::from_vec(drawn, (13, 17, 3), dev).unwrap();
+            for (sdf, rainbow) in shapes.clone() {
+                let v = tensors(&SdfVolume {
+                    sdf,
+                    alpha: 1.0,
+                    beta: 0.05,
+                    rainbow,
+                    feature: [1.0, 0.5, 0.25],
+                });
+                let (sa, fa) = sdf_volume(&points, &deltas, &v).unwrap();
+                let (sb, fb) = with_kernel_choice(KernelChoice::Generic, || {
+                    sdf_volume(&points, &deltas, &v).unwrap()
+                });
+                assert_eq!(sa.dims(), sb.dims());
+                assert_eq!(fa.dims(), fb.dims());
+                for ((x, y), delta) in values(&sa).iter().zip(values(&sb)).zip(&spacing) {
+                    assert!(
+                        same_sigma(*x, y, *delta),
+                        "seed {seed}: {x} vs {y} (Δ {delta})"
+                    );
+                }
+                assert_eq!(values(&fa), values(&fb), "seed {seed}");
             }
-            assert_eq!(values(&fa), values(&fb));
         }
     }
 
