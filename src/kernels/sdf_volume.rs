@@ -406,7 +406,7 @@ mod tests {
         for seed in 0..200 {
             let drawn = crate::kernels::test_support::uniform_values(13 * 17 * 3, seed, -2f32, 2.0);
             let points = Tensor::from_vec(drawn, (13, 17, 3), dev).unwrap();
-            for (sdf, rainbow) in shapes.clone() {
+            for (sdf, rainbow) in shapes {
                 let v = tensors(&SdfVolume {
                     sdf,
                     alpha: 1.0,
