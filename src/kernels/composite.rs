@@ -261,20 +261,19 @@ pub(crate) fn lengths_per_ray(lengths: &Tensor, n_rays: usize, dtype: DType) -> 
         .contiguous()?)
 }
 
-/// Packed rows `values` `(M, C)`, listed by flat sample index `ray · S + i` in `index` (no
-/// repeats), scattered into `(N, S, C)` with zeros at the samples not listed; differentiable
-/// (`index_add`), any device and dtype.
+/// Packed rows `values` `(M, C)`, listed by flat sample index `ray · S + i` in `index` (a
+/// `(M,)` u32 tensor on their device, no repeats), scattered into `(N, S, C)` with zeros at
+/// the samples not listed; differentiable (`index_add`), any device and dtype.
 pub(crate) fn scatter_rows(
-    index: &[u32],
+    index: &Tensor,
     (n_rays, s): (usize, usize),
     values: &Tensor,
 ) -> Result<Tensor> {
     let c = values.dim(1)?;
     let (device, dtype) = (values.device(), values.dtype());
     let mut dense = Tensor::zeros((n_rays * s, c), dtype, device)?;
-    if !index.is_empty() {
-        let index = Tensor::from_slice(index, index.len(), device)?;
-        dense = dense.index_add(&index, &values.contiguous()?, 0)?;
+    if index.dim(0)? > 0 {
+        dense = dense.index_add(index, &values.contiguous()?, 0)?;
     }
     Ok(dense.reshape((n_rays, s, c))?)
 }
@@ -289,6 +288,9 @@ pub fn scatter_packed(
     density: &Tensor,
     feature: &Tensor,
 ) -> Result<(Tensor, Tensor)> {
+    // One copy of the indices to the device, read by both scatters.
+    let m = index.len();
+    let index = Tensor::from_vec(index, m, density.device())?;
     Ok((
         scatter_rows(&index, rays, density)?,
         scatter_rows(&index, rays, feature)?,

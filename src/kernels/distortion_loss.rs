@@ -203,7 +203,9 @@ pub fn distortion_loss_packed_tensor_ops(
     spacing: RaySpacing,
 ) -> Result<Tensor> {
     let (n, s) = (samples.n_rays, lengths.dim(1)?);
-    let dense = scatter_rows(&samples.index, (n, s), &samples.density)?;
+    let m = samples.index.len();
+    let index = Tensor::from_vec(samples.index, m, samples.density.device())?;
+    let dense = scatter_rows(&index, (n, s), &samples.density)?;
     let lengths = lengths_per_ray(lengths, n, dense.dtype())?;
     distortion_loss_tensor_ops(&dense, &lengths, spacing)
 }
