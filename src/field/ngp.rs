@@ -30,6 +30,7 @@ use crate::field::trainable::{
     linear_init_bound, named_vars, seed_uniform, BoxedField, DenseGroup, FieldSpec, ParamGroups,
     SparseRowsGroup, TrainableField,
 };
+use crate::kernels::box_unit::box_unit;
 use crate::kernels::hash_grid::{hash_encode, HashGridParams, TableGradient};
 use crate::kernels::ngp_mlp::{mlp_forward, MlpLayers};
 use crate::render::field::{Field, FieldOutput};
@@ -170,15 +171,8 @@ impl Ngp {
     fn normalise(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
         let points = &self.params.contraction.contract_tensor(points)?;
         let [lo, hi] = self.params.aabb;
-        let dev = points.device();
-        let lo_t = Tensor::new(&[lo.map(|v| v as f32)], dev)?.to_dtype(points.dtype())?;
-        let size = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
-        let scale = Tensor::new(&[size.map(|v| 1.0 / v as f32)], dev)?.to_dtype(points.dtype())?;
-        let unit = points.broadcast_sub(&lo_t)?.broadcast_mul(&scale)?;
-        let inside = (unit.ge(0.0)?.to_dtype(DType::F32)? * unit.le(1.0)?.to_dtype(DType::F32)?)?
-            .min_keepdim(1)?
-            .to_dtype(points.dtype())?;
-        Ok((unit, inside))
+        let scale = std::array::from_fn(|k| 1.0 / (hi[k] - lo[k]) as f32);
+        Ok(box_unit(points, lo.map(|v| v as f32), scale)?)
     }
 
     /// The hash encoding `(M, L·F)` of `points` `(M, 3)` mapped into the box, and whether each
@@ -289,14 +283,8 @@ impl Ngp {
         // The per-ray part only for the rays that have samples here (a segment of a skipping
         // render holds a few of them), the samples' ray indices renumbered to match.
         let rays = ray_index.to_vec1::<u32>()?;
-        let mut used = rays.clone();
-        used.sort_unstable();
-        used.dedup();
+        let (used, local) = rays_in_use(&rays, directions.dim(0)?)?;
         let out = if used.len() < directions.dim(0)? {
-            let local: Vec<u32> = rays
-                .iter()
-                .map(|r| used.binary_search(r).unwrap_or(0) as u32)
-                .collect();
             let dev = directions.device();
             let n_used = used.len();
             let used = Tensor::from_vec(used, n_used, dev)?;
@@ -330,6 +318,28 @@ impl Ngp {
             gradient: None,
         }
     }
+}
+
+/// The rays among `n` that samples on rays `rays` `(M,)` use, in increasing order, and each
+/// sample's ray as an index into them `(M,)`; an error for a ray index `≥ n`. One pass over
+/// the samples and one over the rays (a sort of the samples' indices was a tenth of a 400²
+/// frame).
+fn rays_in_use(rays: &[u32], n: usize) -> Result<(Vec<u32>, Vec<u32>)> {
+    let mut position = vec![u32::MAX; n];
+    for &r in rays {
+        *position
+            .get_mut(r as usize)
+            .ok_or_else(|| anyhow::anyhow!("sample on ray {r}, but there are {n} rays"))? = 0;
+    }
+    let mut used = Vec::new();
+    for (r, p) in position.iter_mut().enumerate() {
+        if *p == 0 {
+            *p = used.len() as u32;
+            used.push(r as u32);
+        }
+    }
+    let local = rays.iter().map(|&r| position[r as usize]).collect();
+    Ok((used, local))
 }
 
 /// An NGP model as a field, with the occupancy grid that marks where it can have density.
@@ -537,6 +547,17 @@ mod tests {
             contraction: Contraction::None,
             appearance: None,
         }
+    }
+
+    #[test]
+    fn rays_in_use_are_sorted_and_renumbered() {
+        let (used, local) = rays_in_use(&[5, 2, 5, 7, 2], 8).unwrap();
+        assert_eq!(used, [2, 5, 7]);
+        assert_eq!(local, [1, 0, 1, 2, 0]);
+        let (used, local) = rays_in_use(&[], 3).unwrap();
+        assert!(used.is_empty() && local.is_empty());
+        let e = rays_in_use(&[1, 3], 3).unwrap_err().to_string();
+        assert!(e.contains("ray 3") && e.contains("3 rays"), "{e}");
     }
 
     #[test]

@@ -16,6 +16,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 use candle_core::{DType, Tensor};
 
 pub mod bias;
+pub mod box_unit;
 pub mod composite;
 mod cpu_dispatch;
 pub mod cpu_kernel;
