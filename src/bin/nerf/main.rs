@@ -13,6 +13,7 @@ mod render;
 mod report;
 mod train;
 mod view;
+mod worker_pool;
 
 use std::process::ExitCode;
 
@@ -77,7 +78,9 @@ fn main() -> ExitCode {
     }
     nerf::core::term::print_library_messages();
     let cli = Cli::parse();
-    match run(cli) {
+    // The command's serial work shares the pool's threads instead of competing with them.
+    let result = worker_pool::on_own_pool(|| run(cli));
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             if let Some(Stopped(message)) = e.downcast_ref::<Stopped>() {

@@ -401,7 +401,8 @@ pub fn serve(
     });
     std::thread::Builder::new()
         .name("render".into())
-        .spawn(move || worker.serve())?;
+        // On a pool of its own: the command's pool has a worker blocked in the HTTP server.
+        .spawn(move || crate::worker_pool::on_own_pool(|| worker.serve()))?;
     let state = Arc::new(AppState {
         queue,
         defaults,
