@@ -229,6 +229,7 @@ fn start_marches(
     };
     let (origins, directions) = (f32_values(&rays.origins)?, f32_values(&rays.directions)?);
     Ok((0..rays.len())
+        .into_par_iter()
         .map(|ray| {
             let t = &lengths[ray * stride..ray * stride + s];
             let (o, d) = (&origins[3 * ray..], &directions[3 * ray..]);
