@@ -145,15 +145,16 @@ pub fn evaluate_packed(
     let mut all_index: Vec<u32> = Vec::new();
     let mut densities = Vec::new();
     let mut colours = Vec::new();
+    // Samples tested by the marches of rays no longer marched.
+    let mut examined = 0;
     for k in 0.. {
         let size = if early_termination > 0.0 {
             segment_sizes(k)
         } else {
             s
         };
-        let live: Vec<bool> = ray_depth.iter().map(|&d| d < depth_limit).collect();
         let (index, points, ray_index) =
-            march_segment(&mut marches, &live, grid, &lengths, stride, s, size);
+            march_segment(&mut marches, grid, &lengths, stride, s, size);
         if index.is_empty() {
             break;
         }
@@ -175,9 +176,18 @@ pub fn evaluate_packed(
         all_index.extend(index);
         densities.push(density);
         colours.push(colour);
+        // Only rays that may still have samples are marched again (in ray order, so the
+        // samples stay grouped by ray): a finished march need not be visited.
+        marches.retain(|m| {
+            let keep = !m.finished && ray_depth[m.ray as usize] < depth_limit;
+            if !keep {
+                examined += m.examined;
+            }
+            keep
+        });
     }
     counts.evaluated = all_index.len();
-    counts.examined = marches.iter().map(|m| m.examined).sum();
+    counts.examined = examined + marches.iter().map(|m| m.examined).sum::<usize>();
     Ok(PackedSamples {
         rays: n,
         per_ray: s,
@@ -233,17 +243,17 @@ fn start_marches(
         .map(|ray| {
             let t = &lengths[ray * stride..ray * stride + s];
             let (o, d) = (&origins[3 * ray..], &directions[3 * ray..]);
-            RayMarch::new(grid, [o[0], o[1], o[2]], [d[0], d[1], d[2]], t)
+            RayMarch::new(grid, ray, [o[0], o[1], o[2]], [d[0], d[1], d[2]], t)
         })
         .collect())
 }
 
-/// The next `size` occupied samples of every `live` ray, marched in parallel blocks of rays
-/// and joined in ray order: flat sample indices `ray · S + i`, points (3 values each) and ray
-/// indices. `lengths`: ray `r`'s `S` depths start at `r · stride`.
+/// The next `size` occupied samples of the rays of `marches` (in ray order), marched in
+/// parallel blocks of rays and joined in order: flat sample indices `ray · S + i`, points (3
+/// values each) and ray indices. A march that runs out of samples is marked finished.
+/// `lengths`: ray `r`'s `S` depths start at `r · stride`.
 fn march_segment(
     marches: &mut [RayMarch],
-    live: &[bool],
     grid: Option<&MarchGrid>,
     lengths: &[f32],
     stride: usize,
@@ -252,17 +262,14 @@ fn march_segment(
 ) -> (Vec<u32>, Vec<f32>, Vec<u32>) {
     let parts: Vec<Segment> = marches
         .par_chunks_mut(MARCH_BLOCK)
-        .enumerate()
-        .map(|(b, block)| {
+        .map(|block| {
             let mut part = Segment::default();
-            for (j, march) in block.iter_mut().enumerate() {
-                let ray = b * MARCH_BLOCK + j;
-                if !live[ray] {
-                    continue;
-                }
+            for march in block.iter_mut() {
+                let ray = march.ray as usize;
                 let t = &lengths[ray * stride..ray * stride + s];
                 for _ in 0..size {
                     let Some((i, p)) = march.next_occupied(grid, t) else {
+                        march.finished = true;
                         break;
                     };
                     part.index.push((ray * s + i) as u32);
@@ -315,6 +322,10 @@ const BLOCK_MARGIN: f64 = 1e-4;
 /// samples that can lie in the grid's box, how many were tested, and the depth before which
 /// later samples are known to share the occupied cell of the last tested one.
 struct RayMarch {
+    /// The ray's index in the batch.
+    ray: u32,
+    /// Whether the walk has passed its last sample.
+    finished: bool,
     origin: [f32; 3],
     direction: [f32; 3],
     faces: Option<RayFaces>,
@@ -330,7 +341,13 @@ impl RayMarch {
     /// The walk over depths `t` (increasing) of the ray `origin + t·direction`: every sample
     /// without a grid, else those that can lie in its box, one sample of margin either side
     /// for rounding (the exact test is [`OccupancyGrid::is_occupied`] at each point).
-    fn new(grid: Option<&MarchGrid>, origin: [f32; 3], direction: [f32; 3], t: &[f32]) -> Self {
+    fn new(
+        grid: Option<&MarchGrid>,
+        ray: usize,
+        origin: [f32; 3],
+        direction: [f32; 3],
+        t: &[f32],
+    ) -> Self {
         let (next, end) = match grid.map(|g| g.grid.crossing(origin, direction)) {
             None => (0, t.len()),
             Some(None) => (0, 0),
@@ -341,6 +358,8 @@ impl RayMarch {
             ),
         };
         Self {
+            ray: ray as u32,
+            finished: false,
             origin,
             direction,
             faces: grid.and_then(|g| g.grid.ray_faces(origin, direction)),
