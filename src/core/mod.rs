@@ -26,4 +26,5 @@ pub mod rays;
 pub mod registry;
 pub mod sdf;
 pub mod term;
+pub mod truncate;
 pub mod volume;

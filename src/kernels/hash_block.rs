@@ -9,6 +9,7 @@
 //! Written by hand: no crate offers a CPU hash-grid encoding (tiny-cuda-nn and its ports are
 //! CUDA), and the loops must share their layout with the table and the sparse optimiser.
 
+use crate::core::truncate::truncate_u32;
 use crate::kernels::cpu_dispatch::dispatched;
 use crate::kernels::hash_level::{Level, HASH_PRIMES};
 
@@ -48,7 +49,7 @@ fn block_corners<const DENSE: bool>(level: &Level, points: &[f32]) -> BlockCorne
         for j in 0..BLOCK {
             // As in Level::corners: clamped, truncated (the floor for x ≥ 0; NaN casts to 0).
             let x = p[a][j].clamp(0.0, 1.0) * scale;
-            let c = (x as u32).min(res - 1);
+            let c = truncate_u32(x).min(res - 1);
             let frac = x - c as f32;
             weights[a][0][j] = 1.0 - frac;
             weights[a][1][j] = frac;

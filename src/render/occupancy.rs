@@ -21,6 +21,7 @@ use std::collections::HashMap;
 use anyhow::{ensure, Context, Result};
 
 use crate::core::contraction::Contraction;
+use crate::core::truncate::truncate_u32;
 use candle_core::{Device, Tensor};
 use rand::Rng;
 
@@ -227,7 +228,7 @@ impl OccupancyGrid {
             if !(0.0..1.0).contains(&u) {
                 return None;
             }
-            cell[k] = ((u * r as f32) as usize).min(r - 1);
+            cell[k] = (truncate_u32(u * r as f32) as usize).min(r - 1);
         }
         Some(cell)
     }
