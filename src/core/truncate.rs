@@ -9,9 +9,9 @@
 /// The largest f32 below 2^32.
 const TOP: f32 = 4_294_967_040.0;
 
-/// `x as u32` for every `x` in [0, 2^32) and for NaN (0): truncation toward zero; negative
-/// values give 0 and values past the range [`TOP`] (the saturating cast's `u32::MAX` lies
-/// above every f32 below 2^32).
+/// `x as u32` for every `x` in [0, 2^32) and for NaN (0): truncation toward zero. Negative
+/// values give 0; values from 2^32 up give the largest f32 below 2^32, 4294967040, where the
+/// saturating cast gives `u32::MAX`.
 #[inline(always)]
 // Not `clamp`: it keeps NaN, which the conversion must not see.
 #[allow(clippy::manual_clamp)]
