@@ -322,8 +322,7 @@ impl Ngp {
 
 /// The rays among `n` that samples on rays `rays` `(M,)` use, in increasing order, and each
 /// sample's ray as an index into them `(M,)`; an error for a ray index `≥ n`. One pass over
-/// the samples and one over the rays (a sort of the samples' indices was a tenth of a 400²
-/// frame).
+/// the samples and one over the rays, in place of a sort and a binary search per sample.
 fn rays_in_use(rays: &[u32], n: usize) -> Result<(Vec<u32>, Vec<u32>)> {
     let mut position = vec![u32::MAX; n];
     for &r in rays {
