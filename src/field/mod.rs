@@ -4,6 +4,7 @@
 
 pub mod appearance;
 pub mod field_config;
+pub mod fused_step;
 pub mod nerf;
 pub mod nerf_config;
 pub mod ngp;

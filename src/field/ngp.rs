@@ -24,6 +24,7 @@ use candle_nn::{Init, Linear, VarBuilder, VarMap};
 
 use crate::core::contraction::Contraction;
 use crate::field::appearance::{Appearance, AppearanceParams};
+use crate::field::fused_step::{FusedBatch, FusedGradients};
 use crate::field::nerf::linear;
 pub use crate::field::spherical_harmonics::{sh_basis, sh_encode, sh_encode_tensor_ops, SH_DIM};
 use crate::field::trainable::{
@@ -36,6 +37,8 @@ use crate::kernels::ngp_mlp::{mlp_forward, MlpLayers};
 use crate::render::field::{Field, FieldOutput};
 use crate::render::occupancy::OccupancyGrid;
 use crate::render::sampler::RaySamples;
+
+mod fused_step;
 
 /// The kind's name: what a config's `implicit_function.type` and a checkpoint call it.
 pub const KIND: &str = "ngp";
@@ -464,6 +467,31 @@ impl FieldSpec for NgpParams {
 impl TrainableField for NgpState {
     fn kind(&self) -> &'static str {
         KIND
+    }
+
+    /// The fused kernels on host buffers ([`Ngp::density_values`]) where they run, else the
+    /// render field's density.
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        if !crate::kernels::use_fused(&self.model.table) {
+            return self.model.detached().density(points);
+        }
+        let values = points
+            .to_dtype(DType::F32)?
+            .flatten_all()?
+            .to_vec1::<f32>()?;
+        let sigma = self.model.density_values(&values)?;
+        Ok(Tensor::from_vec(
+            sigma,
+            (values.len() / 3, 1),
+            points.device(),
+        )?)
+    }
+
+    fn fused_gradients(&self, batch: &FusedBatch) -> Result<Option<FusedGradients>> {
+        if !self.model.has_fused_step() {
+            return Ok(None);
+        }
+        Ok(Some(self.model.fused_gradients(batch)?))
     }
 
     fn layout(&self) -> Option<String> {

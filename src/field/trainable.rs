@@ -104,6 +104,16 @@ pub trait TrainableField: Send + Sync {
         Ok(None)
     }
 
+    /// One training step's gradients without an autograd graph over the samples
+    /// ([`crate::field::fused_step`]); `None` (the default) when the kind has no such step for
+    /// these inputs, and the trainer renders and differentiates through autograd.
+    fn fused_gradients(
+        &self,
+        _batch: &crate::field::fused_step::FusedBatch,
+    ) -> Result<Option<crate::field::fused_step::FusedGradients>> {
+        Ok(None)
+    }
+
     /// What the parameters' names and shapes do not say about how they are read (a hash
     /// grid's resolutions, the box it covers), as one line: a checkpoint stores it and a model
     /// whose layout differs refuses to load it, where it would otherwise load and render

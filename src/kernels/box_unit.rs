@@ -50,6 +50,39 @@ pub fn box_unit_tensor_ops(
     Ok((unit, inside))
 }
 
+/// `(q − lo)·scale` of one point `q` (3 values).
+#[inline]
+fn unit_point(q: &[f32], lo: [f32; 3], scale: [f32; 3]) -> [f32; 3] {
+    std::array::from_fn(|k| (q[k] - lo[k]) * scale[k])
+}
+
+/// 1 when the three values `u` all lie in [0, 1], else 0 (also for NaN).
+#[inline]
+fn inside_flag(u: &[f32]) -> f32 {
+    f32::from(u8::from(u.iter().all(|v| (0.0..=1.0).contains(v))))
+}
+
+/// [`box_unit`] on host values: the unit coordinates `(M, 3)` of `points` `(M, 3)` and the
+/// inside flags `(M)`, one pass.
+pub(crate) fn box_unit_values(
+    points: &[f32],
+    lo: [f32; 3],
+    scale: [f32; 3],
+) -> (Vec<f32>, Vec<f32>) {
+    let mut unit = vec![0f32; points.len()];
+    let mut inside = vec![0f32; points.len() / 3];
+    unit.par_chunks_mut(3 * POINTS_PER_TASK)
+        .zip(inside.par_chunks_mut(POINTS_PER_TASK))
+        .zip(points.par_chunks(3 * POINTS_PER_TASK))
+        .for_each(|((unit, inside), p)| {
+            for ((u, i), q) in unit.chunks_exact_mut(3).zip(inside).zip(p.chunks_exact(3)) {
+                u.copy_from_slice(&unit_point(q, lo, scale));
+                *i = inside_flag(u);
+            }
+        });
+    (unit, inside)
+}
+
 /// `(p − lo)·scale`, row by row.
 struct BoxUnit {
     lo: [f32; 3],
@@ -67,9 +100,7 @@ impl CpuKernel<1> for BoxUnit {
             .zip(p.par_chunks(3 * POINTS_PER_TASK))
             .for_each(|(out, p)| {
                 for (u, q) in out.chunks_exact_mut(3).zip(p.chunks_exact(3)) {
-                    for k in 0..3 {
-                        u[k] = (q[k] - self.lo[k]) * self.scale[k];
-                    }
+                    u.copy_from_slice(&unit_point(q, self.lo, self.scale));
                 }
             });
         Ok((unit, Shape::from((m, 3))))
@@ -96,7 +127,7 @@ impl CpuKernel<1> for Inside {
             .zip(u.par_chunks(3 * POINTS_PER_TASK))
             .for_each(|(out, u)| {
                 for (o, q) in out.iter_mut().zip(u.chunks_exact(3)) {
-                    *o = f32::from(u8::from(q.iter().all(|v| (0.0..=1.0).contains(v))));
+                    *o = inside_flag(q);
                 }
             });
         Ok((inside, Shape::from((m, 1))))

@@ -187,7 +187,12 @@ impl PackedRays {
 
 /// Colour, depth and opacity of N rays, `(N, C + 2)` row-major, from the packed samples of a
 /// skipping render (see [`composite_packed`]), as slices.
-fn packed_forward(rays: &PackedRays, density: &[f32], feature: &[f32], c: usize) -> Vec<f32> {
+pub(crate) fn packed_forward(
+    rays: &PackedRays,
+    density: &[f32],
+    feature: &[f32],
+    c: usize,
+) -> Vec<f32> {
     let width = c + 2;
     let mut out = vec![0f32; rays.n * width];
     out.par_chunks_mut(width).enumerate().for_each(|(ray, o)| {
@@ -321,55 +326,68 @@ impl CpuKernel<2> for PackedComposite {
 
     /// The dense backward pass ([`CompositeBackward`]) restricted to the listed samples.
     fn gradients(&self, [density, feature]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
-        let (rays, c) = (&self.rays, self.c);
-        let width = c + 2;
-        let [sigma, values, go_all] = host_values([density, feature, grad])?;
-        // Per ray: (entry, ∂L/∂σ, ∂L/∂v) of each of its samples.
-        let per_ray: Vec<Vec<(usize, f32, Vec<f32>)>> = (0..rays.n)
-            .into_par_iter()
-            .map(|ray| {
-                let go = &go_all[ray * width..(ray + 1) * width];
-                let t_ray = rays.ray_lengths(ray);
-                let mut t = 1f32;
-                // (entry, Δ, σΔ, w, T after, g) front to back.
-                let walked: Vec<(usize, f32, f32, f32, f32, f32)> = rays
-                    .walk(ray, &sigma)
-                    .map(|(e, i, delta, tau)| {
-                        let a = (-tau).exp();
-                        let w = t * (1.0 - a);
-                        t *= a;
-                        let v = &values[e * c..(e + 1) * c];
-                        let g = go[c] * t_ray[i]
-                            + go[c + 1]
-                            + v.iter().zip(&go[..c]).map(|(v, g)| v * g).sum::<f32>();
-                        (e, delta, sigma[e] * delta, w, t, g)
-                    })
-                    .collect();
-                let mut suffix = 0f32;
-                let mut out = Vec::with_capacity(walked.len());
-                for &(e, delta, raw, w, t_after, g) in walked.iter().rev() {
-                    let d_tau = t_after * g - suffix;
-                    suffix += w * g;
-                    let active = (0.0..MAX_OPTICAL_DEPTH as f32).contains(&raw);
-                    let gs = if active { delta * d_tau } else { 0.0 };
-                    out.push((e, gs, go[..c].iter().map(|g| w * g).collect()));
-                }
-                out
-            })
-            .collect();
-        let m = rays.index.len();
-        let mut g_sigma = vec![0f32; m];
-        let mut g_values = vec![0f32; m * c];
-        for (e, gs, gv) in per_ray.into_iter().flatten() {
-            g_sigma[e] = gs;
-            g_values[e * c..(e + 1) * c].copy_from_slice(&gv);
-        }
+        let [sigma, values, go] = host_values([density, feature, grad])?;
+        let (g_sigma, g_values) = packed_backward(&self.rays, &sigma, &values, &go, self.c);
         let dev = density.device();
         Ok([
             Some(Tensor::from_vec(g_sigma, density.shape(), dev)?),
             Some(Tensor::from_vec(g_values, feature.shape(), dev)?),
         ])
     }
+}
+
+/// The backward pass of [`packed_forward`]: from the output gradient `go_all` `(N, C + 2)`
+/// (colour, depth, opacity), the gradients of the packed densities `(M)` and features
+/// `(M, C)`, on host values.
+pub(crate) fn packed_backward(
+    rays: &PackedRays,
+    sigma: &[f32],
+    values: &[f32],
+    go_all: &[f32],
+    c: usize,
+) -> (Vec<f32>, Vec<f32>) {
+    let width = c + 2;
+    // Per ray: (entry, ∂L/∂σ, ∂L/∂v) of each of its samples.
+    let per_ray: Vec<Vec<(usize, f32, Vec<f32>)>> = (0..rays.n)
+        .into_par_iter()
+        .map(|ray| {
+            let go = &go_all[ray * width..(ray + 1) * width];
+            let t_ray = rays.ray_lengths(ray);
+            let mut t = 1f32;
+            // (entry, Δ, σΔ, w, T after, g) front to back.
+            let walked: Vec<(usize, f32, f32, f32, f32, f32)> = rays
+                .walk(ray, sigma)
+                .map(|(e, i, delta, tau)| {
+                    let a = (-tau).exp();
+                    let w = t * (1.0 - a);
+                    t *= a;
+                    let v = &values[e * c..(e + 1) * c];
+                    let g = go[c] * t_ray[i]
+                        + go[c + 1]
+                        + v.iter().zip(&go[..c]).map(|(v, g)| v * g).sum::<f32>();
+                    (e, delta, sigma[e] * delta, w, t, g)
+                })
+                .collect();
+            let mut suffix = 0f32;
+            let mut out = Vec::with_capacity(walked.len());
+            for &(e, delta, raw, w, t_after, g) in walked.iter().rev() {
+                let d_tau = t_after * g - suffix;
+                suffix += w * g;
+                let active = (0.0..MAX_OPTICAL_DEPTH as f32).contains(&raw);
+                let gs = if active { delta * d_tau } else { 0.0 };
+                out.push((e, gs, go[..c].iter().map(|g| w * g).collect()));
+            }
+            out
+        })
+        .collect();
+    let m = rays.index.len();
+    let mut g_sigma = vec![0f32; m];
+    let mut g_values = vec![0f32; m * c];
+    for (e, gs, gv) in per_ray.into_iter().flatten() {
+        g_sigma[e] = gs;
+        g_values[e * c..(e + 1) * c].copy_from_slice(&gv);
+    }
+    (g_sigma, g_values)
 }
 
 /// [`composite`] as Candle tensor ops ([`weights`] and [`aggregate`]; any device, differentiable).

@@ -104,6 +104,26 @@ impl TableGradient {
         }
     }
 
+    /// Adds the table gradient of the encoding of `points` `(M, 3)` (in [0, 1]³) whose output
+    /// gradient is `grad` `(M, L·F)`, one level per task, marking the rows written.
+    pub(crate) fn add(&self, params: &HashGridParams, points: &[f32], grad: &[f32]) {
+        let (levels, t, f) = (params.levels(), params.table_size(), params.n_features);
+        let mut guard = self.state.lock().expect("table gradient lock");
+        let GradientState {
+            values,
+            touched,
+            words_per_level,
+        } = &mut *guard;
+        values
+            .par_chunks_mut(t * f)
+            .zip(touched.par_chunks_mut(*words_per_level))
+            .zip(levels.par_iter())
+            .enumerate()
+            .for_each(|(l, ((d, bits), level))| {
+                hash_block::scatter_points((level, l), d, bits, points, grad, f)
+            });
+    }
+
     /// Hands `f` the touched rows (into the whole table, level offsets added; sorted) and the
     /// dense gradient, then clears both.
     pub fn take<R>(&self, params: &HashGridParams, f: impl FnOnce(&[u32], &[f32]) -> R) -> R {
@@ -220,6 +240,18 @@ pub fn hash_encode_generic(
         .reshape((m, l * f))
 }
 
+/// The fused encoding on host values: `(M, L·F)` of `points` `(M, 3)` (in [0, 1]³) with
+/// `table` `(L·T, F)`, what [`hash_encode`] computes on the CPU.
+pub(crate) fn encode_values(params: &HashGridParams, table: &[f32], points: &[f32]) -> Vec<f32> {
+    let (levels, f) = (params.levels(), params.n_features);
+    let width = params.output_dim();
+    let mut out = vec![0f32; points.len() / 3 * width];
+    out.par_chunks_mut(POINTS_PER_TASK * width)
+        .zip(points.par_chunks(POINTS_PER_TASK * 3))
+        .for_each(|(out, pts)| hash_block::encode_points(&levels, table, pts, out, f));
+    out
+}
+
 struct HashEncode {
     params: HashGridParams,
     sink: Option<Arc<TableGradient>>,
@@ -230,15 +262,11 @@ impl CpuKernel<2> for HashEncode {
 
     fn cpu_forward(&self, inputs: [CpuInput; 2]) -> KernelOutput {
         let [points, table] = CpuInput::all_f32(&inputs, Self::NAME)?;
-        let p = &self.params;
-        let (levels, f) = (p.levels(), p.n_features);
-        let width = p.output_dim();
-        let m = points.len() / 3;
-        let mut out = vec![0f32; m * width];
-        out.par_chunks_mut(POINTS_PER_TASK * width)
-            .zip(points.par_chunks(POINTS_PER_TASK * 3))
-            .for_each(|(out, pts)| hash_block::encode_points(&levels, table, pts, out, f));
-        Ok((out, Shape::from((m, width))))
+        let out = encode_values(&self.params, table, points);
+        Ok((
+            out,
+            Shape::from((points.len() / 3, self.params.output_dim())),
+        ))
     }
 
     fn gradients(&self, [points, table]: [&Tensor; 2], grad: &Tensor) -> KernelGradients<2> {
@@ -250,20 +278,7 @@ impl CpuKernel<2> for HashEncode {
             false => None,
         };
         if let Some(sink) = &self.sink {
-            let mut guard = sink.state.lock().expect("table gradient lock");
-            let GradientState {
-                values,
-                touched,
-                words_per_level,
-            } = &mut *guard;
-            values
-                .par_chunks_mut(t * f)
-                .zip(touched.par_chunks_mut(*words_per_level))
-                .zip(levels.par_iter())
-                .enumerate()
-                .for_each(|(l, ((d, bits), level))| {
-                    hash_block::scatter_points((level, l), d, bits, &pts, &g, f)
-                });
+            sink.add(p, &pts, &g);
             return Ok([dpoints, None]);
         }
         let mut dtable = vec![0f32; p.n_rows() * f];

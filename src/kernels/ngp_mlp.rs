@@ -92,6 +92,24 @@ impl MlpShape {
     pub fn n_parameters(&self) -> usize {
         self.offsets().end
     }
+
+    /// Where each layer's parameters lie in the packed order: `W0, b0, W1, b1, Wg, W2, b2,
+    /// W3, b3`.
+    pub fn ranges(&self) -> [std::ops::Range<usize>; 9] {
+        let o = self.offsets();
+        let b3 = o.w3 + 3 * self.hidden;
+        [
+            o.w0..o.b0,
+            o.b0..o.w1,
+            o.w1..o.b1,
+            o.b1..o.wg,
+            o.wg..o.w2,
+            o.w2..o.b2,
+            o.b2..o.w3,
+            o.w3..b3,
+            b3..o.end,
+        ]
+    }
 }
 
 /// The layers' parameters flattened in the packed order of [`MlpShape`]: `(P)`.
@@ -365,58 +383,127 @@ impl CpuKernel<3> for NgpMlp {
                 self.shape.n_parameters()
             );
         }
-        let e = self.shape.enc;
-        let m = self.rays.len();
-        let mut out = vec![0f32; m * 4];
-        out.par_chunks_mut(ROWS_PER_TASK * 4)
-            .zip(enc.par_chunks(ROWS_PER_TASK * e))
-            .zip(self.rays.par_chunks(ROWS_PER_TASK))
-            .for_each(|((out, enc), rays)| {
-                let a = self.forward(enc, rays, per_ray, params);
-                let g1 = 1 + self.shape.geo;
-                for (i, row) in out.chunks_exact_mut(4).enumerate() {
-                    row[0] = a.o1[i * g1];
-                    row[1..].copy_from_slice(&a.rgb[3 * i..3 * i + 3]);
-                }
-                a.recycle();
-            });
-        Ok((out, Shape::from((m, 4))))
+        let out = mlp_values(self.shape, enc, (&self.rays, per_ray), params);
+        Ok((out, Shape::from((self.rays.len(), 4))))
     }
 
     fn gradients(&self, [enc, per_ray, params]: [&Tensor; 3], grad: &Tensor) -> KernelGradients<3> {
-        let e = self.shape.enc;
-        let n_params = self.shape.n_parameters();
-        let per_ray_len = per_ray.elem_count();
         let [enc_v, per_ray_v, p, g] = host_values([enc, per_ray, params, grad])?;
-        let mut d_enc = vec![0f32; enc_v.len()];
-        // Fixed blocks summed in order (see `mlp_block`).
-        let block = ROWS_PER_TASK * BLOCKS_PER_SUM;
-        let partial: Vec<GradientSums> = d_enc
-            .par_chunks_mut(block * e)
-            .zip(enc_v.par_chunks(block * e))
-            .zip(self.rays.par_chunks(block))
-            .zip(g.par_chunks(block * 4))
-            .map(|(((d_enc, enc), rays), g)| {
-                let mut sums = GradientSums::zeros(n_params, per_ray_len);
-                for (((d_enc, enc), rays), g) in d_enc
-                    .chunks_mut(ROWS_PER_TASK * e)
-                    .zip(enc.chunks(ROWS_PER_TASK * e))
-                    .zip(rays.chunks(ROWS_PER_TASK))
-                    .zip(g.chunks(ROWS_PER_TASK * 4))
-                {
-                    self.backward(enc, rays, g, &per_ray_v, &p, d_enc, &mut sums);
-                }
-                sums
-            })
-            .collect();
-        let sums = GradientSums::add_in_order(partial, n_params, per_ray_len);
+        let (d_enc, sums) = mlp_gradients(self.shape, &enc_v, (&self.rays, &per_ray_v), &p, &g);
         let dev = enc.device();
         Ok([
             Some(Tensor::from_vec(d_enc, enc.shape(), dev)?),
             Some(Tensor::from_vec(sums.per_ray, per_ray.shape(), dev)?),
-            Some(Tensor::from_vec(sums.params, n_params, dev)?),
+            Some(Tensor::from_vec(
+                sums.params,
+                self.shape.n_parameters(),
+                dev,
+            )?),
         ])
     }
+}
+
+/// The fused MLPs' forward pass on host values: `(M, 4)` `[raw density, r, g, b]` from the
+/// encoding `enc` `(M, E)`, each sample's ray `rays` `(M)` into `per_ray` `(N, H)`, and the
+/// packed `params` `(P)` ([`MlpShape`]). What [`ngp_mlp`] computes, without a tensor.
+pub(crate) fn mlp_values(
+    shape: MlpShape,
+    enc: &[f32],
+    (rays, per_ray): (&[u32], &[f32]),
+    params: &[f32],
+) -> Vec<f32> {
+    let mlp = NgpMlp {
+        shape,
+        rays: Vec::new(),
+    };
+    let (e, g1) = (shape.enc, 1 + shape.geo);
+    let mut out = vec![0f32; rays.len() * 4];
+    out.par_chunks_mut(ROWS_PER_TASK * 4)
+        .zip(enc.par_chunks(ROWS_PER_TASK * e))
+        .zip(rays.par_chunks(ROWS_PER_TASK))
+        .for_each(|((out, enc), rays)| {
+            let a = mlp.forward(enc, rays, per_ray, params);
+            for (i, row) in out.chunks_exact_mut(4).enumerate() {
+                row[0] = a.o1[i * g1];
+                row[1..].copy_from_slice(&a.rgb[3 * i..3 * i + 3]);
+            }
+            a.recycle();
+        });
+    out
+}
+
+/// The raw density alone (the density MLP's first output) of the encoding `enc` `(M, E)`:
+/// `(M)`, the value [`mlp_values`] gives in its column 0, without the colour MLP (what the
+/// occupancy grid probes). Tasks of 256 samples through both layers while they sit in cache.
+pub(crate) fn raw_density_values(shape: MlpShape, enc: &[f32], params: &[f32]) -> Vec<f32> {
+    let (e, h) = (shape.enc, shape.hidden);
+    let o = shape.offsets();
+    let (w1, b1) = (&params[o.w1..o.w1 + h], params[o.b1]);
+    let mut out = vec![0f32; enc.len() / e];
+    out.par_chunks_mut(ROWS_PER_TASK)
+        .zip(enc.par_chunks(ROWS_PER_TASK * e))
+        .for_each(|(out, enc)| {
+            let c = out.len();
+            let mut h0 = task_buffer(c * h);
+            linear(
+                &mut h0,
+                enc,
+                (c, e, h),
+                &params[o.w0..o.b0],
+                &params[o.b0..o.w1],
+            );
+            relu(&mut h0);
+            // Row 0 of W1 and b1[0], as the full layer's first column (the same sum order as
+            // `gemm` takes for one output column is not promised: equal to rounding).
+            for (v, row) in out.iter_mut().zip(h0.chunks_exact(h)) {
+                *v = row.iter().zip(w1).map(|(x, w)| x * w).sum::<f32>() + b1;
+            }
+            recycle([h0]);
+        });
+    out
+}
+
+/// The fused MLPs' backward pass on host values, for the output gradient `grad` `(M, 4)` of
+/// [`mlp_values`] on the same inputs: the encoding's gradient `(M, E)`, and the packed
+/// parameters' `(P)` and per-ray inputs' `(N, H)` gradients. Fixed blocks of samples are
+/// summed in order (see `mlp_block`), so the sums do not depend on the thread count.
+pub(crate) fn mlp_gradients(
+    shape: MlpShape,
+    enc: &[f32],
+    (rays, per_ray): (&[u32], &[f32]),
+    params: &[f32],
+    grad: &[f32],
+) -> (Vec<f32>, GradientSums) {
+    let mlp = NgpMlp {
+        shape,
+        rays: Vec::new(),
+    };
+    let e = shape.enc;
+    let n_params = shape.n_parameters();
+    let mut d_enc = vec![0f32; enc.len()];
+    let block = ROWS_PER_TASK * BLOCKS_PER_SUM;
+    let partial: Vec<GradientSums> = d_enc
+        .par_chunks_mut(block * e)
+        .zip(enc.par_chunks(block * e))
+        .zip(rays.par_chunks(block))
+        .zip(grad.par_chunks(block * 4))
+        .map(|(((d_enc, enc), rays), g)| {
+            let mut sums = GradientSums::zeros(n_params, per_ray.len());
+            for (((d_enc, enc), rays), g) in d_enc
+                .chunks_mut(ROWS_PER_TASK * e)
+                .zip(enc.chunks(ROWS_PER_TASK * e))
+                .zip(rays.chunks(ROWS_PER_TASK))
+                .zip(g.chunks(ROWS_PER_TASK * 4))
+            {
+                mlp.backward(enc, rays, g, per_ray, params, d_enc, &mut sums);
+            }
+            sums
+        })
+        .collect();
+    (
+        d_enc,
+        GradientSums::add_in_order(partial, n_params, per_ray.len()),
+    )
 }
 
 #[cfg(test)]

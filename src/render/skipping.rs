@@ -94,12 +94,8 @@ impl std::ops::Add for SampleCounts {
 }
 
 /// Evaluates `field` at the samples that can contribute (see the module), packed: the flat
-/// indices of the evaluated samples and the field's values there, by segment.
-///
-/// The samples are marched, not materialised: each ray's points `o + t·d` are formed only
-/// where they are tested, from the first sample that can lie in the grid's bounding box
-/// ([`OccupancyGrid::crossing`]) and only as far as the ray is still live, so a ray that
-/// misses the box costs nothing and one that ends at a surface is not tested behind it.
+/// indices of the evaluated samples and the field's values there, by segment
+/// ([`march_packed`]).
 ///
 /// `rays`: N rays; `lengths`: each ray's sample depths `(N, S, 1)`, increasing, or `(1, S, 1)`
 /// depths shared by all rays.
@@ -109,6 +105,87 @@ pub fn evaluate_packed(
     rays: &Rays,
     lengths: &Tensor,
 ) -> Result<PackedSamples> {
+    let device = lengths.device();
+    let s = lengths.dim(1)?;
+    // Rays whose origins or directions are being trained (camera refinement) get their
+    // evaluated points as tensor ops, so the gradient reaches them.
+    let rays_tracked = rays.origins.track_op() || rays.directions.track_op();
+    let mut densities = Vec::new();
+    let mut colours = Vec::new();
+    let (index, counts) = march_packed(
+        field.occupancy(),
+        early_termination,
+        rays,
+        lengths,
+        |segment: MarchedSegment| {
+            let m = segment.index.len();
+            let ray_index = Tensor::from_vec(segment.ray_index, m, device)?;
+            let points = match rays_tracked {
+                true => tracked_points(rays, &ray_index, segment.index, segment.lengths, s)?,
+                false => Tensor::from_vec(segment.points, (m, 3), device)?,
+            };
+            let (density, colour) = field.evaluate_packed(&points, &ray_index, &rays.directions)?;
+            let values = match early_termination > 0.0 {
+                true => density.flatten_all()?.to_vec1::<f32>()?,
+                false => Vec::new(),
+            };
+            densities.push(density);
+            colours.push(colour);
+            Ok(values)
+        },
+    )?;
+    Ok(PackedSamples {
+        rays: rays.len(),
+        per_ray: s,
+        index,
+        densities,
+        colours,
+        counts,
+    })
+}
+
+/// One segment's samples, as [`march_packed`] hands them to its evaluator: their flat sample
+/// indices `ray · S + i`, points `(M, 3)` and rays `(M)`, and the depths they were drawn from
+/// (ray `r`'s `S` depths at `r · stride`, see [`MarchedSegment::length`]).
+pub struct MarchedSegment<'a> {
+    /// Flat sample index `ray · S + i` of each sample.
+    pub index: &'a [u32],
+    /// The samples' points, 3 values each.
+    pub points: Vec<f32>,
+    /// Each sample's ray.
+    pub ray_index: Vec<u32>,
+    /// The sample depths and the row stride between rays (0: shared by all rays).
+    pub lengths: (&'a [f32], usize),
+}
+
+impl MarchedSegment<'_> {
+    /// The depth of the sample of flat index `k` (`ray · S + i`) among `s` a ray.
+    pub fn length(&self, k: u32, s: usize) -> f32 {
+        let (lengths, stride) = self.lengths;
+        let (ray, i) = (k as usize / s, k as usize % s);
+        lengths[ray * stride + i]
+    }
+}
+
+/// Marches `rays` over the samples that can contribute (see the module) in segments, front to
+/// back, and hands each segment's samples to `evaluate`, which returns their densities `(M)`
+/// (read only with early termination: an empty vector serves without). Returns the flat
+/// indices of every evaluated sample, in evaluation order, and the sample counts.
+///
+/// The samples are marched, not materialised: each ray's points `o + t·d` are formed only
+/// where they are tested, from the first sample that can lie in `grid`'s bounding box
+/// ([`OccupancyGrid::crossing`]) and only as far as the ray is still live, so a ray that
+/// misses the box costs nothing and one that ends at a surface is not tested behind it.
+///
+/// `rays`: N rays; `lengths`: each ray's sample depths `(N, S, 1)`, increasing, or `(1, S, 1)`
+/// depths shared by all rays.
+pub fn march_packed(
+    grid: Option<&OccupancyGrid>,
+    early_termination: f64,
+    rays: &Rays,
+    lengths: &Tensor,
+    mut evaluate: impl FnMut(MarchedSegment) -> Result<Vec<f32>>,
+) -> Result<(Vec<u32>, SampleCounts)> {
     let (rows, s, _) = lengths.dims3()?;
     let n = rays.len();
     anyhow::ensure!(
@@ -117,20 +194,16 @@ pub fn evaluate_packed(
     );
     // Ray `ray`'s depths start at `ray · stride` (0 when shared).
     let stride = if rows == 1 { 0 } else { s };
-    let device = lengths.device();
     let lengths = lengths
         .to_dtype(DType::F32)?
         .flatten_all()?
         .to_vec1::<f32>()?;
-    let grid = field.occupancy().map(|grid| MarchGrid {
+    let grid = grid.map(|grid| MarchGrid {
         grid,
         blocks: grid.empty_blocks(),
     });
     let grid = grid.as_ref();
     let mut marches = start_marches(grid, rays, &lengths, stride, s)?;
-    // Rays whose origins or directions are being trained (camera refinement) get their
-    // evaluated points as tensor ops, so the gradient reaches them.
-    let rays_tracked = rays.origins.track_op() || rays.directions.track_op();
     // A ray is live while its optical depth so far is below −ln(threshold).
     let depth_limit = if early_termination > 0.0 {
         -(early_termination.ln()) as f32
@@ -143,8 +216,6 @@ pub fn evaluate_packed(
         ..SampleCounts::default()
     };
     let mut all_index: Vec<u32> = Vec::new();
-    let mut densities = Vec::new();
-    let mut colours = Vec::new();
     // Samples tested by the marches of rays no longer marched.
     let mut examined = 0;
     for k in 0.. {
@@ -158,15 +229,19 @@ pub fn evaluate_packed(
         if index.is_empty() {
             break;
         }
-        let m = index.len();
-        let ray_index = Tensor::from_vec(ray_index, m, device)?;
-        let points = match rays_tracked {
-            true => tracked_points(rays, &ray_index, &index, &lengths, (stride, s))?,
-            false => Tensor::from_vec(points, (m, 3), device)?,
-        };
-        let (density, colour) = field.evaluate_packed(&points, &ray_index, &rays.directions)?;
+        let values = evaluate(MarchedSegment {
+            index: &index,
+            points,
+            ray_index,
+            lengths: (&lengths, stride),
+        })?;
         if depth_limit.is_finite() {
-            let values = density.flatten_all()?.to_vec1::<f32>()?;
+            anyhow::ensure!(
+                values.len() == index.len(),
+                "{} densities for {} samples",
+                values.len(),
+                index.len()
+            );
             for (&k, &sigma) in index.iter().zip(&values) {
                 let (ray, i) = (k as usize / s, k as usize % s);
                 let delta = spacing(&lengths[ray * stride..ray * stride + s], i);
@@ -174,8 +249,6 @@ pub fn evaluate_packed(
             }
         }
         all_index.extend(index);
-        densities.push(density);
-        colours.push(colour);
         // Only rays that may still have samples are marched again (in ray order, so the
         // samples stay grouped by ray): a finished march need not be visited.
         marches.retain(|m| {
@@ -188,14 +261,7 @@ pub fn evaluate_packed(
     }
     counts.evaluated = all_index.len();
     counts.examined = examined + marches.iter().map(|m| m.examined).sum::<usize>();
-    Ok(PackedSamples {
-        rays: n,
-        per_ray: s,
-        index: all_index,
-        densities,
-        colours,
-        counts,
-    })
+    Ok((all_index, counts))
 }
 
 /// The evaluated points `(M, 3)` as tensor ops on the rays, `o[r] + t·d[r]` for each sample
@@ -206,9 +272,10 @@ fn tracked_points(
     rays: &Rays,
     ray_index: &Tensor,
     index: &[u32],
-    lengths: &[f32],
-    (stride, s): (usize, usize),
+    lengths: (&[f32], usize),
+    s: usize,
 ) -> Result<Tensor> {
+    let (lengths, stride) = lengths;
     let depths: Vec<f32> = index
         .iter()
         .map(|&k| {

@@ -9,3 +9,6 @@ pub mod model;
 pub mod schedule;
 pub mod sparse_adam;
 pub mod step;
+
+#[cfg(test)]
+mod fused_step_tests;

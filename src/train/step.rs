@@ -2,10 +2,12 @@
 //! and an Adam step on the MSE.
 
 use anyhow::Result;
+use candle_core::backprop::GradStore;
 use candle_core::{Device, Tensor};
 
 use crate::core::metrics::psnr_from_mse;
 use crate::core::rays::{random_pixel_indices, Rays};
+use crate::field::fused_step::FusedBatch;
 use crate::io::dataset::Dataset;
 use crate::render::ray_sampler::RaySampler;
 use crate::render::renderer::VolumeRenderer;
@@ -185,7 +187,9 @@ pub struct StepSettings {
 }
 
 /// One optimisation step on a [`training_batch`] (on the MSE, plus the distortion loss when
-/// weighted); returns the MSE and the sample counts.
+/// weighted); returns the MSE and the sample counts. The forward and backward passes are the
+/// field's fused step where it has one for these settings ([`fused_step_applies`]), else
+/// autograd's ([`graph_gradients`]).
 pub fn train_step(
     model: &TrainModel,
     settings: &StepSettings,
@@ -195,7 +199,7 @@ pub fn train_step(
     rng: &mut TrainRng,
     device: &Device,
 ) -> Result<(f64, SampleCounts)> {
-    let (mut rays, mut target, transparency) = training_batch_refined(
+    let (mut rays, target, transparency) = training_batch_refined(
         dataset,
         (settings.batch_size, settings.rays_from_all_images),
         image_index,
@@ -209,36 +213,148 @@ pub fn train_step(
         rays.directions = rays.directions.detach();
     }
     let field = model.training_field(settings.density_noise);
+    let background = step_background(settings, &target, &transparency, rng)?;
+    let fused = optimizer.cameras.is_none() && fused_step_applies(settings, &*field);
+    let step = match fused {
+        true => fused_gradients(model, settings, &*field, &rays, &background, rng)?,
+        false => None,
+    };
+    let step = match step {
+        Some(step) => step,
+        None => graph_gradients(&*field, settings, &rays, &background, rng)?,
+    };
+    optimizer.step(&step.grads)?;
+    Ok((step.mse, step.samples))
+}
+
+/// A batch's targets and the colour behind its rays: with a random background, `b ~ U(0, 1)³`
+/// per ray and each target moved from the dataset's background to `b` by its transparency;
+/// else the targets as they are, in front of the renderer's background.
+pub struct StepBackground {
+    /// Target colours `(N, 3)`.
+    pub target: Tensor,
+    /// `(N, 3)` the random background, or `None`: the renderer's own.
+    pub random: Option<Tensor>,
+}
+
+/// The [`StepBackground`] of a batch's `target` `(N, 3)` and `transparency` `(N, 1)`: draws
+/// the random background from `rng` when `settings` ask for one.
+pub fn step_background(
+    settings: &StepSettings,
+    target: &Tensor,
+    transparency: &Tensor,
+    rng: &mut TrainRng,
+) -> Result<StepBackground> {
+    if !settings.random_background {
+        return Ok(StepBackground {
+            target: target.clone(),
+            random: None,
+        });
+    }
+    use rand::Rng;
+    let n = target.dim(0)?;
+    let device = target.device();
+    let b: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>()).collect();
+    let b = Tensor::from_vec(b, (n, 3), device)?;
+    let dataset_bg = Tensor::new(&[settings.renderer.background], device)?;
+    let target = target.add(&transparency.broadcast_mul(&b.broadcast_sub(&dataset_bg)?)?)?;
+    Ok(StepBackground {
+        target,
+        random: Some(b),
+    })
+}
+
+/// One step's forward and backward passes: the MSE, the sample counts, and the gradient of
+/// the loss for every trained variable (a table with a gradient sink gets its part there).
+pub struct StepGradients {
+    /// The batch's mean squared colour error.
+    pub mse: f64,
+    /// Samples drawn, tested and evaluated.
+    pub samples: SampleCounts,
+    /// The loss's gradients.
+    pub grads: GradStore,
+}
+
+/// Whether the field's fused step can serve a step of `settings` on `field`: samples are
+/// skipped (an occupancy grid or early termination), by a sampler that does not refine, with
+/// no distortion loss. The field may still have no fused step (then [`fused_gradients`] says
+/// so); camera refinement needs autograd too.
+pub fn fused_step_applies(
+    settings: &StepSettings,
+    field: &dyn crate::render::field::Field,
+) -> bool {
+    settings.distortion_loss == 0.0
+        && !settings.sampler.refines()
+        && settings.renderer.skips_samples(field)
+}
+
+/// The field's fused step on `rays`: `None` when the model has none
+/// ([`crate::field::trainable::TrainableField::fused_gradients`]). `field` is the training
+/// field (its occupancy grid is marched); the sample depths are drawn from `rng` as the
+/// renderer draws them.
+pub fn fused_gradients(
+    model: &TrainModel,
+    settings: &StepSettings,
+    field: &dyn crate::render::field::Field,
+    rays: &Rays,
+    background: &StepBackground,
+    rng: &mut TrainRng,
+) -> Result<Option<StepGradients>> {
+    let lengths = settings.sampler.compact_lengths(rays, Some(rng))?;
+    let target = background.target.flatten_all()?.to_vec1::<f32>()?;
+    let behind = match &background.random {
+        Some(b) => b.flatten_all()?.to_vec1::<f32>()?,
+        None => settings.renderer.background.repeat(rays.len()),
+    };
+    let batch = FusedBatch {
+        rays,
+        lengths: &lengths,
+        target: &target,
+        background: &behind,
+        occupancy: field.occupancy(),
+        early_termination: settings.renderer.early_termination,
+    };
+    Ok(model
+        .field
+        .fused_gradients(&batch)?
+        .map(|out| StepGradients {
+            mse: out.mse,
+            samples: out.samples,
+            grads: out.grads,
+        }))
+}
+
+/// The step through autograd: the batch rendered by `field`, composited onto the background,
+/// the MSE (plus the distortion loss when weighted) and its backward pass.
+pub fn graph_gradients(
+    field: &dyn crate::render::field::Field,
+    settings: &StepSettings,
+    rays: &Rays,
+    background: &StepBackground,
+    rng: &mut TrainRng,
+) -> Result<StepGradients> {
     let mut renderer = settings.renderer;
     renderer.distortion_loss = settings.distortion_loss > 0.0;
-    let background = if settings.random_background {
-        // b ~ U(0, 1)³ per ray; the target moves from the dataset's background to b.
-        use rand::Rng;
-        let n = rays.len();
-        let b: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>()).collect();
-        let b = Tensor::from_vec(b, (n, 3), device)?;
-        let dataset_bg = Tensor::new(&[renderer.background], device)?;
-        target = target.add(&transparency.broadcast_mul(&b.broadcast_sub(&dataset_bg)?)?)?;
+    if background.random.is_some() {
         renderer.background = crate::render::renderer::BLACK;
-        Some(b)
-    } else {
-        None
-    };
-    let out = renderer.render(&*field, settings.sampler.as_ref(), &rays, Some(rng))?;
-    let color = match &background {
+    }
+    let out = renderer.render(field, settings.sampler.as_ref(), rays, Some(rng))?;
+    let color = match &background.random {
         Some(b) => out
             .color
             .add(&out.opacity.affine(-1.0, 1.0)?.broadcast_mul(b)?)?,
         None => out.color,
     };
-    let mse = color.sub(&target)?.sqr()?.mean_all()?;
+    let mse = color.sub(&background.target)?.sqr()?.mean_all()?;
     let loss = match &out.distortion {
         Some(d) => mse.add(&d.mean_all()?.affine(settings.distortion_loss, 0.0)?)?,
         None => mse.clone(),
     };
-    let grads = loss.backward()?;
-    optimizer.step(&grads)?;
-    Ok((mse.to_scalar::<f32>()? as f64, out.samples))
+    Ok(StepGradients {
+        mse: mse.to_scalar::<f32>()? as f64,
+        samples: out.samples,
+        grads: loss.backward()?,
+    })
 }
 
 #[cfg(test)]
