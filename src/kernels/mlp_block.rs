@@ -247,37 +247,47 @@ pub(crate) fn add_by_ray(d_per_ray: &mut [f32], d: &[f32], rays: &[u32]) {
 }
 
 /// One block's gradient sums in a fused MLP's backward pass: its packed parameters' and its
-/// per-ray inputs'.
+/// per-ray inputs', the latter for the rays its samples lie on only (a window of the `(N·H)`
+/// per-ray values starting at `per_ray_offset`), so that a block of a batch of many rays
+/// neither zeroes nor adds the whole `(N, H)`.
 pub(crate) struct GradientSums {
     /// `(P)`, the packed parameters' gradient.
     pub(crate) params: Vec<f32>,
-    /// `(N·H)`, the per-ray inputs' gradient.
+    /// The per-ray inputs' gradient, values `per_ray_offset..per_ray_offset + len`.
     pub(crate) per_ray: Vec<f32>,
+    /// Where `per_ray` starts among all the per-ray values.
+    pub(crate) per_ray_offset: usize,
 }
 
 impl GradientSums {
-    /// All zero, for `n_params` parameters and `n_per_ray` per-ray values.
+    /// All zero, for `n_params` parameters and all `n_per_ray` per-ray values.
     pub(crate) fn zeros(n_params: usize, n_per_ray: usize) -> Self {
+        Self::zeros_from(n_params, 0, n_per_ray)
+    }
+
+    /// All zero, for `n_params` parameters and the `len` per-ray values from `offset`.
+    pub(crate) fn zeros_from(n_params: usize, offset: usize, len: usize) -> Self {
         Self {
             params: vec![0.0; n_params],
-            per_ray: vec![0.0; n_per_ray],
+            per_ray: vec![0.0; len],
+            per_ray_offset: offset,
         }
     }
 
-    /// Every block's sums added element-wise in block order; zeros of those sizes when there
-    /// are no blocks.
+    /// Every block's sums added element-wise in block order, into all `n_per_ray` per-ray
+    /// values (each block's window at its offset); zeros of those sizes when there are no
+    /// blocks. Each value is summed in block order, as when every block held all of them.
     pub(crate) fn add_in_order(parts: Vec<Self>, n_params: usize, n_per_ray: usize) -> Self {
-        let add = |sum: &mut Vec<f32>, part: &[f32]| {
+        let add = |sum: &mut [f32], part: &[f32]| {
             sum.iter_mut().zip(part).for_each(|(x, y)| *x += y);
         };
-        parts
-            .into_iter()
-            .reduce(|mut sum, part| {
-                add(&mut sum.params, &part.params);
-                add(&mut sum.per_ray, &part.per_ray);
-                sum
-            })
-            .unwrap_or_else(|| Self::zeros(n_params, n_per_ray))
+        let mut total = Self::zeros(n_params, n_per_ray);
+        for part in parts {
+            add(&mut total.params, &part.params);
+            let window = part.per_ray_offset..part.per_ray_offset + part.per_ray.len();
+            add(&mut total.per_ray[window], &part.per_ray);
+        }
+        total
     }
 }
 

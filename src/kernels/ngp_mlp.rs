@@ -488,14 +488,20 @@ pub(crate) fn mlp_gradients(
         .zip(rays.par_chunks(block))
         .zip(grad.par_chunks(block * 4))
         .map(|(((d_enc, enc), rays), g)| {
-            let mut sums = GradientSums::zeros(n_params, per_ray.len());
+            // The block's rays only: indices re-based to the first, per-ray rows sliced.
+            let h = shape.hidden;
+            let first = rays.iter().copied().min().unwrap_or(0) as usize;
+            let last = rays.iter().copied().max().map_or(first, |r| r as usize + 1);
+            let local: Vec<u32> = rays.iter().map(|&r| r - first as u32).collect();
+            let window = &per_ray[first * h..last * h];
+            let mut sums = GradientSums::zeros_from(n_params, first * h, window.len());
             for (((d_enc, enc), rays), g) in d_enc
                 .chunks_mut(ROWS_PER_TASK * e)
                 .zip(enc.chunks(ROWS_PER_TASK * e))
-                .zip(rays.chunks(ROWS_PER_TASK))
+                .zip(local.chunks(ROWS_PER_TASK))
                 .zip(g.chunks(ROWS_PER_TASK * 4))
             {
-                mlp.backward(enc, rays, g, per_ray, params, d_enc, &mut sums);
+                mlp.backward(enc, rays, g, window, params, d_enc, &mut sums);
             }
             sums
         })
