@@ -16,18 +16,14 @@
 //! Its twin is the autograd step (`crate::train::step`), held equal by a test there.
 
 use anyhow::{bail, Result};
-use candle_core::{DType, Storage, Tensor};
+use candle_core::{DType, Tensor};
 
+use super::host_values::{table_values, HostValues};
 use super::{sh_basis, DensityActivation, Ngp, GEO_FEATURES, HIDDEN, SH_DIM};
 use crate::field::fused_step::{FusedBatch, FusedGradients};
-use crate::kernels::box_unit::box_unit_values;
 use crate::kernels::composite::{packed_backward, packed_forward, PackedRays};
 use crate::kernels::gemm::gemm_f32;
-use crate::kernels::hash_grid::encode_values;
-use crate::kernels::ngp_mlp::{
-    mlp_gradients, mlp_values, pack_parameters, raw_density_values, MlpShape,
-};
-use crate::kernels::storage::contiguous_f32;
+use crate::kernels::ngp_mlp::{mlp_gradients, MlpShape};
 use crate::render::skipping::{march_packed, MarchedSegment};
 
 impl DensityActivation {
@@ -71,70 +67,6 @@ struct Evaluated {
 }
 
 impl Ngp {
-    /// The MLPs' widths, for the fused MLP kernel.
-    fn mlp_shape(&self) -> MlpShape {
-        MlpShape {
-            enc: self.params.grid.output_dim(),
-            hidden: HIDDEN,
-            geo: GEO_FEATURES,
-        }
-    }
-
-    /// The MLPs' parameters, packed in [`MlpShape`]'s order, as host values.
-    fn packed_mlp_values(&self) -> Result<Vec<f32>> {
-        let bias = |l: &candle_nn::Linear| l.bias().cloned().expect("NGP layers have biases");
-        let wg = self.color[0].weight().narrow(1, 0, GEO_FEATURES)?;
-        let packed = pack_parameters(
-            self.density[0].weight(),
-            &bias(&self.density[0]),
-            self.density[1].weight(),
-            &bias(&self.density[1]),
-            &wg,
-            [
-                self.color[1].weight(),
-                &bias(&self.color[1]),
-                self.color[2].weight(),
-                &bias(&self.color[2]),
-            ],
-        )?;
-        Ok(packed.detach().to_vec1::<f32>()?)
-    }
-
-    /// σ `(M)` at world `points` `(M, 3)` (row-major host values), detached: the density of
-    /// [`Ngp::density`] through the fused kernels on host buffers, the encoding and the
-    /// density MLP only (what the occupancy grid probes, ~2^18 points an update).
-    pub fn density_values(&self, points: &[f32]) -> Result<Vec<f32>> {
-        let (storage, layout) = self.table.storage_and_layout();
-        let Storage::Cpu(cpu) = &*storage else {
-            bail!("the fused density needs the table on the CPU");
-        };
-        let table = contiguous_f32(cpu, layout, "fused density")?;
-        let (unit, inside) = self.unit_points(points.to_vec());
-        let encoding = encode_values(&self.params.grid, table, &unit);
-        drop(storage);
-        let raw = raw_density_values(self.mlp_shape(), &encoding, &self.packed_mlp_values()?);
-        let activation = self.params.density_activation;
-        Ok(raw
-            .iter()
-            .zip(&inside)
-            .map(|(&x, i)| activation.value(x) * i)
-            .collect())
-    }
-
-    /// World `points` (3 values each) contracted and mapped to the box's unit cube, and 1
-    /// where they lie in it, else 0 ([`box_unit_values`]).
-    fn unit_points(&self, mut points: Vec<f32>) -> (Vec<f32>, Vec<f32>) {
-        let contraction = self.params.contraction;
-        if contraction != crate::core::contraction::Contraction::None {
-            for p in points.chunks_exact_mut(3) {
-                p.copy_from_slice(&contraction.contract_f32([p[0], p[1], p[2]]));
-            }
-        }
-        let [lo, hi] = self.params.aabb;
-        let scale: [f32; 3] = std::array::from_fn(|k| 1.0 / (hi[k] - lo[k]) as f32);
-        box_unit_values(&points, lo.map(|v| v as f32), scale)
-    }
-
     /// Whether [`Ngp::fused_gradients`] can run: f32 parameters on the CPU with the fused
     /// kernels chosen, and a sink that takes the table's gradient.
     pub fn has_fused_step(&self) -> bool {
@@ -191,10 +123,7 @@ impl Ngp {
         };
         let activation = self.params.density_activation;
         let (storage, layout) = self.table.storage_and_layout();
-        let Storage::Cpu(cpu) = &*storage else {
-            bail!("the fused hash-grid step needs the table on the CPU");
-        };
-        let table = contiguous_f32(cpu, layout, "fused hash-grid step")?;
+        let table = table_values(&storage, layout)?;
         let mut e = Evaluated::default();
         let (index, samples) = march_packed(
             batch.occupancy,
@@ -202,13 +131,15 @@ impl Ngp {
             rays,
             batch.lengths,
             |segment: MarchedSegment| {
-                let (unit, inside) = self.unit_points(segment.points);
-                let encoding = encode_values(grid, table, &unit);
-                let out = mlp_values(
-                    shape,
-                    &encoding,
+                let HostValues {
+                    unit,
+                    inside,
+                    encoding,
+                    out,
+                } = self.evaluate_on_host(
+                    (table, &params),
+                    segment.points,
                     (&segment.ray_index, &per_ray_values),
-                    &params,
                 );
                 let sigma: Vec<f32> = out
                     .chunks_exact(4)
