@@ -210,10 +210,7 @@ mod tests {
         let points = candle_core::Tensor::rand(-1.4f32, 1.4, (50, 3), &dev).unwrap();
         let dirs = candle_core::Tensor::new(&[[0f32, 0.6, 0.8]], &dev).unwrap();
         let rays = candle_core::Tensor::zeros(50, candle_core::DType::U32, &dev).unwrap();
-        let (s0, c0) = model
-            .detached()
-            .forward_packed(&points, &rays, &dirs, None)
-            .unwrap();
+        let (s0, c0) = model.forward_packed(&points, &rays, &dirs, None).unwrap();
         let (s1, c1) = field.evaluate_packed(&points, &rays, &dirs).unwrap();
         let diff = crate::core::compare::max_abs_difference;
         assert_eq!(diff(&s0, &s1).unwrap() + diff(&c0, &c1).unwrap(), 0.0);

@@ -283,29 +283,24 @@ impl Ngp {
         directions: &Tensor,
         camera_index: Option<&Tensor>,
     ) -> Result<(Tensor, Tensor)> {
+        let (enc, inside) = self.encode(points)?;
         // The per-ray part only for the rays that have samples here (a segment of a skipping
         // render holds a few of them), the samples' ray indices renumbered to match.
         let rays = ray_index.to_vec1::<u32>()?;
         let (used, local) = rays_in_use(&rays, directions.dim(0)?)?;
-        let dev = directions.device();
-        let (per_ray, rays, ray_index) = if used.len() < directions.dim(0)? {
+        let out = if used.len() < directions.dim(0)? {
+            let dev = directions.device();
             let n_used = used.len();
             let used = Tensor::from_vec(used, n_used, dev)?;
             let directions = directions.index_select(&used, 0)?;
             let cameras = camera_index.map(|c| c.index_select(&used, 0)).transpose()?;
             let local_t = Tensor::from_vec(local.clone(), rays.len(), dev)?;
-            (self.per_ray(&directions, cameras.as_ref())?, local, local_t)
+            let per_ray = self.per_ray(&directions, cameras.as_ref())?;
+            self.mlps(&enc, &per_ray, (&local_t, &local))?
         } else {
             let per_ray = self.per_ray(directions, camera_index)?;
-            (per_ray, rays, ray_index.clone())
+            self.mlps(&enc, &per_ray, (ray_index, &rays))?
         };
-        // Nothing to differentiate: the whole field on host buffers (`host_values`).
-        let tracked = [points, &self.table, self.density[0].weight(), &per_ray];
-        if crate::kernels::use_fused(points) && !tracked.iter().any(|t| t.track_op()) {
-            return self.forward_on_host(points, &rays, &per_ray);
-        }
-        let (enc, inside) = self.encode(points)?;
-        let out = self.mlps(&enc, &per_ray, (&ray_index, &rays))?;
         let sigma = self.activate(&out.narrow(1, 0, 1)?, &inside)?;
         Ok((sigma, out.narrow(1, 1, 3)?.contiguous()?))
     }

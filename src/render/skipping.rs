@@ -204,12 +204,6 @@ pub fn march_packed(
     });
     let grid = grid.as_ref();
     let mut marches = start_marches(grid, rays, &lengths, stride, s)?;
-    // Depths shared by all rays and evenly spaced (a render's): a skip's end index is
-    // computed, not scanned for.
-    let even = match stride {
-        0 => EvenDepths::of(&lengths),
-        _ => None,
-    };
     // A ray is live while its optical depth so far is below −ln(threshold).
     let depth_limit = if early_termination > 0.0 {
         -(early_termination.ln()) as f32
@@ -231,7 +225,7 @@ pub fn march_packed(
             s
         };
         let (index, points, ray_index) =
-            march_segment(&mut marches, (grid, even), &lengths, stride, s, size);
+            march_segment(&mut marches, grid, &lengths, stride, s, size);
         if index.is_empty() {
             break;
         }
@@ -327,7 +321,7 @@ fn start_marches(
 /// `lengths`: ray `r`'s `S` depths start at `r · stride`.
 fn march_segment(
     marches: &mut [RayMarch],
-    (grid, even): (Option<&MarchGrid>, Option<EvenDepths>),
+    grid: Option<&MarchGrid>,
     lengths: &[f32],
     stride: usize,
     s: usize,
@@ -341,7 +335,7 @@ fn march_segment(
                 let ray = march.ray as usize;
                 let t = &lengths[ray * stride..ray * stride + s];
                 for _ in 0..size {
-                    let Some((i, p)) = march.next_occupied(grid, t, even) else {
+                    let Some((i, p)) = march.next_occupied(grid, t) else {
                         march.finished = true;
                         break;
                     };
@@ -475,12 +469,7 @@ impl RayMarch {
     /// too, is passed over without a lookup (with a contraction, only empty blocks inside the
     /// unit cube, keeping [`BLOCK_MARGIN`] from their faces). The result is exactly the
     /// per-sample test's.
-    fn next_occupied(
-        &mut self,
-        grid: Option<&MarchGrid>,
-        t: &[f32],
-        even: Option<EvenDepths>,
-    ) -> Option<(usize, [f32; 3])> {
+    fn next_occupied(&mut self, grid: Option<&MarchGrid>, t: &[f32]) -> Option<(usize, [f32; 3])> {
         while self.next < self.end {
             let i = self.next;
             self.next += 1;
@@ -508,61 +497,12 @@ impl RayMarch {
                 Some(faces) => faces.exit(cell),
                 None => self.contracted_block_end(g, cell, t),
             };
-            self.next = first_at_or_beyond(t, (self.next, self.end), skip_to, even);
+            while self.next < self.end && f64::from(t[self.next]) < skip_to {
+                self.next += 1;
+            }
         }
         None
     }
-}
-
-/// Depths close enough to evenly spaced (each within half a step of `first + i·step`) that the
-/// index of a depth can be computed, then corrected by a step or two.
-#[derive(Debug, Clone, Copy)]
-struct EvenDepths {
-    first: f64,
-    inverse_step: f64,
-}
-
-impl EvenDepths {
-    /// The spacing of increasing depths `t`, when they are that even (and more than one).
-    fn of(t: &[f32]) -> Option<Self> {
-        let (first, last) = (f64::from(*t.first()?), f64::from(*t.last()?));
-        let step = (last - first) / (t.len() as f64 - 1.0);
-        let even = step > 0.0
-            && t.iter()
-                .enumerate()
-                .all(|(i, &v)| (f64::from(v) - (first + i as f64 * step)).abs() <= 0.5 * step);
-        even.then_some(Self {
-            first,
-            inverse_step: 1.0 / step,
-        })
-    }
-}
-
-/// The first index in `from..end` whose depth in `t` (increasing) is at least `depth`, `end`
-/// when none is: computed from `even` spacing and corrected to the exact index, or by a scan
-/// from `from` without it. The same index either way.
-fn first_at_or_beyond(
-    t: &[f32],
-    (from, end): (usize, usize),
-    depth: f64,
-    even: Option<EvenDepths>,
-) -> usize {
-    let below = |i: usize| f64::from(t[i]) < depth;
-    let mut i = from;
-    if let Some(e) = even {
-        let guess = ((depth - e.first) * e.inverse_step).ceil();
-        // A guess behind `from` (or NaN) starts the scan at `from`.
-        if guess > from as f64 {
-            i = (guess as usize).min(end);
-            while i > from && !below(i - 1) {
-                i -= 1;
-            }
-        }
-    }
-    while i < end && below(i) {
-        i += 1;
-    }
-    i
 }
 
 /// The field's values at the samples [`evaluate_packed`] chose.
@@ -657,60 +597,4 @@ fn concat_segments(parts: &[Tensor], width: usize, device: &candle_core::Device)
         0 => Tensor::zeros((0, width), DType::F32, device)?,
         _ => Tensor::cat(parts, 0)?.to_dtype(DType::F32)?,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use rand::{Rng, SeedableRng};
-
-    #[test]
-    fn a_computed_skip_lands_where_the_scan_does() {
-        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
-        let linspace = |n: usize| -> Vec<f32> {
-            (0..n)
-                .map(|i| (2.0 + 4.0 * i as f64 / (n - 1) as f64) as f32)
-                .collect()
-        };
-        let even = linspace(97);
-        // Jittered inside half-step bins: still even enough.
-        let step = 4.0 / 96.0;
-        let jittered: Vec<f32> = even
-            .iter()
-            .map(|&v| v + (rng.random::<f32>() - 0.5) * 0.9 * step)
-            .collect();
-        // Disparity-like spacing: not even.
-        let uneven: Vec<f32> = (0..97).map(|i| 1.0 / (1.0 - i as f32 / 100.0)).collect();
-        assert!(EvenDepths::of(&even).is_some());
-        assert!(EvenDepths::of(&uneven).is_none());
-        assert!(EvenDepths::of(&[2.0]).is_none());
-        // The index is exact whatever the guess: the spacing of the ends is forced on all
-        // three, the uneven depths included.
-        for t in [&even, &jittered, &uneven] {
-            let (first, last) = (f64::from(t[0]), f64::from(t[t.len() - 1]));
-            let e = Some(EvenDepths {
-                first,
-                inverse_step: (t.len() - 1) as f64 / (last - first),
-            });
-            for _ in 0..20_000 {
-                let from = rng.random_range(0..=t.len());
-                let end = rng.random_range(from..=t.len());
-                let depth = match rng.random_range(0..4) {
-                    // Exactly a sample's depth, or beyond the ends.
-                    0 => f64::from(t[rng.random_range(0..t.len())]),
-                    1 => rng.random_range(-10.0..20.0),
-                    _ => rng.random_range(1.0..6.1),
-                };
-                let scan = first_at_or_beyond(t, (from, end), depth, None);
-                assert_eq!(
-                    first_at_or_beyond(t, (from, end), depth, e),
-                    scan,
-                    "from {from} end {end} depth {depth}"
-                );
-            }
-        }
-        // NaN depth: the scan's answer (no sample is below NaN: `from`).
-        let e = EvenDepths::of(&even);
-        assert_eq!(first_at_or_beyond(&even, (5, 50), f64::NAN, e), 5);
-    }
 }

@@ -214,7 +214,9 @@ pub fn train_step(
     }
     let field = model.training_field(settings.density_noise);
     let background = step_background(settings, &target, &transparency, rng)?;
-    let fused = optimizer.cameras.is_none() && fused_step_applies(settings, &*field);
+    // Rays tracked for camera refinement need autograd; moved but untracked ones do not.
+    let rays_tracked = rays.origins.track_op() || rays.directions.track_op();
+    let fused = !rays_tracked && fused_step_applies(settings, &*field);
     let step = match fused {
         true => fused_gradients(model, settings, &*field, &rays, &background, rng)?,
         false => None,
@@ -278,7 +280,7 @@ pub struct StepGradients {
 /// Whether the field's fused step can serve a step of `settings` on `field`: samples are
 /// skipped (an occupancy grid or early termination), by a sampler that does not refine, with
 /// no distortion loss. The field may still have no fused step (then [`fused_gradients`] says
-/// so); camera refinement needs autograd too.
+/// so); rays tracked for camera refinement need autograd too.
 pub fn fused_step_applies(
     settings: &StepSettings,
     field: &dyn crate::render::field::Field,

@@ -1,12 +1,11 @@
 //! The hash-grid field evaluated on host buffers through the fused kernels, with no Candle op
 //! over the samples: the box mapping, the encoding and the MLPs (or the density MLP alone)
-//! as plain passes. What the fused training step ([`super::fused_step`]) runs forward, what a
-//! render's field calls run when no gradient is tracked, and the occupancy grid's probe. Its
-//! twin is the same field through Candle ops ([`Ngp::forward_packed`]'s tracked path and
-//! [`Ngp::density`]).
+//! as plain passes. What the fused training step ([`super::fused_step`]) runs forward, and
+//! the occupancy grid's probe. Its twin is the same field through Candle ops
+//! ([`Ngp::forward_packed`] and [`Ngp::density`]).
 
 use anyhow::{bail, Result};
-use candle_core::{Layout, Storage, Tensor};
+use candle_core::{Layout, Storage};
 
 use super::{Ngp, GEO_FEATURES, HIDDEN};
 use crate::kernels::box_unit::box_unit_values;
@@ -113,129 +112,6 @@ impl Ngp {
             inside,
             encoding,
             out,
-        }
-    }
-
-    /// σ `(M, 1)` and colour `(M, 3)` at `points` `(M, 3)` on rays `rays` (M of them) whose
-    /// per-ray colour term is `per_ray` `(N, H)`: [`Ngp::forward_packed`] on host buffers, for
-    /// a field whose parameters and points autograd does not track.
-    pub(super) fn forward_on_host(
-        &self,
-        points: &Tensor,
-        rays: &[u32],
-        per_ray: &Tensor,
-    ) -> Result<(Tensor, Tensor)> {
-        let device = points.device();
-        let points = points.flatten_all()?.to_vec1::<f32>()?;
-        let per_ray = per_ray.flatten_all()?.to_vec1::<f32>()?;
-        let params = self.packed_mlp_values()?;
-        let (storage, layout) = self.table.storage_and_layout();
-        let values = self.evaluate_on_host(
-            (table_values(&storage, layout)?, &params),
-            points,
-            (rays, &per_ray),
-        );
-        drop(storage);
-        let activation = self.params.density_activation;
-        let m = rays.len();
-        let sigma: Vec<f32> = values
-            .out
-            .chunks_exact(4)
-            .zip(&values.inside)
-            .map(|(o, i)| activation.value(o[0]) * i)
-            .collect();
-        let rgb: Vec<f32> = values
-            .out
-            .chunks_exact(4)
-            .flat_map(|o| [o[1], o[2], o[3]])
-            .collect();
-        Ok((
-            Tensor::from_vec(sigma, (m, 1), device)?,
-            Tensor::from_vec(rgb, (m, 3), device)?,
-        ))
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::core::contraction::Contraction;
-    use crate::field::appearance::AppearanceParams;
-    use crate::field::ngp::{DensityActivation, NgpParams, TABLE};
-    use crate::kernels::hash_grid::HashGridParams;
-    use crate::kernels::test_support::uniform_values;
-    use candle_core::{DType, Device};
-    use candle_nn::{VarBuilder, VarMap};
-
-    #[test]
-    fn the_field_on_host_buffers_matches_its_tensor_ops() {
-        let dev = Device::Cpu;
-        for (contraction, appearance) in [
-            (Contraction::None, None),
-            (
-                Contraction::LInf,
-                Some(AppearanceParams { dim: 4, images: 3 }),
-            ),
-        ] {
-            let params = NgpParams {
-                grid: HashGridParams {
-                    n_levels: 4,
-                    n_features: 2,
-                    log2_table_size: 8,
-                    base_resolution: 4.0,
-                    max_resolution: 32.0,
-                },
-                aabb: [[-1.5; 3], [1.5; 3]],
-                density_activation: DensityActivation::TruncExp,
-                contraction,
-                appearance,
-            };
-            let mut varmap = VarMap::new();
-            let model =
-                Ngp::new(&params, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
-            let table = uniform_values(model.table.elem_count(), 4, -1f32, 1.0);
-            let table = Tensor::from_vec(table, model.table.shape(), &dev).unwrap();
-            varmap.set_one(TABLE, &table).unwrap();
-            // 600 samples of 5 of 7 rays, some outside the box.
-            let points = uniform_values(1800, 8, -2.5f32, 2.5);
-            let points = Tensor::from_vec(points, (600, 3), &dev).unwrap();
-            let rays: Vec<u32> = (0..600u32)
-                .map(|i| [1, 2, 4, 5, 6][(i % 5) as usize])
-                .collect();
-            let ray_index = Tensor::new(rays.as_slice(), &dev).unwrap();
-            let d = uniform_values(21, 9, -1f32, 1.0);
-            let directions = Tensor::from_vec(d, (7, 3), &dev).unwrap();
-            let norm = directions
-                .sqr()
-                .unwrap()
-                .sum_keepdim(1)
-                .unwrap()
-                .sqrt()
-                .unwrap();
-            let directions = directions.broadcast_div(&norm).unwrap();
-            let cameras = Tensor::new(&[0u32, 1, 2, 0, 1, 2, 0], &dev).unwrap();
-            let cameras = params.appearance.map(|_| &cameras);
-            // The variables are tracked: Candle ops. Detached: host buffers.
-            let twin = model
-                .forward_packed(&points, &ray_index, &directions, cameras)
-                .unwrap();
-            let host = model
-                .detached()
-                .forward_packed(&points, &ray_index, &directions, cameras)
-                .unwrap();
-            for (what, a, b) in [("sigma", &host.0, &twin.0), ("colour", &host.1, &twin.1)] {
-                let (a, b) = (
-                    a.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
-                    b.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
-                );
-                assert_eq!(a.len(), b.len());
-                for (x, y) in a.iter().zip(&b) {
-                    assert!(
-                        (x - y).abs() <= 1e-5 * y.abs().max(1e-2),
-                        "{contraction:?} {what}: {x} against {y}"
-                    );
-                }
-            }
         }
     }
 }
