@@ -559,6 +559,25 @@ impl TrainableField for NgpState {
     }
 }
 
+/// A small field for tests: 4 levels of 2 features, 2^8 rows a level, resolutions 4 to 32,
+/// over `[-1.5, 1.5]³`, trunc_exp, no contraction, no appearance.
+#[cfg(test)]
+pub(crate) fn small_test_params() -> NgpParams {
+    NgpParams {
+        grid: HashGridParams {
+            n_levels: 4,
+            n_features: 2,
+            log2_table_size: 8,
+            base_resolution: 4.0,
+            max_resolution: 32.0,
+        },
+        aabb: [[-1.5; 3], [1.5; 3]],
+        density_activation: DensityActivation::TruncExp,
+        contraction: Contraction::None,
+        appearance: None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -569,22 +588,6 @@ mod tests {
     /// `Σ |∂loss/∂table|`: whether a backward pass reached the hash table.
     fn table_gradient_size(grads: &candle_core::backprop::GradStore, model: &Ngp) -> f32 {
         abs_sum(grads.get(model.table()).expect("a table gradient"))
-    }
-
-    fn small() -> NgpParams {
-        NgpParams {
-            grid: HashGridParams {
-                n_levels: 4,
-                n_features: 2,
-                log2_table_size: 8,
-                base_resolution: 4.0,
-                max_resolution: 32.0,
-            },
-            aabb: [[-1.5; 3], [1.5; 3]],
-            density_activation: DensityActivation::TruncExp,
-            contraction: Contraction::None,
-            appearance: None,
-        }
     }
 
     #[test]
@@ -627,7 +630,7 @@ mod tests {
     #[test]
     fn field_shapes_ranges_packing_and_box() {
         let dev = Device::Cpu;
-        let (varmap, model) = model_of(&small());
+        let (varmap, model) = model_of(&small_test_params());
         let points = Tensor::rand(-2f32, 2.0, (5, 7, 3), &dev).unwrap();
         let dirs = Tensor::randn(0f32, 1.0, (5, 3), &dev).unwrap();
         let dirs = dirs.broadcast_div(&dirs.sqr().unwrap().sum_keepdim(1).unwrap().sqrt().unwrap());
@@ -669,7 +672,7 @@ mod tests {
         let dev = Device::Cpu;
         let (varmap, model) = model_of(&NgpParams {
             appearance: Some(AppearanceParams { dim: 4, images: 3 }),
-            ..small()
+            ..small_test_params()
         });
         let points = Tensor::rand(-1f32, 1.0, (6, 3), &dev).unwrap();
         let ray_index = Tensor::new(&[0u32, 0, 1, 1, 2, 2], &dev).unwrap();
@@ -719,7 +722,7 @@ mod tests {
         let params = NgpParams {
             aabb: [[-2.0; 3], [2.0; 3]],
             contraction: Contraction::LInf,
-            ..small()
+            ..small_test_params()
         };
         let (_, model) = model_of(&params);
         // Far points only: outside the unit cube, some hundreds of units away.

@@ -34,6 +34,15 @@ pub fn sh_basis(d: [f32; 3]) -> [f32; SH_DIM] {
     ]
 }
 
+/// [`sh_basis`] of each unit direction in `directions` (`(N, 3)` row-major host values):
+/// `(N, 16)` row-major.
+pub fn sh_basis_values(directions: &[f32]) -> Vec<f32> {
+    directions
+        .chunks_exact(3)
+        .flat_map(|v| sh_basis([v[0], v[1], v[2]]))
+        .collect()
+}
+
 /// [`sh_basis`] of every row of `directions` `(N, 3)`: `(N, 16)`, in `directions`' dtype;
 /// as tensor ops ([`sh_encode_tensor_ops`]) when autograd tracks the directions (rays being
 /// trained, camera refinement), so that the gradient reaches them.
@@ -46,10 +55,7 @@ pub fn sh_encode(directions: &Tensor) -> Result<Tensor> {
         .to_dtype(DType::F32)?
         .flatten_all()?
         .to_vec1::<f32>()?;
-    let sh: Vec<f32> = d
-        .chunks_exact(3)
-        .flat_map(|v| sh_basis([v[0], v[1], v[2]]))
-        .collect();
+    let sh = sh_basis_values(&d);
     Ok(Tensor::from_vec(sh, (n, SH_DIM), directions.device())?.to_dtype(directions.dtype())?)
 }
 

@@ -146,7 +146,7 @@ pub fn evaluate_packed(
 
 /// One segment's samples, as [`march_packed`] hands them to its evaluator: their flat sample
 /// indices `ray · S + i`, points `(M, 3)` and rays `(M)`, and the depths they were drawn from
-/// (ray `r`'s `S` depths at `r · stride`, see [`MarchedSegment::length`]).
+/// (ray `r`'s `S` depths at `r · stride`).
 pub struct MarchedSegment<'a> {
     /// Flat sample index `ray · S + i` of each sample.
     pub index: &'a [u32],
@@ -156,15 +156,6 @@ pub struct MarchedSegment<'a> {
     pub ray_index: Vec<u32>,
     /// The sample depths and the row stride between rays (0: shared by all rays).
     pub lengths: (&'a [f32], usize),
-}
-
-impl MarchedSegment<'_> {
-    /// The depth of the sample of flat index `k` (`ray · S + i`) among `s` a ray.
-    pub fn length(&self, k: u32, s: usize) -> f32 {
-        let (lengths, stride) = self.lengths;
-        let (ray, i) = (k as usize / s, k as usize % s);
-        lengths[ray * stride + i]
-    }
 }
 
 /// Marches `rays` over the samples that can contribute (see the module) in segments, front to

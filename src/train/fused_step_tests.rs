@@ -11,7 +11,7 @@ use rand::SeedableRng;
 use crate::core::contraction::Contraction;
 use crate::core::rays::Rays;
 use crate::field::appearance::AppearanceParams;
-use crate::field::ngp::{DensityActivation, NgpParams, NgpState, TABLE};
+use crate::field::ngp::{small_test_params, DensityActivation, NgpParams, NgpState, TABLE};
 use crate::field::trainable::named_vars;
 use crate::kernels::hash_grid::{HashGridParams, TableGradient};
 use crate::kernels::test_support::uniform_values;
@@ -132,26 +132,15 @@ fn assert_near(a: &[f32], b: &[f32], tol: f32, what: &str) {
     );
 }
 
-fn base_params() -> NgpParams {
-    NgpParams {
-        grid: HashGridParams {
-            n_levels: 4,
-            n_features: 2,
-            log2_table_size: 8,
-            base_resolution: 4.0,
-            max_resolution: 32.0,
-        },
-        aabb: [[-1.5; 3], [1.5; 3]],
-        density_activation: DensityActivation::TruncExp,
-        contraction: Contraction::None,
-        appearance: None,
-    }
-}
-
 #[test]
 fn fused_step_matches_the_autograd_step() {
     let cases = [
-        ("bounded, random background", base_params(), true, 1e-2),
+        (
+            "bounded, random background",
+            small_test_params(),
+            true,
+            1e-2,
+        ),
         (
             "contracted, appearance, softplus, dataset background, no termination",
             NgpParams {
@@ -159,7 +148,7 @@ fn fused_step_matches_the_autograd_step() {
                 contraction: Contraction::LInf,
                 appearance: Some(AppearanceParams { dim: 4, images: 3 }),
                 density_activation: DensityActivation::Softplus,
-                ..base_params()
+                ..small_test_params()
             },
             false,
             0.0,

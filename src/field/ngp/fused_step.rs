@@ -19,8 +19,9 @@ use anyhow::{bail, Result};
 use candle_core::{DType, Tensor};
 
 use super::host_values::{table_values, HostValues};
-use super::{sh_basis, DensityActivation, Ngp, GEO_FEATURES, HIDDEN, SH_DIM};
+use super::{DensityActivation, Ngp, GEO_FEATURES, HIDDEN, SH_DIM};
 use crate::field::fused_step::{FusedBatch, FusedGradients};
+use crate::field::spherical_harmonics::sh_basis_values;
 use crate::kernels::composite::{packed_backward, packed_forward, PackedRays};
 use crate::kernels::gemm::gemm_f32;
 use crate::kernels::ngp_mlp::{mlp_gradients, MlpShape};
@@ -96,10 +97,7 @@ impl Ngp {
             .to_dtype(DType::F32)?
             .flatten_all()?
             .to_vec1::<f32>()?;
-        let sh: Vec<f32> = directions
-            .chunks_exact(3)
-            .flat_map(|d| sh_basis([d[0], d[1], d[2]]))
-            .collect();
+        let sh = sh_basis_values(&directions);
         let color0 = self.color[0].weight().flatten_all()?.to_vec1::<f32>()?;
         let color0_bias = match self.color[0].bias() {
             Some(b) => b.to_vec1::<f32>()?,
@@ -340,7 +338,6 @@ fn colour_loss(composited: &[f32], target: &[f32], background: &[f32]) -> (f64, 
 mod tests {
     use super::*;
     use crate::core::contraction::Contraction;
-    use crate::kernels::hash_grid::HashGridParams;
     use crate::kernels::test_support::uniform_values;
     use candle_core::Device;
     use candle_nn::{VarBuilder, VarMap};
@@ -350,17 +347,8 @@ mod tests {
         let dev = Device::Cpu;
         for contraction in [Contraction::None, Contraction::LInf] {
             let params = super::super::NgpParams {
-                grid: HashGridParams {
-                    n_levels: 4,
-                    n_features: 2,
-                    log2_table_size: 8,
-                    base_resolution: 4.0,
-                    max_resolution: 32.0,
-                },
-                aabb: [[-1.5; 3], [1.5; 3]],
-                density_activation: DensityActivation::TruncExp,
                 contraction,
-                appearance: None,
+                ..super::super::small_test_params()
             };
             let mut varmap = VarMap::new();
             let model =
