@@ -4,7 +4,6 @@
 use std::path::Path;
 
 use anyhow::{bail, Result};
-use image::imageops::{self, FilterType};
 use image::{ImageBuffer, ImageFormat, Rgba};
 
 use super::dataset_error::{read_dataset_file, DatasetError};
@@ -24,11 +23,11 @@ pub const MAX_SOURCE_IMAGE_SIDE: u32 = 8192;
 /// `rgb · a + bg · (1 − a)` with `bg` = 0 or 1. Any PNG bit depth or colour type is accepted
 /// (no alpha channel means opaque).
 ///
-/// Compositing happens at the file's resolution, then the RGB result is resized with
-/// `image`'s `FilterType::Triangle` (bilinear, with the kernel widened by the downscale
-/// factor, so downsizing averages like an area filter instead of aliasing). Compositing
-/// first is equivalent to resizing premultiplied colour, so no dark or bright fringes appear
-/// around the object. When the size already matches nothing is resampled.
+/// Compositing happens at the file's resolution, then the RGB result is resized
+/// ([`super::photo_resize`]: the mean of each block for a whole factor per side, `image`'s
+/// `FilterType::Triangle` for any other ratio). Compositing first is equivalent to resizing
+/// premultiplied colour, so no dark or bright fringes appear around the object. When the
+/// size already matches nothing is resampled.
 ///
 /// Errors (one line, naming the file) for a zero size, a missing file or an undecodable PNG;
 /// the last two are a [`DatasetError::MissingFile`] and a [`DatasetError::Photo`] inside the
@@ -125,11 +124,7 @@ pub fn load_frame_image(
             1.0 - a,
         ]);
     }
-    let resized = if (w0, h0) == (w, h) {
-        composited
-    } else {
-        imageops::resize(&composited, w, h, FilterType::Triangle)
-    };
+    let resized = super::photo_resize::resize_photo(composited, w, h);
     let raw = resized.into_raw();
     let data = raw
         .chunks_exact(4)

@@ -13,7 +13,6 @@
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Result};
-use image::imageops::{self, FilterType};
 use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
 
 use super::dataset_error::read_dataset_file;
@@ -97,7 +96,7 @@ pub fn load_mask(
     } else {
         let buffer: ImageBuffer<Luma<f32>, Vec<f32>> = ImageBuffer::from_raw(w0, h0, flags)
             .ok_or_else(|| anyhow!("cannot decode mask {}: inconsistent size", path.display()))?;
-        imageops::resize(&buffer, w, h, FilterType::Triangle)
+        super::photo_resize::resize_photo(buffer, w, h)
             .into_raw()
             .into_iter()
             .map(|f| f >= 1.0 - 1e-5)
@@ -165,13 +164,16 @@ mod tests {
         assert_eq!(full.used_pixels().len(), 24);
         assert!(!full.used()[1] && full.used()[2] && !full.used()[9]);
         let half = load_mask(&path, image, (8, 4), (4, 2)).unwrap();
-        // Column 1 averages source columns 1 to 4 (the triangle filter's support at half
-        // size): column 1 is ignored, so it is too.
+        // At half size each pixel is the mean of a 2×2 block (the images' box filter):
+        // column 0 holds ignored source columns 0 and 1, column 1 only used ones.
         assert_eq!(
             half.used(),
-            &[false, false, true, true, false, false, true, true]
+            &[false, true, true, true, false, true, true, true]
         );
-        assert_eq!(half.used_pixels(), &[2, 3, 6, 7]);
+        assert_eq!(half.used_pixels(), &[1, 2, 3, 5, 6, 7]);
+        // By another ratio the triangle filter's wider support reaches the ignored columns.
+        let third = load_mask(&path, image, (8, 4), (3, 2)).unwrap();
+        assert!(!third.used()[0] && third.used()[2], "{:?}", third.used());
     }
 
     #[test]

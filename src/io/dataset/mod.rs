@@ -24,6 +24,7 @@ pub mod nerfstudio;
 pub mod ngp_scene;
 pub mod normalize;
 pub mod orbit;
+pub mod photo_resize;
 pub mod spiral;
 pub mod transforms;
 pub mod transforms_intrinsics;
