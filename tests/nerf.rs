@@ -61,6 +61,7 @@ fn box_dataset(config: &Config) -> Dataset {
         height: 12,
         masks: Vec::new(),
         normalisation: None,
+        capture: None,
     }
 }
 

@@ -384,6 +384,7 @@ mod tests {
                 flags([true, true, false, false]),
             ],
             normalisation: None,
+            capture: None,
         };
         let mut rng = TrainRng::seed_from_u64(7);
         let n = 70_000;

@@ -4,11 +4,13 @@
 //! * COLMAP ([`super::colmap_scene`]): a sparse model (`sparse/N/`, `sparse/`, the model
 //!   files at the top, or nerfstudio's `colmap/sparse/N`) and the photos in `images/`;
 //! * nerfstudio or instant-ngp ([`super::nerfstudio`]): `transforms.json`;
-//! * LLFF ([`super::llff`]): `poses_bounds.npy` and `images/`;
+//! * LLFF ([`super::llff`]): `poses_bounds.npy` and `images/`, or the COLMAP model beside
+//!   them when there is one and it registers every photo ([`super::camera_source`]);
 //! * the NeRF-synthetic ("Blender") scenes, `transforms_{split}.json` ([`super::transforms`]).
 //!
-//! A capture's cameras keep their own models (distortion included, [`ColmapCamera`]), and its
-//! world frame is normalised ([`SceneTransform`]). Its splits: the frames sorted by image
+//! A capture's cameras keep their own models (distortion included, [`ColmapCamera`]), sized to
+//! the photos on disk ([`super::photo_fit`]), and its world frame is normalised
+//! ([`SceneTransform`]). Its splits: the frames sorted by image
 //! name, every 8th (index % 8 == 0, from 0) held out as `test` (and `val`), the rest `train`,
 //! as mip-NeRF 360 and nerfstudio evaluate, unless the files name the splits themselves.
 
@@ -67,6 +69,39 @@ impl SceneFormat {
     }
 }
 
+/// How a capture's frames are split into training and held-out ones.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SplitProtocol {
+    /// Every [`HOLDOUT_EVERY`]th frame of the photos sorted by name, from the first, held out.
+    EveryEighth,
+    /// The capture's own split lists (nerfstudio's `{train,val,test}_filenames`).
+    Lists,
+}
+
+impl SplitProtocol {
+    /// Which frames are held out, in words: `every 8th of the sorted photo names`.
+    pub fn describe(self) -> &'static str {
+        match self {
+            SplitProtocol::EveryEighth => "every 8th of the sorted photo names",
+            SplitProtocol::Lists => "the capture's own split lists",
+        }
+    }
+}
+
+/// Where a capture's cameras came from and how its frames are split, for messages.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureInfo {
+    /// The format the cameras were read as (COLMAP for an LLFF folder whose COLMAP model
+    /// was taken, [`super::camera_source`]).
+    pub format: SceneFormat,
+    /// The file they came from ([`CaptureFrames::camera_source`]).
+    pub camera_source: String,
+    /// How the frames are split.
+    pub protocol: SplitProtocol,
+    /// The photos' own `(width, height)` once loaded ([`super::Dataset`] fills it).
+    pub photo_size: Option<(u32, u32)>,
+}
+
 /// A capture's split in the normalised frame, and the normalisation applied.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CaptureSplit {
@@ -87,6 +122,8 @@ pub struct CaptureSplit {
     /// Whether its cameras come from structure from motion
     /// ([`super::capture_frame::cameras_from_sfm`]).
     pub from_sfm: bool,
+    /// Where the cameras came from and how the frames are split.
+    pub info: CaptureInfo,
 }
 
 /// The normalisation of a loaded capture: the transform applied to its cameras, and the one
@@ -212,19 +249,27 @@ fn capture_split(
     split: Split,
     stored: Option<SceneTransform>,
 ) -> Result<CaptureSplit> {
-    let CaptureFrames {
-        frames,
-        splits,
-        from_sfm,
-    } = match format {
-        SceneFormat::Nerfstudio => super::nerfstudio::read_frames(dir)?,
-        SceneFormat::Llff => super::llff::read_frames(dir)?,
-        SceneFormat::Colmap => super::colmap_scene::read_frames(dir)?,
+    let (camera_format, read) = match format {
+        SceneFormat::Nerfstudio => (format, super::nerfstudio::read_frames(dir)?),
+        SceneFormat::Llff => {
+            let (camera_format, read, note) = super::camera_source::read_llff_folder(dir)?;
+            if let Some(note) = note {
+                log_once(note);
+            }
+            (camera_format, read)
+        }
+        SceneFormat::Colmap => (format, super::colmap_scene::read_frames(dir)?),
         SceneFormat::Blender => {
             let message = format!("{}: not a capture", dir.display());
             return Err(DatasetError::no_dataset(dir, message).into());
         }
     };
+    let CaptureFrames {
+        mut frames,
+        splits,
+        from_sfm,
+        camera_source,
+    } = read;
     if frames.is_empty() {
         // The file that lists the frames (a COLMAP model without images is refused by its
         // reader, which names its images file).
@@ -246,6 +291,9 @@ fn capture_split(
             check_link_stays_inside(dir, file)?;
         }
     }
+    if let Some(note) = super::photo_fit::fit_cameras_to_photos(dir, &camera_source, &mut frames)? {
+        log_once(note);
+    }
     let poses: Vec<_> = frames.iter().map(|f| f.camera.pose).collect();
     let (transform, from_cameras) = match stored {
         Some(stored) => (stored, SceneTransform::from_poses(&poses).ok()),
@@ -266,6 +314,10 @@ fn capture_split(
         check_stored_frame(dir, &transform, &poses)?;
     }
     let total_frames = frames.len();
+    let protocol = match splits {
+        Some(_) => SplitProtocol::Lists,
+        None => SplitProtocol::EveryEighth,
+    };
     let depth_bounds = scene_depth_bounds(&frames, transform.scale);
     let mut indexed: Vec<(usize, CaptureFrame)> = frames.into_iter().enumerate().collect();
     indexed.sort_by(|a, b| a.1.file_path.cmp(&b.1.file_path));
@@ -302,7 +354,24 @@ fn capture_split(
         total_frames,
         depth_bounds,
         from_sfm,
+        info: CaptureInfo {
+            format: camera_format,
+            camera_source,
+            protocol,
+            photo_size: None,
+        },
     })
+}
+
+/// Logs `message` the first time this process is given it: a capture is read several times
+/// in one run (its size, then each split), and what its loader noticed is said once.
+fn log_once(message: String) {
+    static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+    let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
+    if !said.contains(&message) {
+        log::info!("{message}");
+        said.push(message);
+    }
 }
 
 /// The smallest near and largest far bound of `frames`, times `scale` (a similarity scales

@@ -34,6 +34,9 @@ pub struct CaptureFrames {
     /// Whether the files show the cameras to come from structure from motion
     /// ([`cameras_from_sfm`]).
     pub from_sfm: bool,
+    /// The file the cameras were read from, for messages (`poses_bounds.npy`, `transforms.json`,
+    /// `the COLMAP model sparse/0`).
+    pub camera_source: String,
 }
 
 /// Whether a capture's cameras came from structure from motion, as far as its files show:

@@ -62,9 +62,15 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
             })
         })
         .collect::<Result<Vec<_>>>()?;
+    let folder = model_dir.strip_prefix(dir).unwrap_or(&model_dir);
+    let camera_source = match folder.as_os_str().is_empty() {
+        true => "the COLMAP model".to_string(),
+        false => format!("the COLMAP model {}", folder.display()),
+    };
     Ok(CaptureFrames {
         frames,
         splits: None,
         from_sfm: !model.points.is_empty(),
+        camera_source,
     })
 }

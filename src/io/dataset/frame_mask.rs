@@ -114,6 +114,38 @@ pub fn load_mask(
     Ok(mask)
 }
 
+/// The line that says how many of a split's `frames` (of the dataset in `dir`) have masks
+/// and where they are: `masks: 66 of 66 frames of the train split from masks/ (pixels where
+/// a mask is 0 are neither trained on nor scored)`.
+pub fn masks_line(dir: &Path, split: super::Split, frames: &[super::Frame]) -> String {
+    let masked: Vec<&Path> = frames
+        .iter()
+        .filter_map(|f| f.mask_path.as_deref())
+        .collect();
+    let mut folders: Vec<String> = masked
+        .iter()
+        .map(|m| {
+            let relative = m.strip_prefix(dir).unwrap_or(m);
+            let mut parts = relative.components();
+            match (parts.next(), parts.next()) {
+                (Some(first), Some(_)) => format!("{}/", first.as_os_str().to_string_lossy()),
+                _ => "the capture's folder".to_string(),
+            }
+        })
+        .collect();
+    folders.sort();
+    folders.dedup();
+    let shown = folders.len().min(3);
+    let more = if folders.len() > shown { ", …" } else { "" };
+    format!(
+        "masks: {} of {} frames of the {split} split from {}{more} (pixels where a mask is 0 \
+         are neither trained on nor scored)",
+        masked.len(),
+        frames.len(),
+        folders[..shown].join(", ")
+    )
+}
+
 /// Whether a mask pixel is used: any of its colour channels non-zero. `pixel` is the pixel's
 /// bytes as decoded (native-endian samples of `bytes_per_sample` bytes), `colour_samples` how
 /// many of its leading samples are colour (the alpha sample after them is not read).

@@ -13,6 +13,7 @@
 //! look along +Z with +Y up and +X left (see [`crate::core::camera`]).
 
 pub mod backdrop;
+pub mod camera_source;
 pub mod capture;
 pub mod capture_frame;
 pub mod colmap_scene;
@@ -24,6 +25,7 @@ pub mod nerfstudio;
 pub mod ngp_scene;
 pub mod normalize;
 pub mod orbit;
+pub mod photo_fit;
 pub mod photo_resize;
 pub mod spiral;
 pub mod transforms;
@@ -39,7 +41,10 @@ use crate::core::frame_camera::FrameCamera;
 use crate::core::image::RgbImage;
 use frame_mask::load_mask;
 
-pub use capture::{read_capture_split, read_capture_split_with, Normalisation, SceneFormat};
+pub use capture::{
+    read_capture_split, read_capture_split_with, CaptureInfo, Normalisation, SceneFormat,
+    SplitProtocol,
+};
 pub use capture_frame::cameras_from_sfm;
 pub use dataset_error::DatasetError;
 pub use frame_image::*;
@@ -64,6 +69,8 @@ pub struct SplitFrames {
     pub frames: Vec<Frame>,
     /// `None` for a NeRF-synthetic scene, whose frame is used as it is.
     pub normalisation: Option<Normalisation>,
+    /// For a capture, where its cameras came from and how it is split.
+    pub capture: Option<CaptureInfo>,
 }
 
 /// [`read_split`] with a capture normalised by `stored` when given (the transform a model
@@ -111,17 +118,20 @@ fn split_frames(
         return Ok(SplitFrames {
             frames: read_blender_split(data_dir, split)?,
             normalisation: None,
+            capture: None,
         });
     }
     let read = read_capture_split_with(data_dir, format, split, stored)?;
     let t = read.transform;
     let c = t.center;
     log::info!(
-        "{}: {} capture, {} of {} frames in the {split} split; normalised{}: centre ({:.3}, {:.3}, {:.3}) to the origin, mean camera up to +z, scale {:.4}",
+        "{}: {} capture, cameras from {}, {} of {} frames in the {split} split (held out: {}); normalised{}: centre ({:.3}, {:.3}, {:.3}) to the origin, mean camera up to +z, scale {:.4}",
         data_dir.display(),
-        format.name(),
+        read.info.format.name(),
+        read.info.camera_source,
         read.frames.len(),
         read.total_frames,
+        read.info.protocol.describe(),
         if stored.is_some() { " as given" } else { "" },
         c.x,
         c.y,
@@ -136,6 +146,7 @@ fn split_frames(
             depth_bounds: read.depth_bounds,
             from_sfm: read.from_sfm,
         }),
+        capture: Some(read.info),
     })
 }
 
@@ -165,6 +176,9 @@ pub struct Dataset {
     /// How a capture's cameras were normalised (`None` for a NeRF-synthetic scene): a model
     /// trained on this dataset lives in the frame `normalisation.applied` puts them in.
     pub normalisation: Option<Normalisation>,
+    /// For a capture, where its cameras came from, how it is split and its photos' own size
+    /// (`None` for a NeRF-synthetic scene).
+    pub capture: Option<CaptureInfo>,
 }
 
 impl Dataset {
@@ -226,6 +240,7 @@ impl Dataset {
         let SplitFrames {
             mut frames,
             normalisation,
+            mut capture,
         } = read_split_with(data_dir, split, stored)?;
         frames.truncate(limit.unwrap_or(frames.len()));
         let (loaded, masks): (Vec<LoadedImage>, Vec<Option<PixelMask>>) = frames
@@ -243,8 +258,14 @@ impl Dataset {
             .into_iter()
             .unzip();
         check_sizes_agree(&frames, &loaded)?;
+        if let (Some(info), Some(first)) = (capture.as_mut(), loaded.first()) {
+            info.photo_size = Some(first.source_size);
+        }
         let masks = match masks.iter().any(Option::is_some) {
-            true => masks,
+            true => {
+                log::info!("{}", frame_mask::masks_line(data_dir, split, &frames));
+                masks
+            }
             false => Vec::new(),
         };
         let opaque = loaded.iter().filter(|l| !l.has_alpha).count();
@@ -268,6 +289,7 @@ impl Dataset {
             height,
             masks,
             normalisation,
+            capture,
         })
     }
 }

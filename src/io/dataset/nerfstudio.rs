@@ -114,10 +114,15 @@ fn parse_frames(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> 
     refuse_duplicates(&frames, path)?;
     let splits = named_splits(&file, &frames, dir, path)?;
     let from_sfm = super::capture_frame::cameras_from_sfm(dir, false);
+    let camera_source = path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
     Ok(CaptureFrames {
         frames,
         splits,
         from_sfm,
+        camera_source,
     })
 }
 
