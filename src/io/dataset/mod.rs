@@ -27,6 +27,7 @@ pub mod normalize;
 pub mod orbit;
 pub mod photo_fit;
 pub mod photo_resize;
+pub mod shared_view;
 pub mod spiral;
 pub mod transforms;
 pub mod transforms_intrinsics;

@@ -84,6 +84,9 @@ pub fn train_nerf(
         false => None,
     };
     let dataset = Dataset::load_first_with(data_dir, Split::Train, size, white, None, stored)?;
+    if dataset.normalisation.is_some() {
+        nerf::io::dataset::shared_view::check_capture_shares_a_view(data_dir, &dataset.frames)?;
+    }
     if stored.is_some() {
         let n = dataset.normalisation.as_ref();
         note_scene_frame(data_dir, &paths.checkpoint, stored, n);
