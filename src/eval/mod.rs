@@ -1,4 +1,5 @@
 //! Evaluation: PSNR over a dataset split, and the float64 reference renderer.
 
 pub mod evaluate;
+pub mod protocol;
 pub mod reference;

@@ -8,6 +8,7 @@ use candle_core::Device;
 use crate::render::scene_frame::{note_scene_frame, stored_transform};
 use nerf::config::{Config, SizeUse};
 use nerf::eval::evaluate::{evaluate, EvalReport};
+use nerf::eval::protocol::protocol_line;
 use nerf::io::dataset::{Dataset, Split};
 
 /// Loads the checkpoint (the one [`Config::checkpoint`] picks for `checkpoint`) and the split
@@ -39,7 +40,19 @@ pub fn eval_nerf(
         stored,
     )?;
     note_scene_frame(data_dir, &path, stored, dataset.normalisation.as_ref());
-    let field = config.load_field(&path, device)?;
+    let (model, _) = config.load_model(&path, device)?;
+    if let Some(info) = &dataset.capture {
+        let appearance = model
+            .field
+            .parameter_shapes()
+            .iter()
+            .any(|(name, _)| name == nerf::field::appearance::EMBEDDING);
+        let size = (dataset.width, dataset.height);
+        let frames = dataset.frames.len();
+        let line = protocol_line(info, split, frames, size, appearance);
+        nerf::core::term::note(&line);
+    }
+    let field = model.render_field();
     evaluate(
         &config.render_settings()?.with(&*field),
         &dataset,
