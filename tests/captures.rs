@@ -83,6 +83,105 @@ fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
 }
 
 #[test]
+fn an_llff_file_written_for_larger_photos_is_scaled_to_the_photos_on_disk() {
+    let Some(scratch) = lego_root(FRAMES) else {
+        return;
+    };
+    let lego = &scratch.lego;
+    let dir = scratch.path("llff_full_size");
+    // poses_bounds.npy says 4× the photos' size, as LLFF keeps it beside downscaled photos.
+    write_llff_for_size(lego, &dir, 4.0);
+    // The cameras are the photos' own: the same rays as lego's views.
+    check_capture(lego, &dir, SceneFormat::Llff);
+    let data: nerf::config::DataConfig =
+        serde_yaml_ng::from_str("downscale: 2").expect("a data section");
+    let size = data
+        .dataset_image_size(&dir, nerf::config::SizeUse::Scoring)
+        .unwrap();
+    let half = (lego.size.0 as usize / 2, lego.size.1 as usize / 2);
+    assert_eq!(size, half);
+    let loaded = Dataset::load(&dir, Split::Test, size.0, size.1, false).unwrap();
+    assert_eq!((loaded.width, loaded.height), half);
+    assert_eq!(loaded.capture.as_ref().unwrap().photo_size, Some(lego.size));
+    for frame in &loaded.frames {
+        let nerf::core::frame_camera::FrameCamera::Colmap(camera) = &frame.camera else {
+            panic!("a capture's camera is COLMAP's");
+        };
+        assert_eq!(camera.size, (lego.size.0 as usize, lego.size.1 as usize));
+        // The focal length of the photos; at the loaded half size, half of it.
+        assert!(
+            (camera.focal[0] - lego.focal_px()).abs() < 1e-9,
+            "{:?}",
+            camera.focal
+        );
+        let at_size = camera.focal[0] * size.0 as f64 / camera.size.0 as f64;
+        assert!((at_size - lego.focal_px() / 2.0).abs() < 1e-9);
+    }
+    // A camera file of another aspect than its photos is refused, naming both sizes.
+    let wrong = scratch.path("llff_other_aspect");
+    write_llff_for_size(lego, &wrong, 1.0);
+    let npy = wrong.join("poses_bounds.npy");
+    let mut bytes = std::fs::read(&npy).unwrap();
+    let header = bytes.len() - FRAMES * 17 * 8;
+    for row in 0..FRAMES {
+        // The height, [0][4], doubled.
+        let at = header + (row * 17 + 4) * 8;
+        let h = f64::from_le_bytes(bytes[at..at + 8].try_into().unwrap());
+        bytes[at..at + 8].copy_from_slice(&(2.0 * h).to_le_bytes());
+    }
+    std::fs::write(&npy, bytes).unwrap();
+    let err = read_capture_split(&wrong, SceneFormat::Llff, Split::Train)
+        .unwrap_err()
+        .to_string();
+    let (w, h) = lego.size;
+    let camera = format!("the camera is {w}x{} but its photo is {w}x{h}", 2 * h);
+    assert!(err.contains(&camera) && !err.contains('\n'), "{err}");
+}
+
+#[test]
+fn a_capture_whose_cameras_share_no_view_is_refused_in_one_line() {
+    let Some(scratch) = lego_root(FRAMES) else {
+        return;
+    };
+    let lego = &scratch.lego;
+    // The lego photos on a ring of cameras each looking straight out, up +z (OpenGL columns:
+    // right, up, back, centre).
+    let views = lego
+        .views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let a = i as f64 * std::f64::consts::TAU / FRAMES as f64;
+            let (c, s) = (a.cos(), a.sin());
+            View {
+                image: v.image.clone(),
+                c2w: [
+                    [s, 0.0, -c, 4.0 * c],
+                    [-c, 0.0, -s, 4.0 * s],
+                    [0.0, 1.0, 0.0, 0.0],
+                    [0.0, 0.0, 0.0, 1.0],
+                ],
+            }
+        })
+        .collect();
+    let outward = Lego {
+        views,
+        fov: lego.fov,
+        size: lego.size,
+    };
+    let dir = scratch.path("outward_ring");
+    write_colmap_text(&outward, &dir);
+    let scene = scratch.tiny_scene("nerf_scene_bounded", 1);
+    let err = error_line(&common::nerf(&scene.args("train", &dir, &[])));
+    assert!(
+        err.contains(&dir.display().to_string())
+            && err.contains("no two of its 14 cameras see a common part of the scene"),
+        "{err}"
+    );
+    assert!(!scene.checkpoint.exists());
+}
+
+#[test]
 fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let Some(scratch) = lego_root(FRAMES) else {
         return;
@@ -107,11 +206,27 @@ fn a_capture_loads_as_a_dataset_and_trains_and_evaluates_with_nerf_scene() {
     let o = common::nerf_ok(&args);
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.contains("PSNR"), "{out}");
+    // The protocol in one line: the held-out frames, the appearance, the targets (at the
+    // tiny scene's data.image_size, 24×24, not a whole fraction of the photos).
+    let protocol = "protocol: 2 held-out frames (every 8th of the sorted photo names), mean \
+         appearance vector of the training photos, targets resized by the triangle filter (not \
+         a whole factor of the photos) to 24×24";
+    let log = common::stderr(&o);
+    assert!(log.contains(protocol), "{log}");
+    assert!(
+        log.contains("cameras from the COLMAP model sparse/0")
+            && log.contains("(held out: every 8th of the sorted photo names)"),
+        "{log}"
+    );
     // At the photos' own size over data.downscale, written under their own names.
     let saved = scratch.path("saved");
     let saved_arg = saved.to_str().unwrap();
     args.extend(["data.downscale=16", "--save-images", saved_arg]);
-    common::nerf_ok(&args);
+    let o = common::nerf_ok(&args);
+    let log = common::stderr(&o);
+    let side = lego.size.0 / 16;
+    let small = format!("targets box-downscaled 1/16 to {side}×{side}");
+    assert!(log.contains(&small), "{log}");
     let side = (lego.size.0 as f64 / 16.0).round() as u32;
     for name in ["frame_00.png", "frame_08.png"] {
         assert_eq!(

@@ -225,13 +225,19 @@ pub fn write_nerfstudio(lego: &Lego, dir: &Path) {
 }
 
 pub fn write_llff(lego: &Lego, dir: &Path) {
+    write_llff_for_size(lego, dir, 1.0);
+}
+
+/// [`write_llff`] with `[h, w, focal]` written for photos `scale` times the photos' size
+/// (LLFF keeps the full-size values beside downscaled photos).
+pub fn write_llff_for_size(lego: &Lego, dir: &Path, scale: f64) {
     lego.copy_images(dir);
     let (w, h) = lego.size;
     let mut values = Vec::new();
     for v in &lego.views {
         // Columns (down, right, back, centre, hwf) row by row; down = −up.
         let m = &v.c2w;
-        let hwf = [h as f64, w as f64, lego.focal_px()];
+        let hwf = [h as f64, w as f64, lego.focal_px()].map(|x| x * scale);
         for (i, extra) in hwf.iter().enumerate() {
             values.extend([-m[i][1], m[i][0], m[i][2], m[i][3], *extra]);
         }
