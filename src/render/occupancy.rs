@@ -201,6 +201,18 @@ impl OccupancyGrid {
         self.density.len()
     }
 
+    /// Whether `cell` is in the outermost layer of the grid. With a contraction that layer
+    /// holds what lies farthest (beyond 1 / (cell side) of the unit cube), and it is always
+    /// occupied: every ray then ends on samples of the far shell, so a ray through space the
+    /// grid emptied still takes the colour the field learnt far behind it, where it would
+    /// otherwise end on the background colour (black for photos without a backdrop: square
+    /// black holes in a room's walls where cells were dropped).
+    pub fn is_far_shell(&self, cell: usize) -> bool {
+        let r = self.resolution;
+        let i = [cell / (r * r), (cell / r) % r, cell % r];
+        i.iter().any(|&k| k == 0 || k + 1 == r)
+    }
+
     /// The cell holding point `p`, or `None` outside the bounding box.
     #[inline]
     pub fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
@@ -404,12 +416,18 @@ impl OccupancyGrid {
     }
 
     /// Recomputes the flags: occupied where the running density exceeds
-    /// `min(density_threshold, mean density)`, except in cells kept empty.
+    /// `min(density_threshold, mean density)`, and with a contraction in the outermost layer
+    /// of cells ([`OccupancyGrid::is_far_shell`]), except in cells kept empty.
     pub fn refresh_occupied(&mut self) {
         let mean = self.density.iter().map(|&d| d as f64).sum::<f64>() / self.n_cells() as f64;
         let threshold = (self.density_threshold as f64).min(mean) as f32;
         for (o, &d) in self.occupied.iter_mut().zip(&self.density) {
             *o = d > threshold;
+        }
+        if self.contraction != Contraction::None {
+            for cell in 0..self.n_cells() {
+                self.occupied[cell] |= self.is_far_shell(cell);
+            }
         }
         for (o, &kept) in self.occupied.iter_mut().zip(&self.kept_empty) {
             *o &= !kept;
@@ -662,6 +680,34 @@ mod tests {
 #[cfg(test)]
 mod clearance_tests {
     use super::*;
+
+    #[test]
+    fn a_contracted_grid_keeps_its_far_shell_occupied() {
+        let params = |contraction| OccupancyGridParams {
+            resolution: 4,
+            aabb: [-2.0, -2.0, -2.0, 2.0, 2.0, 2.0],
+            density_threshold: 0.5,
+            contraction,
+        };
+        for contraction in [Contraction::None, Contraction::LInf] {
+            let mut grid = OccupancyGrid::new(&params(contraction)).unwrap();
+            grid.density = vec![0.0; grid.n_cells()];
+            grid.refresh_occupied();
+            for cell in 0..grid.n_cells() {
+                let i = [cell / 16, (cell / 4) % 4, cell % 4];
+                let outer = i.iter().any(|&k| k == 0 || k == 3);
+                assert_eq!(grid.is_far_shell(cell), outer, "cell {cell}");
+                // Empty density: only a contracted grid's outer layer stays occupied.
+                let expected = outer && contraction == Contraction::LInf;
+                assert_eq!(grid.occupied[cell], expected, "{contraction:?} cell {cell}");
+            }
+            // 4³ − 2³ cells in the shell.
+            let shell = (0..grid.n_cells())
+                .filter(|&c| grid.is_far_shell(c))
+                .count();
+            assert_eq!(shell, 64 - 8);
+        }
+    }
 
     #[test]
     fn cells_around_cameras_stay_empty_through_updates_and_a_save() {

@@ -1,0 +1,345 @@
+"""COLMAP 4 through the `pycolmap` wheel, as the stages `nerf process` runs.
+
+`nerf process` writes this file into `OUT/colmap/` and runs it as
+`python3 pycolmap_stages.py STAGE --Option value ...`, with the stage names and options of
+COLMAP's command line (`feature_extractor --SiftExtraction.max_num_features 8192`, ...), so
+that one Rust driver runs either this or Debian's `colmap` program. It prints the progress
+lines COLMAP's command line prints (`Processed file [i/N]`, `Matching image [i/N]`,
+`Registering image #id (n)`), which the driver's progress bars follow.
+
+Written by hand because pycolmap is a library, not a command line: this is the thin layer
+that calls it. Two stages are the project's own, not COLMAP's:
+- `retrieval_matcher`: pairs each image with its most similar images by a bag of visual
+  words built from the database's own SIFT descriptors (k-means, tf-idf, cosine
+  similarity), then matches those pairs. COLMAP's vocabulary-tree matcher does the same with
+  a tree trained on Flickr photos, which the wheel does not ship and a machine without a
+  network cannot download.
+- `sequential_matcher --retrieval_neighbours K`: sequential matching, then the retrieval
+  pairs, which close the loop of a walk-around without a vocabulary tree.
+"""
+
+import sys
+import time
+
+STAGES = (
+    "help",
+    "feature_extractor",
+    "exhaustive_matcher",
+    "sequential_matcher",
+    "retrieval_matcher",
+    "mapper",
+    "global_mapper",
+    "point_filtering",
+    "bundle_adjuster",
+)
+
+
+def fail(message):
+    print(f"error: {message}", flush=True)
+    sys.exit(1)
+
+
+def parse(argv):
+    """`--Key value` pairs into a dict (keys without the dashes)."""
+    if len(argv) % 2:
+        fail(f"options come in `--Key value` pairs, got {argv}")
+    pairs = {}
+    for key, value in zip(argv[::2], argv[1::2]):
+        if not key.startswith("--"):
+            fail(f"expected an option `--Key`, got {key!r}")
+        pairs[key[2:]] = value
+    return pairs
+
+
+def assign(target, name, text):
+    """Sets `target.name` from `text`, converted to the type the attribute has."""
+    if not hasattr(target, name):
+        fail(f"unknown option {name} of {type(target).__name__}")
+    current = getattr(target, name)
+    if isinstance(current, bool):
+        value = text.strip().lower() in ("1", "true", "yes")
+    elif isinstance(current, int):
+        value = int(text)
+    elif isinstance(current, float):
+        value = float(text)
+    else:
+        value = text
+    setattr(target, name, value)
+
+
+def take(options, prefix, target):
+    """Applies every `prefix.name` option to `target` and removes it from `options` (COLMAP's
+    `use_gpu` options are dropped: the wheel runs on the CPU)."""
+    for key in [k for k in options if k.startswith(prefix + ".")]:
+        if key.endswith(".use_gpu"):
+            options.pop(key)
+            continue
+        assign(target, key[len(prefix) + 1 :], options.pop(key))
+
+
+def required(options, key):
+    if key not in options:
+        fail(f"--{key} is required")
+    return options.pop(key)
+
+
+def finish(options):
+    """Ignores options for COLMAP's GPU and refuses any other left over."""
+    for key in list(options):
+        if key.endswith("use_gpu"):
+            options.pop(key)
+    if options:
+        fail(f"unknown options: {', '.join('--' + k for k in options)}")
+
+
+def matching_options(pycolmap, options):
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.use_gpu = False
+    take(options, "SiftMatching", matching.sift)
+    take(options, "FeatureMatching", matching)
+    return matching
+
+
+def count_pairs(pycolmap, database):
+    with pycolmap.Database.open(database) as db:
+        return db.num_matched_image_pairs()
+
+
+def feature_extractor(pycolmap, options):
+    database = required(options, "database_path")
+    images = required(options, "image_path")
+    reader = pycolmap.ImageReaderOptions()
+    single = options.pop("ImageReader.single_camera", "0") == "1"
+    take(options, "ImageReader", reader)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.use_gpu = False
+    size = options.pop("SiftExtraction.max_image_size", None)
+    if size is not None:
+        extraction.max_image_size = int(size)
+    take(options, "SiftExtraction", extraction.sift)
+    finish(options)
+    mode = pycolmap.CameraMode.SINGLE if single else pycolmap.CameraMode.AUTO
+    # One call for all images (a call per batch would give each batch a camera of its own);
+    # COLMAP's log prints `Processed file [i/N]` per image, which the driver follows.
+    pycolmap.extract_features(
+        database,
+        images,
+        camera_mode=mode,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    with pycolmap.Database.open(database) as db:
+        print(f"Extracted features of {db.num_images()} images, {db.num_cameras()} camera(s)", flush=True)
+
+
+def exhaustive_matcher(pycolmap, options):
+    database = required(options, "database_path")
+    matching = matching_options(pycolmap, options)
+    pairing = pycolmap.ExhaustivePairingOptions()
+    take(options, "ExhaustiveMatching", pairing)
+    finish(options)
+    pycolmap.match_exhaustive(
+        database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+    )
+    print(f"Matched {count_pairs(pycolmap, database)} image pairs", flush=True)
+
+
+def sequential_matcher(pycolmap, options):
+    database = required(options, "database_path")
+    neighbours = int(options.pop("retrieval_neighbours", "0"))
+    matching = matching_options(pycolmap, options)
+    pairing = pycolmap.SequentialPairingOptions()
+    take(options, "SequentialMatching", pairing)
+    finish(options)
+    pycolmap.match_sequential(
+        database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+    )
+    print(f"Matched {count_pairs(pycolmap, database)} image pairs sequentially", flush=True)
+    if neighbours > 0:
+        match_retrieved(pycolmap, database, matching, neighbours)
+
+
+def retrieval_matcher(pycolmap, options):
+    database = required(options, "database_path")
+    neighbours = int(options.pop("retrieval_neighbours", "20"))
+    matching = matching_options(pycolmap, options)
+    finish(options)
+    match_retrieved(pycolmap, database, matching, neighbours)
+
+
+def match_retrieved(pycolmap, database, matching, neighbours):
+    """Matches each image with its `neighbours` most similar images by visual words."""
+    import os
+    import tempfile
+
+    with pycolmap.Database.open(database) as db:
+        images = sorted(db.read_all_images(), key=lambda i: i.name)
+        descriptors = [db.read_descriptors(i.image_id) for i in images]
+    pairs = retrieval_pairs(
+        [i.name for i in images], [d.data if hasattr(d, "data") else d for d in descriptors],
+        neighbours,
+    )
+    folder = os.path.dirname(os.path.abspath(database))
+    with tempfile.NamedTemporaryFile(
+        "w", suffix=".txt", prefix="retrieval_pairs", dir=folder, delete=False
+    ) as f:
+        for a, b in pairs:
+            f.write(f"{a} {b}\n")
+        path = f.name
+    print(f"Retrieved {len(pairs)} image pairs ({neighbours} per image)", flush=True)
+    try:
+        pairing = pycolmap.ImportedPairingOptions()
+        pairing.match_list_path = path
+        pycolmap.match_image_pairs(
+            database, matching_options=matching, pairing_options=pairing,
+            device=pycolmap.Device.cpu,
+        )
+    finally:
+        os.remove(path)
+    print(f"Matched {count_pairs(pycolmap, database)} image pairs in all", flush=True)
+
+
+def retrieval_pairs(names, descriptors, neighbours, words=1024, per_image=1500, seed=0):
+    """Pairs (name, name) of each image with its most similar images: a bag of visual words
+    by k-means over a sample of the descriptors, tf-idf weights, cosine similarity."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    # COLMAP keeps the largest-scale features first; the first ones describe the image best.
+    kept = [np.asarray(d[:per_image], dtype=np.float32) for d in descriptors]
+    everything = np.concatenate([d for d in kept if len(d)]) if any(len(d) for d in kept) else None
+    if everything is None or len(names) < 2:
+        return []
+    everything /= np.linalg.norm(everything, axis=1, keepdims=True) + 1e-12
+    words = max(8, min(words, len(everything) // 20))
+    sample = everything[rng.choice(len(everything), size=min(len(everything), 50 * words), replace=False)]
+    centres = sample[rng.choice(len(sample), size=words, replace=False)]
+    for _ in range(8):
+        labels = nearest(sample, centres)
+        sums = np.zeros_like(centres)
+        np.add.at(sums, labels, sample)
+        counts = np.bincount(labels, minlength=words)[:, None]
+        centres = np.where(counts > 0, sums / np.maximum(counts, 1), centres)
+        centres /= np.linalg.norm(centres, axis=1, keepdims=True) + 1e-12
+    histograms = np.zeros((len(names), words), dtype=np.float32)
+    for i, d in enumerate(kept):
+        if len(d):
+            d = d / (np.linalg.norm(d, axis=1, keepdims=True) + 1e-12)
+            histograms[i] = np.bincount(nearest(d, centres), minlength=words)
+    document_frequency = (histograms > 0).sum(axis=0)
+    histograms *= np.log(len(names) / np.maximum(document_frequency, 1))[None, :]
+    histograms /= np.linalg.norm(histograms, axis=1, keepdims=True) + 1e-12
+    similarity = histograms @ histograms.T
+    np.fill_diagonal(similarity, -np.inf)
+    k = min(neighbours, len(names) - 1)
+    pairs = set()
+    for i in range(len(names)):
+        for j in np.argsort(-similarity[i])[:k]:
+            pairs.add((min(i, int(j)), max(i, int(j))))
+    return [(names[a], names[b]) for a, b in sorted(pairs)]
+
+
+def nearest(points, centres):
+    """The index of each point's nearest centre (unit vectors: the largest dot product)."""
+    import numpy as np
+
+    labels = np.empty(len(points), dtype=np.int64)
+    for start in range(0, len(points), 65536):
+        labels[start : start + 65536] = np.argmax(points[start : start + 65536] @ centres.T, axis=1)
+    return labels
+
+
+def mapper(pycolmap, options):
+    database = required(options, "database_path")
+    images = required(options, "image_path")
+    output = required(options, "output_path")
+    pipeline = pycolmap.IncrementalPipelineOptions()
+    seed = options.pop("random_seed", None)
+    if seed is not None:
+        pipeline.random_seed = int(seed)
+        pipeline.mapper.random_seed = int(seed)
+        pipeline.triangulation.random_seed = int(seed)
+    take(options, "Mapper", pipeline.mapper)
+    take(options, "Pipeline", pipeline)
+    finish(options)
+    registered = [0]
+
+    def initial_pair():
+        registered[0] = 2
+        print("Initializing with image pair", flush=True)
+
+    def next_image():
+        registered[0] += 1
+        print(f"Registering image #0 ({registered[0]})", flush=True)
+
+    models = pycolmap.incremental_mapping(
+        database, images, output, options=pipeline,
+        initial_image_pair_callback=initial_pair, next_image_callback=next_image,
+    )
+    report(models)
+
+
+def global_mapper(pycolmap, options):
+    database = required(options, "database_path")
+    images = required(options, "image_path")
+    output = required(options, "output_path")
+    pipeline = pycolmap.GlobalPipelineOptions()
+    seed = options.pop("random_seed", None)
+    if seed is not None:
+        pipeline.random_seed = int(seed)
+    take(options, "GlobalMapper", pipeline)
+    finish(options)
+    models = pycolmap.global_mapping(database, images, output, options=pipeline)
+    report(models)
+
+
+def report(models):
+    sizes = sorted((m.num_reg_images() for m in models.values()), reverse=True)
+    print(f"Models: {len(sizes)}, registered images: {sizes}", flush=True)
+
+
+def point_filtering(pycolmap, options):
+    source = required(options, "input_path")
+    output = required(options, "output_path")
+    pixels = float(options.pop("max_reproj_error", "4"))
+    finish(options)
+    model = pycolmap.Reconstruction(source)
+    manager = pycolmap.ObservationManager(model)
+    points = set(model.point3D_ids())
+    removed = manager.filter_points3D_with_large_reprojection_error(pixels, points)
+    model.write(output)
+    print(f"Filtered observations: {removed}", flush=True)
+
+
+def bundle_adjuster(pycolmap, options):
+    source = required(options, "input_path")
+    output = required(options, "output_path")
+    finish(options)
+    model = pycolmap.Reconstruction(source)
+    adjustment = pycolmap.BundleAdjustmentOptions()
+    adjustment.print_summary = False
+    pycolmap.bundle_adjustment(model, adjustment)
+    model.write(output)
+    print(f"Bundle-adjusted {model.num_reg_images()} images", flush=True)
+
+
+def main():
+    if len(sys.argv) < 2 or sys.argv[1] not in STAGES:
+        fail(f"the first argument is a stage: {', '.join(STAGES)}")
+    stage = sys.argv[1]
+    try:
+        import pycolmap
+    except ImportError as e:
+        fail(f"cannot import pycolmap ({e})")
+    if stage == "help":
+        print(f"pycolmap {pycolmap.__version__} (COLMAP {pycolmap.COLMAP_version})", flush=True)
+        return
+    options = parse(sys.argv[2:])
+    start = time.time()
+    globals()[stage](pycolmap, options)
+    print(f"{stage}: {time.time() - start:.1f} s", flush=True)
+
+
+if __name__ == "__main__":
+    main()
