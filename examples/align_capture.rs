@@ -15,7 +15,9 @@
 //!   mean distance from their mean;
 //! * a folder of Strecha `*.camera` files (Herz-Jesu-P25's `gt_dense_cameras`), or a folder
 //!   holding `gt_dense_cameras`: fractions of the camera spread, the true centres' RMS
-//!   distance from their mean.
+//!   distance from their mean;
+//! * a folder holding a COLMAP model (`sparse/N`, as a reference reconstruction, such as the
+//!   one beside a capture's `poses_bounds.npy`): fractions of the camera spread.
 //!
 //! CAPTURE_DIR is a folder with a `transforms.json`, or else a COLMAP model (a model folder,
 //! or a folder holding `sparse/N`, as the mapper runs of `nerf process` leave them).
@@ -54,6 +56,11 @@ fn read_truth(truth: &Path) -> Result<(Vec<TrueCamera>, f64, &'static str)> {
         let radius = mean_distance(&cameras, mean(&cameras));
         return Ok((cameras, radius, "the ring's radius"));
     }
+    if nerf::io::colmap::find_model_folder(truth).is_some() {
+        let cameras = read_capture(truth)?;
+        let size = spread(&centres(&cameras));
+        return Ok((cameras, size, "the camera spread"));
+    }
     let folder = if truth.join("gt_dense_cameras").is_dir() {
         truth.join("gt_dense_cameras")
     } else {
@@ -65,7 +72,7 @@ fn read_truth(truth: &Path) -> Result<(Vec<TrueCamera>, f64, &'static str)> {
         return Ok((cameras, size, "the camera spread"));
     }
     bail!(
-        "{}: not a NeRF-synthetic scene, a *_par.txt or a folder of .camera files",
+        "{}: not a NeRF-synthetic scene, a *_par.txt, a folder of .camera files or a COLMAP model",
         truth.display()
     )
 }

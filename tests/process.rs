@@ -85,6 +85,39 @@ fn no_photos_and_missing_colmap_are_one_line_errors() {
     assert!(err.contains("COLMAP is missing"), "{err}");
     assert!(err.contains("sudo apt-get install colmap"), "{err}");
     assert!(!out.join("transforms.json").exists(), "{err}");
+
+    // pycolmap asked for and missing: one line, before OUT is touched.
+    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args(["process", "--sfm", "pycolmap", "--images"])
+        .arg(&photos)
+        .arg("--out")
+        .arg(&out)
+        .env("NERF_PYTHON", "/nonexistent/python3")
+        .output()
+        .unwrap();
+    let err = common::one_line_error(&o);
+    assert!(err.contains("pycolmap is missing"), "{err}");
+    assert!(err.contains("pip install pycolmap"), "{err}");
+    assert!(!out.exists(), "{err}");
+    // Retrieval matching needs pycolmap.
+    let o = Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args([
+            "process",
+            "--sfm",
+            "colmap",
+            "--matcher",
+            "retrieval",
+            "--images",
+        ])
+        .arg(&photos)
+        .arg("--out")
+        .arg(&out)
+        .env("NERF_COLMAP", fake_colmap(dir.path(), "exit 0"))
+        .output()
+        .unwrap();
+    let err = common::one_line_error(&o);
+    assert!(err.contains("--matcher retrieval needs"), "{err}");
+    assert!(!out.exists(), "{err}");
 }
 
 #[test]
@@ -289,6 +322,37 @@ fn rotation_and_centre(m: &serde_json::Value) -> (DMat3, DVec3) {
     (DMat3::from_cols(column(0), column(1), column(2)), column(3))
 }
 
+/// Whether Python imports pycolmap here (`python3`, or `$NERF_PYTHON`); else a visible skip,
+/// and a failure under `CI=true` (`.ci/install` installs the wheel).
+fn pycolmap_installed() -> bool {
+    use std::io::Write;
+    let python = std::env::var_os("NERF_PYTHON").unwrap_or_else(|| "python3".into());
+    let imports = Command::new(&python)
+        .args(["-c", "import pycolmap"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !imports {
+        let test = common::test_name();
+        let why = "pycolmap not found (pip install pycolmap, or run .ci/install)";
+        if std::env::var("CI").is_ok_and(|v| v == "true") {
+            panic!("{test}: {why}, and CI must have it");
+        }
+        let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {why}");
+    }
+    imports
+}
+
+/// `nerf process --images IMAGES --out OUT --sfm SFM`, without `NERF_COLMAP`'s stand-ins.
+fn process_with(images: &Path, out: &Path, sfm: &str) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nerf"))
+        .args(["process", "--sfm", sfm, "--images"])
+        .arg(images)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("run nerf")
+}
+
 #[test]
 fn colmap_recovers_lego_cameras() {
     let _alone = alone();
@@ -298,6 +362,26 @@ fn colmap_recovers_lego_cameras() {
     if !colmap_installed() {
         return;
     }
+    recovers_lego_cameras(&lego, "colmap");
+}
+
+#[test]
+fn pycolmap_recovers_lego_cameras() {
+    let _alone = alone();
+    let Some(lego) = common::lego_dir() else {
+        return;
+    };
+    if !pycolmap_installed() {
+        return;
+    }
+    let stdout = recovers_lego_cameras(&lego, "pycolmap");
+    // One mapper run by default, and each stage's log where the program's would be.
+    assert!(stdout.contains("1 mapper runs"), "{stdout}");
+}
+
+/// `nerf process --sfm SFM` on 24 lego views recovers their cameras up to a similarity
+/// ([`assert_aligned`]); returns its stdout.
+fn recovers_lego_cameras(lego: &Path, sfm: &str) -> String {
     // The 24 views nearest r_0's (within about 47°): lego's 100 views spread over a hemisphere
     // leave 24 consecutive ones too far apart to match on the object's few features.
     let truth = lego_cameras(&lego, "train");
@@ -320,8 +404,8 @@ fn colmap_recovers_lego_cameras() {
     // warns that no majority could say which is right; this test checks camera accuracy,
     // which such a run may lack, so it gives the whole process one more try after that
     // warning (or after no run registered anything), which starts over.
-    let stdout = timed_ok("on 24 lego views", || {
-        let first = process(&photos, &out, None);
+    let stdout = timed_ok(&format!("on 24 lego views with {sfm}"), || {
+        let first = process_with(&photos, &out, sfm);
         let stderr = String::from_utf8_lossy(&first.stderr);
         let unsure = stderr.contains("COLMAP registered 0 of")
             || stderr.contains("disagree on most cameras");
@@ -332,7 +416,7 @@ fn colmap_recovers_lego_cameras() {
             "the mapper runs gave no majority; trying once more: {}",
             common::stderr(&first)
         );
-        process(&photos, &out, None)
+        process_with(&photos, &out, sfm)
     });
 
     let text = std::fs::read_to_string(out.join("transforms.json")).unwrap();
@@ -371,6 +455,7 @@ fn colmap_recovers_lego_cameras() {
         })
         .collect();
     assert_aligned(&pairs);
+    stdout
 }
 
 /// A stand-in COLMAP in `dir` (`dir/colmap`, [`fake_colmap`]) whose mapper copies the

@@ -311,9 +311,16 @@ pub struct ProcessArgs {
     /// each stage's log) and transforms.json. It must not hold an earlier run's outputs.
     #[arg(long)]
     pub out: PathBuf,
+    /// Which COLMAP: pycolmap (COLMAP 4 through the Python wheel: `pip install pycolmap`),
+    /// colmap (the program: `colmap` on PATH or NERF_COLMAP), or auto (pycolmap when Python
+    /// imports it and NERF_COLMAP is not set, else the program).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub sfm: SfmArg,
     /// How COLMAP pairs images: exhaustive (every pair), sequential (neighbours in name
-    /// order, for video frames), or auto (sequential for --video; for photos exhaustive up
-    /// to 100 images).
+    /// order, and with pycolmap retrieval pairs that close loops), retrieval (each image with
+    /// its most similar ones; pycolmap only), or auto (with pycolmap: exhaustive up to 50
+    /// images, else sequential for a video or photos numbered in order, else retrieval; with
+    /// the program: sequential for --video, for photos exhaustive up to 100 images).
     #[arg(long, value_enum, default_value = "auto")]
     pub matcher: MatcherArg,
     /// A COLMAP vocabulary tree file (e.g. vocab_tree_flickr100K_words32K.bin from COLMAP's
@@ -325,18 +332,29 @@ pub struct ProcessArgs {
     #[arg(long, default_value_t = crate::process::DEFAULT_MAX_FEATURES, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=65536))]
     pub max_features: usize,
     /// Photos whose longer side is larger than this many pixels are downscaled for feature
-    /// extraction (100 to 16384).
-    #[arg(long, default_value_t = crate::process::DEFAULT_MAX_IMAGE_SIZE, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=16384))]
-    pub max_image_size: usize,
+    /// extraction (100 to 16384; default 1600 with pycolmap, 3200 with the program).
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=16384))]
+    pub max_image_size: Option<usize>,
     /// Runs of COLMAP's mapper, each with its own random seed: the run the others agree with
-    /// best is kept, and images the others place elsewhere are left out (1 to 10).
-    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=10))]
-    pub mapper_runs: u64,
+    /// best is kept, and images the others place elsewhere are left out (1 to 10; default 1
+    /// with pycolmap, 3 with the program).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=10))]
+    pub mapper_runs: Option<u64>,
     /// After mapping, observations further than this many pixels from their point's
     /// projection are dropped and the cameras adjusted again (the mapper itself keeps
     /// COLMAP's 4 px; raise this for blurred or rolling-shutter photos).
     #[arg(long, default_value_t = 1.5, value_parser = positive_pixels)]
     pub max_reprojection_error: f64,
+    /// Then train `nerf_scene` on the capture for this many minutes (the checkpoint:
+    /// OUT/model.safetensors), as `nerf train --config nerf_scene --data-dir OUT --minutes M`.
+    #[arg(long, value_parser = positive_minutes)]
+    pub train_minutes: Option<f64>,
+    /// Then serve the trained model in the browser viewer (`nerf view`), on --port.
+    #[arg(long, requires = "train_minutes")]
+    pub view: bool,
+    /// The viewer's port with --view (0 picks a free one).
+    #[arg(long, default_value_t = 7007, requires = "view")]
+    pub port: u16,
 }
 
 /// A number of video frames from 3 to 2000.
@@ -362,6 +380,26 @@ pub enum MatcherArg {
     Auto,
     Exhaustive,
     Sequential,
+    Retrieval,
+}
+
+/// `--sfm`.
+#[allow(missing_docs)] // each value is what the option's help says
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum SfmArg {
+    Auto,
+    Pycolmap,
+    Colmap,
+}
+
+impl From<SfmArg> for crate::process::colmap_run::SfmChoice {
+    fn from(m: SfmArg) -> Self {
+        match m {
+            SfmArg::Auto => Self::Auto,
+            SfmArg::Pycolmap => Self::Pycolmap,
+            SfmArg::Colmap => Self::Program,
+        }
+    }
 }
 
 impl From<MatcherArg> for crate::process::Matcher {
@@ -370,6 +408,7 @@ impl From<MatcherArg> for crate::process::Matcher {
             MatcherArg::Auto => Self::Auto,
             MatcherArg::Exhaustive => Self::Exhaustive,
             MatcherArg::Sequential => Self::Sequential,
+            MatcherArg::Retrieval => Self::Retrieval,
         }
     }
 }

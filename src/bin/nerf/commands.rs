@@ -10,8 +10,9 @@ use anyhow::Result;
 use candle_core::Device;
 
 use crate::cli::{
-    BenchArgs, ConfigArgs, EvalArgs, ExportCommand, ExportViewsArgs, ImportTorchArgs, ProcessArgs,
-    RenderArgs, ReportArgs, RunArgs, SplitArg, TargetsArgs, TrainArgs, TrainingArgs, ViewArgs,
+    BenchArgs, CheckpointArg, ConfigArgs, EvalArgs, ExportCommand, ExportViewsArgs,
+    ImportTorchArgs, ProcessArgs, RenderArgs, ReportArgs, RunArgs, SplitArg, TargetsArgs,
+    TrainArgs, TrainingArgs, ViewArgs,
 };
 use crate::export::ViewSelection;
 use crate::train::jobs::{self, NerfTrainOptions, RunJob, TrainJob, TrainOutcome};
@@ -376,8 +377,72 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
 }
 
 /// `nerf process`: photos to a capture through COLMAP ([`crate::process::process`]);
-/// prints what it wrote, how many images registered and the command that trains on it.
-pub fn process(args: ProcessArgs) -> Result<()> {
+/// prints what it wrote, how many images registered and the command that trains on it; with
+/// `--train-minutes` trains `nerf_scene` on it, and with `--view` serves the model, saying each
+/// stage's time and the whole.
+pub fn process(args: ProcessArgs, device: &Device) -> Result<()> {
+    let start = std::time::Instant::now();
+    let (train_minutes, view, port) = (args.train_minutes, args.view, args.port);
+    let out = args.out.clone();
+    process_capture(args)?;
+    let Some(minutes) = train_minutes else {
+        return Ok(());
+    };
+    let sfm_seconds = start.elapsed().as_secs_f64();
+    let checkpoint = CheckpointArg {
+        checkpoint: Some(out.join(CAPTURE_MODEL)),
+    };
+    let config = |overrides: Vec<String>| ConfigArgs {
+        config: "nerf_scene".into(),
+        overrides,
+    };
+    train(
+        TrainArgs {
+            config: config(Vec::new()),
+            data: crate::cli::DataDirArg {
+                data_dir: Some(out.clone()),
+            },
+            training: crate::cli::TrainingArgs {
+                minutes: Some(minutes),
+                ..Default::default()
+            },
+            checkpoint: checkpoint.clone(),
+            out: crate::cli::OutDirArg {
+                out_dir: out.join("previews"),
+            },
+        },
+        device,
+    )?;
+    let total = start.elapsed().as_secs_f64();
+    say(&format!(
+        "photos to model in {:.1} min: structure from motion {:.1} min, training {:.1} min",
+        total / 60.0,
+        sfm_seconds / 60.0,
+        (total - sfm_seconds) / 60.0
+    ))?;
+    if !view {
+        return say(&format!(
+            "view it: nerf view --config nerf_scene --checkpoint {}",
+            out.join(CAPTURE_MODEL).display()
+        ));
+    }
+    crate::commands::view(
+        ViewArgs {
+            config: config(Vec::new()),
+            checkpoint,
+            port,
+            host: "127.0.0.1".into(),
+            header_timeout_ms: 10_000,
+        },
+        device,
+    )
+}
+
+/// The checkpoint `nerf process --train-minutes` writes in its `--out` folder.
+pub const CAPTURE_MODEL: &str = "model.safetensors";
+
+/// [`process`] without the training and viewing.
+fn process_capture(args: ProcessArgs) -> Result<()> {
     use crate::process::Source;
     let source = match (args.images, args.video) {
         (Some(images), _) => Source::Images(images),
@@ -402,6 +467,7 @@ pub fn process(args: ProcessArgs) -> Result<()> {
             runs: args.mapper_runs,
             max_reprojection_error: args.max_reprojection_error,
         },
+        sfm: args.sfm.into(),
     };
     let summary = crate::process::process(&options)?;
     let times: Vec<String> = summary

@@ -49,7 +49,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench(args) => commands::bench(args, &device),
         Command::Report(args) => commands::report(args, &device),
         Command::View(args) => commands::view(args, &device),
-        Command::Process(args) => commands::process(args),
+        Command::Process(args) => commands::process(args, &device),
         Command::Export { what } => commands::export(what, &device),
     }
 }

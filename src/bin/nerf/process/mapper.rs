@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 
-use crate::process::colmap_run::{last_line, run_stage};
+use crate::process::colmap_run::{last_line, run_stage, Colmap};
 use nerf::core::camera_colmap::ColmapPose;
 use nerf::core::camera_consensus::{consensus, Centres};
 
@@ -56,24 +56,35 @@ pub const MAJORITY_RUNS: u64 = 3;
 /// bent stretch of cameras or a flipped one; measured: docs/own-scene.md#mapper-settings).
 pub const SETTLED_FRACTION: f64 = 0.02;
 
+/// Mapper runs by default with COLMAP 4 through pycolmap: one run placed the temple ring's
+/// cameras as the program's consensus of three did (measured:
+/// docs/own-scene.md#structure-from-motion-measured); more are added when it registers fewer
+/// than half of the photos ([`MAX_EXTRA_RUNS`]).
+pub const PYCOLMAP_RUNS: u64 = 1;
+
+/// Mapper runs by default with the COLMAP program (3.8), whose runs now and then flip or bend
+/// cameras (see the module doc).
+pub const PROGRAM_RUNS: u64 = 3;
+
 /// How the mapper is run.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MappingOptions {
     /// Most mapper runs (seeds 0, 1, ...) unless more are needed, at least 1; fewer when two
-    /// agree ([`SETTLED_FRACTION`]).
-    pub runs: u64,
+    /// agree ([`SETTLED_FRACTION`]). `None`: [`PYCOLMAP_RUNS`] with pycolmap,
+    /// [`PROGRAM_RUNS`] with the COLMAP program.
+    pub runs: Option<u64>,
     /// Pixels: after mapping, observations of the kept model further than this from their
     /// point's projection are dropped and the model is bundle-adjusted again.
     pub max_reprojection_error: f64,
 }
 
 impl Default for MappingOptions {
-    /// Three runs; observations kept within 1.5 px (COLMAP maps with 4 px: on the lego views
+    /// The runs by COLMAP ([`MappingOptions::runs`]); observations kept within 1.5 px (COLMAP maps with 4 px: on the lego views
     /// the refinement at 1.5 px lowered both the mean and the largest camera-centre error, in
     /// seconds; measured: docs/own-scene.md#mapper-settings).
     fn default() -> Self {
         Self {
-            runs: 3,
+            runs: None,
             max_reprojection_error: 1.5,
         }
     }
@@ -148,7 +159,7 @@ fn centres_in(dir: &Path) -> Result<Centres> {
         .collect()
 }
 
-/// Runs the mapper up to `options.runs` times on `database` and `images` (`n` photos) into
+/// Runs the mapper up to `options.runs` times (COLMAP's default when `None`) on `database` and `images` (`n` photos) into
 /// `colmap/sparse_seed<k>` (logs `colmap/mapper_seed<k>.log`), stopping early once two runs
 /// that registered half of the photos agree ([`SETTLED_FRACTION`]), and up to
 /// [`MAX_EXTRA_RUNS`] more while no run has registered half of the photos or too few runs are
@@ -157,7 +168,7 @@ fn centres_in(dir: &Path) -> Result<Centres> {
 /// failed after writing a model (naming its log) or a folder cannot be moved; a run that
 /// failed with no model registered nothing.
 pub fn map(
-    program: &Path,
+    sfm: &Colmap,
     colmap: &Path,
     database: &Path,
     images: &Path,
@@ -165,16 +176,21 @@ pub fn map(
     options: &MappingOptions,
 ) -> Result<Mapping> {
     let pixels = options.max_reprojection_error;
-    if options.runs == 0 || !pixels.is_finite() || pixels <= 0.0 {
+    let requested = options.runs.unwrap_or(if sfm.is_pycolmap() {
+        PYCOLMAP_RUNS
+    } else {
+        PROGRAM_RUNS
+    });
+    if requested == 0 || !pixels.is_finite() || pixels <= 0.0 {
         bail!(
             "the mapper needs at least one run and a positive reprojection error (got {} runs, {} px)",
-            options.runs,
+            requested,
             options.max_reprojection_error
         );
     }
     let mut runs = Vec::new();
     let mut centres = Vec::new();
-    for seed in 0..options.runs + MAX_EXTRA_RUNS {
+    for seed in 0..requested + MAX_EXTRA_RUNS {
         let best = runs
             .iter()
             .map(|r: &MapperRun| r.registered)
@@ -187,13 +203,13 @@ pub fn map(
             );
             break;
         }
-        if seed >= options.runs {
+        if seed >= requested {
             let comparable = runs
                 .iter()
                 .filter(|r| r.registered > 0)
                 .filter(|r| r.registered as f64 >= COMPARABLE_FRACTION * best as f64)
                 .count() as u64;
-            let wanted = options.runs.min(MAJORITY_RUNS);
+            let wanted = requested.min(MAJORITY_RUNS);
             if 2 * best >= n && comparable >= wanted {
                 break;
             }
@@ -221,7 +237,7 @@ pub fn map(
         .collect();
         let args: Vec<&OsStr> = args.iter().map(OsString::as_os_str).collect();
         let log = run_log(colmap, seed);
-        let (status, seconds) = run_stage(program, "mapper", &args, &log, n as u64)?;
+        let (status, seconds) = run_stage(sfm, "mapper", &args, &log, n as u64)?;
         let run_centres = centres_in(&folder)?;
         if !status.success() && !run_centres.is_empty() {
             bail!(
@@ -274,7 +290,7 @@ pub fn map(
     let seeds: Vec<u64> = runs.iter().map(|r| r.seed).collect();
     keep_run(colmap, &seeds, runs[agreed.chosen].seed)?;
     let refine_seconds = if runs[agreed.chosen].registered >= MIN_REGISTERED {
-        refine(program, colmap, options.max_reprojection_error)?
+        refine(sfm, colmap, options.max_reprojection_error)?
     } else {
         0.0
     };
@@ -306,7 +322,7 @@ fn settled(centres: &[Centres], best: usize) -> bool {
 /// --max_reproj_error PX` then `colmap bundle_adjuster` (logs `colmap/point_filtering.log` and
 /// `colmap/bundle_adjuster.log`), each into a folder of its own, the result renamed over the
 /// model. Returns the seconds both took. An error names a stage that failed and its log.
-fn refine(program: &Path, colmap: &Path, max_reprojection_error: f64) -> Result<f64> {
+fn refine(sfm: &Colmap, colmap: &Path, max_reprojection_error: f64) -> Result<f64> {
     let (model_dir, _) = nerf::io::colmap::find_model(colmap)?;
     let filtered = colmap.join("refine_filtered");
     let adjusted = colmap.join("refine_adjusted");
@@ -332,7 +348,7 @@ fn refine(program: &Path, colmap: &Path, max_reprojection_error: f64) -> Result<
         ];
         args.extend(extra);
         let log = colmap.join(format!("{stage}.log"));
-        let (status, took) = run_stage(program, stage, &args, &log, 1)?;
+        let (status, took) = run_stage(sfm, stage, &args, &log, 1)?;
         if !status.success() || nerf::io::colmap::model_format(output).is_none() {
             bail!(
                 "COLMAP's {stage} failed ({status}): see {} (its last line: {})",
@@ -381,7 +397,7 @@ mod tests {
         let p = dir.path();
         for options in [
             MappingOptions {
-                runs: 0,
+                runs: Some(0),
                 ..MappingOptions::default()
             },
             MappingOptions {
@@ -389,7 +405,8 @@ mod tests {
                 ..MappingOptions::default()
             },
         ] {
-            let e = map(Path::new("/nonexistent"), p, p, p, 4, &options).unwrap_err();
+            let sfm = Colmap::Program("/nonexistent".into());
+            let e = map(&sfm, p, p, p, 4, &options).unwrap_err();
             assert!(e.to_string().contains("at least one run"), "{e}");
         }
     }

@@ -1,17 +1,19 @@
 //! `nerf process --images DIR --out OUT` (or `--video FILE`): photos (or frames of a video) to
 //! a trainable capture through structure from motion. The photos (PNG and JPEG, sorted,
 //! subfolders included) are copied to `OUT/images`, or frames chosen from the video
-//! ([`crate::process::video_frames`]) written there; COLMAP's command line runs feature extraction,
+//! ([`crate::process::video_frames`]) written there; COLMAP runs feature extraction,
 //! matching and mapping into `OUT/colmap` (each stage's output in `OUT/colmap/<stage>.log`).
-//! The mapper runs several times ([`crate::process::mapper`]): the run the others agree
+//! The mapper may run several times ([`crate::process::mapper`]): the run the others agree
 //! with best is kept, its model with the most registered images is written as nerfstudio's
 //! `OUT/transforms.json` (less any image the other runs place elsewhere), which `--data-dir
 //! OUT` then trains on.
 //!
-//! COLMAP is Debian's `colmap` package (`sudo apt-get install colmap`), run as a program
-//! (`colmap` on `PATH`, or the executable named by `NERF_COLMAP`), not the `pycolmap` wheel:
-//! its command line is stable across releases, it extracts SIFT features on the CPU (no GPU or
-//! display needed, with `QT_QPA_PLATFORM=offscreen`), and it puts no Python in the path.
+//! COLMAP is COLMAP 4 through the `pycolmap` wheel when Python imports it (`pip install
+//! pycolmap`: no root, no build), else Debian's `colmap` program (3.8), run as a program (`colmap`
+//! on `PATH`, or the executable named by `NERF_COLMAP`); `--sfm` chooses
+//! ([`crate::process::colmap_run::Colmap`]). Why COLMAP 4 first: on the same photos its
+//! matching and mapping take a fraction of 3.8's time, with cameras as accurate (measured:
+//! docs/own-scene.md#structure-from-motion-measured).
 
 pub mod colmap_run;
 pub mod external_tool;
@@ -19,12 +21,13 @@ pub mod inputs;
 pub mod mapper;
 pub mod video_frames;
 
+use std::ffi::OsStr;
 use std::path::PathBuf;
 
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Map, Value};
 
-use crate::process::colmap_run::{check_colmap, colmap_program, last_line, run_stage};
+use crate::process::colmap_run::{last_line, run_stage, Colmap, SfmChoice};
 use crate::process::inputs::{
     check_names, check_photos_decode, copy_images, list_images, mark_finished, start_run,
 };
@@ -36,8 +39,25 @@ use nerf::io::colmap::{ColmapCameraRecord, ColmapModel};
 pub use crate::process::mapper::MIN_REGISTERED;
 
 /// Above this many images, [`Matcher::Auto`] matches sequentially instead of exhaustively
-/// (a video's frames are always matched sequentially).
+/// with the COLMAP program (a video's frames are always matched sequentially).
 pub const EXHAUSTIVE_MAX_IMAGES: usize = 100;
+
+/// With pycolmap, [`Matcher::Auto`] matches every pair up to this many images; above, ordered
+/// images sequentially with retrieval pairs for loop closure, others by retrieval alone.
+pub const PYCOLMAP_EXHAUSTIVE_MAX_IMAGES: usize = 50;
+
+/// The retrieval pairs per image that close loops after sequential matching
+/// (`--retrieval_neighbours` of `pycolmap_stages.py`).
+pub const LOOP_NEIGHBOURS: usize = 15;
+
+/// With pycolmap, sequential matching pairs each image with this many next ones (and their
+/// quadratic steps: COLMAP's `quadratic_overlap`): with [`LOOP_NEIGHBOURS`], on 50 frames of a
+/// phone walk-around, the cameras came out nearer exhaustive matching's in half its time
+/// (measured: docs/own-scene.md#structure-from-motion-measured).
+pub const PYCOLMAP_SEQUENTIAL_OVERLAP: usize = 15;
+
+/// The retrieval pairs per image when retrieval alone pairs an unordered set.
+pub const RETRIEVAL_NEIGHBOURS: usize = 20;
 
 /// COLMAP's `exhaustive_matcher` matches images in blocks of this many (its default
 /// `ExhaustiveMatching.block_size`), which the progress bar counts.
@@ -54,18 +74,69 @@ pub enum Matcher {
     /// Each image with its neighbours in name order and loop closures
     /// (`sequential_matcher`): for video frames and large ordered sets.
     Sequential,
+    /// Each image with its most similar images by visual words (pycolmap only): sub-quadratic,
+    /// for large unordered sets.
+    Retrieval,
 }
 
 impl Matcher {
-    /// The COLMAP command for `images` images (`ordered`: frames of a video, in order).
-    pub fn command(self, images: usize, ordered: bool) -> &'static str {
-        match self {
-            Matcher::Exhaustive => "exhaustive_matcher",
-            Matcher::Sequential => "sequential_matcher",
-            Matcher::Auto if ordered || images > EXHAUSTIVE_MAX_IMAGES => "sequential_matcher",
-            Matcher::Auto => "exhaustive_matcher",
-        }
+    /// The COLMAP command for `images` images (`ordered`: frames of a video, or photos
+    /// numbered in order, [`numbered_in_order`]) and the retrieval neighbours it adds per
+    /// image (0: none). `pycolmap`: whether COLMAP 4 through pycolmap runs it, which has
+    /// retrieval; the program has none. An error for retrieval without pycolmap.
+    pub fn command(
+        self,
+        images: usize,
+        ordered: bool,
+        pycolmap: bool,
+    ) -> Result<(&'static str, usize)> {
+        let loops = if pycolmap { LOOP_NEIGHBOURS } else { 0 };
+        Ok(match self {
+            Matcher::Exhaustive => ("exhaustive_matcher", 0),
+            Matcher::Sequential => ("sequential_matcher", loops),
+            Matcher::Retrieval if pycolmap => ("retrieval_matcher", RETRIEVAL_NEIGHBOURS),
+            Matcher::Retrieval => bail!(
+                "--matcher retrieval needs COLMAP 4 through pycolmap (`pip install pycolmap`), not the COLMAP program"
+            ),
+            Matcher::Auto if !pycolmap => {
+                if ordered || images > EXHAUSTIVE_MAX_IMAGES {
+                    ("sequential_matcher", 0)
+                } else {
+                    ("exhaustive_matcher", 0)
+                }
+            }
+            Matcher::Auto if images <= PYCOLMAP_EXHAUSTIVE_MAX_IMAGES => ("exhaustive_matcher", 0),
+            Matcher::Auto if ordered => ("sequential_matcher", LOOP_NEIGHBOURS),
+            Matcher::Auto => ("retrieval_matcher", RETRIEVAL_NEIGHBOURS),
+        })
     }
+}
+
+/// Whether photo names are numbered in order, as a camera or a video's frames name them
+/// (`IMG_0412.JPG`, `frame_00001.jpg`, `templeR0001.png`, `0000.jpg`): every file stem is one
+/// prefix followed by a number, and the numbers rise in sorted-name order. Such photos are
+/// matched as a sequence (neighbours in order, and retrieval for the loop).
+pub fn numbered_in_order(names: &[PathBuf]) -> bool {
+    let split = |name: &PathBuf| -> Option<(String, u64)> {
+        let stem = name.file_stem()?.to_str()?;
+        let digits = stem.len() - stem.trim_end_matches(|c: char| c.is_ascii_digit()).len();
+        if digits == 0 || digits > 18 {
+            return None;
+        }
+        let (prefix, number) = stem.split_at(stem.len() - digits);
+        let folder = name.parent().map(|p| p.to_string_lossy().into_owned());
+        Some((
+            format!("{}/{prefix}", folder.unwrap_or_default()),
+            number.parse().ok()?,
+        ))
+    };
+    let Some(parts) = names.iter().map(split).collect::<Option<Vec<_>>>() else {
+        return false;
+    };
+    names.len() >= 2
+        && parts
+            .windows(2)
+            .all(|w| w[0].0 == w[1].0 && w[0].1 < w[1].1)
 }
 
 /// Where the photos come from.
@@ -90,15 +161,16 @@ pub struct FeatureOptions {
     /// ones are kept).
     pub max_features: usize,
     /// Photos larger than this (pixels, the longer side) are downscaled for extraction
-    /// (`--SiftExtraction.max_image_size`).
-    pub max_image_size: usize,
+    /// (`--SiftExtraction.max_image_size`); `None`: [`PYCOLMAP_MAX_IMAGE_SIZE`] with pycolmap,
+    /// [`DEFAULT_MAX_IMAGE_SIZE`] with the program.
+    pub max_image_size: Option<usize>,
 }
 
 impl Default for FeatureOptions {
     fn default() -> Self {
         Self {
             max_features: DEFAULT_MAX_FEATURES,
-            max_image_size: DEFAULT_MAX_IMAGE_SIZE,
+            max_image_size: None,
         }
     }
 }
@@ -106,8 +178,21 @@ impl Default for FeatureOptions {
 /// [`FeatureOptions::max_features`] by default.
 pub const DEFAULT_MAX_FEATURES: usize = 8192;
 
-/// [`FeatureOptions::max_image_size`] by default.
+/// [`FeatureOptions::max_image_size`] by default with the COLMAP program.
 pub const DEFAULT_MAX_IMAGE_SIZE: usize = 3200;
+
+/// [`FeatureOptions::max_image_size`] by default with pycolmap: features from photos at most
+/// this large place the cameras as accurately in a fraction of the time (measured:
+/// docs/own-scene.md#structure-from-motion-measured).
+pub const PYCOLMAP_MAX_IMAGE_SIZE: usize = 1600;
+
+/// The camera model COLMAP fits with pycolmap: COLMAP 4's mapper registers 2 or 3 images of
+/// the temple ring with `OPENCV` or `RADIAL` and all of them with `SIMPLE_RADIAL` (measured:
+/// docs/own-scene.md#structure-from-motion-measured).
+pub const PYCOLMAP_CAMERA_MODEL: &str = "SIMPLE_RADIAL";
+
+/// The camera model COLMAP fits with the program.
+pub const PROGRAM_CAMERA_MODEL: &str = "OPENCV";
 
 /// What [`process`] is asked to do.
 #[derive(Debug, Clone)]
@@ -123,8 +208,10 @@ pub struct ProcessOptions {
     pub vocab_tree: Option<PathBuf>,
     /// How features are extracted.
     pub features: FeatureOptions,
-    /// How the mapper runs.
+    /// How the mapper runs; `runs: None`: 1 with pycolmap, 3 with the program.
     pub mapping: MappingOptions,
+    /// Which COLMAP runs.
+    pub sfm: SfmChoice,
 }
 
 /// How long one COLMAP stage ran.
@@ -182,6 +269,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         vocab_tree,
         features,
         mapping,
+        sfm,
     } = options;
     let photos = match source {
         Source::Images(dir) => {
@@ -204,8 +292,10 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     if photos.is_none() {
         crate::process::video_frames::check_ffmpeg(&ffmpeg)?;
     }
-    let program = colmap_program();
-    check_colmap(&program)?;
+    let images = out.join("images");
+    let colmap = out.join("colmap");
+    let sfm = Colmap::find(*sfm, &colmap)?;
+    matcher.command(0, false, sfm.is_pycolmap())?;
     if let Some(tree) = vocab_tree {
         if !tree.is_file() {
             bail!("--vocab-tree {}: not a file", tree.display());
@@ -217,8 +307,6 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         Source::Images(_) => None,
     };
     start_run(out)?;
-    let images = out.join("images");
-    let colmap = out.join("colmap");
     let (names, video) = match source {
         Source::Images(dir) => {
             let names = photos.unwrap_or_default();
@@ -251,10 +339,31 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     };
     std::fs::create_dir_all(&colmap)
         .with_context(|| format!("cannot create {}", colmap.display()))?;
+    sfm.write_script()?;
 
     let database = colmap.join("database.db");
     let n = names.len();
-    let matcher = matcher.command(n, video.is_some());
+    let ordered = video.is_some() || numbered_in_order(&names);
+    let (matcher, neighbours) = matcher.command(n, ordered, sfm.is_pycolmap())?;
+    log::info!(
+        "structure from motion: {}; {n} images{}, matched by {matcher}{}",
+        sfm.describe(),
+        if ordered { " in order" } else { "" },
+        if neighbours > 0 {
+            format!(" with {neighbours} retrieval pairs per image")
+        } else {
+            String::new()
+        }
+    );
+    let neighbours_text = neighbours.to_string();
+    let overlap_text = PYCOLMAP_SEQUENTIAL_OVERLAP.to_string();
+    let mut retrieval: Vec<&std::ffi::OsStr> = Vec::new();
+    if neighbours > 0 {
+        retrieval.extend(["--retrieval_neighbours", neighbours_text.as_str()].map(OsStr::new));
+    }
+    if sfm.is_pycolmap() && matcher == "sequential_matcher" {
+        retrieval.extend(["--SequentialMatching.overlap", overlap_text.as_str()].map(OsStr::new));
+    }
     let loops: Vec<&std::ffi::OsStr> = match vocab_tree {
         Some(tree) if matcher == "sequential_matcher" => vec![
             "--SequentialMatching.loop_detection".as_ref(),
@@ -273,7 +382,12 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     };
     let blocks = n.div_ceil(EXHAUSTIVE_BLOCK).pow(2);
     let max_features = features.max_features.to_string();
-    let max_image_size = features.max_image_size.to_string();
+    let (camera_model, default_size) = if sfm.is_pycolmap() {
+        (PYCOLMAP_CAMERA_MODEL, PYCOLMAP_MAX_IMAGE_SIZE)
+    } else {
+        (PROGRAM_CAMERA_MODEL, DEFAULT_MAX_IMAGE_SIZE)
+    };
+    let max_image_size = features.max_image_size.unwrap_or(default_size).to_string();
     let stages: [(&'static str, Vec<&std::ffi::OsStr>, usize); 2] = [
         (
             "feature_extractor",
@@ -285,7 +399,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
                 "--ImageReader.single_camera".as_ref(),
                 "1".as_ref(),
                 "--ImageReader.camera_model".as_ref(),
-                "OPENCV".as_ref(),
+                camera_model.as_ref(),
                 "--SiftExtraction.use_gpu".as_ref(),
                 "0".as_ref(),
                 "--SiftExtraction.max_num_features".as_ref(),
@@ -305,6 +419,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
             ]
             .into_iter()
             .chain(loops)
+            .chain(retrieval)
             .collect(),
             if matcher == "exhaustive_matcher" {
                 blocks
@@ -316,7 +431,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     let mut times = Vec::new();
     for (stage, args, steps) in stages {
         let log = colmap.join(format!("{stage}.log"));
-        let (status, seconds) = run_stage(&program, stage, &args, &log, steps as u64)?;
+        let (status, seconds) = run_stage(&sfm, stage, &args, &log, steps as u64)?;
         if !status.success() {
             bail!(
                 "COLMAP's {stage} failed ({status}): see {} (its last line: {})",
@@ -328,7 +443,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
         times.push(StageTime { stage, seconds });
     }
 
-    let mapping = crate::process::mapper::map(&program, &colmap, &database, &images, n, mapping)?;
+    let mapping = crate::process::mapper::map(&sfm, &colmap, &database, &images, n, mapping)?;
     times.push(StageTime {
         stage: "mapper",
         seconds: mapping.runs.iter().map(|r| r.seconds).sum(),
@@ -501,6 +616,55 @@ pub fn transforms_json(model: &ColmapModel) -> Result<Value> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn numbered_names_are_in_order() {
+        let names = |list: &[&str]| list.iter().map(PathBuf::from).collect::<Vec<_>>();
+        for ordered in [
+            &["IMG_0412.JPG", "IMG_0413.JPG", "IMG_0415.JPG"][..],
+            &["frame_00001.jpg", "frame_00002.jpg"],
+            &["templeR0001.png", "templeR0002.png", "templeR0047.png"],
+            &["0000.jpg", "0001.jpg", "0024.jpg"],
+            &["a/001.jpg", "a/002.jpg"],
+        ] {
+            assert!(numbered_in_order(&names(ordered)), "{ordered:?}");
+        }
+        for unordered in [
+            &["IMG_0412.JPG"][..],
+            &["beach.jpg", "house.jpg"],
+            &["a_01.jpg", "b_02.jpg"],
+            &["a/001.jpg", "b/002.jpg"],
+            &["x_1.jpg", "x_10.jpg", "x_2.jpg"],
+            &["frame_01.jpg", "frame_01b.jpg"],
+        ] {
+            assert!(!numbered_in_order(&names(unordered)), "{unordered:?}");
+        }
+    }
+
+    #[test]
+    fn matchers_by_backend_and_size() {
+        let auto = |n, ordered, py| Matcher::Auto.command(n, ordered, py).unwrap();
+        // pycolmap: every pair for small sets, a sequence with loop pairs, retrieval otherwise.
+        assert_eq!(auto(50, true, true), ("exhaustive_matcher", 0));
+        assert_eq!(
+            auto(67, true, true),
+            ("sequential_matcher", LOOP_NEIGHBOURS)
+        );
+        assert_eq!(
+            auto(67, false, true),
+            ("retrieval_matcher", RETRIEVAL_NEIGHBOURS)
+        );
+        // The program as before: no retrieval.
+        assert_eq!(auto(67, false, false), ("exhaustive_matcher", 0));
+        assert_eq!(auto(67, true, false), ("sequential_matcher", 0));
+        assert_eq!(auto(101, false, false), ("sequential_matcher", 0));
+        assert_eq!(
+            Matcher::Sequential.command(10, false, false).unwrap(),
+            ("sequential_matcher", 0)
+        );
+        let e = Matcher::Retrieval.command(10, false, false).unwrap_err();
+        assert!(e.to_string().contains("pycolmap"), "{e}");
+    }
 
     #[test]
     fn camera_to_world_round_trips() {
