@@ -114,7 +114,7 @@ impl Config {
         if state
             .occupancy
             .as_ref()
-            .is_some_and(|g| g.occupied_fraction() == 0.0)
+            .is_some_and(|g| !g.any_dense_cell())
         {
             crate::core::term::note(
                 "warning: the occupancy grid has no occupied cell: the model has no density above \

@@ -201,6 +201,13 @@ impl OccupancyGrid {
         self.density.len()
     }
 
+    /// Whether a cell holds density above the threshold: any occupied cell but a contracted
+    /// grid's far shell, which is occupied whatever it holds.
+    pub fn any_dense_cell(&self) -> bool {
+        let contracted = self.contraction != Contraction::None;
+        (0..self.n_cells()).any(|c| self.occupied[c] && !(contracted && self.is_far_shell(c)))
+    }
+
     /// Whether `cell` is in the outermost layer of the grid. With a contraction that layer
     /// holds what lies farthest (beyond 1 / (cell side) of the unit cube), and it is always
     /// occupied: every ray then ends on samples of the far shell, so a ray through space the
@@ -701,6 +708,7 @@ mod clearance_tests {
                 let expected = outer && contraction == Contraction::LInf;
                 assert_eq!(grid.occupied[cell], expected, "{contraction:?} cell {cell}");
             }
+            assert!(!grid.any_dense_cell(), "{contraction:?}");
             // 4³ − 2³ cells in the shell.
             let shell = (0..grid.n_cells())
                 .filter(|&c| grid.is_far_shell(c))

@@ -323,9 +323,9 @@ pub struct ProcessArgs {
     /// the program: sequential for --video, for photos exhaustive up to 100 images).
     #[arg(long, value_enum, default_value = "auto")]
     pub matcher: MatcherArg,
-    /// A COLMAP vocabulary tree file (e.g. vocab_tree_flickr100K_words32K.bin from COLMAP's
-    /// site): sequential matching then also looks for loop closures. Debian's colmap ships
-    /// none, so without it there is no loop detection.
+    /// A COLMAP vocabulary tree file for the COLMAP program (e.g.
+    /// vocab_tree_flickr100K_words32K.bin from COLMAP 3.8's site): its sequential matching then
+    /// also looks for loop closures. With pycolmap it is not used: retrieval pairs close loops.
     #[arg(long)]
     pub vocab_tree: Option<PathBuf>,
     /// Most SIFT features kept per photo: matching time grows with its square (100 to 65536).

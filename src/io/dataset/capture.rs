@@ -365,7 +365,7 @@ fn capture_split(
 
 /// Logs `message` the first time this process is given it: a capture is read several times
 /// in one run (its size, then each split), and what its loader noticed is said once.
-fn log_once(message: String) {
+pub(crate) fn log_once(message: String) {
     static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
     let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
     if !said.contains(&message) {

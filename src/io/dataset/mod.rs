@@ -125,7 +125,8 @@ fn split_frames(
     let read = read_capture_split_with(data_dir, format, split, stored)?;
     let t = read.transform;
     let c = t.center;
-    log::info!(
+    // Once: training reads the train split for its size, its frames and its cameras.
+    capture::log_once(format!(
         "{}: {} capture, cameras from {}, {} of {} frames in the {split} split (held out: {}); normalised{}: centre ({:.3}, {:.3}, {:.3}) to the origin, mean camera up to +z, scale {:.4}",
         data_dir.display(),
         read.info.format.name(),
@@ -138,7 +139,7 @@ fn split_frames(
         c.y,
         c.z,
         t.scale
-    );
+    ));
     Ok(SplitFrames {
         frames: read.frames,
         normalisation: Some(Normalisation {

@@ -1,5 +1,5 @@
-//! The mapping stage of `nerf process`: COLMAP's incremental mapper run several times with
-//! different `--random_seed`s, the run the others agree with best kept as `colmap/sparse`
+//! The mapping stage of `nerf process`: COLMAP's incremental mapper run once (COLMAP 4
+//! through pycolmap) or several times (the COLMAP program) with different `--random_seed`s, the run the others agree with best kept as `colmap/sparse`
 //! ([`nerf::core::camera_consensus`]), the images the other runs place elsewhere named so
 //! that `transforms.json` can leave them out, and the kept model refined: observations further
 //! than [`MappingOptions::max_reprojection_error`] from their point's projection dropped
@@ -12,7 +12,7 @@
 //! many more failed registration attempts), and runs at 1 to 2 px sometimes flipped a camera
 //! (measured: docs/own-scene.md#mapper-settings).
 //!
-//! Why several runs: the mapper's RANSAC draws at random, and on photos with few features
+//! Why several runs with the COLMAP program (3.8): its mapper's RANSAC draws at random, and on photos with few features
 //! (such as the 100 lego views on white) one run in a few places a camera at its mirror pose
 //! or bends a stretch of cameras, while its own statistics (reprojection error, track length)
 //! look like every other run's. Three runs cost about what exhaustive matching does

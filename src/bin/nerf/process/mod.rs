@@ -343,8 +343,22 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
 
     let database = colmap.join("database.db");
     let n = names.len();
-    let ordered = video.is_some() || numbered_in_order(&names);
-    let (matcher, neighbours) = matcher.command(n, ordered, sfm.is_pycolmap())?;
+    // The program has no retrieval to close a loop: it keeps matching numbered photos
+    // exhaustively (up to EXHAUSTIVE_MAX_IMAGES), as before.
+    let ordered = video.is_some() || (sfm.is_pycolmap() && numbered_in_order(&names));
+    // COLMAP's pair lists split lines at spaces: such names get no retrieval pairs, said why.
+    let awkward = names.iter().find(|n| {
+        let s = n.to_string_lossy();
+        s.contains(char::is_whitespace) || s.starts_with('#')
+    });
+    let retrieval = sfm.is_pycolmap() && (awkward.is_none() || *matcher == Matcher::Retrieval);
+    if let (Some(name), true) = (awkward, sfm.is_pycolmap() && !retrieval) {
+        log::warn!(
+            "{}: a photo name with a space or a leading '#', which COLMAP's pair lists cannot hold: matching without retrieval pairs",
+            name.display()
+        );
+    }
+    let (matcher, neighbours) = matcher.command(n, ordered, retrieval)?;
     log::info!(
         "structure from motion: {}; {n} images{}, matched by {matcher}{}",
         sfm.describe(),
@@ -357,14 +371,21 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
     );
     let neighbours_text = neighbours.to_string();
     let overlap_text = PYCOLMAP_SEQUENTIAL_OVERLAP.to_string();
-    let mut retrieval: Vec<&std::ffi::OsStr> = Vec::new();
+    let mut pairing: Vec<&std::ffi::OsStr> = Vec::new();
     if neighbours > 0 {
-        retrieval.extend(["--retrieval_neighbours", neighbours_text.as_str()].map(OsStr::new));
+        pairing.extend(["--retrieval_neighbours", neighbours_text.as_str()].map(OsStr::new));
     }
     if sfm.is_pycolmap() && matcher == "sequential_matcher" {
-        retrieval.extend(["--SequentialMatching.overlap", overlap_text.as_str()].map(OsStr::new));
+        pairing.extend(["--SequentialMatching.overlap", overlap_text.as_str()].map(OsStr::new));
     }
     let loops: Vec<&std::ffi::OsStr> = match vocab_tree {
+        Some(tree) if sfm.is_pycolmap() => {
+            log::warn!(
+                "--vocab-tree {} is for the COLMAP program; with pycolmap, retrieval pairs close the loops (COLMAP 4 reads only faiss trees)",
+                tree.display()
+            );
+            Vec::new()
+        }
         Some(tree) if matcher == "sequential_matcher" => vec![
             "--SequentialMatching.loop_detection".as_ref(),
             "1".as_ref(),
@@ -419,7 +440,7 @@ pub fn process(options: &ProcessOptions) -> Result<ProcessSummary> {
             ]
             .into_iter()
             .chain(loops)
-            .chain(retrieval)
+            .chain(pairing)
             .collect(),
             if matcher == "exhaustive_matcher" {
                 blocks

@@ -35,7 +35,8 @@ STAGES = (
 
 
 def fail(message):
-    print(f"error: {message}", flush=True)
+    # The driver quotes this last line in its own one-line error.
+    print(message, flush=True)
     sys.exit(1)
 
 
@@ -173,13 +174,21 @@ def match_retrieved(pycolmap, database, matching, neighbours):
     import os
     import tempfile
 
+    import numpy as np
+
     with pycolmap.Database.open(database) as db:
         images = sorted(db.read_all_images(), key=lambda i: i.name)
-        descriptors = [db.read_descriptors(i.image_id) for i in images]
-    pairs = retrieval_pairs(
-        [i.name for i in images], [d.data if hasattr(d, "data") else d for d in descriptors],
-        neighbours,
-    )
+        descriptors = []
+        for image in images:
+            d = db.read_descriptors(image.image_id)
+            d = d if isinstance(d, np.ndarray) else d.data
+            descriptors.append(evenly_spaced(np.asarray(d), PER_IMAGE))
+    names = [i.name for i in images]
+    # COLMAP's pair lists split a line at spaces and skip lines that start with '#'.
+    awkward = [n for n in names if any(c.isspace() for c in n) or n.startswith("#")]
+    if awkward:
+        fail(f"retrieval matching cannot list photo names with spaces or a leading '#' ({awkward[0]!r}): rename them or use --matcher exhaustive")
+    pairs = retrieval_pairs(names, descriptors, neighbours)
     folder = os.path.dirname(os.path.abspath(database))
     with tempfile.NamedTemporaryFile(
         "w", suffix=".txt", prefix="retrieval_pairs", dir=folder, delete=False
@@ -200,20 +209,45 @@ def match_retrieved(pycolmap, database, matching, neighbours):
     print(f"Matched {count_pairs(pycolmap, database)} image pairs in all", flush=True)
 
 
-def retrieval_pairs(names, descriptors, neighbours, words=1024, per_image=1500, seed=0):
+# Descriptors per image that describe it for retrieval (evenly spaced over the image's list).
+PER_IMAGE = 1000
+
+
+def evenly_spaced(rows, count):
+    """At most `count` rows of `rows`, evenly spaced (all when there are fewer)."""
+    import numpy as np
+
+    if len(rows) <= count:
+        return rows
+    return rows[np.linspace(0, len(rows) - 1, count).astype(np.int64)]
+
+
+def unit_rows(rows):
+    import numpy as np
+
+    rows = np.asarray(rows, dtype=np.float32)
+    return rows / (np.linalg.norm(rows, axis=1, keepdims=True) + 1e-12)
+
+
+def retrieval_pairs(names, descriptors, neighbours, words=1024, seed=0):
     """Pairs (name, name) of each image with its most similar images: a bag of visual words
-    by k-means over a sample of the descriptors, tf-idf weights, cosine similarity."""
+    by k-means over a sample of the descriptors, tf-idf weights, cosine similarity. No
+    self-pairs, each pair once."""
     import numpy as np
 
     rng = np.random.default_rng(seed)
-    # COLMAP keeps the largest-scale features first; the first ones describe the image best.
-    kept = [np.asarray(d[:per_image], dtype=np.float32) for d in descriptors]
-    everything = np.concatenate([d for d in kept if len(d)]) if any(len(d) for d in kept) else None
-    if everything is None or len(names) < 2:
+    total = sum(len(d) for d in descriptors)
+    if len(names) < 2 or total < 2:
         return []
-    everything /= np.linalg.norm(everything, axis=1, keepdims=True) + 1e-12
-    words = max(8, min(words, len(everything) // 20))
-    sample = everything[rng.choice(len(everything), size=min(len(everything), 50 * words), replace=False)]
+    words = max(2, min(words, total // 20))
+    # The k-means sample, drawn image by image (no copy of every descriptor at once).
+    share = max(1, (50 * words) // len(names))
+    sample = unit_rows(
+        np.concatenate(
+            [d[rng.choice(len(d), size=min(len(d), share), replace=False)] for d in descriptors if len(d)]
+        )
+    )
+    words = min(words, len(sample))
     centres = sample[rng.choice(len(sample), size=words, replace=False)]
     for _ in range(8):
         labels = nearest(sample, centres)
@@ -221,12 +255,11 @@ def retrieval_pairs(names, descriptors, neighbours, words=1024, per_image=1500, 
         np.add.at(sums, labels, sample)
         counts = np.bincount(labels, minlength=words)[:, None]
         centres = np.where(counts > 0, sums / np.maximum(counts, 1), centres)
-        centres /= np.linalg.norm(centres, axis=1, keepdims=True) + 1e-12
+        centres = unit_rows(centres)
     histograms = np.zeros((len(names), words), dtype=np.float32)
-    for i, d in enumerate(kept):
+    for i, d in enumerate(descriptors):
         if len(d):
-            d = d / (np.linalg.norm(d, axis=1, keepdims=True) + 1e-12)
-            histograms[i] = np.bincount(nearest(d, centres), minlength=words)
+            histograms[i] = np.bincount(nearest(unit_rows(d), centres), minlength=words)
     document_frequency = (histograms > 0).sum(axis=0)
     histograms *= np.log(len(names) / np.maximum(document_frequency, 1))[None, :]
     histograms /= np.linalg.norm(histograms, axis=1, keepdims=True) + 1e-12
@@ -306,6 +339,8 @@ def point_filtering(pycolmap, options):
     finish(options)
     model = pycolmap.Reconstruction(source)
     manager = pycolmap.ObservationManager(model)
+    # Reprojection error only (COLMAP's point_filtering also drops points seen at under
+    # 1.5 degrees or by fewer than 2 images, which the mapper's own filters already did).
     points = set(model.point3D_ids())
     removed = manager.filter_points3D_with_large_reprojection_error(pixels, points)
     model.write(output)
