@@ -190,6 +190,7 @@ impl OccupancyGridConfig {
             warmup_steps: self.warmup_steps,
             decay: self.decay,
             camera_clearance: self.camera_clearance,
+            keep_far_shell: false,
         }
     }
 }

@@ -105,6 +105,8 @@ pub struct OccupancyGrid {
     /// `R³` flags of cells kept empty whatever the field holds there (the space around the
     /// training cameras, [`OccupancyGrid::clear_around_cameras`]); empty when there are none.
     pub kept_empty: Vec<bool>,
+    /// Whether the far shell is kept occupied ([`OccupancyGrid::keep_far_shell`]).
+    pub far_shell_kept: bool,
 }
 
 /// Density at which one step of `step` has opacity `alpha`: `−ln(1 − alpha) / step`.
@@ -171,6 +173,10 @@ pub fn grid_for_checkpoint(
     Ok(grid)
 }
 
+/// A kept far shell's running density is held at least at this many times the grid's density
+/// threshold ([`OccupancyGrid::refresh_occupied`]).
+pub const FAR_SHELL_FLOOR: f32 = 2.0;
+
 /// Name of the grid's tensor in a checkpoint.
 pub const CHECKPOINT_KEY: &str = "occupancy.density";
 
@@ -193,6 +199,7 @@ impl OccupancyGrid {
             occupied: vec![true; r * r * r],
             contraction: params.contraction,
             kept_empty: Vec::new(),
+            far_shell_kept: false,
         })
     }
 
@@ -201,19 +208,30 @@ impl OccupancyGrid {
         self.density.len()
     }
 
-    /// Whether a cell holds density above the threshold: any occupied cell but a contracted
-    /// grid's far shell, which is occupied whatever it holds.
+    /// Whether a cell holds density above the threshold: any occupied cell but a kept far
+    /// shell, which is occupied whatever the field holds there.
     pub fn any_dense_cell(&self) -> bool {
-        let contracted = self.contraction != Contraction::None;
-        (0..self.n_cells()).any(|c| self.occupied[c] && !(contracted && self.is_far_shell(c)))
+        let kept = self.far_shell_kept;
+        (0..self.n_cells()).any(|c| self.occupied[c] && !(kept && self.is_far_shell(c)))
     }
 
-    /// Whether `cell` is in the outermost layer of the grid. With a contraction that layer
-    /// holds what lies farthest (beyond 1 / (cell side) of the unit cube), and it is always
-    /// occupied: every ray then ends on samples of the far shell, so a ray through space the
-    /// grid emptied still takes the colour the field learnt far behind it, where it would
-    /// otherwise end on the background colour (black for photos without a backdrop: square
-    /// black holes in a room's walls where cells were dropped).
+    /// Keeps a contracted grid's far shell ([`OccupancyGrid::is_far_shell`]) occupied from now
+    /// on (nothing without a contraction). For photos whose far field is scene, not a backdrop
+    /// (a room, a street): every ray then ends on samples of the far shell, so a ray through
+    /// space the grid emptied still takes the colour the field learnt far behind it, where it
+    /// would otherwise end on the background colour (black for such photos: square black
+    /// holes in a room's walls where cells were dropped). Not for photos with a backdrop or
+    /// alpha: the shell's last sample (its length 1e10) would then paint an opaque backdrop
+    /// where the background should show.
+    pub fn keep_far_shell(&mut self) {
+        if self.contraction != Contraction::None {
+            self.far_shell_kept = true;
+            self.refresh_occupied();
+        }
+    }
+
+    /// Whether `cell` is in the outermost layer of the grid: with a contraction, what lies
+    /// farthest (beyond 1 / (cell side) of the unit cube).
     pub fn is_far_shell(&self, cell: usize) -> bool {
         let r = self.resolution;
         let i = [cell / (r * r), (cell / r) % r, cell % r];
@@ -423,18 +441,25 @@ impl OccupancyGrid {
     }
 
     /// Recomputes the flags: occupied where the running density exceeds
-    /// `min(density_threshold, mean density)`, and with a contraction in the outermost layer
-    /// of cells ([`OccupancyGrid::is_far_shell`]), except in cells kept empty.
+    /// `min(density_threshold, mean density)`, except in cells kept empty. A kept far shell
+    /// ([`OccupancyGrid::keep_far_shell`]) has its running density held at
+    /// [`FAR_SHELL_FLOOR`] times the threshold, so it is occupied (and stays so in a saved
+    /// grid read back), and is left out of the mean, which then says what the scene holds.
     pub fn refresh_occupied(&mut self) {
-        let mean = self.density.iter().map(|&d| d as f64).sum::<f64>() / self.n_cells() as f64;
+        let floor = FAR_SHELL_FLOOR * self.density_threshold;
+        let (mut sum, mut count) = (0.0f64, 0usize);
+        for cell in 0..self.n_cells() {
+            if self.far_shell_kept && self.is_far_shell(cell) {
+                self.density[cell] = self.density[cell].max(floor);
+            } else {
+                sum += self.density[cell] as f64;
+                count += 1;
+            }
+        }
+        let mean = sum / count.max(1) as f64;
         let threshold = (self.density_threshold as f64).min(mean) as f32;
         for (o, &d) in self.occupied.iter_mut().zip(&self.density) {
             *o = d > threshold;
-        }
-        if self.contraction != Contraction::None {
-            for cell in 0..self.n_cells() {
-                self.occupied[cell] |= self.is_far_shell(cell);
-            }
         }
         for (o, &kept) in self.occupied.iter_mut().zip(&self.kept_empty) {
             *o &= !kept;
@@ -590,6 +615,12 @@ impl OccupancyGrid {
             .into_iter()
             .map(|d| if d == f32::INFINITY { f32::MAX } else { d })
             .collect();
+        // A far shell kept in training is saved at its floor or above, every cell of it.
+        let floor = FAR_SHELL_FLOOR * grid.density_threshold;
+        grid.far_shell_kept = grid.contraction != Contraction::None
+            && (0..grid.n_cells())
+                .filter(|&c| grid.is_far_shell(c))
+                .all(|c| grid.density[c] >= floor);
         grid.refresh_occupied();
         Ok(grid)
     }
@@ -689,7 +720,7 @@ mod clearance_tests {
     use super::*;
 
     #[test]
-    fn a_contracted_grid_keeps_its_far_shell_occupied() {
+    fn a_kept_far_shell_stays_occupied_and_is_saved_so() {
         let params = |contraction| OccupancyGridParams {
             resolution: 4,
             aabb: [-2.0, -2.0, -2.0, 2.0, 2.0, 2.0],
@@ -700,11 +731,16 @@ mod clearance_tests {
             let mut grid = OccupancyGrid::new(&params(contraction)).unwrap();
             grid.density = vec![0.0; grid.n_cells()];
             grid.refresh_occupied();
+            assert!(
+                grid.occupied.iter().all(|o| !o),
+                "not kept: nothing occupied"
+            );
+            grid.keep_far_shell();
             for cell in 0..grid.n_cells() {
                 let i = [cell / 16, (cell / 4) % 4, cell % 4];
                 let outer = i.iter().any(|&k| k == 0 || k == 3);
                 assert_eq!(grid.is_far_shell(cell), outer, "cell {cell}");
-                // Empty density: only a contracted grid's outer layer stays occupied.
+                // Empty density: only a contracted grid's outer layer is kept occupied.
                 let expected = outer && contraction == Contraction::LInf;
                 assert_eq!(grid.occupied[cell], expected, "{contraction:?} cell {cell}");
             }
@@ -714,7 +750,31 @@ mod clearance_tests {
                 .filter(|&c| grid.is_far_shell(c))
                 .count();
             assert_eq!(shell, 64 - 8);
+            // A saved grid read back (eval, render) keeps the shell without being told.
+            let back = OccupancyGrid::from_tensor(
+                &params(contraction),
+                &grid.to_tensor(&Device::Cpu).unwrap(),
+            )
+            .unwrap();
+            assert_eq!(back.occupied, grid.occupied, "{contraction:?}");
+            assert_eq!(back.far_shell_kept, grid.far_shell_kept, "{contraction:?}");
         }
+        // The shell does not raise the threshold of the cells inside it: a cell just above
+        // the mean of the inside stays occupied, saved and read back too.
+        let mut grid = OccupancyGrid::new(&params(Contraction::LInf)).unwrap();
+        grid.density = vec![0.0; grid.n_cells()];
+        let inner = (0..grid.n_cells())
+            .find(|&c| !grid.is_far_shell(c))
+            .unwrap();
+        grid.density[inner] = 0.1;
+        grid.keep_far_shell();
+        assert!(grid.occupied[inner] && grid.any_dense_cell());
+        let back = OccupancyGrid::from_tensor(
+            &params(Contraction::LInf),
+            &grid.to_tensor(&Device::Cpu).unwrap(),
+        )
+        .unwrap();
+        assert!(back.occupied[inner] && back.far_shell_kept);
     }
 
     #[test]

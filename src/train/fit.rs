@@ -56,6 +56,9 @@ pub struct GridSchedule {
     /// Keep empty the cells around each training camera within this fraction of its distance
     /// from the origin ([`OccupancyGrid::clear_around_cameras`]; 0 = off).
     pub camera_clearance: f64,
+    /// Keep a contracted grid's far shell occupied ([`OccupancyGrid::keep_far_shell`]): for
+    /// photos whose far field is scene (a room, a street), not a backdrop or transparency.
+    pub keep_far_shell: bool,
 }
 
 /// Everything a training run needs besides the data: the model's sizes, the schedule and the
@@ -685,6 +688,9 @@ pub fn fit(
     crate::core::allocator::ensure_allocator_tuned();
     let (mut state, adam, info) = start_or_resume(settings, paths, dataset, device)?;
     if let (Some(schedule), Some(grid)) = (&settings.grid, state.occupancy.as_mut()) {
+        if schedule.keep_far_shell {
+            grid.keep_far_shell();
+        }
         if schedule.camera_clearance > 0.0 {
             use crate::core::camera_model::CameraModel;
             let centres: Vec<[f64; 3]> = (dataset.frames.iter())

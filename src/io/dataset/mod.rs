@@ -28,6 +28,7 @@ pub mod orbit;
 pub mod photo_fit;
 pub mod photo_resize;
 pub mod shared_view;
+pub mod silhouette;
 pub mod spiral;
 pub mod transforms;
 pub mod transforms_intrinsics;

@@ -83,7 +83,15 @@ pub fn train_nerf(
         true => stored_transform(&paths.checkpoint)?,
         false => None,
     };
-    let dataset = Dataset::load_first_with(data_dir, Split::Train, size, white, None, stored)?;
+    let mut dataset = Dataset::load_first_with(data_dir, Split::Train, size, white, None, stored)?;
+    let loader_background = if white { [1.0; 3] } else { BLACK };
+    let outlined = nerf::io::dataset::silhouette::masks_as_alpha(&mut dataset, loader_background);
+    if outlined > 0 {
+        nerf::core::term::note(&format!(
+            "{}: the masks of {outlined} frames outline an object (they keep none of their photo's border): trained as its alpha, the space around it empty; held-out views are still scored inside their masks",
+            data_dir.display()
+        ));
+    }
     if dataset.normalisation.is_some() {
         nerf::io::dataset::shared_view::check_capture_shares_a_view(data_dir, &dataset.frames)?;
     }
@@ -174,7 +182,9 @@ fn choose_background(step: &mut StepSettings, dataset: &Dataset, data_dir: &Path
 /// building), which the camera clearance would keep empty, so it is left off
 /// (a facade's capture scored better held out without it, where a capture on a black
 /// backdrop scored better with it; measured: docs/own-scene.md#background); and the grid
-/// decays by `decay` (`renderer.occupancy_grid.decay_without_backdrop`) when one is given. An
+/// decays by `decay` (`renderer.occupancy_grid.decay_without_backdrop`) when one is given, and
+/// a contracted grid keeps its far shell occupied, where the room or the street beyond is
+/// learnt (`OccupancyGrid::keep_far_shell`; measured: docs/own-scene.md#a-handheld-capture-levers-measured). An
 /// explicit `renderer.background` keeps the configured grid.
 fn settings_without_backdrop(settings: &mut TrainSettings, decay: Option<f64>, data_dir: &Path) {
     let Some(grid) = settings.grid.as_mut() else {
@@ -188,6 +198,10 @@ fn settings_without_backdrop(settings: &mut TrainSettings, decay: Option<f64>, d
     if let Some(decay) = decay.filter(|&d| d != grid.decay) {
         grid.decay = decay;
         changed.push(format!("occupancy-grid decay {decay}"));
+    }
+    if grid.grid.contraction != nerf::core::contraction::Contraction::None {
+        grid.keep_far_shell = true;
+        changed.push("the grid's far shell kept occupied".to_string());
     }
     if !changed.is_empty() {
         nerf::core::term::note(&format!(

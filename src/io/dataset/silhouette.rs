@@ -1,0 +1,100 @@
+//! Masks that outline an object (a turntable capture's): trained as its alpha, not ignored.
+//!
+//! A mask means one of two things. Most often (nerfstudio's `mask_path`) it marks pixels to
+//! ignore: a passer-by, the photographer's shadow; the rest of the photo is the scene. But a
+//! mask that keeps only an object in the middle of every photo, touching no border, is the
+//! object's silhouette: what lies outside it is not part of the model at all (a turntable
+//! turns the object, not the room, so the room is not one scene). Ignoring those pixels
+//! leaves the space around the object untrained, and the fog that grows there hides the
+//! object from the held-out views; taking the silhouette as alpha trains that space empty,
+//! as photos with an alpha channel do (a random background colour per step).
+
+use super::Dataset;
+
+/// A mask outlines an object when at most this fraction of its border ring is used.
+pub const BORDER_USED_AT_MOST: f64 = 0.02;
+
+/// The masks of a capture outline its object when at least this fraction of them do.
+pub const SILHOUETTE_SHARE: f64 = 0.9;
+
+/// Whether a row-major `width × height` mask (`used`: true for a used pixel) uses at most
+/// [`BORDER_USED_AT_MOST`] of the pixels of its outermost ring.
+pub fn outlines_an_object(used: &[bool], width: usize, height: usize) -> bool {
+    if width < 3 || height < 3 || used.len() != width * height {
+        return false;
+    }
+    let ring = (0..width)
+        .flat_map(|x| [x, (height - 1) * width + x])
+        .chain((1..height - 1).flat_map(|y| [y * width, y * width + width - 1]));
+    let (mut on, mut all) = (0usize, 0usize);
+    for p in ring {
+        all += 1;
+        on += usize::from(used[p]);
+    }
+    on as f64 <= BORDER_USED_AT_MOST * all as f64
+}
+
+/// When the dataset's masks outline an object ([`outlines_an_object`], at least
+/// [`SILHOUETTE_SHARE`] of the masked images), makes every masked-out pixel fully transparent
+/// (its colour the loader's `background`, its transparency 1) and drops the masks, so that
+/// training draws rays from every pixel and trains the space around the object empty.
+/// Returns how many masks it took as alpha (0: the masks stay masks).
+pub fn masks_as_alpha(dataset: &mut Dataset, background: [f32; 3]) -> usize {
+    let (w, h) = (dataset.width, dataset.height);
+    let masked: Vec<usize> = (0..dataset.images.len())
+        .filter(|&i| dataset.mask(i).is_some())
+        .collect();
+    let outlines = masked
+        .iter()
+        .filter(|&&i| {
+            dataset
+                .mask(i)
+                .is_some_and(|m| outlines_an_object(m.used(), w, h))
+        })
+        .count();
+    if masked.is_empty() || (outlines as f64) < SILHOUETTE_SHARE * masked.len() as f64 {
+        return 0;
+    }
+    let masks = std::mem::take(&mut dataset.masks);
+    for (i, mask) in masks.into_iter().enumerate() {
+        let Some(mask) = mask else { continue };
+        let image = &mut dataset.images[i];
+        let transparency = &mut dataset.transparency[i];
+        if transparency.len() != w * h {
+            *transparency = vec![0.0; w * h];
+        }
+        for (p, &used) in mask.used().iter().enumerate() {
+            if !used {
+                transparency[p] = 1.0;
+                image.data[3 * p..3 * p + 3].copy_from_slice(&background);
+            }
+        }
+    }
+    masked.len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `w × h` mask using the pixels inside `[x0, x1) × [y0, y1)`.
+    fn rect(w: usize, h: usize, (x0, x1): (usize, usize), (y0, y1): (usize, usize)) -> Vec<bool> {
+        (0..w * h)
+            .map(|p| (x0..x1).contains(&(p % w)) && (y0..y1).contains(&(p / w)))
+            .collect()
+    }
+
+    #[test]
+    fn an_object_in_the_middle_is_a_silhouette_a_masked_corner_is_not() {
+        // The object alone, away from every border.
+        assert!(outlines_an_object(&rect(20, 10, (5, 15), (2, 8)), 20, 10));
+        // A passer-by masked out of a scene: the rest, borders included, is used.
+        let ignore_a_corner: Vec<bool> = rect(20, 10, (0, 5), (0, 4)).iter().map(|u| !u).collect();
+        assert!(!outlines_an_object(&ignore_a_corner, 20, 10));
+        // An object standing on the bottom border over a fifth of it: not a silhouette.
+        assert!(!outlines_an_object(&rect(20, 10, (4, 16), (3, 10)), 20, 10));
+        // Too small, or the wrong length: no.
+        assert!(!outlines_an_object(&[false; 4], 2, 2));
+        assert!(!outlines_an_object(&[false; 10], 4, 4));
+    }
+}
