@@ -12,8 +12,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 
-use super::capture::SceneFormat;
 use super::capture_frame::CaptureFrames;
+use super::scene_format::SceneFormat;
 use crate::core::term::error_line;
 
 /// The frames of the LLFF capture in `dir`: from its COLMAP model when one is there and

@@ -27,6 +27,7 @@ pub mod normalize;
 pub mod orbit;
 pub mod photo_fit;
 pub mod photo_resize;
+pub mod scene_format;
 pub mod shared_view;
 pub mod silhouette;
 pub mod spiral;
