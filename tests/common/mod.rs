@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod lego_capture;
+pub mod process_tools;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

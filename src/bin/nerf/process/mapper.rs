@@ -318,6 +318,31 @@ fn settled(centres: &[Centres], best: usize) -> bool {
     })
 }
 
+/// The lens model of the final bundle adjustment with COLMAP 4: the mapper's cameras
+/// (`SIMPLE_RADIAL`, [`crate::process::PYCOLMAP_CAMERA_MODEL`]) become `OPENCV` (two focals,
+/// two radial and two tangential terms, the added ones starting at zero) and the principal
+/// point is refined with them. Mapping with `OPENCV` from the start lost most of the temple
+/// ring; refining it from a finished reconstruction brought every capture measured closer to
+/// its reference (docs/own-scene.md#structure-from-motion-measured).
+pub const FINAL_CAMERA_MODEL: &str = "OPENCV";
+
+/// The options of the final `bundle_adjuster`: with COLMAP 4, [`FINAL_CAMERA_MODEL`] and the
+/// principal point refined; the COLMAP program maps with `OPENCV` already and keeps its
+/// defaults.
+fn final_adjustment(sfm: &Colmap) -> Vec<&'static OsStr> {
+    match sfm {
+        Colmap::Pycolmap { .. } => [
+            "--camera_model",
+            FINAL_CAMERA_MODEL,
+            "--BundleAdjustment.refine_principal_point",
+            "1",
+        ]
+        .map(OsStr::new)
+        .to_vec(),
+        Colmap::Program(_) => Vec::new(),
+    }
+}
+
 /// Refines the largest model under `colmap/sparse` in place: `colmap point_filtering
 /// --max_reproj_error PX` then `colmap bundle_adjuster` (logs `colmap/point_filtering.log` and
 /// `colmap/bundle_adjuster.log`), each into a folder of its own, the result renamed over the
@@ -335,7 +360,12 @@ fn refine(sfm: &Colmap, colmap: &Path, max_reprojection_error: f64) -> Result<f6
             &filtered,
             vec![OsStr::new("--max_reproj_error"), OsStr::new(&pixels)],
         ),
-        ("bundle_adjuster", &filtered, &adjusted, Vec::new()),
+        (
+            "bundle_adjuster",
+            &filtered,
+            &adjusted,
+            final_adjustment(sfm),
+        ),
     ];
     for (stage, input, output, extra) in steps {
         std::fs::create_dir_all(output)

@@ -347,13 +347,41 @@ def point_filtering(pycolmap, options):
     print(f"Filtered observations: {removed}", flush=True)
 
 
+# A camera's parameters in OPENCV's layout (fx, fy, cx, cy, k1, k2, p1, p2), from the simpler
+# models the mapper may have used: the terms they lack start at zero.
+def as_opencv(pycolmap, camera):
+    p = list(camera.params)
+    name = camera.model.name
+    if name == "SIMPLE_PINHOLE":
+        params = [p[0], p[0], p[1], p[2], 0.0, 0.0, 0.0, 0.0]
+    elif name == "PINHOLE":
+        params = p + [0.0, 0.0, 0.0, 0.0]
+    elif name == "SIMPLE_RADIAL":
+        params = [p[0], p[0], p[1], p[2], p[3], 0.0, 0.0, 0.0]
+    elif name == "RADIAL":
+        params = [p[0], p[0], p[1], p[2], p[3], p[4], 0.0, 0.0]
+    else:
+        return camera
+    return pycolmap.Camera(
+        model="OPENCV", width=camera.width, height=camera.height,
+        params=params, camera_id=camera.camera_id,
+    )
+
+
 def bundle_adjuster(pycolmap, options):
     source = required(options, "input_path")
     output = required(options, "output_path")
-    finish(options)
-    model = pycolmap.Reconstruction(source)
+    camera_model = options.pop("camera_model", None)
     adjustment = pycolmap.BundleAdjustmentOptions()
     adjustment.print_summary = False
+    take(options, "BundleAdjustment", adjustment)
+    finish(options)
+    model = pycolmap.Reconstruction(source)
+    if camera_model is not None:
+        if camera_model != "OPENCV":
+            fail(f"--camera_model {camera_model}: only OPENCV is supported here")
+        for camera_id in list(model.cameras):
+            model.cameras[camera_id] = as_opencv(pycolmap, model.cameras[camera_id])
     pycolmap.bundle_adjustment(model, adjustment)
     model.write(output)
     print(f"Bundle-adjusted {model.num_reg_images()} images", flush=True)
