@@ -127,6 +127,41 @@ fn masks_ignore_pixels_in_training_and_scoring_and_bad_ones_are_named() {
 }
 
 #[test]
+fn an_object_photographed_alone_is_sampled_over_its_hull_at_training_and_eval() {
+    let Some(scratch) = lego_root(FRAMES) else {
+        return;
+    };
+    // Lego's views keep their alpha: the object alone.
+    let dir = scratch.colmap_text("alone");
+    let scene = scratch.tiny_scene("nerf_scene", 1);
+    let log = common::stderr(&scene.run_ok("train", &dir, &[]));
+    assert!(log.contains("the photos outline an object"), "{log}");
+    let path = &scene.checkpoint;
+    let meta = nerf::io::checkpoint::read_metadata(path).unwrap();
+    let stored = nerf::io::checkpoint::SAMPLE_DEPTHS.read(&meta, path);
+    let (near, far) = stored.unwrap().expect("the narrowed depths are stored");
+    // The cameras stand at most 1 from the centre, lego within about a third of that: the
+    // hull's depths lie well inside nerf_scene's 0.02 to 2.8.
+    assert!(near > 0.3 && far < 2.0 && near < far, "{near} {far}");
+    let mut args = scene.args("eval", &dir, &[]);
+    args.extend(["--split", "test"]);
+    let out = common::nerf_ok(&args);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("PSNR mean"));
+    // Photos with no alpha and no masks (a room): nothing is narrowed, nothing stored.
+    let opaque = scratch.colmap_text("opaque");
+    for entry in std::fs::read_dir(opaque.join("images")).unwrap() {
+        let photo = entry.unwrap().path();
+        let rgb = image::open(&photo).unwrap().to_rgb8();
+        image::DynamicImage::ImageRgb8(rgb).save(&photo).unwrap();
+    }
+    std::fs::remove_file(path).unwrap();
+    let log = common::stderr(&scene.run_ok("train", &opaque, &[]));
+    assert!(!log.contains("outline an object"), "{log}");
+    let meta = nerf::io::checkpoint::read_metadata(path).unwrap();
+    assert!(!meta.contains_key(nerf::io::checkpoint::SAMPLE_DEPTHS_KEY));
+}
+
+#[test]
 fn one_checkpoint_renders_the_same_images_from_the_text_and_binary_colmap_model() {
     let Some(scratch) = lego_root(FRAMES) else {
         return;

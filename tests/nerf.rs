@@ -305,6 +305,7 @@ fn checkpoint_round_trips_bit_exactly() {
         }),
         background: Some([0.1, 0.5, 1.0]),
         image_size: Some((320, 180)),
+        sample_depths: Some((0.625, 1.375)),
         field_layout: Some("a layout line".to_string()),
     };
     checkpoint::save(

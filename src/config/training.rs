@@ -65,8 +65,9 @@ pub struct TrainingConfig {
     /// `depth_then_disparity` sampler.
     pub distortion_loss: f64,
     /// Extension: refine each training camera's pose with the field
-    /// ([`crate::train::camera_refinement`]): `off` (the default), `on`, or `auto` (on for
-    /// captures whose files show structure from motion).
+    /// ([`crate::train::camera_refinement`]): `off` (the default),
+    /// `on`, or `auto` (on for a COLMAP model whose points reproject
+    /// [`crate::train::camera_refinement::AUTO_REFINE_RESIDUAL_PX`] or more off).
     pub camera_refinement: CameraRefinementName,
 }
 
@@ -192,6 +193,7 @@ impl Config {
             max_rays: self.max_rays_per_step()?,
             time_schedule: t.schedule == Schedule::Time,
             camera_refinement: t.camera_refinement.0,
+            sample_depths: None,
         })
     }
 

@@ -37,6 +37,10 @@ pub const BACKGROUND_KEY: &str = "background";
 /// The metadata key of the image size a model was trained at (`width height`).
 pub const IMAGE_SIZE_KEY: &str = "image_size";
 
+/// The metadata key of the depth range training narrowed the sampler to (`near far`; an
+/// object photographed alone, [`crate::io::dataset::object_hull`]).
+pub const SAMPLE_DEPTHS_KEY: &str = "sample_depths";
+
 /// The metadata key of the field's layout ([`CheckpointInfo::field_layout`]).
 pub const FIELD_LAYOUT_KEY: &str = "field_layout";
 
@@ -81,6 +85,10 @@ pub struct CheckpointInfo {
     /// The training images' size (`None` in a checkpoint written before it was stored): what
     /// renders of a config without `data.image_size` take.
     pub image_size: Option<(usize, usize)>,
+    /// The sampler's depth range `(min_depth, max_depth)` when training narrowed it to an
+    /// object (`None` otherwise, or in a checkpoint written before it was stored): what
+    /// `eval`, `render` and `view` sample the model over.
+    pub sample_depths: Option<(f64, f64)>,
     /// What the model's parameter shapes do not say about how they are read
     /// ([`crate::field::trainable::TrainableField::layout`]; `None` for a kind without one, or
     /// a checkpoint written before it was stored): a model of another layout must not load it.
@@ -203,6 +211,9 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     if let Some((w, h)) = info.image_size {
         metadata.insert(IMAGE_SIZE_KEY.to_string(), format!("{w} {h}"));
     }
+    if let Some((near, far)) = info.sample_depths {
+        metadata.insert(SAMPLE_DEPTHS_KEY.to_string(), format!("{near} {far}"));
+    }
     if let Some(layout) = &info.field_layout {
         metadata.insert(FIELD_LAYOUT_KEY.to_string(), layout.clone());
     }
@@ -272,6 +283,7 @@ fn load_safetensors(
         capture_spiral: CAPTURE_SPIRAL.read(&meta, path)?,
         background: BACKGROUND.read(&meta, path)?,
         image_size: IMAGE_SIZE.read(&meta, path)?,
+        sample_depths: SAMPLE_DEPTHS.read(&meta, path)?,
         field_layout: meta.get(FIELD_LAYOUT_KEY).cloned(),
     };
     info.validate(path)?;
@@ -409,6 +421,12 @@ pub const IMAGE_SIZE: StoredEntry<(usize, usize)> = StoredEntry {
     parse: image_size_from_text,
 };
 
+/// The sampler's depth range (two finite numbers, 0 ≤ near < far).
+pub const SAMPLE_DEPTHS: StoredEntry<(f64, f64)> = StoredEntry {
+    key: SAMPLE_DEPTHS_KEY,
+    parse: depths_from_text,
+};
+
 impl<T> StoredEntry<T> {
     /// The entry's value in the metadata `meta` of the checkpoint at `path`; `None` when
     /// there is none, an error naming the key ([`CheckpointError::Metadata`]) when it does not
@@ -443,6 +461,15 @@ fn background_from_text(text: &str) -> Result<[f32; 3]> {
     let what = "three numbers in [0, 1]";
     match numbers::<f32>(text, what)?[..] {
         [r, g, b] if [r, g, b].iter().all(|c| (0.0..=1.0).contains(c)) => Ok([r, g, b]),
+        _ => bail!("expected {what}"),
+    }
+}
+
+/// `near far`, finite, with 0 ≤ near < far.
+fn depths_from_text(text: &str) -> Result<(f64, f64)> {
+    let what = "two depths, 0 <= near < far";
+    match numbers::<f64>(text, what)?[..] {
+        [near, far] if near >= 0.0 && far > near && far.is_finite() => Ok((near, far)),
         _ => bail!("expected {what}"),
     }
 }
@@ -491,6 +518,7 @@ mod tests {
             scene_transform: Some(transform),
             background: Some([0.25, 1.0, 0.0]),
             image_size: Some((640, 360)),
+            sample_depths: Some((0.7, 1.3125)),
             field_layout: Some("hash grid of 2 levels".to_string()),
             ..CheckpointInfo::default()
         };
@@ -513,6 +541,12 @@ mod tests {
             err.contains(SCENE_TRANSFORM_KEY) && err.contains("13"),
             "{err}"
         );
+        // Depths that are no range are refused.
+        for text in ["1.3 0.7", "-1 2", "0.5", "0.5 inf"] {
+            let bad: HashMap<String, String> =
+                [(SAMPLE_DEPTHS_KEY.to_string(), text.to_string())].into();
+            assert!(SAMPLE_DEPTHS.read(&bad, &path).is_err(), "{text}");
+        }
         // A file that is not safetensors is named.
         std::fs::write(&path, b"hello").unwrap();
         assert!(read_metadata(&path)

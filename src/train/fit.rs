@@ -37,7 +37,9 @@ use crate::io::torch::{write_torch_checkpoint, TorchOptimizerInfo};
 use crate::render::field::Field;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
-use crate::train::camera_refinement::{write_poses, CameraRefinement, CameraRefinementMode};
+use crate::train::camera_refinement::{
+    write_poses, CameraRefinement, CameraRefinementMode, AUTO_REFINE_RESIDUAL_PX,
+};
 use crate::train::model::{Optimizer, TrainModel};
 use crate::train::schedule::{next_rays, time_learning_rate};
 use crate::train::step::{learning_rate, logged_psnr, train_step, StepSettings, TrainRng};
@@ -96,6 +98,9 @@ pub struct TrainSettings {
     pub time_schedule: bool,
     /// Whether to refine the training cameras ([`crate::train::camera_refinement`]).
     pub camera_refinement: CameraRefinementMode,
+    /// The sampler's depth range when the run narrowed it to an object (stored in the
+    /// checkpoint for `eval`, `render` and `view`; [`crate::io::dataset::object_hull`]).
+    pub sample_depths: Option<(f64, f64)>,
 }
 
 /// Where a training run writes.
@@ -218,17 +223,34 @@ fn start_or_resume(
     }
     let mut adam = Optimizer::new(&state, settings.lr)?;
     let from_sfm = dataset.normalisation.is_some_and(|n| n.from_sfm);
+    let residual = dataset.normalisation.and_then(|n| n.sfm_residual);
+    let refined = settings.camera_refinement.enabled(from_sfm, residual);
     if dataset.normalisation.is_some()
-        && !from_sfm
+        && !refined
         && settings.camera_refinement == CameraRefinementMode::Auto
     {
+        let why = match (from_sfm, residual) {
+            (false, _) => "the capture shows no structure from motion (no 3D points, no COLMAP \
+                workspace beside it), so they are taken as exact"
+                .to_string(),
+            (true, None) => "the capture gives no residual of its structure from motion (no \
+                3D points with it), so they are taken as placed"
+                .to_string(),
+            (true, Some(r)) => format!(
+                "its structure from motion's points reproject {r:.2} px off on average, under \
+                 the {AUTO_REFINE_RESIDUAL_PX} px that auto refines from"
+            ),
+        };
+        log::info!("cameras not refined: {why} (training.camera_refinement=on refines them)");
+    }
+    let auto = settings.camera_refinement == CameraRefinementMode::Auto;
+    if let (true, true, Some(r)) = (refined, auto, residual) {
         log::info!(
-            "cameras not refined: the capture shows no structure from motion (no 3D points, \
-             no COLMAP workspace beside it), so they are taken as exact \
-             (training.camera_refinement=on refines them)"
+            "refining the cameras: structure from motion's points reproject {r:.2} px off on \
+             average ({AUTO_REFINE_RESIDUAL_PX} px or more: training.camera_refinement auto)"
         );
     }
-    if settings.camera_refinement.enabled(from_sfm) {
+    if refined {
         let mut cameras = CameraRefinement::new(n_images, device)?;
         if info.adam_step > 0 && !cameras.load_state(&tensors)? {
             log::info!("the checkpoint holds no camera refinement: refining from zero");
@@ -601,6 +623,7 @@ impl Run<'_> {
             capture_spiral: self.capture_spiral(),
             background: Some(self.settings.step.renderer.background),
             image_size: Some((self.dataset.width, self.dataset.height)),
+            sample_depths: self.settings.sample_depths,
             field_layout: self.state.field.layout(),
             ..CheckpointInfo::default()
         };
@@ -775,6 +798,7 @@ pub fn fit(
                 capture_spiral: run.capture_spiral(),
                 background: Some(run.settings.step.renderer.background),
                 image_size: Some((run.dataset.width, run.dataset.height)),
+                sample_depths: run.settings.sample_depths,
                 field_layout: run.state.field.layout(),
             };
             run.finish()?;

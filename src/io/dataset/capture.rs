@@ -81,6 +81,9 @@ pub struct CaptureSplit {
     /// Whether its cameras come from structure from motion
     /// ([`super::capture_frame::cameras_from_sfm`]).
     pub from_sfm: bool,
+    /// The mean reprojection error of the capture's SfM points, in pixels, when it has them
+    /// ([`super::capture_frame::CaptureFrames::sfm_residual`]).
+    pub sfm_residual: Option<f64>,
     /// Where the cameras came from and how the frames are split.
     pub info: CaptureInfo,
 }
@@ -100,6 +103,9 @@ pub struct Normalisation {
     /// Whether the capture's cameras come from structure from motion
     /// ([`CaptureSplit::from_sfm`]).
     pub from_sfm: bool,
+    /// The mean reprojection error of the capture's SfM points, in pixels
+    /// ([`CaptureSplit::sfm_residual`]).
+    pub sfm_residual: Option<f64>,
 }
 
 impl Normalisation {
@@ -227,6 +233,7 @@ fn capture_split(
         mut frames,
         splits,
         from_sfm,
+        sfm_residual,
         camera_source,
     } = read;
     if frames.is_empty() {
@@ -313,6 +320,7 @@ fn capture_split(
         total_frames,
         depth_bounds,
         from_sfm,
+        sfm_residual,
         info: CaptureInfo {
             format: camera_format,
             camera_source,

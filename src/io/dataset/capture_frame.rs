@@ -34,6 +34,10 @@ pub struct CaptureFrames {
     /// Whether the files show the cameras to come from structure from motion
     /// ([`cameras_from_sfm`]).
     pub from_sfm: bool,
+    /// The mean reprojection error in pixels of the 3D points structure from motion left with
+    /// the cameras (a COLMAP model's `points3D`), when the files hold them: how far off its
+    /// own cameras are by its own measure.
+    pub sfm_residual: Option<f64>,
     /// The file the cameras were read from, for messages (`poses_bounds.npy`, `transforms.json`,
     /// `the COLMAP model sparse/0`).
     pub camera_source: String,

@@ -71,6 +71,18 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
         frames,
         splits: None,
         from_sfm: !model.points.is_empty(),
+        sfm_residual: mean_point_error(&model.points),
         camera_source,
     })
+}
+
+/// The mean of the points' reprojection errors (COLMAP's per-point `error`, pixels) over the
+/// points with a finite, non-negative one; `None` when there are none.
+fn mean_point_error(points: &[crate::io::colmap::ColmapPoint3D]) -> Option<f64> {
+    let errors: Vec<f64> = points
+        .iter()
+        .map(|p| p.error)
+        .filter(|e| e.is_finite() && *e >= 0.0)
+        .collect();
+    (!errors.is_empty()).then(|| errors.iter().sum::<f64>() / errors.len() as f64)
 }

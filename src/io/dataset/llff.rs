@@ -65,6 +65,7 @@ fn read_capture(dir: &Path, path: &Path) -> Result<CaptureFrames> {
         splits: None,
         // LLFF's poses_bounds.npy is written by its imgs2poses.py from a COLMAP run.
         from_sfm: true,
+        sfm_residual: None,
         camera_source: "poses_bounds.npy".to_string(),
     })
 }

@@ -24,6 +24,7 @@ pub mod llff;
 pub mod nerfstudio;
 pub mod ngp_scene;
 pub mod normalize;
+pub mod object_hull;
 pub mod orbit;
 pub mod photo_fit;
 pub mod photo_resize;
@@ -149,6 +150,7 @@ fn split_frames(
             from_cameras: read.from_cameras,
             depth_bounds: read.depth_bounds,
             from_sfm: read.from_sfm,
+            sfm_residual: read.sfm_residual,
         }),
         capture: Some(read.info),
     })

@@ -122,6 +122,7 @@ fn parse_frames(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> 
         frames,
         splits,
         from_sfm,
+        sfm_residual: None,
         camera_source,
     })
 }

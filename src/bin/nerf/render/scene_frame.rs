@@ -29,7 +29,8 @@ pub fn stored_transform(path: &Path) -> Result<Option<SceneTransform>> {
 }
 
 /// What a command that shows or scores the model at `checkpoint` takes from it into
-/// `config`: with `renderer.background: auto`, the background training stored; with
+/// `config`: with `renderer.background: auto`, the background training stored; the depth
+/// range training narrowed the sampler to, when it did (an object photographed alone); with
 /// `image_size_too` and no `data.image_size`, the training images' size (renders of other
 /// views: `render`, `view`). Nothing for a file that is not one of our checkpoints (loading
 /// the model then says what is wrong with it).
@@ -48,6 +49,11 @@ pub fn adopt_stored_settings(
         if let Some(c) = checkpoint::BACKGROUND.read(&meta, checkpoint)? {
             config.renderer.background = Some(BackgroundConfig::Colour(c));
         }
+    }
+    // Training narrowed the sampler to an object: its model is empty only where it was
+    // sampled, so it is shown over the same depths.
+    if let Some((near, far)) = checkpoint::SAMPLE_DEPTHS.read(&meta, checkpoint)? {
+        (config.sampler.min_depth, config.sampler.max_depth) = (near, far);
     }
     if image_size_too && config.data.image_size.is_none() {
         if let Some((w, h)) = checkpoint::IMAGE_SIZE.read(&meta, checkpoint)? {

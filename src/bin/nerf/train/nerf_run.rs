@@ -73,13 +73,14 @@ pub fn train_nerf(
     stop: Option<&AtomicBool>,
     device: &Device,
 ) -> Result<FitOutcome> {
-    let mut settings = config.train_settings()?;
+    // The config's mistakes are reported before the data's.
+    config.train_settings()?;
     let size = config
         .data
         .dataset_image_size(data_dir, SizeUse::Training)?;
     let white = config.renderer.white_background;
     // A resumed run keeps the frame it started in.
-    let stored = match settings.resume {
+    let stored = match config.training()?.resume {
         true => stored_transform(&paths.checkpoint)?,
         false => None,
     };
@@ -95,6 +96,10 @@ pub fn train_nerf(
     if dataset.normalisation.is_some() {
         nerf::io::dataset::shared_view::check_capture_shares_a_view(data_dir, &dataset.frames)?;
     }
+    let (narrowed, sample_depths) = narrowed_to_object(config, &dataset, data_dir);
+    let config = &narrowed;
+    let mut settings = config.train_settings()?;
+    settings.sample_depths = sample_depths;
     if stored.is_some() {
         let n = dataset.normalisation.as_ref();
         note_scene_frame(data_dir, &paths.checkpoint, stored, n);
@@ -141,6 +146,35 @@ pub fn train_nerf(
         render_nerf_gif(config, field, &gif, device)
     }));
     fit(&settings, &dataset, paths, limits, stop, hooks, device)
+}
+
+/// `config` with its sampler's depth range narrowed to the object when `dataset` is a
+/// capture of an object alone (photos with alpha, or masks that outline it) and
+/// `renderer.background` is `auto`
+/// ([`nerf::io::dataset::object_hull::object_depths`]), and the narrowed range (stored in
+/// the checkpoint, so `eval`, `render` and `view` sample the same depths). Says so.
+fn narrowed_to_object(
+    config: &Config,
+    dataset: &Dataset,
+    data_dir: &Path,
+) -> (Config, Option<(f64, f64)>) {
+    let mut config = config.clone();
+    if dataset.normalisation.is_none() || !config.renderer.background_is_auto() {
+        return (config, None);
+    }
+    let s = &mut config.sampler;
+    let depths = nerf::io::dataset::object_hull::object_depths(dataset, (s.min_depth, s.max_depth));
+    if let Some((near, far)) = depths {
+        nerf::core::term::note(&format!(
+            "{}: the photos outline an object: its visual hull lies {near:.3} to {far:.3} from the cameras, where the {} depths a ray are drawn (sampler.min_depth, max_depth were {}, {})",
+            data_dir.display(),
+            s.n_pts_per_ray,
+            s.min_depth,
+            s.max_depth
+        ));
+        (s.min_depth, s.max_depth) = (near, far);
+    }
+    (config, depths)
 }
 
 /// `renderer.background: auto` at training: photos with alpha are trained on a random colour
