@@ -250,12 +250,16 @@ fn recovers_lego_cameras(lego: &Path, sfm: &[&str]) -> String {
     let (_, model) = nerf::io::colmap::find_model(&out.join("colmap")).unwrap();
     let registered = model.images.len();
     if sfm.contains(&"pycolmap") {
-        // The final bundle adjustment turned the mapper's SIMPLE_RADIAL cameras into OPENCV.
-        for camera in model.cameras.values() {
-            assert_eq!(camera.model, "OPENCV", "{camera:?}");
-        }
+        // The final bundle adjustment tried an OPENCV lens, and the model has it only when
+        // the log says it was kept (on these 24 views of a narrow lens it moves the cameras
+        // too far and is not).
         let log = std::fs::read_to_string(out.join("colmap/bundle_adjuster.log")).unwrap();
         assert!(log.contains("Bundle-adjusted"), "{log}");
+        let kept = log.contains("Lens OPENCV: cameras moved");
+        assert!(kept || log.contains("Lens OPENCV not kept"), "{log}");
+        for camera in model.cameras.values() {
+            assert_eq!(camera.model == "OPENCV", kept, "{camera:?} {log}");
+        }
     }
     assert!(
         stdout.contains(&format!("{registered} of 24 images registered")),

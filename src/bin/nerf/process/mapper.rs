@@ -318,12 +318,15 @@ fn settled(centres: &[Centres], best: usize) -> bool {
     })
 }
 
-/// The lens model of the final bundle adjustment with COLMAP 4: the mapper's cameras
-/// (`SIMPLE_RADIAL`, [`crate::process::PYCOLMAP_CAMERA_MODEL`]) become `OPENCV` (two focals,
-/// two radial and two tangential terms, the added ones starting at zero) and the principal
-/// point is refined with them. Mapping with `OPENCV` from the start lost most of the temple
-/// ring; refining it from a finished reconstruction brought every capture measured closer to
-/// its reference (docs/own-scene.md#structure-from-motion-measured).
+/// The lens model of the final bundle adjustment with COLMAP 4: after the adjustment with the
+/// mapper's own lens (`SIMPLE_RADIAL`, [`crate::process::PYCOLMAP_CAMERA_MODEL`]), the
+/// cameras become `OPENCV` (two focals, two radial and two tangential terms, the added ones
+/// starting at zero) and are adjusted again with the principal point refined. The richer lens
+/// is kept unless it turned a camera more than 1° or moved one more than 1% of the cameras'
+/// spread (then it had too little to fit on: few features, a narrow field of view). Mapping
+/// with `OPENCV` from the start lost most of the temple ring; refined from a finished
+/// reconstruction it brought Herz-Jesu and the fox closer to their references
+/// (docs/own-scene.md#structure-from-motion-measured).
 pub const FINAL_CAMERA_MODEL: &str = "OPENCV";
 
 /// The options of the final `bundle_adjuster`: with COLMAP 4, [`FINAL_CAMERA_MODEL`] and the
@@ -392,8 +395,18 @@ fn refine(sfm: &Colmap, colmap: &Path, max_reprojection_error: f64) -> Result<f6
         .and_then(|()| std::fs::rename(&adjusted, &model_dir))
         .and_then(|()| std::fs::remove_dir_all(&filtered))
         .with_context(|| format!("cannot replace {} by its refinement", model_dir.display()))?;
+    // COLMAP 4's adjuster says whether the richer lens was kept ([`final_adjustment`]).
+    let lens = std::fs::read_to_string(colmap.join("bundle_adjuster.log"))
+        .ok()
+        .and_then(|log| {
+            log.lines()
+                .find(|l| l.starts_with("Lens "))
+                .map(str::to_string)
+        })
+        .map(|l| format!("; {l}"))
+        .unwrap_or_default();
     log::info!(
-        "refined {}: observations beyond {max_reprojection_error} px dropped, bundle-adjusted again ({seconds:.1} s)",
+        "refined {}: observations beyond {max_reprojection_error} px dropped, bundle-adjusted again ({seconds:.1} s){lens}",
         model_dir.display()
     );
     Ok(seconds)
