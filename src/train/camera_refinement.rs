@@ -97,6 +97,32 @@ impl CameraRefinementMode {
     }
 }
 
+/// What `training.camera_refinement: auto` chose for a capture and why, as a log line:
+/// `refined` as [`CameraRefinementMode::enabled`] decided for cameras `from_sfm` with the
+/// mean reprojection error `sfm_residual`.
+pub fn auto_choice(refined: bool, from_sfm: bool, sfm_residual: Option<f64>) -> String {
+    let limit = AUTO_REFINE_RESIDUAL_PX;
+    match (refined, from_sfm, sfm_residual) {
+        (true, _, Some(r)) => format!(
+            "refining the cameras: structure from motion's points reproject {r:.2} px off on \
+             average ({limit} px or more: training.camera_refinement auto)"
+        ),
+        (_, false, _) => "cameras not refined: the capture shows no structure from motion (no \
+            3D points, no COLMAP workspace beside it), so they are taken as exact \
+            (training.camera_refinement=on refines them)"
+            .to_string(),
+        (_, true, Some(r)) => format!(
+            "cameras not refined: structure from motion's points reproject {r:.2} px off on \
+             average, under the {limit} px that auto refines from \
+             (training.camera_refinement=on refines them)"
+        ),
+        (_, true, None) => "cameras not refined: the capture gives no residual of its \
+            structure from motion (no 3D points with it), so they are taken as placed \
+            (training.camera_refinement=on refines them)"
+            .to_string(),
+    }
+}
+
 /// The rotation matrices `(n, 3, 3)` of rotation vectors `omega` `(n, 3)` (axis times angle,
 /// radians), as tensor ops (differentiable; in `omega`'s dtype): Rodrigues'
 /// `R = I + A·K + B·K²` with `K` the cross-product matrix of `ω`, `A = sin θ / θ` and
@@ -337,6 +363,12 @@ mod tests {
         assert!(!Auto.enabled(true, None));
         assert!(!Auto.enabled(false, loose));
         assert!(On.enabled(false, None) && !Off.enabled(true, loose));
+        // The log line says which and why.
+        assert!(auto_choice(true, true, loose).starts_with("refining the cameras"));
+        let under = auto_choice(false, true, tight);
+        assert!(under.contains("under the 0.8 px"), "{under}");
+        assert!(auto_choice(false, true, None).contains("no residual"));
+        assert!(auto_choice(false, false, None).contains("no structure from motion"));
     }
 
     fn rotation(omega: [f64; 3]) -> Vec<Vec<f64>> {

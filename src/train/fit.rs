@@ -38,7 +38,7 @@ use crate::render::field::Field;
 use crate::render::occupancy::{OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY};
 use crate::render::skipping::SampleCounts;
 use crate::train::camera_refinement::{
-    write_poses, CameraRefinement, CameraRefinementMode, AUTO_REFINE_RESIDUAL_PX,
+    auto_choice, write_poses, CameraRefinement, CameraRefinementMode,
 };
 use crate::train::model::{Optimizer, TrainModel};
 use crate::train::schedule::{next_rays, time_learning_rate};
@@ -225,30 +225,8 @@ fn start_or_resume(
     let from_sfm = dataset.normalisation.is_some_and(|n| n.from_sfm);
     let residual = dataset.normalisation.and_then(|n| n.sfm_residual);
     let refined = settings.camera_refinement.enabled(from_sfm, residual);
-    if dataset.normalisation.is_some()
-        && !refined
-        && settings.camera_refinement == CameraRefinementMode::Auto
-    {
-        let why = match (from_sfm, residual) {
-            (false, _) => "the capture shows no structure from motion (no 3D points, no COLMAP \
-                workspace beside it), so they are taken as exact"
-                .to_string(),
-            (true, None) => "the capture gives no residual of its structure from motion (no \
-                3D points with it), so they are taken as placed"
-                .to_string(),
-            (true, Some(r)) => format!(
-                "its structure from motion's points reproject {r:.2} px off on average, under \
-                 the {AUTO_REFINE_RESIDUAL_PX} px that auto refines from"
-            ),
-        };
-        log::info!("cameras not refined: {why} (training.camera_refinement=on refines them)");
-    }
-    let auto = settings.camera_refinement == CameraRefinementMode::Auto;
-    if let (true, true, Some(r)) = (refined, auto, residual) {
-        log::info!(
-            "refining the cameras: structure from motion's points reproject {r:.2} px off on \
-             average ({AUTO_REFINE_RESIDUAL_PX} px or more: training.camera_refinement auto)"
-        );
+    if dataset.normalisation.is_some() && settings.camera_refinement == CameraRefinementMode::Auto {
+        log::info!("{}", auto_choice(refined, from_sfm, residual));
     }
     if refined {
         let mut cameras = CameraRefinement::new(n_images, device)?;
