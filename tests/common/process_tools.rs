@@ -122,7 +122,7 @@ pub fn written_frames(out: &Path) -> Vec<serde_json::Value> {
 }
 
 /// Runs `run` (a `nerf process` of `what`), asserts that it succeeded and prints how long it
-/// took; returns its stdout.
+/// took; returns its stdout followed by its stderr (the log).
 pub fn timed_ok(what: &str, run: impl FnOnce() -> Output) -> String {
     let start = std::time::Instant::now();
     let o = run();
@@ -130,7 +130,7 @@ pub fn timed_ok(what: &str, run: impl FnOnce() -> Output) -> String {
     let stdout = String::from_utf8_lossy(&o.stdout).to_string();
     assert!(o.status.success(), "{}", super::stderr(&o));
     eprintln!("nerf process {what}: {seconds:.1} s; {stdout}");
-    stdout
+    format!("{stdout}{}", super::stderr(&o))
 }
 
 /// Recovered (r) against true (t) cameras: asserts that `t = A·r` for one rotation `A` to

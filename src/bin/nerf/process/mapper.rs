@@ -24,8 +24,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 
 use crate::process::colmap_run::{last_line, run_stage, Colmap};
+use nerf::core::camera_alignment::{align_centres, CameraPair};
 use nerf::core::camera_colmap::ColmapPose;
-use nerf::core::camera_consensus::{consensus, Centres};
+use nerf::core::camera_consensus::{consensus, spread, Centres};
 
 /// A run that registered at least this fraction of the most any run registered is compared
 /// with the others; fewer, and it is not a candidate.
@@ -322,28 +323,83 @@ fn settled(centres: &[Centres], best: usize) -> bool {
 /// mapper's own lens (`SIMPLE_RADIAL`, [`crate::process::PYCOLMAP_CAMERA_MODEL`]), the
 /// cameras become `OPENCV` (two focals, two radial and two tangential terms, the added ones
 /// starting at zero) and are adjusted again with the principal point refined. The richer lens
-/// is kept unless it turned a camera more than 1° or moved one more than 1% of the cameras'
-/// spread (then it had too little to fit on: few features, a narrow field of view). Mapping
-/// with `OPENCV` from the start lost most of the temple ring; refined from a finished
-/// reconstruction it brought Herz-Jesu and the fox closer to their references
+/// is kept unless it turned a camera more than [`MAX_LENS_TURN_DEGREES`] or moved one more
+/// than [`MAX_LENS_SHIFT`] of the cameras' spread (then it had too little to fit on: few
+/// features, a narrow field of view). Mapping with `OPENCV` from the start lost most of the
+/// temple ring; refined from a finished reconstruction it brought Herz-Jesu and the fox
+/// closer to their references
 /// (docs/own-scene.md#structure-from-motion-measured).
 pub const FINAL_CAMERA_MODEL: &str = "OPENCV";
 
-/// The options of the final `bundle_adjuster`: with COLMAP 4, [`FINAL_CAMERA_MODEL`] and the
-/// principal point refined; the COLMAP program maps with `OPENCV` already and keeps its
-/// defaults.
-fn final_adjustment(sfm: &Colmap) -> Vec<&'static OsStr> {
+/// The richer lens is kept only when no camera turned more than this many degrees against
+/// the plain adjustment ([`FINAL_CAMERA_MODEL`]).
+pub const MAX_LENS_TURN_DEGREES: f64 = 1.0;
+
+/// The richer lens is kept only when no camera moved more than this fraction of the cameras'
+/// spread against the plain adjustment, after the similarity that best aligns their centres.
+pub const MAX_LENS_SHIFT: f64 = 0.01;
+
+/// The options of the final `bundle_adjuster`: with COLMAP 4, a second adjustment in
+/// [`FINAL_CAMERA_MODEL`] with the principal point refined, written to `lens`; the COLMAP
+/// program maps with `OPENCV` already and keeps its defaults.
+fn final_adjustment<'a>(sfm: &Colmap, lens: &'a Path) -> Vec<&'a OsStr> {
     match sfm {
-        Colmap::Pycolmap { .. } => [
-            "--camera_model",
-            FINAL_CAMERA_MODEL,
-            "--BundleAdjustment.refine_principal_point",
-            "1",
-        ]
-        .map(OsStr::new)
-        .to_vec(),
+        Colmap::Pycolmap { .. } => {
+            let mut args = [
+                "--camera_model",
+                FINAL_CAMERA_MODEL,
+                "--BundleAdjustment.refine_principal_point",
+                "1",
+                "--lens_output_path",
+            ]
+            .map(OsStr::new)
+            .to_vec();
+            args.push(lens.as_os_str());
+            args
+        }
         Colmap::Program(_) => Vec::new(),
     }
+}
+
+/// How far the cameras of the model in `richer` stand from those of the model in `plain`:
+/// the largest turn (degrees) and the largest move (a fraction of `plain`'s camera spread)
+/// after the least-squares similarity of their centres
+/// ([`nerf::core::camera_alignment::align_centres`]). `None` when the two do not register
+/// the same images.
+fn lens_change(plain: &Path, richer: &Path) -> Result<Option<(f64, f64)>> {
+    let poses = |dir: &Path| -> Result<std::collections::BTreeMap<String, ColmapPose>> {
+        let (_, model) = nerf::io::colmap::find_model(dir)?;
+        model
+            .images
+            .iter()
+            .map(|image| {
+                let pose = ColmapPose::from_quaternion(image.qvec, image.tvec)
+                    .with_context(|| format!("COLMAP image {}", image.name))?;
+                Ok((image.name.clone(), pose))
+            })
+            .collect()
+    };
+    let (plain, richer) = (poses(plain)?, poses(richer)?);
+    if plain.len() < MIN_REGISTERED || !plain.keys().eq(richer.keys()) {
+        return Ok(None);
+    }
+    let pairs: Vec<CameraPair> = plain
+        .values()
+        .zip(richer.values())
+        .map(|(p, r)| CameraPair {
+            true_rotation: p.rotation.transpose(),
+            true_centre: p.center(),
+            rotation: r.rotation.transpose(),
+            centre: r.center(),
+        })
+        .collect();
+    let alignment = align_centres(&pairs);
+    let size = spread(&pairs.iter().map(|p| p.true_centre).collect::<Vec<_>>());
+    let largest = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+    Ok(Some((
+        largest(&alignment.rotation_errors_degrees),
+        largest(&alignment.centre_errors) / size,
+    )))
 }
 
 /// Refines the largest model under `colmap/sparse` in place: `colmap point_filtering
@@ -354,6 +410,7 @@ fn refine(sfm: &Colmap, colmap: &Path, max_reprojection_error: f64) -> Result<f6
     let (model_dir, _) = nerf::io::colmap::find_model(colmap)?;
     let filtered = colmap.join("refine_filtered");
     let adjusted = colmap.join("refine_adjusted");
+    let lens = colmap.join("refine_lens");
     let pixels = max_reprojection_error.to_string();
     let mut seconds = 0.0;
     let steps: [(&'static str, &Path, &Path, Vec<&OsStr>); 2] = [
@@ -367,7 +424,7 @@ fn refine(sfm: &Colmap, colmap: &Path, max_reprojection_error: f64) -> Result<f6
             "bundle_adjuster",
             &filtered,
             &adjusted,
-            final_adjustment(sfm),
+            final_adjustment(sfm, &lens),
         ),
     ];
     for (stage, input, output, extra) in steps {
@@ -391,20 +448,47 @@ fn refine(sfm: &Colmap, colmap: &Path, max_reprojection_error: f64) -> Result<f6
         }
         seconds += took;
     }
+    // With COLMAP 4, the adjustment in the richer lens ([`final_adjustment`]) replaces the
+    // plain one when it moved the cameras little.
+    let mut said = String::new();
+    if nerf::io::colmap::model_format(&lens).is_some() {
+        let change = lens_change(&adjusted, &lens)?;
+        let kept = change
+            .is_some_and(|(turn, shift)| turn <= MAX_LENS_TURN_DEGREES && shift <= MAX_LENS_SHIFT);
+        said = match change {
+            Some((turn, shift)) if kept => format!(
+                "; Lens {FINAL_CAMERA_MODEL}: cameras moved up to {turn:.2} deg, {:.2}% of their spread",
+                100.0 * shift
+            ),
+            Some((turn, shift)) => format!(
+                "; Lens {FINAL_CAMERA_MODEL} not kept: it moved the cameras up to {turn:.2} deg, {:.2}% of their spread (more than {MAX_LENS_TURN_DEGREES} deg or {}%)",
+                100.0 * shift,
+                100.0 * MAX_LENS_SHIFT
+            ),
+            None => format!("; Lens {FINAL_CAMERA_MODEL} not kept: it registered other images"),
+        };
+        let dropped = if kept { &adjusted } else { &lens };
+        std::fs::remove_dir_all(dropped)
+            .and_then(|()| {
+                if kept {
+                    std::fs::rename(&lens, &adjusted)
+                } else {
+                    Ok(())
+                }
+            })
+            .with_context(|| {
+                format!(
+                    "cannot keep one of {} and {}",
+                    adjusted.display(),
+                    lens.display()
+                )
+            })?;
+    }
     std::fs::remove_dir_all(&model_dir)
         .and_then(|()| std::fs::rename(&adjusted, &model_dir))
         .and_then(|()| std::fs::remove_dir_all(&filtered))
         .with_context(|| format!("cannot replace {} by its refinement", model_dir.display()))?;
-    // COLMAP 4's adjuster says whether the richer lens was kept ([`final_adjustment`]).
-    let lens = std::fs::read_to_string(colmap.join("bundle_adjuster.log"))
-        .ok()
-        .and_then(|log| {
-            log.lines()
-                .find(|l| l.starts_with("Lens "))
-                .map(str::to_string)
-        })
-        .map(|l| format!("; {l}"))
-        .unwrap_or_default();
+    let lens = said;
     log::info!(
         "refined {}: observations beyond {max_reprojection_error} px dropped, bundle-adjusted again ({seconds:.1} s){lens}",
         model_dir.display()

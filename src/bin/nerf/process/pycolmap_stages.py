@@ -18,6 +18,7 @@ that calls it. Two stages are the project's own, not COLMAP's:
   pairs, which close the loop of a walk-around without a vocabulary tree.
 """
 
+import os
 import sys
 import time
 
@@ -368,82 +369,35 @@ def as_opencv(pycolmap, camera):
     )
 
 
-def poses(model):
-    """Each registered image's (name, world → camera rotation, centre)."""
-    import numpy as np
-
-    out = []
-    for i in model.reg_image_ids():
-        image = model.images[i]
-        rotation = image.cam_from_world().rotation.matrix()
-        out.append((image.name, np.array(rotation), np.array(image.projection_center())))
-    return sorted(out, key=lambda p: p[0])
-
-
-def pose_change(before, after):
-    """The largest rotation change (degrees) and centre change (fraction of the centres' RMS
-    spread) of the images of `after` against `before`, after the least-squares similarity
-    (Umeyama's) that puts `after`'s centres on `before`'s."""
-    import numpy as np
-
-    a, b = poses(before), poses(after)
-    if [p[0] for p in a] != [p[0] for p in b] or len(a) < 3:
-        return float("inf"), float("inf")
-    ca = np.array([p[2] for p in a])
-    cb = np.array([p[2] for p in b])
-    mean_a, mean_b = ca.mean(0), cb.mean(0)
-    da, db = ca - mean_a, cb - mean_b
-    u, s, vt = np.linalg.svd(da.T @ db / len(ca))
-    d = np.eye(3)
-    d[2, 2] = np.sign(np.linalg.det(u @ vt))
-    rotation = u @ d @ vt
-    scale = (s * np.diag(d)).sum() / ((db**2).sum() / len(cb))
-    moved = (scale * (rotation @ db.T)).T + mean_a
-    spread = np.sqrt((da**2).sum(1).mean())
-    centre = float(np.linalg.norm(ca - moved, axis=1).max() / spread)
-    turns = [
-        np.degrees(np.arccos(np.clip((np.trace(pa[1] @ rotation @ pb[1].T) - 1) / 2, -1, 1)))
-        for pa, pb in zip(a, b)
-    ]
-    return float(max(turns)), centre
-
-
 def bundle_adjuster(pycolmap, options):
+    """COLMAP's bundle adjustment. With `--camera_model OPENCV --lens_output_path P` it also
+    adjusts a copy whose cameras are turned into OPENCV, with the `--BundleAdjustment.*`
+    options (the plain adjustment keeps COLMAP's defaults), and writes it to P: the driver
+    compares the two and keeps one."""
     source = required(options, "input_path")
     output = required(options, "output_path")
     camera_model = options.pop("camera_model", None)
-    max_turn = float(options.pop("max_lens_turn_degrees", "1.0"))
-    max_shift = float(options.pop("max_lens_shift", "0.01"))
+    lens_output = options.pop("lens_output_path", None)
     adjustment = pycolmap.BundleAdjustmentOptions()
     adjustment.print_summary = False
-    # The options (a refined principal point) are for the richer lens; the model's own lens
-    # is adjusted with COLMAP's defaults.
-    plain = pycolmap.BundleAdjustmentOptions()
-    plain.print_summary = False
     take(options, "BundleAdjustment", adjustment)
     finish(options)
-    if camera_model is not None and camera_model != "OPENCV":
-        fail(f"--camera_model {camera_model}: only OPENCV is supported here")
+    if camera_model is not None and (camera_model != "OPENCV" or lens_output is None):
+        fail("--camera_model takes OPENCV, with --lens_output_path")
     model = pycolmap.Reconstruction(source)
     if camera_model is None:
         pycolmap.bundle_adjustment(model, adjustment)
     else:
+        plain = pycolmap.BundleAdjustmentOptions()
+        plain.print_summary = False
         pycolmap.bundle_adjustment(model, plain)
         richer = pycolmap.Reconstruction(model)
         for camera_id in list(richer.cameras):
             richer.cameras[camera_id] = as_opencv(pycolmap, richer.cameras[camera_id])
         pycolmap.bundle_adjustment(richer, adjustment)
-        turn, shift = pose_change(model, richer)
-        # A lens with more terms that moves the cameras far had too little to fit them on
-        # (few features, a narrow field of view): the model's own lens is kept.
-        if turn <= max_turn and shift <= max_shift:
-            model = richer
-            print(f"Lens {camera_model}: cameras moved up to {turn:.2f} deg, "
-                  f"{100 * shift:.2f}% of their spread", flush=True)
-        else:
-            print(f"Lens {camera_model} not kept: it moved the cameras up to {turn:.2f} deg, "
-                  f"{100 * shift:.2f}% of their spread (more than {max_turn} deg or "
-                  f"{100 * max_shift}%)", flush=True)
+        os.makedirs(lens_output, exist_ok=True)
+        richer.write(lens_output)
+        print(f"Bundle-adjusted {richer.num_reg_images()} images with {camera_model}", flush=True)
     model.write(output)
     print(f"Bundle-adjusted {model.num_reg_images()} images", flush=True)
 
