@@ -10,6 +10,12 @@ use std::time::{Duration, Instant};
 mod common;
 use common::{max_byte_difference, nerf, nerf_ok, read_npy, stderr};
 
+/// The most seconds a small frame may take after abandoned or abusive requests, or an idle
+/// connection may stay open past a 0.4 s header timeout. The frames abandoned take minutes
+/// (4096²); the bound leaves room for a loaded 2-core machine (3 s failed once beside the
+/// rest of the suite).
+const NEXT_FRAME_SECONDS: f64 = 10.0;
+
 /// Starts `nerf view --port 0 ARGS…` with `stdout` and `stderr`.
 fn spawn_view(args: &[&str], stdout: Stdio, stderr: Stdio) -> Child {
     Command::new(env!("CARGO_BIN_EXE_nerf"))
@@ -393,7 +399,10 @@ fn requests_abandoned_at_once_cost_nothing(server: &Server) {
     let seconds = start.elapsed().as_secs_f64();
     assert_eq!(status, 200);
     eprintln!("40 requests abandoned at once, then a 32² frame in {seconds:.2} s");
-    assert!(seconds < 3.0, "the next frame took {seconds:.2} s");
+    assert!(
+        seconds < NEXT_FRAME_SECONDS,
+        "the next frame took {seconds:.2} s"
+    );
     let stats = server.stats();
     assert_eq!(stats["waiting"], 0, "{stats}");
     assert_eq!(
@@ -472,7 +481,10 @@ fn a_flood_beyond_the_queue_is_refused_then_abandoned(server: &Server) {
          hung up the next 32² frame came in {seconds:.2} s; {stats}"
     );
     assert!(resident < 1024.0, "{resident:.0} MB resident");
-    assert!(seconds < 3.0, "the next frame took {seconds:.2} s");
+    assert!(
+        seconds < NEXT_FRAME_SECONDS,
+        "the next frame took {seconds:.2} s"
+    );
     assert_eq!(count(&stats, "cancelled") as usize, n - refused, "{stats}");
     assert_eq!(count(&stats, "rendered"), 1, "{stats}");
     assert_eq!(stats["waiting"], 0, "{stats}");
@@ -497,7 +509,7 @@ fn slow_and_idle_connections_are_closed(server: &Server) {
         let seconds = opened.elapsed().as_secs_f64();
         eprintln!("{what}: closed after {seconds:.2} s");
         assert!(
-            (0.3..5.0).contains(&seconds),
+            (0.3..NEXT_FRAME_SECONDS).contains(&seconds),
             "{what}: closed after {seconds:.2} s (timeout 0.4 s)"
         );
         if what == "idle" {
@@ -587,7 +599,7 @@ fn the_viewer_holds_under_abuse() {
     let (status, _, last) = server.get(good);
     assert_eq!(status, 200);
     assert_eq!(first, last, "the frame changed");
-    assert!(again.elapsed() < Duration::from_secs(3));
+    assert!(again.elapsed().as_secs_f64() < NEXT_FRAME_SECONDS);
     eprintln!("abuse suite: {:.2} s", start.elapsed().as_secs_f64());
 }
 
