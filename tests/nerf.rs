@@ -306,6 +306,7 @@ fn checkpoint_round_trips_bit_exactly() {
         background: Some([0.1, 0.5, 1.0]),
         image_size: Some((320, 180)),
         sample_depths: Some((0.625, 1.375)),
+        object_box: Some([-0.375, -0.25, -0.5, 0.375, 0.5, 0.25]),
         field_layout: Some("a layout line".to_string()),
     };
     checkpoint::save(

@@ -28,6 +28,25 @@ impl Config {
         self.implicit_function.field().contraction()
     }
 
+    /// Fits a hash-grid field (`ngp`) and the occupancy grid to `cube` (`[min x, y, z, max x,
+    /// y, z]` in the normalised frame), with no scene contraction: the form of a model of an
+    /// object photographed alone, which holds nothing outside the cube
+    /// ([`crate::io::dataset::object_hull::object_fit`]). Returns false, changing nothing,
+    /// for another field kind.
+    pub fn fit_to_object(&mut self, cube: [f64; 6]) -> bool {
+        use crate::core::contraction::Contraction;
+        use crate::field::ngp_config::{ContractionName, NgpConfig};
+        let Some(ngp) = self.implicit_function.get_mut::<NgpConfig>() else {
+            return false;
+        };
+        ngp.aabb = [[cube[0], cube[1], cube[2]], [cube[3], cube[4], cube[5]]];
+        ngp.contraction = ContractionName(Contraction::None);
+        if let Some(grid) = self.renderer.occupancy_grid.as_mut() {
+            grid.aabb = cube;
+        }
+        true
+    }
+
     /// The NeRF's sizes, or an error naming the key when the config describes another field.
     pub fn nerf_params(&self) -> Result<NerfParams> {
         match self.implicit_function.get::<NerfConfig>() {
@@ -143,6 +162,23 @@ mod tests {
             &lego[..start],
             &lego[end..]
         )
+    }
+
+    #[test]
+    fn a_hash_grid_is_fitted_to_an_object_and_a_nerf_is_left_alone() {
+        use crate::core::contraction::Contraction;
+        let mut c = Config::load("nerf_scene", &[]).unwrap();
+        assert_eq!(c.contraction(), Contraction::LInf);
+        let cube = [-0.25, -0.5, -0.125, 0.5, 0.25, 0.625];
+        assert!(c.fit_to_object(cube));
+        let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
+        assert_eq!(n.aabb, [[-0.25, -0.5, -0.125], [0.5, 0.25, 0.625]]);
+        assert_eq!(c.contraction(), Contraction::None);
+        assert_eq!(c.renderer.occupancy_grid.as_ref().unwrap().aabb, cube);
+        let mut nerf = Config::load("nerf_lego", &[]).unwrap();
+        let before = nerf.clone();
+        assert!(!nerf.fit_to_object(cube));
+        assert_eq!(nerf, before);
     }
 
     #[test]

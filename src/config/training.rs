@@ -194,6 +194,7 @@ impl Config {
             time_schedule: t.schedule == Schedule::Time,
             camera_refinement: t.camera_refinement.0,
             sample_depths: None,
+            object_box: None,
         })
     }
 

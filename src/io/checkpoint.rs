@@ -13,7 +13,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
@@ -41,8 +41,17 @@ pub const IMAGE_SIZE_KEY: &str = "image_size";
 /// object photographed alone, [`crate::io::dataset::object_hull`]).
 pub const SAMPLE_DEPTHS_KEY: &str = "sample_depths";
 
+/// The metadata key of the box training fitted the field and the occupancy grid to
+/// (`min_x min_y min_z max_x max_y max_z`; an object photographed alone,
+/// [`crate::io::dataset::object_hull`]).
+pub const OBJECT_BOX_KEY: &str = "object_box";
+
 /// The metadata key of the field's layout ([`CheckpointInfo::field_layout`]).
 pub const FIELD_LAYOUT_KEY: &str = "field_layout";
+
+/// The largest coordinate a stored object box may have (the normalised frame's cameras stand
+/// within 1 of the origin).
+pub const MAX_BOX_COORDINATE: f64 = 1e3;
 
 /// The longest field layout line a checkpoint may store.
 pub const MAX_LAYOUT_BYTES: usize = 4096;
@@ -89,6 +98,10 @@ pub struct CheckpointInfo {
     /// object (`None` otherwise, or in a checkpoint written before it was stored): what
     /// `eval`, `render` and `view` sample the model over.
     pub sample_depths: Option<(f64, f64)>,
+    /// The box `[min x, y, z, max x, y, z]` the field and the occupancy grid were fitted to
+    /// when training found an object alone (`None` otherwise, or in a checkpoint written
+    /// before it was stored): the model holds nothing outside it.
+    pub object_box: Option<[f64; 6]>,
     /// What the model's parameter shapes do not say about how they are read
     /// ([`crate::field::trainable::TrainableField::layout`]; `None` for a kind without one, or
     /// a checkpoint written before it was stored): a model of another layout must not load it.
@@ -214,6 +227,10 @@ pub fn save(path: &Path, tensors: &[(String, Tensor)], info: CheckpointInfo) -> 
     if let Some((near, far)) = info.sample_depths {
         metadata.insert(SAMPLE_DEPTHS_KEY.to_string(), format!("{near} {far}"));
     }
+    if let Some(b) = info.object_box {
+        let text = b.map(|v| v.to_string()).join(" ");
+        metadata.insert(OBJECT_BOX_KEY.to_string(), text);
+    }
     if let Some(layout) = &info.field_layout {
         metadata.insert(FIELD_LAYOUT_KEY.to_string(), layout.clone());
     }
@@ -284,6 +301,7 @@ fn load_safetensors(
         background: BACKGROUND.read(&meta, path)?,
         image_size: IMAGE_SIZE.read(&meta, path)?,
         sample_depths: SAMPLE_DEPTHS.read(&meta, path)?,
+        object_box: OBJECT_BOX.read(&meta, path)?,
         field_layout: meta.get(FIELD_LAYOUT_KEY).cloned(),
     };
     info.validate(path)?;
@@ -427,6 +445,12 @@ pub const SAMPLE_DEPTHS: StoredEntry<(f64, f64)> = StoredEntry {
     parse: depths_from_text,
 };
 
+/// The box an object's model was fitted to (six finite numbers, each min below its max).
+pub const OBJECT_BOX: StoredEntry<[f64; 6]> = StoredEntry {
+    key: OBJECT_BOX_KEY,
+    parse: object_box_from_text,
+};
+
 impl<T> StoredEntry<T> {
     /// The entry's value in the metadata `meta` of the checkpoint at `path`; `None` when
     /// there is none, an error naming the key ([`CheckpointError::Metadata`]) when it does not
@@ -474,6 +498,18 @@ fn depths_from_text(text: &str) -> Result<(f64, f64)> {
     }
 }
 
+/// `min_x min_y min_z max_x max_y max_z`: finite, at most [`MAX_BOX_COORDINATE`] from the
+/// origin, each min below its max.
+fn object_box_from_text(text: &str) -> Result<[f64; 6]> {
+    let what = "a box: min x, y, z then max x, y, z, each min < max";
+    let v: [f64; 6] = numbers::<f64>(text, what)?
+        .try_into()
+        .map_err(|_| anyhow::anyhow!("expected {what}"))?;
+    let finite = v.iter().all(|x| x.abs() <= MAX_BOX_COORDINATE);
+    ensure!(finite && (0..3).all(|k| v[k] < v[k + 3]), "expected {what}");
+    Ok(v)
+}
+
 /// `width height`, each 1 to [`MAX_STORED_SIDE`].
 fn image_size_from_text(text: &str) -> Result<(usize, usize)> {
     let side = 1..=MAX_STORED_SIDE;
@@ -519,6 +555,7 @@ mod tests {
             background: Some([0.25, 1.0, 0.0]),
             image_size: Some((640, 360)),
             sample_depths: Some((0.7, 1.3125)),
+            object_box: Some([-0.25, -0.5, 0.125, 0.75, 0.5, 0.625]),
             field_layout: Some("hash grid of 2 levels".to_string()),
             ..CheckpointInfo::default()
         };
@@ -546,6 +583,19 @@ mod tests {
             let bad: HashMap<String, String> =
                 [(SAMPLE_DEPTHS_KEY.to_string(), text.to_string())].into();
             assert!(SAMPLE_DEPTHS.read(&bad, &path).is_err(), "{text}");
+        }
+        // So are boxes that are no box, or lie past any camera's frame.
+        for text in [
+            "0 0 0 1 1",
+            "0 0 0 1 1 0",
+            "0 0 0 1 1 NaN",
+            "0 0 0 1 1 1e9",
+            "a b c d e f",
+        ] {
+            let bad: HashMap<String, String> =
+                [(OBJECT_BOX_KEY.to_string(), text.to_string())].into();
+            let err = OBJECT_BOX.read(&bad, &path).unwrap_err().to_string();
+            assert!(err.contains(OBJECT_BOX_KEY), "{text}: {err}");
         }
         // A file that is not safetensors is named.
         std::fs::write(&path, b"hello").unwrap();

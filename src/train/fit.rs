@@ -101,6 +101,9 @@ pub struct TrainSettings {
     /// The sampler's depth range when the run narrowed it to an object (stored in the
     /// checkpoint for `eval`, `render` and `view`; [`crate::io::dataset::object_hull`]).
     pub sample_depths: Option<(f64, f64)>,
+    /// The box the field and the occupancy grid were fitted to when the run found an object
+    /// alone (stored in the checkpoint as [`CheckpointInfo::object_box`]).
+    pub object_box: Option<[f64; 6]>,
 }
 
 /// Where a training run writes.
@@ -602,6 +605,7 @@ impl Run<'_> {
             background: Some(self.settings.step.renderer.background),
             image_size: Some((self.dataset.width, self.dataset.height)),
             sample_depths: self.settings.sample_depths,
+            object_box: self.settings.object_box,
             field_layout: self.state.field.layout(),
             ..CheckpointInfo::default()
         };
@@ -777,6 +781,7 @@ pub fn fit(
                 background: Some(run.settings.step.renderer.background),
                 image_size: Some((run.dataset.width, run.dataset.height)),
                 sample_depths: run.settings.sample_depths,
+                object_box: run.settings.object_box,
                 field_layout: run.state.field.layout(),
             };
             run.finish()?;

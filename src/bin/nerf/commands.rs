@@ -319,12 +319,20 @@ fn export_views(
     Ok((config, selection))
 }
 
+/// `config` read as the model in `checkpoint` (or the config's) was trained
+/// ([`adopt_stored_settings`]: its background, depths and object box).
+fn as_trained(mut config: Config, checkpoint: Option<&std::path::Path>) -> Result<Config> {
+    let path = config.checkpoint(checkpoint);
+    adopt_stored_settings(&mut config, &path, false)?;
+    Ok(config)
+}
+
 /// `nerf export …`: runs the export and says what it wrote.
 pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
     use crate::export::{export_depth, export_mesh, export_points, MeshOptions};
     match what {
         ExportCommand::Mesh(a) => {
-            let config = a.config.load()?;
+            let config = as_trained(a.config.load()?, a.checkpoint.checkpoint.as_deref())?;
             let options = MeshOptions {
                 resolution: a.resolution,
                 threshold: a.threshold,
@@ -348,12 +356,13 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
         ExportCommand::Points(a) => {
             let (config, views) = export_views(&a.config, a.split, a.views)?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
+            let config = as_trained(config, checkpoint)?;
             let n = export_points(&config, checkpoint, &views, &a.out, device)?;
             say(&format!("wrote {} ({n} points)", a.out.display()))
         }
         ExportCommand::Model(a) => {
-            let config = a.config.load()?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
+            let config = as_trained(a.config.load()?, checkpoint)?;
             let e = crate::export::model_file::export_model(&config, checkpoint, &a.out, device)?;
             say(&format!(
                 "wrote {} ({} tensors, {:.1} MB; largest f16 rounding of the table {:.1e})",
@@ -366,6 +375,7 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
         ExportCommand::Depth(a) => {
             let (config, views) = export_views(&a.config, a.split, a.views)?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
+            let config = as_trained(config, checkpoint)?;
             let written = export_depth(&config, checkpoint, &views, &a.out, device)?;
             say(&format!(
                 "wrote {} files into {}",

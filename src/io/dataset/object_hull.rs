@@ -36,6 +36,10 @@ pub const HULL_SEEN_SHARE: f64 = 0.5;
 /// A pixel belongs to the object where its transparency is below this.
 pub const OBJECT_TRANSPARENCY: f32 = 0.5;
 
+/// The cube a model of an object alone is fitted to is centred on the hull's box, its side
+/// this many times the box's longest side.
+pub const OBJECT_CUBE_SCALE: f64 = 1.1;
+
 /// An axis-aligned box in the normalised frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HullBox {
@@ -60,6 +64,26 @@ impl HullBox {
         );
         (far - point).length()
     }
+
+    /// The cube `[min x, y, z, max x, y, z]` centred on the box, its side
+    /// [`OBJECT_CUBE_SCALE`] times the box's longest side: a hash grid over it has cells of
+    /// one size on every axis, all of them on the object's side of the hull.
+    pub fn cube(&self) -> [f64; 6] {
+        let centre = 0.5 * (self.min + self.max);
+        let half = 0.5 * OBJECT_CUBE_SCALE * (self.max - self.min).max_element();
+        let (lo, hi) = (centre - DVec3::splat(half), centre + DVec3::splat(half));
+        [lo.x, lo.y, lo.z, hi.x, hi.y, hi.z]
+    }
+}
+
+/// Where an object photographed alone lies, for the sampler and the field to fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObjectFit {
+    /// The cube round its visual hull ([`HullBox::cube`]).
+    pub cube: [f64; 6],
+    /// The sampler's depth range narrowed to the hull ([`hull_depths`]); `None` when the
+    /// configured range is no wider.
+    pub depths: Option<(f64, f64)>,
 }
 
 /// The bounding box of the visual hull of `dataset`'s silhouettes: the voxel centres of a
@@ -152,13 +176,25 @@ pub fn hull_depths(hull: &HullBox, centres: &[DVec3]) -> Option<(f64, f64)> {
 /// `dataset`'s cameras can meet the object its silhouettes outline ([`silhouette_hull`],
 /// [`hull_depths`]); `None` when the photos do not outline an object or the range would not
 /// be narrower.
-pub fn object_depths(dataset: &Dataset, (min_depth, max_depth): (f64, f64)) -> Option<(f64, f64)> {
+pub fn object_depths(dataset: &Dataset, range: (f64, f64)) -> Option<(f64, f64)> {
+    object_fit(dataset, range)?.depths
+}
+
+/// The cube and the depths ([`ObjectFit`]) of the object `dataset`'s silhouettes outline
+/// ([`silhouette_hull`]), the sampler's configured depth range being `(min_depth,
+/// max_depth)`; `None` when the photos do not outline an object.
+pub fn object_fit(dataset: &Dataset, (min_depth, max_depth): (f64, f64)) -> Option<ObjectFit> {
     use crate::core::camera_model::CameraModel as _;
     let hull = silhouette_hull(dataset)?;
     let centres: Vec<DVec3> = dataset.frames.iter().map(|f| f.camera.center()).collect();
-    let (near, far) = hull_depths(&hull, &centres)?;
-    let (near, far) = (near.max(min_depth), far.min(max_depth));
-    (far > near && (near > min_depth || far < max_depth)).then_some((near, far))
+    let depths = hull_depths(&hull, &centres).and_then(|(near, far)| {
+        let (near, far) = (near.max(min_depth), far.min(max_depth));
+        (far > near && (near > min_depth || far < max_depth)).then_some((near, far))
+    });
+    Some(ObjectFit {
+        cube: hull.cube(),
+        depths,
+    })
 }
 
 #[cfg(test)]
@@ -279,6 +315,14 @@ mod tests {
     fn the_sampler_narrows_only_to_an_outlined_object() {
         let mut dataset = ball_dataset(0.15, DVec3::ZERO, 48);
         let (near, far) = object_depths(&dataset, (0.02, 2.8)).expect("narrowed");
+        // The cube holds the ball, centred on it, a little more than its hull's box.
+        let cube = object_fit(&dataset, (0.02, 2.8)).unwrap().cube;
+        let side = cube[3] - cube[0];
+        for k in 0..3 {
+            assert!((cube[k + 3] - cube[k] - side).abs() < 1e-12, "{cube:?}");
+            assert!(cube[k] < -0.15 && cube[k + 3] > 0.15, "{cube:?}");
+        }
+        assert!(side < 0.6, "{cube:?}");
         assert!(
             near > 0.6 && near < 0.85 && far > 1.15 && far < 1.4,
             "{near} {far}"

@@ -34,12 +34,27 @@ pub fn outlines_an_object(used: &[bool], width: usize, height: usize) -> bool {
     on as f64 <= BORDER_USED_AT_MOST * all as f64
 }
 
+/// What [`masks_as_alpha`] did with a capture whose masks outline its object.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutlinedObject {
+    /// How many masks were taken as alpha.
+    pub frames: usize,
+    /// The mean colour of the pixels the masks left out, linear RGB in [0, 1]: the backdrop
+    /// the photos show round the object, where their silhouette's edge pixels mix with it.
+    pub backdrop: [f32; 3],
+}
+
 /// When the dataset's masks outline an object ([`outlines_an_object`], at least
 /// [`SILHOUETTE_SHARE`] of the masked images), makes every masked-out pixel fully transparent
-/// (its colour the loader's `background`, its transparency 1) and drops the masks, so that
-/// training draws rays from every pixel and trains the space around the object empty.
-/// Returns how many masks it took as alpha (0: the masks stay masks).
-pub fn masks_as_alpha(dataset: &mut Dataset, background: [f32; 3]) -> usize {
+/// (its transparency 1, its colour `background`, or with `None` the backdrop the masks leave
+/// out, [`OutlinedObject::backdrop`]: the colour a transparent pixel holds must be the one
+/// training composites the photos on) and drops the masks, so that training draws rays from
+/// every pixel and trains the space around the object empty. Returns what it did (`None`:
+/// the masks stay masks).
+pub fn masks_as_alpha(
+    dataset: &mut Dataset,
+    background: Option<[f32; 3]>,
+) -> Option<OutlinedObject> {
     let (w, h) = (dataset.width, dataset.height);
     let masked: Vec<usize> = (0..dataset.images.len())
         .filter(|&i| dataset.mask(i).is_some())
@@ -53,9 +68,22 @@ pub fn masks_as_alpha(dataset: &mut Dataset, background: [f32; 3]) -> usize {
         })
         .count();
     if masked.is_empty() || (outlines as f64) < SILHOUETTE_SHARE * masked.len() as f64 {
-        return 0;
+        return None;
     }
     let masks = std::mem::take(&mut dataset.masks);
+    let (mut sum, mut count) = ([0.0f64; 3], 0usize);
+    for (i, mask) in masks.iter().enumerate() {
+        let Some(mask) = mask else { continue };
+        let data = &dataset.images[i].data;
+        for (p, _) in mask.used().iter().enumerate().filter(|(_, &used)| !used) {
+            for (s, &c) in sum.iter_mut().zip(&data[3 * p..3 * p + 3]) {
+                *s += f64::from(c);
+            }
+            count += 1;
+        }
+    }
+    let backdrop = sum.map(|s| (s / count.max(1) as f64) as f32);
+    let fill = background.unwrap_or(backdrop);
     for (i, mask) in masks.into_iter().enumerate() {
         let Some(mask) = mask else { continue };
         let image = &mut dataset.images[i];
@@ -63,14 +91,15 @@ pub fn masks_as_alpha(dataset: &mut Dataset, background: [f32; 3]) -> usize {
         if transparency.len() != w * h {
             *transparency = vec![0.0; w * h];
         }
-        for (p, &used) in mask.used().iter().enumerate() {
-            if !used {
-                transparency[p] = 1.0;
-                image.data[3 * p..3 * p + 3].copy_from_slice(&background);
-            }
+        for (p, _) in mask.used().iter().enumerate().filter(|(_, &used)| !used) {
+            transparency[p] = 1.0;
+            image.data[3 * p..3 * p + 3].copy_from_slice(&fill);
         }
     }
-    masked.len()
+    Some(OutlinedObject {
+        frames: masked.len(),
+        backdrop,
+    })
 }
 
 #[cfg(test)]
@@ -96,5 +125,64 @@ mod tests {
         // Too small, or the wrong length: no.
         assert!(!outlines_an_object(&[false; 4], 2, 2));
         assert!(!outlines_an_object(&[false; 10], 4, 4));
+    }
+
+    #[test]
+    fn outlining_masks_become_alpha_and_say_the_backdrop_round_the_object() {
+        use crate::core::image::RgbImage;
+        use crate::io::dataset::PixelMask;
+        let (w, h) = (8, 6);
+        // Photo k: the object (white) inside [3, 5) × [2, 4), a backdrop of 0.2 + 0.1k, 0.5, 0.8.
+        let photo = |k: usize| {
+            let data = (0..w * h)
+                .flat_map(|p| match rect(w, h, (3, 5), (2, 4))[p] {
+                    true => [1.0, 1.0, 1.0],
+                    false => [0.2 + 0.1 * k as f32, 0.5, 0.8],
+                })
+                .collect();
+            RgbImage::new(w, h, data).unwrap()
+        };
+        let mask = || Some(PixelMask::from_flags(rect(w, h, (3, 5), (2, 4))));
+        let mut dataset = Dataset {
+            frames: Vec::new(),
+            images: vec![photo(0), photo(2)],
+            transparency: vec![Vec::new(), Vec::new()],
+            width: w,
+            height: h,
+            masks: vec![mask(), mask()],
+            normalisation: None,
+            capture: None,
+        };
+        let black = [0.0; 3];
+        let unfilled = dataset.clone();
+        let outlined = masks_as_alpha(&mut dataset, Some(black)).expect("outlined");
+        assert_eq!(outlined.frames, 2);
+        for (got, want) in outlined.backdrop.iter().zip([0.3, 0.5, 0.8]) {
+            assert!((got - want).abs() < 1e-6, "{:?}", outlined.backdrop);
+        }
+        assert!(dataset.masks.is_empty());
+        for (image, transparency) in dataset.images.iter().zip(&dataset.transparency) {
+            let object = rect(w, h, (3, 5), (2, 4));
+            for (p, (&inside, &t)) in object.iter().zip(transparency).enumerate() {
+                assert_eq!(t, if inside { 0.0 } else { 1.0 });
+                let want = if inside { [1.0; 3] } else { black };
+                assert_eq!(image.data[3 * p..3 * p + 3], want);
+            }
+        }
+        // Without a colour of its own, a transparent pixel holds the backdrop.
+        let mut on_backdrop = unfilled;
+        assert_eq!(masks_as_alpha(&mut on_backdrop, None), Some(outlined));
+        let transparent = on_backdrop.transparency[1]
+            .iter()
+            .position(|&t| t == 1.0)
+            .unwrap();
+        let colour = &on_backdrop.images[1].data[3 * transparent..3 * transparent + 3];
+        assert_eq!(colour, outlined.backdrop);
+        // Masks that ignore a corner of a scene stay masks.
+        let mut scene = dataset.clone();
+        let corner: Vec<bool> = rect(w, h, (0, 2), (0, 2)).iter().map(|u| !u).collect();
+        scene.masks = vec![Some(PixelMask::from_flags(corner)); 2];
+        assert_eq!(masks_as_alpha(&mut scene, Some(black)), None);
+        assert_eq!(scene.masks.len(), 2);
     }
 }

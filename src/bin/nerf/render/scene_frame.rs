@@ -55,6 +55,10 @@ pub fn adopt_stored_settings(
     if let Some((near, far)) = checkpoint::SAMPLE_DEPTHS.read(&meta, checkpoint)? {
         (config.sampler.min_depth, config.sampler.max_depth) = (near, far);
     }
+    // And fitted its field and grid to the object's cube.
+    if let Some(cube) = checkpoint::OBJECT_BOX.read(&meta, checkpoint)? {
+        config.fit_to_object(cube);
+    }
     if image_size_too && config.data.image_size.is_none() {
         if let Some((w, h)) = checkpoint::IMAGE_SIZE.read(&meta, checkpoint)? {
             config.data.image_size = Some([w, h]);

@@ -85,21 +85,26 @@ pub fn train_nerf(
         false => None,
     };
     let mut dataset = Dataset::load_first_with(data_dir, Split::Train, size, white, None, stored)?;
+    // With background auto a masked-out pixel holds the backdrop the masks leave out, the
+    // colour training then composites the photos on (choose_background); else the loader's.
     let loader_background = if white { [1.0; 3] } else { BLACK };
-    let outlined = nerf::io::dataset::silhouette::masks_as_alpha(&mut dataset, loader_background);
-    if outlined > 0 {
+    let fill = (!config.renderer.background_is_auto()).then_some(loader_background);
+    let outlined = nerf::io::dataset::silhouette::masks_as_alpha(&mut dataset, fill);
+    if let Some(o) = outlined {
         nerf::core::term::note(&format!(
-            "{}: the masks of {outlined} frames outline an object (they keep none of their photo's border): trained as its alpha, the space around it empty; held-out views are still scored inside their masks",
-            data_dir.display()
+            "{}: the masks of {} frames outline an object (they keep none of their photo's border): trained as its alpha, the space around it empty; held-out views are still scored inside their masks",
+            data_dir.display(),
+            o.frames
         ));
     }
     if dataset.normalisation.is_some() {
         nerf::io::dataset::shared_view::check_capture_shares_a_view(data_dir, &dataset.frames)?;
     }
-    let (narrowed, sample_depths) = narrowed_to_object(config, &dataset, data_dir);
+    let (narrowed, sample_depths, object_box) = narrowed_to_object(config, &dataset, data_dir);
     let config = &narrowed;
     let mut settings = config.train_settings()?;
     settings.sample_depths = sample_depths;
+    settings.object_box = object_box;
     if stored.is_some() {
         let n = dataset.normalisation.as_ref();
         note_scene_frame(data_dir, &paths.checkpoint, stored, n);
@@ -108,7 +113,8 @@ pub fn train_nerf(
         settings.model = sized;
     }
     if config.renderer.background_is_auto() {
-        let backdrop = choose_background(&mut settings.step, &dataset, data_dir);
+        let masked_backdrop = outlined.map(|o| o.backdrop);
+        let backdrop = choose_background(&mut settings.step, &dataset, masked_backdrop, data_dir);
         if !backdrop {
             let decay = config.renderer.occupancy_grid.as_ref();
             let decay = decay.and_then(|g| g.decay_without_backdrop);
@@ -148,23 +154,29 @@ pub fn train_nerf(
     fit(&settings, &dataset, paths, limits, stop, hooks, device)
 }
 
-/// `config` with its sampler's depth range narrowed to the object when `dataset` is a
-/// capture of an object alone (photos with alpha, or masks that outline it) and
-/// `renderer.background` is `auto`
-/// ([`nerf::io::dataset::object_hull::object_depths`]), and the narrowed range (stored in
-/// the checkpoint, so `eval`, `render` and `view` sample the same depths). Says so.
+/// `config` fitted to the object when `dataset` is a capture of an object alone (photos
+/// with alpha, or masks that outline it) and `renderer.background` is `auto`
+/// ([`nerf::io::dataset::object_hull::object_fit`]): the sampler's depth range narrowed to the
+/// object's visual hull, and a hash-grid field and the occupancy grid over the cube round it
+/// without a scene contraction (nothing of the model lies outside the hull, so the grids'
+/// cells are all spent on the object). Returns the narrowed range and the cube too (stored in
+/// the checkpoint, so `eval`, `render` and `view` read the model the same way). Says so.
 fn narrowed_to_object(
     config: &Config,
     dataset: &Dataset,
     data_dir: &Path,
-) -> (Config, Option<(f64, f64)>) {
+) -> (Config, Option<(f64, f64)>, Option<[f64; 6]>) {
     let mut config = config.clone();
     if dataset.normalisation.is_none() || !config.renderer.background_is_auto() {
-        return (config, None);
+        return (config, None, None);
     }
-    let s = &mut config.sampler;
-    let depths = nerf::io::dataset::object_hull::object_depths(dataset, (s.min_depth, s.max_depth));
-    if let Some((near, far)) = depths {
+    let s = &config.sampler;
+    let Some(fit) = nerf::io::dataset::object_hull::object_fit(dataset, (s.min_depth, s.max_depth))
+    else {
+        return (config, None, None);
+    };
+    if let Some((near, far)) = fit.depths {
+        let s = &mut config.sampler;
         nerf::core::term::note(&format!(
             "{}: the photos outline an object: its visual hull lies {near:.3} to {far:.3} from the cameras, where the {} depths a ray are drawn (sampler.min_depth, max_depth were {}, {})",
             data_dir.display(),
@@ -174,22 +186,52 @@ fn narrowed_to_object(
         ));
         (s.min_depth, s.max_depth) = (near, far);
     }
-    (config, depths)
+    let cube = config.fit_to_object(fit.cube).then(|| {
+        let c = fit.cube;
+        nerf::core::term::note(&format!(
+            "{}: the hash grid and the occupancy grid cover the cube round the object's hull, [{:.3}, {:.3}] x [{:.3}, {:.3}] x [{:.3}, {:.3}], with no scene contraction",
+            data_dir.display(),
+            c[0],
+            c[3],
+            c[1],
+            c[4],
+            c[2],
+            c[5]
+        ));
+        c
+    });
+    (config, fit.depths, cube)
 }
 
 /// `renderer.background: auto` at training: photos with alpha are trained on a random colour
 /// per step (their own background stays the loader's, white or black); photos without are
 /// trained on the colour of the plain backdrop their borders show
 /// ([`nerf::io::dataset::backdrop::backdrop_colour`]), else on black (a scene with no
-/// backdrop: what lies beyond is the contracted far field's). Says what it chose, and
-/// returns whether the photos show the object apart from its surroundings (alpha, or a plain
-/// backdrop).
-fn choose_background(step: &mut StepSettings, dataset: &Dataset, data_dir: &Path) -> bool {
+/// backdrop: what lies beyond is the contracted far field's). Masks that outline an object
+/// (`masked_backdrop`: the mean colour they leave out) train as alpha, and eval, render and
+/// view show the object over that colour, as the photos do: the pixels along a silhouette's
+/// edge mix the object with the backdrop, in the photos and then in the renders (on black,
+/// they held 15–18% of the error inside the masks; docs/own-scene.md#a-masked-object).
+/// Says what it chose, and returns whether the photos show the object apart from its
+/// surroundings (alpha, or a plain backdrop).
+fn choose_background(
+    step: &mut StepSettings,
+    dataset: &Dataset,
+    masked_backdrop: Option<[f32; 3]>,
+    data_dir: &Path,
+) -> bool {
     let has_alpha = dataset
         .transparency
         .iter()
         .any(|t| t.iter().any(|&v| v > 0.0));
-    let (background, why, apart) = if has_alpha {
+    let (background, why, apart) = if let Some(backdrop) = masked_backdrop.filter(|_| has_alpha) {
+        step.random_background = true;
+        (
+            backdrop,
+            "the mean colour the masks leave out; trained on a random background colour per step",
+            true,
+        )
+    } else if has_alpha {
         step.random_background = true;
         (
             step.renderer.background,
