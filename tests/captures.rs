@@ -334,14 +334,27 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     let log = eval(&subset, &old, &recomputed_images);
     assert!(log.contains("stores no scene normalisation"), "{log}");
     assert_ne!(files_of(&recomputed_images), files_of(&on_full));
-    // A resumed run on the subset keeps training in the stored frame, and keeps storing it.
+    // A resumed run on the subset keeps training in the stored frame, and keeps storing it;
+    // and over the object's stored cube, though the subset's silhouettes carve another hull.
+    let cube = checkpoint::OBJECT_BOX.read(&checkpoint::read_metadata(ckpt).unwrap(), ckpt);
+    let cube = cube
+        .unwrap()
+        .expect("lego's views have alpha: an object fit");
     let args = scene.args("train", &subset, &["training.num_epochs=3"]);
     let log = common::stderr(&common::nerf_ok(&args));
     assert!(
         log.contains("resuming from") && log.contains("using the scene normalisation stored in"),
         "{log}"
     );
+    assert!(
+        log.contains("keeping the object's depths and cube stored in"),
+        "{log}"
+    );
     let meta = checkpoint::read_metadata(ckpt).unwrap();
+    assert_eq!(
+        checkpoint::OBJECT_BOX.read(&meta, ckpt).unwrap(),
+        Some(cube)
+    );
     assert_eq!(meta["epoch"], "3");
     assert_eq!(
         checkpoint::SCENE_TRANSFORM.read(&meta, ckpt).unwrap(),

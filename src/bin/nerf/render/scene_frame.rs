@@ -28,6 +28,32 @@ pub fn stored_transform(path: &Path) -> Result<Option<SceneTransform>> {
     Ok(checkpoint::SCENE_TRANSFORM.read(&read_metadata(path)?, path)?)
 }
 
+/// The depth range and the cube of an object fit ([`adopt_object_fit`]).
+pub type ObjectFitStored = (Option<(f64, f64)>, Option<[f64; 6]>);
+
+/// What training stored in `checkpoint` of the object it fitted the model to, put into
+/// `config`: the depth range it narrowed the sampler to (the model is empty only where it
+/// was sampled, so it is shown over the same depths), and the cube it fitted the field and
+/// the occupancy grid to (`Config::fit_to_object`). Returns both (each `None` when not
+/// stored), or `None` for a file that is not one of our checkpoints.
+pub fn adopt_object_fit(config: &mut Config, checkpoint: &Path) -> Result<Option<ObjectFitStored>> {
+    if !checkpoint.is_file()
+        || detect_format(checkpoint).ok() != Some(CheckpointFormat::Safetensors)
+    {
+        return Ok(None);
+    }
+    let meta = read_metadata(checkpoint)?;
+    let depths = checkpoint::SAMPLE_DEPTHS.read(&meta, checkpoint)?;
+    if let Some((near, far)) = depths {
+        (config.sampler.min_depth, config.sampler.max_depth) = (near, far);
+    }
+    let cube = checkpoint::OBJECT_BOX.read(&meta, checkpoint)?;
+    if let Some(cube) = cube {
+        config.fit_to_object(cube);
+    }
+    Ok(Some((depths, cube)))
+}
+
 /// What a command that shows or scores the model at `checkpoint` takes from it into
 /// `config`: with `renderer.background: auto`, the background training stored; the depth
 /// range training narrowed the sampler to, when it did (an object photographed alone); with
@@ -50,15 +76,7 @@ pub fn adopt_stored_settings(
             config.renderer.background = Some(BackgroundConfig::Colour(c));
         }
     }
-    // Training narrowed the sampler to an object: its model is empty only where it was
-    // sampled, so it is shown over the same depths.
-    if let Some((near, far)) = checkpoint::SAMPLE_DEPTHS.read(&meta, checkpoint)? {
-        (config.sampler.min_depth, config.sampler.max_depth) = (near, far);
-    }
-    // And fitted its field and grid to the object's cube.
-    if let Some(cube) = checkpoint::OBJECT_BOX.read(&meta, checkpoint)? {
-        config.fit_to_object(cube);
-    }
+    adopt_object_fit(config, checkpoint)?;
     if image_size_too && config.data.image_size.is_none() {
         if let Some((w, h)) = checkpoint::IMAGE_SIZE.read(&meta, checkpoint)? {
             config.data.image_size = Some([w, h]);

@@ -9,7 +9,7 @@ use anyhow::{bail, Result};
 use candle_core::Device;
 
 use crate::render::scene::render_nerf_gif;
-use crate::render::scene_frame::{note_scene_frame, stored_transform};
+use crate::render::scene_frame::{adopt_object_fit, note_scene_frame, stored_transform};
 use nerf::config::{Config, SizeUse};
 use nerf::core::image::colour_name;
 use nerf::eval::evaluate::evaluate;
@@ -100,7 +100,26 @@ pub fn train_nerf(
     if dataset.normalisation.is_some() {
         nerf::io::dataset::shared_view::check_capture_shares_a_view(data_dir, &dataset.frames)?;
     }
-    let (narrowed, sample_depths, object_box) = narrowed_to_object(config, &dataset, data_dir);
+    // A resumed run keeps the object fit it started with (other frames may carve another
+    // hull, and a field of another box would not load).
+    let mut resumed = config.clone();
+    let resumed_fit = match config.training()?.resume {
+        true => adopt_object_fit(&mut resumed, &paths.checkpoint)?,
+        false => None,
+    };
+    let (narrowed, sample_depths, object_box) = match resumed_fit {
+        Some((depths, cube)) => {
+            if depths.is_some() || cube.is_some() {
+                nerf::core::term::note(&format!(
+                    "{}: keeping the object's depths and cube stored in {}",
+                    data_dir.display(),
+                    paths.checkpoint.display()
+                ));
+            }
+            (resumed, depths, cube)
+        }
+        None => narrowed_to_object(config, &dataset, data_dir),
+    };
     let config = &narrowed;
     let mut settings = config.train_settings()?;
     settings.sample_depths = sample_depths;
