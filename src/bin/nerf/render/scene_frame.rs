@@ -56,7 +56,8 @@ pub fn adopt_object_fit(config: &mut Config, checkpoint: &Path) -> Result<Option
 
 /// What a command that shows or scores the model at `checkpoint` takes from it into
 /// `config`: with `renderer.background: auto`, the background training stored; the depth
-/// range training narrowed the sampler to, when it did (an object photographed alone); with
+/// range and the cube training fitted the model to, when it did (an object photographed
+/// alone, [`adopt_object_fit`]); with
 /// `image_size_too` and no `data.image_size`, the training images' size (renders of other
 /// views: `render`, `view`). Nothing for a file that is not one of our checkpoints (loading
 /// the model then says what is wrong with it).
