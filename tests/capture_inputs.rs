@@ -143,8 +143,8 @@ fn an_object_photographed_alone_is_sampled_over_its_hull_at_training_and_eval() 
     // The cameras stand at most 1 from the centre, lego within about a third of that: the
     // hull's depths lie well inside nerf_scene's 0.02 to 2.8.
     assert!(near > 0.3 && far < 2.0 && near < far, "{near} {far}");
-    // The hash grid and the occupancy grid cover the cube round the hull, which holds the
-    // cameras' focus and none of the cameras.
+    // The hash grid and the occupancy grid cover the cube round the hull: round the
+    // cameras' focus (the origin), and well inside the unit cube the hull is carved from.
     assert!(
         log.contains("cover the cube round the object's hull"),
         "{log}"

@@ -172,17 +172,10 @@ pub fn hull_depths(hull: &HullBox, centres: &[DVec3]) -> Option<(f64, f64)> {
     (near.is_finite() && far > near).then_some((near, far))
 }
 
-/// The sampler's depth range `(min_depth, max_depth)` narrowed to the depths at which
-/// `dataset`'s cameras can meet the object its silhouettes outline ([`silhouette_hull`],
-/// [`hull_depths`]); `None` when the photos do not outline an object or the range would not
-/// be narrower.
-pub fn object_depths(dataset: &Dataset, range: (f64, f64)) -> Option<(f64, f64)> {
-    object_fit(dataset, range)?.depths
-}
-
 /// The cube and the depths ([`ObjectFit`]) of the object `dataset`'s silhouettes outline
-/// ([`silhouette_hull`]), the sampler's configured depth range being `(min_depth,
-/// max_depth)`; `None` when the photos do not outline an object.
+/// ([`silhouette_hull`]): the depths are the sampler's configured range `(min_depth,
+/// max_depth)` narrowed to those at which the cameras can meet the hull ([`hull_depths`]).
+/// `None` when the photos do not outline an object.
 pub fn object_fit(dataset: &Dataset, (min_depth, max_depth): (f64, f64)) -> Option<ObjectFit> {
     use crate::core::camera_model::CameraModel as _;
     let hull = silhouette_hull(dataset)?;
@@ -200,6 +193,11 @@ pub fn object_fit(dataset: &Dataset, (min_depth, max_depth): (f64, f64)) -> Opti
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The narrowed depth range of [`object_fit`], as training takes it.
+    fn object_depths(dataset: &Dataset, range: (f64, f64)) -> Option<(f64, f64)> {
+        object_fit(dataset, range)?.depths
+    }
     use crate::core::camera_colmap::{ColmapCamera, ColmapCameraModel, ColmapPose};
     use crate::core::image::RgbImage;
     use crate::io::dataset::Frame;

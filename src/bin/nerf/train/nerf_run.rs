@@ -118,7 +118,7 @@ pub fn train_nerf(
             }
             (resumed, depths, cube)
         }
-        None => narrowed_to_object(config, &dataset, data_dir),
+        None => fitted_to_object(config, &dataset, data_dir),
     };
     let config = &narrowed;
     let mut settings = config.train_settings()?;
@@ -180,7 +180,7 @@ pub fn train_nerf(
 /// without a scene contraction (nothing of the model lies outside the hull, so the grids'
 /// cells are all spent on the object). Returns the narrowed range and the cube too (stored in
 /// the checkpoint, so `eval`, `render` and `view` read the model the same way). Says so.
-fn narrowed_to_object(
+fn fitted_to_object(
     config: &Config,
     dataset: &Dataset,
     data_dir: &Path,
