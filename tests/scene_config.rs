@@ -144,7 +144,7 @@ fn a_capture_without_a_backdrop_trains_without_camera_clearance_and_with_its_own
     let err = train(&[]);
     assert!(err.contains("no plain backdrop"), "{err}");
     assert!(err.contains("no camera clearance"), "{err}");
-    assert!(err.contains("occupancy-grid decay 0.8"), "{err}");
+    assert!(err.contains("occupancy-grid decay 0.9"), "{err}");
     assert!(!err.contains("kept empty around"), "{err}");
     // A background given explicitly keeps the configured clearance and decay.
     let err = train(&["renderer.background=black"]);
