@@ -59,13 +59,19 @@ pub use candle_nn;
 pub use glam;
 
 pub mod config;
-pub mod core;
-pub mod eval;
-pub mod field;
+/// The maths every stage shares: the `nerf-core` crate.
+pub use nerf_core as core;
+/// PSNR over a split and the float64 reference renderer: the `nerf-eval` crate.
+pub use nerf_eval as eval;
+/// The fields (SDF volume, NeRF MLP, hash grid) and their registry: the `nerf-field` crate.
+pub use nerf_field as field;
 pub mod io;
-pub mod kernels;
-pub mod render;
-pub mod train;
+/// The fused CPU kernels and the switch between them and their twins: the `nerf-kernels` crate.
+pub use nerf_kernels as kernels;
+/// Samplers, the `Field` trait, the renderer and the occupancy grid: the `nerf-render` crate.
+pub use nerf_render as render;
+/// Adam, the model of any field kind, one training step and the loop: the `nerf-train` crate.
+pub use nerf_train as train;
 
 pub use crate::config::ConfigError;
 pub use crate::core::allocator::{ensure_allocator_tuned, tune_allocator};

@@ -1,15 +1,18 @@
 //! Docs that stay true (issue 32): what README.md, docs/*.md and the doc comments (`//!`,
 //! `///`) of src/, tests/ and examples/ name must exist in the tree.
 //!
-//! * Every path under `src/` (or `tests/`, `examples/`) names a file or folder that exists.
+//! * Every path under `src/` (or `tests/`, `examples/`, `crates/`) names a file or folder
+//!   that exists.
 //! * Every file or folder listed in a row of a layout table (`| folder/ | … |`, as in
 //!   docs/library.md) exists in that row's folder.
-//! * Every item path that starts with `crate` or `nerf` resolves. Resolution is textual: the
+//! * Every item path that starts with `crate`, `nerf` or a workspace crate's name
+//!   (`nerf_core`) resolves. Resolution is textual: the
 //!   longest prefix that is a module (a file `a/b.rs` or `a/b/mod.rs`, a `#[path]` module or an
 //!   inline `mod`), then the rest defined in that module's file (an item, a method, a variant,
 //!   a field) or re-exported by a `pub use` there, which is followed. Inside the binary's
-//!   files (src/bin/nerf/) `crate` is the binary's tree; elsewhere it is the library's, and
-//!   `nerf` is always the library.
+//!   files (src/bin/nerf/) `crate` is the binary's tree, inside a workspace crate's files
+//!   (crates/<name>/) that crate's, elsewhere the `nerf` facade's; `nerf` is always the
+//!   facade, and a re-export of a workspace crate is followed into it.
 //!
 //! Paths that end in `…` or use `*` stand for many and are skipped, as are paths to other
 //! projects' sources (COLMAP's `.h` files). Every missing reference is reported at once, with
@@ -20,7 +23,11 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 /// The top folders whose paths are checked when a document names them.
-const CHECKED_PATH_ROOTS: [&str; 3] = ["src/", "tests/", "examples/"];
+const CHECKED_PATH_ROOTS: [&str; 4] = ["src/", "tests/", "examples/", "crates/"];
+
+/// The folder of the workspace's library crates: `crates/<name>/src/lib.rs` is the crate
+/// `<name>` (with `-` written `_` in paths).
+const CRATES: &str = "crates";
 
 /// Extensions of other projects' sources: a `src/…` path ending in one names a file of theirs.
 const FOREIGN_EXTENSIONS: [&str; 7] = [".h", ".hpp", ".c", ".cc", ".cpp", ".cu", ".py"];
@@ -141,11 +148,16 @@ fn resolution_finds_modules_items_members_and_reexports() {
     let found = [
         ("src/lib.rs", "`crate::render::field::Field::render_fused`"), // a trait's method
         ("src/lib.rs", "[`crate::core::sdf::Sdf::Box`]"),              // a variant
-        ("src/lib.rs", "crate::core::camera_colmap::tests"),           // a #[path] module
-        ("src/lib.rs", "crate::io::dataset::Split"),                   // a glob re-export
-        ("README.md", "`nerf::VolumeRenderer::render`"),               // lib.rs's re-export
+        ("src/lib.rs", "crate::core::camera_colmap::tests"), // a #[path] module in a re-exported crate
+        ("README.md", "nerf_core::rays::Rays"),              // a workspace crate by name
+        (
+            "crates/nerf-core/src/rays.rs",
+            "crate::volume::transmittance",
+        ), // inside that crate
+        ("src/lib.rs", "crate::io::dataset::Split"),         // a glob re-export
+        ("README.md", "`nerf::VolumeRenderer::render`"),     // lib.rs's re-export
         ("README.md", "nerf::config::DataConfig::dataset_image_size"), // a relative re-export
-        ("README.md", "nerf::candle_core::Tensor"),                    // another crate's item
+        ("README.md", "nerf::candle_core::Tensor"),          // another crate's item
         (
             "src/bin/nerf/bench/row.rs",
             "crate::bench::hash_grid_rows::NgpFlops",
@@ -161,6 +173,7 @@ fn resolution_reports_what_is_not_there() {
     let not_found = [
         ("src/lib.rs", "crate::render::field::Field::no_such_method"),
         ("src/lib.rs", "crate::core::no_such_module::Thing"),
+        ("crates/nerf-core/src/rays.rs", "crate::io::dataset::Split"), // the facade's, not the crate's
         ("src/lib.rs", "crate::bench::hash_grid_rows::NgpFlops"), // the binary's, not the library's
         ("README.md", "nerf::NoSuchReexport"),
         ("README.md", "nerf::io::dataset::NoSuchItem"),
@@ -174,11 +187,11 @@ fn resolution_reports_what_is_not_there() {
 
 /// Every line of README.md and docs/*.md (but the added lines of a ```diff block, which name
 /// what a change would add), and every doc-comment line of the Rust files under
-/// src/, tests/ and examples/. File names are relative to the crate root.
+/// src/, tests/, examples/ and crates/. File names are relative to the workspace root.
 fn documentation_lines(root: &Path) -> Vec<DocLine> {
     let mut files = vec![PathBuf::from("README.md")];
     files.extend(files_under(root, Path::new("docs"), "md"));
-    for folder in ["src", "tests", "examples"] {
+    for folder in ["src", "tests", "examples", CRATES] {
         files.extend(files_under(root, Path::new(folder), "rs"));
     }
     let mut lines = Vec::new();
@@ -296,8 +309,14 @@ fn layout_table_entries(text: &str) -> Vec<String> {
 /// or whose group goes on past the line or nests, is skipped.
 fn item_paths(text: &str) -> Vec<Vec<String>> {
     let mut paths = Vec::new();
-    for start in ["crate::", "nerf::"] {
-        for (at, _) in text.match_indices(start) {
+    let mut starts = vec!["crate::".to_string(), "nerf::".to_string()];
+    starts.extend(
+        workspace_crate_names()
+            .into_iter()
+            .map(|name| format!("{name}::")),
+    );
+    for start in &starts {
+        for (at, _) in text.match_indices(start.as_str()) {
             let before = text[..at].chars().next_back();
             if before.is_some_and(|c| is_ident_char(c) || c == ':' || c == '$') {
                 continue;
@@ -362,20 +381,62 @@ fn group_members(group: &str) -> Vec<Vec<String>> {
 
 // ---- Resolving an item path ----
 
-/// The module `crate` or `nerf` stands for in `file`: the binary's tree inside src/bin/nerf/,
-/// the library's everywhere else.
+/// The module `crate`, `nerf` or a workspace crate's name stands for in `file`: for `crate`,
+/// the binary's tree inside src/bin/nerf/, a workspace crate's inside crates/<name>/, the
+/// facade's everywhere else.
 fn crate_root_for(root: &Path, file: &Path, start: &str) -> Module {
+    if let Some(krate) = workspace_crate(start) {
+        return krate;
+    }
     let binary = root.join("src/bin/nerf");
-    let (file, children_dir) = if start == "crate" && file.starts_with("src/bin/nerf") {
-        (binary.join("main.rs"), binary)
-    } else {
-        (root.join("src/lib.rs"), root.join("src"))
-    };
+    if start == "crate" && file.starts_with("src/bin/nerf") {
+        return Module {
+            file: binary.join("main.rs"),
+            children_dir: binary,
+            path: Vec::new(),
+        };
+    }
+    if start == "crate" && file.starts_with(CRATES) {
+        if let Some(name) = file.iter().nth(1).and_then(|n| n.to_str()) {
+            if let Some(krate) = workspace_crate(&name.replace('-', "_")) {
+                return krate;
+            }
+        }
+    }
     Module {
-        file,
-        children_dir,
+        file: root.join("src/lib.rs"),
+        children_dir: root.join("src"),
         path: Vec::new(),
     }
+}
+
+/// The names of the workspace's library crates as paths write them (`nerf_core`).
+fn workspace_crate_names() -> Vec<String> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join(CRATES);
+    let Ok(entries) = fs::read_dir(root) else {
+        return Vec::new();
+    };
+    let mut names: Vec<String> = entries
+        .flatten()
+        .filter(|e| e.path().join("src/lib.rs").is_file())
+        .filter_map(|e| e.file_name().to_str().map(|n| n.replace('-', "_")))
+        .collect();
+    names.sort();
+    names
+}
+
+/// The root module of the workspace crate a path calls `name` (`nerf_core`), if there is one.
+fn workspace_crate(name: &str) -> Option<Module> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(CRATES)
+        .join(name.replace('_', "-"))
+        .join("src");
+    let file = dir.join("lib.rs");
+    file.is_file().then(|| Module {
+        file,
+        children_dir: dir,
+        path: Vec::new(),
+    })
 }
 
 /// Checks that `segments` (after `crate`) name something in the tree of `crate_root`, or
@@ -408,6 +469,14 @@ fn resolve(
         };
     }
     for target in reexport_targets(&text, item) {
+        let krate = target.first().and_then(|first| workspace_crate(first));
+        if let Some(krate) = krate {
+            let path = [&target[1..], members].concat();
+            if resolve(&krate, &path, sources, depth + 1).is_ok() {
+                return Ok(());
+            }
+            continue;
+        }
         let Some(mut path) = absolute_use_path(&module, &target, sources) else {
             return Ok(()); // re-exported from another crate: nothing here to check
         };

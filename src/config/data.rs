@@ -230,7 +230,7 @@ mod tests {
 
     #[test]
     fn downscale_gives_the_photos_size_over_n_within_the_limit() {
-        let (dir, json) = crate::io::test_files::temp_file("transforms.json");
+        let (dir, json) = nerf_files::test_files::temp_file("transforms.json");
         let frame = |z: f64| {
             format!(
                 r#"{{"file_path": "{z}.jpg", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,{z}],[0,0,0,1]]}}"#

@@ -238,7 +238,7 @@ mod tests {
         let varmap = candle_nn::VarMap::new();
         let vb = candle_nn::VarBuilder::from_varmap(&varmap, candle_core::DType::F32, &dev);
         let model = Ngp::new(&n.params().unwrap(), vb).unwrap();
-        let (_dir, path) = crate::io::test_files::temp_file("ngp.safetensors");
+        let (_dir, path) = nerf_files::test_files::temp_file("ngp.safetensors");
         let tensors = crate::io::checkpoint::model_tensors(&varmap);
         crate::io::checkpoint::save(&path, &tensors, Default::default()).unwrap();
         let field = c.load_field(&path, &dev).unwrap();

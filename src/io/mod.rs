@@ -1,26 +1,12 @@
-//! Files: images, plots, datasets, checkpoints and PyTorch import; every output written by
-//! the one rule of [`output`].
+//! Files: images, plots, datasets, checkpoints and PyTorch import, from the three crates that
+//! hold them (`nerf-files`, `nerf-scene`, `nerf-checkpoint`); every output written by the one
+//! rule of [`output`].
 
-pub mod bounded_read;
-pub mod camera_path;
-pub mod camera_truth;
-pub mod checkpoint;
-pub mod checkpoint_error;
-pub mod checkpoint_file;
-pub mod colmap;
-pub mod dataset;
-pub mod decode_budget;
-pub mod images;
-pub mod npy;
-pub mod output;
-pub mod parameter_shapes;
-pub mod pickle;
+pub use nerf_checkpoint::{
+    checkpoint, checkpoint_error, checkpoint_file, parameter_shapes, pickle, torch, torch_archive,
+    torch_save,
+};
 #[cfg(feature = "cli")]
-pub mod plot;
-pub mod ply;
-pub mod progress;
-#[cfg(test)]
-pub(crate) mod test_files;
-pub mod torch;
-pub mod torch_archive;
-pub mod torch_save;
+pub use nerf_files::plot;
+pub use nerf_files::{bounded_read, decode_budget, images, npy, output, ply, progress};
+pub use nerf_scene::{camera_path, camera_truth, colmap, dataset};

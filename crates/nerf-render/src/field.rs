@@ -1,0 +1,118 @@
+//! The field abstraction: what the renderer queries at sample points. The renderer, the
+//! occupancy grid and the skipping pass see a field only through this trait, so a new field
+//! kind is one new file in `field/` implementing it.
+
+use anyhow::Result;
+use candle_core::Tensor;
+
+use crate::occupancy::OccupancyGrid;
+use crate::sampler::RaySamples;
+use nerf_core::rays::Rays;
+
+/// Volume density and feature (colour) at every sample.
+#[derive(Debug, Clone)]
+pub struct FieldOutput {
+    /// `(N, S, 1)` volume density σ ≥ 0 (may be +∞ for an opaque sample).
+    pub density: Tensor,
+    /// `(N, S, 3)` colour.
+    pub feature: Tensor,
+}
+
+impl FieldOutput {
+    /// A packed evaluation run on dense samples. `points` `(N, S, 3)` are flattened to
+    /// `(N·S, 3)`, sample `i` of that order on ray `i / S`; `evaluate` gets them with each
+    /// sample's ray, as a `(N·S,)` u32 tensor on the points' device and as the same values on
+    /// the host, and returns density `(N·S, 1)` and feature `(N·S, 3)`, reshaped here to
+    /// `(N, S, 1)` and `(N, S, 3)`.
+    pub fn from_packed(
+        points: &Tensor,
+        evaluate: impl FnOnce(&Tensor, (&Tensor, &[u32])) -> Result<(Tensor, Tensor)>,
+    ) -> Result<Self> {
+        let (n, s, _) = points.dims3()?;
+        let rays: Vec<u32> = (0..n * s).map(|i| (i / s) as u32).collect();
+        let ray_index = Tensor::new(rays.as_slice(), points.device())?;
+        let flat = points.reshape((n * s, 3))?;
+        let (density, feature) = evaluate(&flat, (&ray_index, &rays))?;
+        Ok(Self {
+            density: density.reshape((n, s, 1))?,
+            feature: feature.reshape((n, s, 3))?,
+        })
+    }
+}
+
+pub use nerf_kernels::composite::Composited;
+
+/// A radiance field.
+pub trait Field {
+    /// Evaluates the field at the samples of N rays.
+    ///
+    /// `samples`: points `(N, S, 3)`, lengths `(N, S, 1)`; `deltas`: `(N, S, 1)` spacings;
+    /// `directions`: `(N, 3)` unit ray directions. Returns density `(N, S, 1)` and feature
+    /// `(N, S, 3)`.
+    fn evaluate(
+        &self,
+        samples: &RaySamples,
+        deltas: &Tensor,
+        directions: &Tensor,
+    ) -> Result<FieldOutput>;
+
+    /// Colour `(N, 3)`, depth `(N, 1)` and opacity `(N, 1)` of `rays` (N) densely sampled at
+    /// `lengths` `(N, S, 1)`, rendered by the field itself in one fused pass: the values that
+    /// [`Field::evaluate`] followed by the renderer's compositing give, and differentiable
+    /// the same way. `None` (the default) when the field has no such kernel for these inputs;
+    /// the renderer then samples, evaluates and composites.
+    fn render_fused(&self, _rays: &Rays, _lengths: &Tensor) -> Result<Option<Composited>> {
+        Ok(None)
+    }
+
+    /// The most samples (rays × points per ray) to evaluate at once. The renderer lowers its
+    /// `chunk_size` to fit, which bounds memory without changing any output. The default,
+    /// 2^16, suits a field with small MLPs (the hash grid's: a few MiB of activations).
+    fn max_samples_per_chunk(&self) -> usize {
+        1 << 16
+    }
+
+    /// Whether [`Field::evaluate_packed`] is implemented. Fields whose σ does not depend on the
+    /// spacing implement it; the others (the default) are always evaluated densely.
+    fn supports_packed(&self) -> bool {
+        false
+    }
+
+    /// Evaluates M samples drawn from N rays, for the skipping pass (`render::skipping`).
+    ///
+    /// `points`: `(M, 3)`; `ray_index`: `(M,)` u32, each sample's ray; `directions`: `(N, 3)`.
+    /// Returns density `(M, 1)` and feature `(M, 3)`, the values [`Field::evaluate`] gives at
+    /// those samples.
+    fn evaluate_packed(
+        &self,
+        _points: &Tensor,
+        _ray_index: &Tensor,
+        _directions: &Tensor,
+    ) -> Result<(Tensor, Tensor)> {
+        anyhow::bail!("this field is evaluated densely only (no packed evaluation)")
+    }
+
+    /// The same field for rays of the training cameras `camera_index` `(N,)` u32 (one per
+    /// ray of the batch it will see), for a field with parts learnt per training image
+    /// (appearance); `None` (the default) when it has none, and the field is used as it is.
+    fn for_cameras(&self, _camera_index: &Tensor) -> Result<Option<Box<dyn Field + '_>>> {
+        Ok(None)
+    }
+
+    /// Where the field can have density, when it keeps an occupancy grid (samples elsewhere
+    /// are skipped when the field supports [`Field::evaluate_packed`]).
+    fn occupancy(&self) -> Option<&OccupancyGrid> {
+        None
+    }
+
+    /// Density alone at `points` `(M, 3)`: `(M, 1)` (meshes, grids), for fields with packed
+    /// evaluation, whose density does not depend on the direction. The default evaluates
+    /// [`Field::evaluate_packed`] with every point on one ray along +z and keeps the density.
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        let m = points.dim(0)?;
+        let dev = points.device();
+        let directions = Tensor::new(&[[0f32, 0.0, 1.0]], dev)?.to_dtype(points.dtype())?;
+        let ray_index = Tensor::zeros(m, candle_core::DType::U32, dev)?;
+        Ok(self.evaluate_packed(points, &ray_index, &directions)?.0)
+    }
+}

@@ -1,0 +1,187 @@
+//! An LLFF capture (nerf-pytorch's forward-facing scenes): `poses_bounds.npy`, an `(N, 17)`
+//! float array, one row per photo of `images/` in sorted order. A row is a 3×5 matrix, row
+//! by row, then the near and far depth bounds: the first three columns are the
+//! camera → world rotation with LLFF's axes (down, right, backwards), the fourth the camera
+//! centre, the fifth `[height, width, focal]` in pixels of the full-size photos. The bounds
+//! do not normalise the scene (its cameras do, [`super::normalize`]); they place the focus
+//! of the spiral that `render` and `view` show a forward-facing capture from
+//! ([`super::spiral`]).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+
+use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
+use super::dataset_error::{metadata_unless_camera, read_dataset_file, DatasetError};
+use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
+use nerf_files::npy::{parse_npy_header, MAX_HEADER_BYTES};
+
+/// Most photos an LLFF capture may list.
+pub const MAX_LLFF_FRAMES: u64 = 100_000;
+
+/// The frames of the LLFF capture in `dir`. A frame's camera error keeps its
+/// [`nerf_core::camera_error::CameraError`] in the chain; a missing `images/` is a
+/// [`DatasetError::MissingFile`], anything else wrong with `poses_bounds.npy` a
+/// [`DatasetError::Metadata`] (inside the `anyhow::Error`).
+pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
+    let path = dir.join("poses_bounds.npy");
+    read_capture(dir, &path).map_err(|e| metadata_unless_camera(&path, e))
+}
+
+/// [`read_frames`] of `path`, its errors as they come.
+fn read_capture(dir: &Path, path: &Path) -> Result<CaptureFrames> {
+    let rows = read_rows(path)?;
+    let images_dir = dir.join("images");
+    let images = image_files(&images_dir)?;
+    if images.len() != rows.len() {
+        bail!(
+            "{}: {} poses, but {} has {} images",
+            path.display(),
+            rows.len(),
+            dir.join("images").display(),
+            images.len()
+        );
+    }
+    let frames = rows
+        .iter()
+        .zip(images)
+        .enumerate()
+        .map(|(i, (row, file_path))| {
+            // As context, so that a camera's error stays in the chain.
+            let camera =
+                camera_of_row(row).with_context(|| format!("{}: row {i}", path.display()))?;
+            let name = file_path.strip_prefix(&images_dir).unwrap_or(&file_path);
+            let mask_path = mask_in_folder(dir, name);
+            Ok(CaptureFrame {
+                file_path,
+                camera,
+                mask_path,
+                depth_bounds: depth_bounds_of_row(row),
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(CaptureFrames {
+        frames,
+        splits: None,
+        // LLFF's poses_bounds.npy is written by its imgs2poses.py from a COLMAP run.
+        from_sfm: true,
+        sfm_residual: None,
+        camera_source: "poses_bounds.npy".to_string(),
+    })
+}
+
+/// The camera of one `poses_bounds.npy` row: LLFF's (down, right, back) axes are OpenGL's
+/// (right, up, back) as `[c₁, −c₀, c₂]`; a pinhole with the focal length at the centre.
+pub fn camera_of_row(row: &[f64; 17]) -> Result<ColmapCamera> {
+    let m = |r: usize, c: usize| row[5 * r + c];
+    let opengl = [0, 1, 2].map(|r| [m(r, 1), -m(r, 0), m(r, 2), m(r, 3)]);
+    let (h, w, f) = (m(0, 4), m(1, 4), m(2, 4));
+    if !(h >= 1.0 && w >= 1.0 && h.fract() == 0.0 && w.fract() == 0.0 && h <= 1e6 && w <= 1e6) {
+        bail!("image size {w}×{h} is not a positive whole number of pixels");
+    }
+    let size = (w as usize, h as usize);
+    let pose = ColmapPose::from_opengl_camera_to_world(opengl);
+    ColmapCamera::from_colmap("PINHOLE", &[f, f, w / 2.0, h / 2.0], size, pose)
+}
+
+/// The near and far depth bounds of a `poses_bounds.npy` row; `None` unless `0 < near ≤ far`
+/// (tools that know no bounds write zeros).
+pub fn depth_bounds_of_row(row: &[f64; 17]) -> Option<[f64; 2]> {
+    let (near, far) = (row[15], row[16]);
+    (near > 0.0 && far >= near).then_some([near, far])
+}
+
+/// The rows of an `(N, 17)` little-endian float64 or float32 array.
+fn read_rows(path: &Path) -> Result<Vec<[f64; 17]>> {
+    let max = MAX_LLFF_FRAMES * 17 * 8 + MAX_HEADER_BYTES as u64 + 12;
+    let bytes = read_dataset_file(path, "LLFF poses", max)?;
+    let npy = parse_npy_header(&bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    let [n, 17] = npy.shape[..] else {
+        bail!("{}: shape {:?}, not (N, 17)", path.display(), npy.shape);
+    };
+    if npy.fortran_order {
+        bail!("{}: a Fortran-ordered array", path.display());
+    }
+    let item = match npy.descr.as_str() {
+        "<f8" => 8,
+        "<f4" => 4,
+        other => bail!("{}: dtype {other}, not float64 or float32", path.display()),
+    };
+    let data = &bytes[npy.data_offset..];
+    let expected = n.checked_mul(17 * item as u64);
+    if expected != Some(data.len() as u64) {
+        bail!(
+            "{}: {} data bytes for shape ({n}, 17)",
+            path.display(),
+            data.len()
+        );
+    }
+    let values: Vec<f64> = data
+        .chunks_exact(item)
+        .map(|b| match item {
+            8 => f64::from_le_bytes(b.try_into().expect("8 bytes")),
+            _ => f32::from_le_bytes(b.try_into().expect("4 bytes")) as f64,
+        })
+        .collect();
+    if values.iter().any(|v| !v.is_finite()) {
+        bail!("{}: a value is not finite", path.display());
+    }
+    Ok(values
+        .chunks_exact(17)
+        .map(|c| c.try_into().expect("17 values"))
+        .collect())
+}
+
+/// The PNG and JPEG files of `dir`, sorted by name.
+fn image_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let entries = std::fs::read_dir(dir).map_err(|e| {
+        let message = format!("cannot list {}: {e}", dir.display());
+        match e.kind() {
+            std::io::ErrorKind::NotFound => DatasetError::missing_file(dir, message).into(),
+            _ => anyhow!(message),
+        }
+    })?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "png" | "jpg" | "jpeg"))
+        })
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+    use nerf_core::camera_model::CameraModel;
+
+    #[test]
+    fn an_llff_row_becomes_the_camera_it_describes() {
+        // Camera at (1, 2, 3) looking down world −z with world +y up: in LLFF's axes the
+        // columns are down = (0, −1, 0), right = (1, 0, 0), back = (0, 0, 1).
+        let mut row = [0.0; 17];
+        let rows = [
+            [0.0, 1.0, 0.0, 1.0, 480.0],
+            [-1.0, 0.0, 0.0, 2.0, 640.0],
+            [0.0, 0.0, 1.0, 3.0, 500.0],
+        ];
+        for (r, values) in rows.iter().enumerate() {
+            row[5 * r..5 * r + 5].copy_from_slice(values);
+        }
+        let camera = camera_of_row(&row).unwrap();
+        assert_eq!(camera.size, (640, 480));
+        assert!((camera.center() - DVec3::new(1.0, 2.0, 3.0)).length() < 1e-12);
+        // The image centre looks along −z; the top of the image is +y.
+        let (_, d) = camera.ray_through_pixel(320.0, 240.0);
+        assert!((d - DVec3::NEG_Z).length() < 1e-12);
+        let (_, up) = camera.ray_through_pixel(320.0, 0.0);
+        assert!(up.y > 0.0);
+        // A point 500 px right of the centre at depth 1: +x.
+        let (_, right) = camera.ray_through_pixel(320.0 + 500.0, 240.0);
+        assert!((right - DVec3::new(1.0, 0.0, -1.0).normalize()).length() < 1e-12);
+    }
+}
