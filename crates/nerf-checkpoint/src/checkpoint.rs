@@ -25,17 +25,17 @@ use nerf_scene::dataset::{CaptureOrbit, CaptureSpiral, SceneTransform};
 pub const SCENE_TRANSFORM_KEY: &str = "scene_transform";
 
 /// The metadata key of the orbit `nerf render` and `nerf view` show a capture's model from.
-pub const CAPTURE_ORBIT_KEY: &str = "capture_orbit";
+pub(crate) const CAPTURE_ORBIT_KEY: &str = "capture_orbit";
 
 /// The metadata key of the spiral `nerf render` and `nerf view` show a forward-facing
 /// capture's model from, instead of its orbit.
-pub const CAPTURE_SPIRAL_KEY: &str = "capture_spiral";
+pub(crate) const CAPTURE_SPIRAL_KEY: &str = "capture_spiral";
 
 /// The metadata key of the background colour a model was trained on (`r g b` in [0, 1]).
-pub const BACKGROUND_KEY: &str = "background";
+pub(crate) const BACKGROUND_KEY: &str = "background";
 
 /// The metadata key of the image size a model was trained at (`width height`).
-pub const IMAGE_SIZE_KEY: &str = "image_size";
+pub(crate) const IMAGE_SIZE_KEY: &str = "image_size";
 
 /// The metadata key of the depth range training narrowed the sampler to (`near far`; an
 /// object photographed alone, [`nerf_scene::dataset::object_hull`]).
@@ -51,10 +51,10 @@ pub const FIELD_LAYOUT_KEY: &str = "field_layout";
 
 /// The largest coordinate a stored object box may have (the normalised frame's cameras stand
 /// within 1 of the origin).
-pub const MAX_BOX_COORDINATE: f64 = 1e3;
+pub(crate) const MAX_BOX_COORDINATE: f64 = 1e3;
 
 /// The longest field layout line a checkpoint may store.
-pub const MAX_LAYOUT_BYTES: usize = 4096;
+pub(crate) const MAX_LAYOUT_BYTES: usize = 4096;
 
 /// The largest side a stored training image size may have.
 pub const MAX_STORED_SIDE: usize = 1 << 16;
@@ -115,12 +115,12 @@ pub mod metadata_limits {
     /// Epochs completed (`epoch`): a million, at a second each, is 11 days.
     pub const EPOCHS: u64 = 1 << 20;
     /// Adam steps taken (`adam_step`).
-    pub const ADAM_STEPS: u64 = 1 << 40;
+    pub(crate) const ADAM_STEPS: u64 = 1 << 40;
     /// Steps of an epoch already taken (`step_in_epoch`): one per training image.
-    pub const STEP_IN_EPOCH: u64 = 1 << 20;
+    pub(crate) const STEP_IN_EPOCH: u64 = 1 << 20;
     /// Rays of the next step (`rays_per_step`): the most an adapted step may take
     /// (`config::limits::DRAWN_SAMPLES` at one sample per ray).
-    pub const RAYS_PER_STEP: u64 = 1 << 23;
+    pub(crate) const RAYS_PER_STEP: u64 = 1 << 23;
 }
 
 impl CheckpointInfo {

@@ -128,7 +128,7 @@ impl Value {
     }
 
     /// `(module, name)`, for a global.
-    pub fn as_global(&self) -> Option<(&str, &str)> {
+    pub(crate) fn as_global(&self) -> Option<(&str, &str)> {
         match self {
             Value::Global(g) => Some((&g.0, &g.1)),
             _ => None,
@@ -144,7 +144,7 @@ impl Value {
     }
 
     /// The items, for a tuple.
-    pub fn tuple(&self) -> Option<Ref<'_, Vec<Value>>> {
+    pub(crate) fn tuple(&self) -> Option<Ref<'_, Vec<Value>>> {
         self.node(Kind::Tuple).map(|n| n.items.borrow())
     }
 
@@ -188,7 +188,7 @@ impl Value {
     }
 
     /// The id, for a persistent id.
-    pub fn persistent_id(&self) -> Option<Value> {
+    pub(crate) fn persistent_id(&self) -> Option<Value> {
         let node = self.node(Kind::PersistentId)?;
         let id = node.items.borrow()[0].clone();
         Some(id)

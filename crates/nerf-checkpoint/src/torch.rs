@@ -236,7 +236,7 @@ fn read_adam(
 /// Reads the NeRF parameters from a PyTorch `.pth` file, by our names, as f32 on the CPU, each
 /// of the shape `expected` gives (checked); an error names a missing,
 /// misshapen or non-finite tensor.
-pub fn read_torch_state_dict(
+pub(crate) fn read_torch_state_dict(
     path: &Path,
     expected: &ParameterShapes,
 ) -> Result<Vec<(String, Tensor)>> {
@@ -281,7 +281,7 @@ pub fn import_torch(pth: &Path, expected: &ParameterShapes, out: &Path) -> Resul
 
 /// The prefix of the homework's parameter names: its `Model` holds the field as
 /// `implicit_fn`.
-pub const HOMEWORK_PREFIX: &str = "implicit_fn.";
+pub(crate) const HOMEWORK_PREFIX: &str = "implicit_fn.";
 
 /// What [`write_torch_checkpoint`] writes besides the weights.
 #[derive(Debug, Clone, Copy)]

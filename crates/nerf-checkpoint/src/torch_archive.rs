@@ -26,9 +26,9 @@ use crate::pickle::{describe, unpickle, Value, MAX_PICKLE_BYTES};
 use nerf_files::bounded_read::read_regular_file;
 
 /// Largest `torch.save` file read.
-pub const MAX_TORCH_FILE_BYTES: u64 = 4 << 30;
+pub(crate) const MAX_TORCH_FILE_BYTES: u64 = 4 << 30;
 /// Most members of a `torch.save` archive (one per storage, and a few more).
-pub const MAX_ARCHIVE_MEMBERS: usize = 1 << 20;
+pub(crate) const MAX_ARCHIVE_MEMBERS: usize = 1 << 20;
 /// Most dimensions of a tensor.
 const MAX_RANK: usize = 64;
 
@@ -49,7 +49,7 @@ pub struct TorchArchive {
 /// Where a tensor's values lie: its storage record and its layout, all checked against each
 /// other (not yet against the record's bytes).
 #[derive(Debug, Clone, PartialEq)]
-pub struct TensorRef {
+pub(crate) struct TensorRef {
     /// The storage's key (`"0"`, `"1"`, …), naming record `<name>/data/<key>`.
     pub key: String,
     /// The element type.
@@ -116,7 +116,7 @@ impl TorchArchive {
 
     /// Reads every member through to its end, so that one whose stored CRC-32 does not match
     /// its bytes is an error naming it (PyTorch loads such files without a word).
-    pub fn verify(&mut self) -> Result<()> {
+    pub(crate) fn verify(&mut self) -> Result<()> {
         for i in 0..self.zip.len() {
             let mut member = self
                 .zip
@@ -287,7 +287,7 @@ fn rebuild_call(obj: &Value) -> Option<Value> {
 /// line) when it is one whose description does not hold together. `_rebuild_tensor_v2`'s
 /// arguments are `(storage, storage_offset, size, stride, requires_grad, backward_hooks)`, the
 /// storage a persistent id `('storage', StorageClass, key, location, numel)`.
-pub fn tensor_ref(obj: &Value) -> Result<Option<TensorRef>> {
+pub(crate) fn tensor_ref(obj: &Value) -> Result<Option<TensorRef>> {
     let Some(args) = rebuild_call(obj) else {
         return Ok(None);
     };
@@ -403,12 +403,12 @@ pub fn as_int(obj: &Value) -> Option<i64> {
 
 /// The file starts as a `torch.save` file does: a zip archive (`PK\x03\x04`), or a legacy
 /// (pre-1.6) one ([`is_legacy_torch`]).
-pub fn looks_like_torch(head: &[u8]) -> bool {
+pub(crate) fn looks_like_torch(head: &[u8]) -> bool {
     head.starts_with(b"PK\x03\x04") || is_legacy_torch(head)
 }
 
 /// A legacy `torch.save` stream: pickle protocol 2 (`0x80 0x02`) whose first object is
 /// PyTorch's magic number, a 10-byte `LONG1` (`0x8a 0x0a`).
-pub fn is_legacy_torch(head: &[u8]) -> bool {
+pub(crate) fn is_legacy_torch(head: &[u8]) -> bool {
     head.starts_with(&[0x80, 0x02, 0x8a, 0x0a])
 }

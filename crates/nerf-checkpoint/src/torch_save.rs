@@ -43,26 +43,26 @@ pub enum PyValue {
 
 /// Pickle protocol 2 opcodes used here.
 mod op {
-    pub const PROTO: u8 = 0x80;
+    pub(crate) const PROTO: u8 = 0x80;
     pub const STOP: u8 = b'.';
     pub const MARK: u8 = b'(';
-    pub const NONE: u8 = b'N';
-    pub const NEWTRUE: u8 = 0x88;
-    pub const NEWFALSE: u8 = 0x89;
-    pub const BININT1: u8 = b'K';
-    pub const BININT: u8 = b'J';
-    pub const LONG1: u8 = 0x8a;
-    pub const BINFLOAT: u8 = b'G';
-    pub const BINUNICODE: u8 = b'X';
-    pub const EMPTY_TUPLE: u8 = b')';
-    pub const TUPLE: u8 = b't';
-    pub const EMPTY_LIST: u8 = b']';
-    pub const APPENDS: u8 = b'e';
-    pub const EMPTY_DICT: u8 = b'}';
-    pub const SETITEMS: u8 = b'u';
+    pub(crate) const NONE: u8 = b'N';
+    pub(crate) const NEWTRUE: u8 = 0x88;
+    pub(crate) const NEWFALSE: u8 = 0x89;
+    pub(crate) const BININT1: u8 = b'K';
+    pub(crate) const BININT: u8 = b'J';
+    pub(crate) const LONG1: u8 = 0x8a;
+    pub(crate) const BINFLOAT: u8 = b'G';
+    pub(crate) const BINUNICODE: u8 = b'X';
+    pub(crate) const EMPTY_TUPLE: u8 = b')';
+    pub(crate) const TUPLE: u8 = b't';
+    pub(crate) const EMPTY_LIST: u8 = b']';
+    pub(crate) const APPENDS: u8 = b'e';
+    pub(crate) const EMPTY_DICT: u8 = b'}';
+    pub(crate) const SETITEMS: u8 = b'u';
     pub const GLOBAL: u8 = b'c';
-    pub const REDUCE: u8 = b'R';
-    pub const BINPERSID: u8 = b'Q';
+    pub(crate) const REDUCE: u8 = b'R';
+    pub(crate) const BINPERSID: u8 = b'Q';
 }
 
 /// The pickle stream being written and the tensors it refers to (record `i` is tensor `i`).
@@ -200,7 +200,7 @@ impl Pickler {
 }
 
 /// The archive's bytes for `root`.
-pub fn archive_bytes(root: &PyValue) -> Result<Vec<u8>> {
+pub(crate) fn archive_bytes(root: &PyValue) -> Result<Vec<u8>> {
     let mut p = Pickler {
         out: vec![op::PROTO, 2],
         tensors: Vec::new(),

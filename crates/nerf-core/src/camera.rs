@@ -78,12 +78,12 @@ impl PerspectiveCamera {
     }
 
     /// World point → view point (`X·R + T`).
-    pub fn world_to_view(&self, p: DVec3) -> DVec3 {
+    pub(crate) fn world_to_view(&self, p: DVec3) -> DVec3 {
         self.world_to_view_rotation() * p + self.translation()
     }
 
     /// View point → world point (`(X − T)·Rᵀ`).
-    pub fn view_to_world(&self, p: DVec3) -> DVec3 {
+    pub(crate) fn view_to_world(&self, p: DVec3) -> DVec3 {
         self.world_to_view_rotation().transpose() * (p - self.translation())
     }
 
@@ -99,7 +99,7 @@ impl PerspectiveCamera {
 
     /// Unprojects the NDC point `(x, y)` at view depth `depth` to world space, as pytorch3d's
     /// `unproject_points(xy_depth, world_coordinates=True, from_ndc=True)`.
-    pub fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3 {
+    pub(crate) fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3 {
         let view = DVec3::new(
             (x - self.principal_point[0]) / self.focal[0] * depth,
             (y - self.principal_point[1]) / self.focal[1] * depth,

@@ -44,7 +44,7 @@ pub struct CameraAlignment {
 }
 
 /// The angle of a rotation matrix, degrees.
-pub fn rotation_angle_degrees(r: DMat3) -> f64 {
+pub(crate) fn rotation_angle_degrees(r: DMat3) -> f64 {
     ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0)
         .clamp(-1.0, 1.0)
         .acos()

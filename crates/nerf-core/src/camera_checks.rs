@@ -96,7 +96,7 @@ pub fn check_intrinsics(
 /// The field of view in degrees across an image side of `side` pixels at focal length `focal`
 /// pixels: `2·atan(side / 2f)` for a perspective lens, `side / f` (radians of `θ_d`) for a
 /// fisheye.
-pub fn field_of_view_degrees(side: f64, focal: f64, fisheye: bool) -> f64 {
+pub(crate) fn field_of_view_degrees(side: f64, focal: f64, fisheye: bool) -> f64 {
     match fisheye {
         false => 2.0 * (side / (2.0 * focal)).atan().to_degrees(),
         true => (side / focal).to_degrees(),

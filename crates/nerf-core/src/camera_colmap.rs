@@ -72,7 +72,7 @@ impl ColmapCameraModel {
     }
 
     /// The model's parameter names in COLMAP's order.
-    pub fn parameter_names(self) -> &'static [&'static str] {
+    pub(crate) fn parameter_names(self) -> &'static [&'static str] {
         match self {
             Self::SimplePinhole => &["f", "cx", "cy"],
             Self::Pinhole => &["fx", "fy", "cx", "cy"],

@@ -85,7 +85,7 @@ impl LensDistortion {
     }
 
     /// The distorted normalised point of the undistorted normalised point `p`.
-    pub fn distort(&self, p: DVec2) -> DVec2 {
+    pub(crate) fn distort(&self, p: DVec2) -> DVec2 {
         match self {
             Self::None => p,
             Self::RadialTangential { .. } => self.radial_tangential_with_jacobian(p).value,

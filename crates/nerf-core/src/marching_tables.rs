@@ -8,7 +8,7 @@
 use std::sync::OnceLock;
 
 /// The 8 corners of a cube as offsets `(dx, dy, dz)` from its lowest corner.
-pub const CUBE_CORNER_OFFSETS: [(usize, usize, usize); 8] = [
+pub(crate) const CUBE_CORNER_OFFSETS: [(usize, usize, usize); 8] = [
     (0, 0, 0),
     (1, 0, 0),
     (1, 1, 0),
@@ -20,7 +20,7 @@ pub const CUBE_CORNER_OFFSETS: [(usize, usize, usize); 8] = [
 ];
 
 /// The 12 edges of a cube as pairs of corners.
-pub const EDGE_VERTEX_PAIRS: [(usize, usize); 12] = [
+pub(crate) const EDGE_VERTEX_PAIRS: [(usize, usize); 12] = [
     (0, 1),
     (1, 2),
     (2, 3),
@@ -37,7 +37,7 @@ pub const EDGE_VERTEX_PAIRS: [(usize, usize); 12] = [
 
 /// The edges the surface crosses in corner pattern `case` (bit `i` set when corner `i` is
 /// below the level): bit `e` set for each edge `e` whose two corners are on either side.
-pub fn crossed_edges(case: usize) -> u16 {
+pub(crate) fn crossed_edges(case: usize) -> u16 {
     let side = |corner: usize| case >> corner & 1;
     (EDGE_VERTEX_PAIRS.iter().enumerate())
         .filter(|(_, &(a, b))| side(a) != side(b))
@@ -46,7 +46,7 @@ pub fn crossed_edges(case: usize) -> u16 {
 
 /// The triangles of corner pattern `case` as triples of edges (each vertex is where the
 /// surface crosses that edge), in the crate's order and winding.
-pub fn case_triangles(case: usize) -> &'static [[u8; 3]] {
+pub(crate) fn case_triangles(case: usize) -> &'static [[u8; 3]] {
     static CASES: OnceLock<Vec<Vec<[u8; 3]>>> = OnceLock::new();
     &CASES.get_or_init(|| (0..256).map(triangles_from_crate).collect())[case]
 }

@@ -113,7 +113,7 @@ impl Sdf {
     /// three side lengths or the sphere's radius (the first entry; the others are 0).
     /// The derivative with respect to the point is `−∂s/∂center`.
     #[inline(always)]
-    pub fn distance_with_gradient(&self, p: [f32; 3]) -> (f32, [f32; 3], [f32; 3]) {
+    pub(crate) fn distance_with_gradient(&self, p: [f32; 3]) -> (f32, [f32; 3], [f32; 3]) {
         match self {
             Sdf::Box {
                 center,
@@ -160,7 +160,7 @@ pub fn sdf_at_density(density: f64, alpha: f64, beta: f64) -> Option<f64> {
 
 #[inline]
 /// The homework's density → volume density for one value: `σ = −ln(1 − density) / Δ`.
-pub fn density_to_sigma_scalar(density: f32, delta: f32) -> f32 {
+pub(crate) fn density_to_sigma_scalar(density: f32, delta: f32) -> f32 {
     -(1.0 - density).ln() / delta
 }
 
@@ -231,7 +231,7 @@ pub struct Partials {
 impl Partials {
     /// Adds `g · ∂x/∂θ` to `params`, laid out as `layout`.
     #[inline(always)]
-    pub fn add_to<A: Accumulate>(&self, g: f32, layout: PackedLayout, params: &mut [A]) {
+    pub(crate) fn add_to<A: Accumulate>(&self, g: f32, layout: PackedLayout, params: &mut [A]) {
         for (p, c) in params.iter_mut().zip(self.center) {
             p.accumulate(g * c);
         }
@@ -300,7 +300,7 @@ impl SdfVolume {
     /// σ of one sample ([`SdfVolume::evaluate_point`]'s, bit for bit) and its partial
     /// derivatives `∂σ/∂θ`. They are 0 where `1 − density` is 0 (σ = ∞, an opaque sample
     /// whose optical depth the renderer clamps) or Δ is 0.
-    pub fn sigma_with_partials(&self, p: [f32; 3], delta: f32) -> (f32, Partials) {
+    pub(crate) fn sigma_with_partials(&self, p: [f32; 3], delta: f32) -> (f32, Partials) {
         let (s, ds_dc, ds_dshape) = self.sdf.distance_with_gradient(p);
         let density = sdf_to_density_scalar(s, self.alpha, self.beta);
         let sigma = density_to_sigma_scalar(density, delta);

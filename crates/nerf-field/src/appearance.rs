@@ -20,7 +20,7 @@ use candle_nn::{Init, VarBuilder};
 pub const EMBEDDING: &str = "appearance.embedding";
 
 /// Bound of the vectors' uniform initialisation.
-pub const EMBEDDING_INIT: f64 = 0.05;
+pub(crate) const EMBEDDING_INIT: f64 = 0.05;
 
 /// The sizes of a field's appearance embedding.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -77,7 +77,7 @@ pub fn harmonic_embedding(x: &Tensor, n_harmonic_functions: usize) -> Result<Ten
 }
 
 /// Output width of [`harmonic_embedding`] for 3-D input.
-pub fn embedding_dim(n_harmonic_functions: usize) -> usize {
+pub(crate) fn embedding_dim(n_harmonic_functions: usize) -> usize {
     3 * 2 * n_harmonic_functions + 3
 }
 
@@ -107,7 +107,7 @@ fn torch_linear(in_dim: usize, out_dim: usize, vb: VarBuilder) -> Result<Linear>
 
 /// Input width of layer `i` of `mlp_xyz`: the xyz embedding for the first layer, hidden plus
 /// the embedding where `append_xyz` concatenates it again, hidden otherwise.
-pub fn mlp_input_dim(config: &NerfParams, i: usize) -> usize {
+pub(crate) fn mlp_input_dim(config: &NerfParams, i: usize) -> usize {
     let dim_xyz = embedding_dim(config.n_harmonic_functions_xyz);
     if i == 0 {
         dim_xyz

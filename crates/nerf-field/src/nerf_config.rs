@@ -16,11 +16,11 @@ use nerf_core::key_checks::{count_in_range, finite};
 pub const NERF: FieldKind = FieldKind::new::<NerfConfig>(crate::nerf::KIND, true);
 
 /// Most harmonic functions of a positional embedding (2^31 is past f32 precision).
-pub const HARMONICS: usize = 32;
+pub(crate) const HARMONICS: usize = 32;
 /// Widest hidden layer.
 pub const HIDDEN: usize = 4096;
 /// Deepest trunk.
-pub const LAYERS: usize = 64;
+pub(crate) const LAYERS: usize = 64;
 
 /// `implicit_function` with `type: nerf` (the homework's keys and defaults).
 #[derive(Debug, Clone, Deserialize, PartialEq)]

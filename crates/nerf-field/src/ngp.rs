@@ -49,7 +49,7 @@ pub const HIDDEN: usize = 64;
 /// Geometry features passed from the density MLP to the colour MLP.
 pub const GEO_FEATURES: usize = 15;
 /// Where [`trunc_exp`]'s gradient stops growing (instant-ngp's 15).
-pub const TRUNC_EXP_MAX: f64 = 15.0;
+pub(crate) const TRUNC_EXP_MAX: f64 = 15.0;
 
 /// How the raw density becomes σ ≥ 0.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

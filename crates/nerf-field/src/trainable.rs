@@ -232,7 +232,7 @@ pub fn seed_uniform(
 
 /// PyTorch's default `nn.Linear` bound for the parameter `name`: 1/√fan_in, where fan_in is
 /// the second dimension of the layer's weight (a bias shares its weight's).
-pub fn linear_init_bound(name: &str, shapes: &HashMap<String, Vec<usize>>) -> f64 {
+pub(crate) fn linear_init_bound(name: &str, shapes: &HashMap<String, Vec<usize>>) -> f64 {
     let weight = name
         .strip_suffix(".bias")
         .map(|p| format!("{p}.weight"))

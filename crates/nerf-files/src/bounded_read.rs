@@ -16,7 +16,7 @@ pub fn kind(meta: &std::fs::Metadata) -> &'static str {
 
 /// What kind of file `t` is, in a user's words, when it is not a regular file: the one
 /// wording of every reader's and writer's refusal.
-pub fn file_kind(t: std::fs::FileType) -> &'static str {
+pub(crate) fn file_kind(t: std::fs::FileType) -> &'static str {
     use std::os::unix::fs::FileTypeExt;
     if t.is_dir() {
         "a directory"

@@ -41,7 +41,7 @@ pub struct LinePlot {
 }
 
 /// A compact tick label: `0.02`, `150`, `1e-5`, not `0.020000000000000004`.
-pub fn tick_label(v: f64) -> String {
+pub(crate) fn tick_label(v: f64) -> String {
     if v == 0.0 {
         return "0".into();
     }
@@ -61,7 +61,7 @@ pub fn tick_label(v: f64) -> String {
 }
 
 /// Plot size in pixels.
-pub const PLOT_SIZE: (u32, u32) = (900, 560);
+pub(crate) const PLOT_SIZE: (u32, u32) = (900, 560);
 
 /// Distinct colours for up to eight series (then they repeat).
 const PALETTE: [RGBColor; 8] = [

@@ -181,7 +181,7 @@ fn add_to_corners<const F: usize>(
 dispatched! {
     /// Encodes `points` `(m, 3)` on every level of `levels`: `out` `(m, L·f)`, level-major
     /// inside (all points on level 0, then level 1, ...), `table` the `(L·T, f)` rows.
-    pub fn encode_points(
+    pub(crate) fn encode_points(
         levels: &[Level],
         table: &[f32],
         points: &[f32],
@@ -214,7 +214,7 @@ dispatched! {
     /// The table gradient of level `l` (`level`) from the output gradient `grads` `(m, L·f)`
     /// of `points` `(m, 3)`: added into `d` (the level's `(T, f)` rows), each written row's bit
     /// set in `touched`.
-    pub fn scatter_points(
+    pub(crate) fn scatter_points(
         level: (&Level, usize),
         d: &mut [f32],
         touched: &mut [u64],

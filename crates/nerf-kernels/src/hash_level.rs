@@ -46,7 +46,7 @@ impl HashGridParams {
     }
 
     /// Rows per level's table, `T`.
-    pub fn table_size(&self) -> usize {
+    pub(crate) fn table_size(&self) -> usize {
         1 << self.log2_table_size
     }
 
@@ -61,7 +61,7 @@ impl HashGridParams {
     }
 
     /// The growth factor `b` between levels (1 with one level).
-    pub fn growth(&self) -> f64 {
+    pub(crate) fn growth(&self) -> f64 {
         if self.n_levels < 2 {
             1.0
         } else {
@@ -131,7 +131,7 @@ impl Level {
     /// `∂ fraction / ∂ v` of [`Level::cell`]: the resolution `N` where `v` is in [0, 1], 0
     /// where it is clamped (or NaN).
     #[inline(always)]
-    pub fn cell_slope(&self, v: f32) -> f32 {
+    pub(crate) fn cell_slope(&self, v: f32) -> f32 {
         match (0.0..=1.0).contains(&v) {
             true => self.resolution as f32,
             false => 0.0,

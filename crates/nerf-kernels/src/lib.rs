@@ -66,7 +66,7 @@ pub fn set_kernel_choice(choice: KernelChoice) {
 }
 
 /// The choice in force on this thread.
-pub fn kernel_choice() -> KernelChoice {
+pub(crate) fn kernel_choice() -> KernelChoice {
     THREAD_CHOICE.with(|c| c.get()).unwrap_or_else(|| {
         match PROCESS_CHOICE.load(Ordering::Relaxed) {
             0 => KernelChoice::Fused,
@@ -95,7 +95,7 @@ pub fn use_fused(t: &Tensor) -> bool {
 
 /// Whether autograd tracks `t` (any shape; a variable, or computed from one): an op without a
 /// backward pass must not run on such an input, or the gradient would silently stop there.
-pub fn needs_grad(t: &Tensor) -> bool {
+pub(crate) fn needs_grad(t: &Tensor) -> bool {
     t.track_op()
 }
 

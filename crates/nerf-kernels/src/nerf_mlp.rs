@@ -119,7 +119,7 @@ impl NerfMlpShape {
     }
 
     /// Number of packed parameters.
-    pub fn n_parameters(&self) -> usize {
+    pub(crate) fn n_parameters(&self) -> usize {
         self.offsets().end
     }
 }

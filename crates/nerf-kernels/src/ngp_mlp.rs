@@ -89,7 +89,7 @@ impl MlpShape {
     }
 
     /// Number of packed parameters.
-    pub fn n_parameters(&self) -> usize {
+    pub(crate) fn n_parameters(&self) -> usize {
         self.offsets().end
     }
 

@@ -238,7 +238,7 @@ dispatched! {
     /// its transmittance reaches 0; returns how many samples that is and the ray's `[r, g, b,
     /// depth, opacity]`. The weights use `e^{−τ} = 1 − density`
     /// ([`SdfVolume::transparency_from_distance`]).
-    pub fn replay(
+    pub(crate) fn replay(
         volume: &SdfVolume,
         ray: &[f32],
         lengths: &[f32],

@@ -28,7 +28,7 @@ const BLOCK: usize = 4096;
 /// σ `(N, S, 1)` and colour `(N, S, 3)` at `points` `(N, S, 3)` with spacings `deltas`
 /// `(N, S, 1)`, for the volume whose values are `volume` and whose packed parameter tensor
 /// `(P,)` is `packed` (gradients flow to it, and to `points` when they are tracked).
-pub fn sdf_volume_fused_grad(
+pub(crate) fn sdf_volume_fused_grad(
     points: &Tensor,
     deltas: &Tensor,
     packed: &Tensor,

@@ -25,7 +25,7 @@ use nerf_core::distortion_loss::RaySpacing;
 use nerf_core::rays::Rays;
 
 /// The `depth_then_disparity` sampler kind ([`crate::sampler_registry`]).
-pub const DEPTH_THEN_DISPARITY: SamplerKind = SamplerKind {
+pub(crate) const DEPTH_THEN_DISPARITY: SamplerKind = SamplerKind {
     name: "depth_then_disparity",
     build: depth_then_disparity_kind,
 };
@@ -95,7 +95,7 @@ impl DepthThenDisparitySampler {
     }
 
     /// Samples per ray, `n_near + n_far`.
-    pub fn n_samples(&self) -> usize {
+    pub(crate) fn n_samples(&self) -> usize {
         self.n_near + self.n_far
     }
 
@@ -121,7 +121,7 @@ impl DepthThenDisparitySampler {
 
     /// The depth at fraction `u ∈ [0, 1]` of bin `i`, in the bin's own spacing (depth for the
     /// near bins, disparity for the far ones).
-    pub fn depth_in_bin(&self, i: usize, u: f64) -> f64 {
+    pub(crate) fn depth_in_bin(&self, i: usize, u: f64) -> f64 {
         if i < self.n_near {
             let v = (i as f64 + u) / self.n_near as f64;
             self.min_depth + (self.max_depth - self.min_depth) * v
@@ -139,7 +139,7 @@ impl DepthThenDisparitySampler {
 
     /// Training depths for `n_rays` rays, each uniformly inside its bin (in the bin's
     /// spacing): `n_rays · S` values, ray-major.
-    pub fn jittered_depths(&self, n_rays: usize, rng: &mut dyn rand::RngCore) -> Vec<f32> {
+    pub(crate) fn jittered_depths(&self, n_rays: usize, rng: &mut dyn rand::RngCore) -> Vec<f32> {
         let s = self.n_samples();
         let mut out = Vec::with_capacity(n_rays * s);
         for _ in 0..n_rays {

@@ -25,7 +25,7 @@ use nerf_kernels::sample_points::sample_points;
 
 /// The `stratified` sampler kind ([`crate::sampler_registry`]): the homework's
 /// stratified depths, refined coarse-to-fine when `n_pts_per_ray_fine` > 0.
-pub const STRATIFIED: SamplerKind = SamplerKind {
+pub(crate) const STRATIFIED: SamplerKind = SamplerKind {
     name: "stratified",
     build: stratified_kind,
 };
@@ -106,7 +106,7 @@ impl RaySampler for CoarseToFineSampler {
 
 /// Added to every coarse weight before normalising, so that a ray with zero weight everywhere
 /// samples its bins uniformly (pytorch3d's `sample_pdf` eps).
-pub const WEIGHT_EPS: f32 = 1e-5;
+pub(crate) const WEIGHT_EPS: f32 = 1e-5;
 
 /// Inverse transform sampling of a piecewise-constant density: bin `j` spans
 /// `[edges[j], edges[j + 1]]` and has mass `weights[j] + WEIGHT_EPS` (normalised); each
@@ -145,7 +145,7 @@ pub fn sample_pdf(edges: &[f32], weights: &[f32], u: &[f32]) -> Vec<f32> {
 
 /// The quantiles a ray's fine depths are drawn at: `linspace(0, 1, n)` when rendering, `n`
 /// sorted uniform values when training (`jitter`).
-pub fn fine_quantiles(n: usize, jitter: Option<&mut dyn rand::RngCore>) -> Vec<f32> {
+pub(crate) fn fine_quantiles(n: usize, jitter: Option<&mut dyn rand::RngCore>) -> Vec<f32> {
     match jitter {
         None => nerf_core::rays::linspace(0.0, 1.0, n)
             .into_iter()
@@ -164,7 +164,7 @@ pub fn fine_quantiles(n: usize, jitter: Option<&mut dyn rand::RngCore>) -> Vec<f
 /// neighbouring coarse depths, weights of the interior samples, as pytorch3d), merged and
 /// sorted: `(N, S + n_fine, 1)` f32. Rays with fewer than 3 coarse samples get their coarse
 /// depths repeated at their first bin edge instead (there is no interior bin).
-pub fn fine_lengths(
+pub(crate) fn fine_lengths(
     lengths: &Tensor,
     weights: &Tensor,
     n_fine: usize,

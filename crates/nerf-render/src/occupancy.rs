@@ -66,7 +66,7 @@ impl RayFaces {
     /// `cell` (past the grid's box where the last block is partial: no point there is
     /// occupied).
     #[inline]
-    pub fn block_exit(&self, cell: [usize; 3]) -> f64 {
+    pub(crate) fn block_exit(&self, cell: [usize; 3]) -> f64 {
         (0..3)
             .map(|k| {
                 let block = (cell[k] / BLOCK * BLOCK) as f64;
@@ -79,7 +79,7 @@ impl RayFaces {
 impl EmptyBlocks {
     /// Whether the block holding the cell at coordinates `cell` has no occupied cell.
     #[inline]
-    pub fn holds_empty(&self, cell: [usize; 3]) -> bool {
+    pub(crate) fn holds_empty(&self, cell: [usize; 3]) -> bool {
         let [x, y, z] = cell.map(|c| c / BLOCK);
         self.empty[(x * self.per_side + y) * self.per_side + z]
     }
@@ -144,7 +144,7 @@ impl Default for OccupancyGridParams {
 }
 
 /// A field's density at points: `(M, 3)` → `(M, 1)`.
-pub type DensityFn<'a> = &'a dyn Fn(&Tensor) -> Result<Tensor>;
+pub(crate) type DensityFn<'a> = &'a dyn Fn(&Tensor) -> Result<Tensor>;
 
 /// The grid for a trained model: the one saved in the checkpoint's `occupancy.density` when
 /// present and of the configured resolution, else built from the model's `density`
@@ -175,7 +175,7 @@ pub fn grid_for_checkpoint(
 
 /// A kept far shell's running density is held at least at this many times the grid's density
 /// threshold ([`OccupancyGrid::refresh_occupied`]).
-pub const FAR_SHELL_FLOOR: f32 = 2.0;
+pub(crate) const FAR_SHELL_FLOOR: f32 = 2.0;
 
 /// Name of the grid's tensor in a checkpoint.
 pub const CHECKPOINT_KEY: &str = "occupancy.density";
@@ -240,13 +240,13 @@ impl OccupancyGrid {
 
     /// The cell holding point `p`, or `None` outside the bounding box.
     #[inline]
-    pub fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
+    pub(crate) fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
         Some(self.cell_index(self.cell_coordinates(p)?))
     }
 
     /// The index of the cell at integer coordinates `[ix, iy, iz]` (each below `R`).
     #[inline]
-    pub fn cell_index(&self, [x, y, z]: [usize; 3]) -> usize {
+    pub(crate) fn cell_index(&self, [x, y, z]: [usize; 3]) -> usize {
         let r = self.resolution;
         (x * r + y) * r + z
     }
@@ -320,7 +320,7 @@ impl OccupancyGrid {
     /// empty block of `blocks`, the depths `(enter, exit)` at which the ray
     /// `origin + t·direction` crosses that block's box (f64); else `None`. Samples strictly
     /// inside that depth range (with a margin for rounding) are in empty cells.
-    pub fn empty_block_crossing(
+    pub(crate) fn empty_block_crossing(
         &self,
         blocks: &EmptyBlocks,
         cell: [usize; 3],
@@ -445,7 +445,7 @@ impl OccupancyGrid {
     /// ([`OccupancyGrid::keep_far_shell`]) has its running density held at
     /// [`FAR_SHELL_FLOOR`] times the threshold, so it is occupied (and stays so in a saved
     /// grid read back), and is left out of the mean, which then says what the scene holds.
-    pub fn refresh_occupied(&mut self) {
+    pub(crate) fn refresh_occupied(&mut self) {
         let floor = FAR_SHELL_FLOOR * self.density_threshold;
         let (mut sum, mut count) = (0.0f64, 0usize);
         for cell in 0..self.n_cells() {

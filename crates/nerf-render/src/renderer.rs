@@ -106,7 +106,7 @@ impl VolumeRenderer {
     /// field's own fused pass ([`Field::render_fused`]) when it has one for dense sampling.
     ///
     /// `rays`: N rays; returns colour `(N, 3)`, depth and opacity `(N, 1)`.
-    pub fn render_chunk(
+    pub(crate) fn render_chunk(
         &self,
         field: &dyn Field,
         sampler: &dyn RaySampler,
@@ -316,7 +316,7 @@ impl VolumeRenderer {
 }
 
 /// Fails with a clear message if `t` (any shape) holds a NaN or an infinity; `what` names it.
-pub fn ensure_finite(t: &Tensor, what: &str) -> Result<()> {
+pub(crate) fn ensure_finite(t: &Tensor, what: &str) -> Result<()> {
     let total = t.to_dtype(DType::F64)?.sum_all()?.to_scalar::<f64>()?;
     if !total.is_finite() {
         bail!("the renderer produced a non-finite {what} (NaN or infinity); check the field's density and feature");

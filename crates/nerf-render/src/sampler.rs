@@ -8,7 +8,7 @@ use nerf_core::rays::{linspace, Rays};
 
 /// The depths `depths` (`S` of them) shared by every ray, as a `(1, S, 1)` tensor: f64 when
 /// `dtype` is, else f32 (what a sampler's unjittered depths are for rays of that dtype).
-pub fn shared_lengths(
+pub(crate) fn shared_lengths(
     depths: Vec<f64>,
     dtype: DType,
     device: &candle_core::Device,
@@ -77,7 +77,7 @@ impl StratifiedSampler {
     /// neighbouring depths (the first and last bins end at `min_depth` and `max_depth`).
     ///
     /// Returns `n_rays · S` values, ray-major.
-    pub fn jittered_depths(&self, n_rays: usize, rng: &mut impl Rng) -> Vec<f32> {
+    pub(crate) fn jittered_depths(&self, n_rays: usize, rng: &mut impl Rng) -> Vec<f32> {
         let z = self.depths();
         let s = z.len();
         let lower: Vec<f64> = (0..s)

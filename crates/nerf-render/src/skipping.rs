@@ -44,7 +44,7 @@ pub fn segment_sizes(k: usize) -> usize {
 
 /// The most samples per ray evaluated in one batch: [`SEGMENT`] with early termination, all
 /// of them without (there is nothing to check between segments).
-pub fn segment_length(n_pts_per_ray: usize, early_termination: f64) -> usize {
+pub(crate) fn segment_length(n_pts_per_ray: usize, early_termination: f64) -> usize {
     if early_termination > 0.0 {
         SEGMENT.min(n_pts_per_ray)
     } else {

@@ -61,7 +61,7 @@ pub struct CameraPath {
 /// Rotation and translation as [`blender_to_pytorch3d`]. On the homework's pixel grid NDC runs
 /// over `[−1, 1]` on both axes, so square pixels need `f_y = 1 / tan(fov/2)` and
 /// `f_x = f_y · H / W`.
-pub fn camera_from_opengl(
+pub(crate) fn camera_from_opengl(
     c2w: [[f64; 4]; 4],
     fov_deg: f64,
     width: usize,

@@ -72,12 +72,12 @@ pub const CAMERA_MODELS: [CameraModelInfo; 18] = [
 ];
 
 /// The camera model named `name` (as in `cameras.txt`), if COLMAP defines one.
-pub fn camera_model_by_name(name: &str) -> Option<&'static CameraModelInfo> {
+pub(crate) fn camera_model_by_name(name: &str) -> Option<&'static CameraModelInfo> {
     CAMERA_MODELS.iter().find(|m| m.name == name)
 }
 
 /// The camera model with id `id` (as in `cameras.bin`), if COLMAP defines one.
-pub fn camera_model_by_id(id: i32) -> Option<&'static CameraModelInfo> {
+pub(crate) fn camera_model_by_id(id: i32) -> Option<&'static CameraModelInfo> {
     CAMERA_MODELS.iter().find(|m| m.id == id)
 }
 
@@ -191,18 +191,18 @@ impl ColmapFormat {
 }
 
 /// The largest cameras file read (256 MiB: over a million cameras).
-pub const MAX_CAMERAS_FILE_BYTES: u64 = 256 << 20;
+pub(crate) const MAX_CAMERAS_FILE_BYTES: u64 = 256 << 20;
 /// The largest images file read (16 GiB: 2D features make it large).
-pub const MAX_IMAGES_FILE_BYTES: u64 = 16 << 30;
+pub(crate) const MAX_IMAGES_FILE_BYTES: u64 = 16 << 30;
 /// The largest points file read (64 GiB; it is streamed, and at most
 /// [`ColmapReadOptions::max_points3d`] points are kept).
-pub const MAX_POINTS3D_FILE_BYTES: u64 = 64 << 30;
+pub(crate) const MAX_POINTS3D_FILE_BYTES: u64 = 64 << 30;
 /// The most cameras a model may have.
-pub const MAX_CAMERAS: usize = 1 << 20;
+pub(crate) const MAX_CAMERAS: usize = 1 << 20;
 /// The most images a model may have.
-pub const MAX_IMAGES: usize = 1 << 20;
+pub(crate) const MAX_IMAGES: usize = 1 << 20;
 /// The longest image name, in bytes.
-pub const MAX_IMAGE_NAME_BYTES: usize = 4096;
+pub(crate) const MAX_IMAGE_NAME_BYTES: usize = 4096;
 /// The longest line of a text file, in bytes (an image's 2D features are one line).
 pub const MAX_TEXT_LINE_BYTES: usize = 64 << 20;
 /// How many 3D points are kept by default: 1 000 000 (about 48 MB).

@@ -28,7 +28,7 @@ pub struct Adam {
 impl Adam {
     /// Adam on a field's dense parameters with the group's constants
     /// ([`nerf_field::trainable::DenseGroup`]).
-    pub fn for_group(group: nerf_field::trainable::DenseGroup, lr: f64) -> Result<Self> {
+    pub(crate) fn for_group(group: nerf_field::trainable::DenseGroup, lr: f64) -> Result<Self> {
         let mut adam = Self::new(group.vars, lr)?;
         (adam.beta2, adam.eps) = (group.beta2, group.eps);
         Ok(adam)
@@ -74,7 +74,7 @@ impl Adam {
 
     /// State tensors by name: `adam.exp_avg.<param>` and `adam.exp_avg_sq.<param>`, each of
     /// its parameter's shape.
-    pub fn state_tensors(&self) -> Vec<(String, Tensor)> {
+    pub(crate) fn state_tensors(&self) -> Vec<(String, Tensor)> {
         let mut out = Vec::new();
         for (name, _) in &self.params {
             let (m, v) = &self.moments[name];
@@ -86,7 +86,11 @@ impl Adam {
 
     /// Restores moments (from [`Adam::state_tensors`] names, each of its parameter's shape;
     /// an error names a missing or misshapen one) and the step count.
-    pub fn load_state(&mut self, tensors: &HashMap<String, Tensor>, step: u64) -> Result<()> {
+    pub(crate) fn load_state(
+        &mut self,
+        tensors: &HashMap<String, Tensor>,
+        step: u64,
+    ) -> Result<()> {
         for (name, var) in &self.params {
             let get = |key: String| -> Result<Tensor> {
                 let t = tensors

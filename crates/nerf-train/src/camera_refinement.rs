@@ -53,7 +53,7 @@ pub const WEIGHT_DECAY: f64 = 1e-2;
 pub const GRADIENT_EVERY: u64 = 4;
 
 /// Whether the step after `steps_done` Adam steps takes the cameras' gradient.
-pub fn tracks_cameras(steps_done: u64) -> bool {
+pub(crate) fn tracks_cameras(steps_done: u64) -> bool {
     steps_done.is_multiple_of(GRADIENT_EVERY)
 }
 
@@ -100,7 +100,7 @@ impl CameraRefinementMode {
 /// What `training.camera_refinement: auto` chose for a capture and why, as a log line:
 /// `refined` as [`CameraRefinementMode::enabled`] decided for cameras `from_sfm` with the
 /// mean reprojection error `sfm_residual`.
-pub fn auto_choice(refined: bool, from_sfm: bool, sfm_residual: Option<f64>) -> String {
+pub(crate) fn auto_choice(refined: bool, from_sfm: bool, sfm_residual: Option<f64>) -> String {
     let limit = AUTO_REFINE_RESIDUAL_PX;
     match (refined, from_sfm, sfm_residual) {
         (true, _, Some(r)) => format!(
@@ -224,7 +224,7 @@ impl CameraRefinement {
 
     /// Sets the learning rate to [`LEARNING_RATE`] times `factor` (the run's schedule: its
     /// learning rate over its initial one).
-    pub fn set_lr_factor(&mut self, factor: f64) {
+    pub(crate) fn set_lr_factor(&mut self, factor: f64) {
         self.adam.lr = self.base_lr * factor;
     }
 
@@ -240,7 +240,7 @@ impl CameraRefinement {
     }
 
     /// The corrections under [`CHECKPOINT_KEY`] and their optimiser's state.
-    pub fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
+    pub(crate) fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
         let mut out = vec![(
             CHECKPOINT_KEY.to_string(),
             self.corrections.as_tensor().clone(),
@@ -252,7 +252,7 @@ impl CameraRefinement {
     /// Restores what [`CameraRefinement::state_tensors`] saved; `false` (and nothing
     /// changed) when `tensors` hold no corrections (a checkpoint written without camera
     /// refinement); an error when they are for another number of cameras.
-    pub fn load_state(&mut self, tensors: &HashMap<String, Tensor>) -> Result<bool> {
+    pub(crate) fn load_state(&mut self, tensors: &HashMap<String, Tensor>) -> Result<bool> {
         let Some(saved) = tensors.get(CHECKPOINT_KEY) else {
             return Ok(false);
         };
@@ -306,7 +306,7 @@ impl CameraRefinement {
     /// correction (rotation vector in radians, translation), and the camera centre before and
     /// after, in the normalised frame the model was trained in. A refined camera's rays leave
     /// from `centre + translation` in the directions `R(rotation)·d` of the given camera's.
-    pub fn poses_json(&self, frames: &[Frame]) -> Result<serde_json::Value> {
+    pub(crate) fn poses_json(&self, frames: &[Frame]) -> Result<serde_json::Value> {
         let c = self.corrections.as_tensor().to_dtype(DType::F64)?;
         let rows = c.to_vec2::<f64>()?;
         ensure!(rows.len() == frames.len(), "camera refinement: frame count");
@@ -333,7 +333,7 @@ impl CameraRefinement {
 }
 
 /// Writes the refined poses of `refinement` for `frames` to `path` (atomically).
-pub fn write_poses(
+pub(crate) fn write_poses(
     refinement: &CameraRefinement,
     frames: &[Frame],
     path: &std::path::Path,

@@ -126,10 +126,10 @@ pub struct CheckpointScore {
 }
 
 /// Scores the current model at a checkpoint.
-pub type EvaluateHook<'a> = Box<dyn FnMut(&dyn Field) -> Result<CheckpointScore> + 'a>;
+pub(crate) type EvaluateHook<'a> = Box<dyn FnMut(&dyn Field) -> Result<CheckpointScore> + 'a>;
 
 /// Renders a preview of the current model; returns the file it wrote.
-pub type PreviewHook<'a> = Box<dyn FnMut(&dyn Field) -> Result<PathBuf> + 'a>;
+pub(crate) type PreviewHook<'a> = Box<dyn FnMut(&dyn Field) -> Result<PathBuf> + 'a>;
 
 /// Callbacks of the loop; their time is left out of the logged training time.
 #[derive(Default)]
@@ -142,7 +142,7 @@ pub struct Hooks<'a> {
 
 /// Drops log lines of steps after `last_step` (written after the checkpoint a run resumes
 /// from), so a resumed log has each step once. Rewritten atomically; a missing log is fine.
-pub fn rewind_log(log: &Path, last_step: u64) -> Result<()> {
+pub(crate) fn rewind_log(log: &Path, last_step: u64) -> Result<()> {
     let Ok(text) = std::fs::read_to_string(log) else {
         return Ok(());
     };

@@ -234,7 +234,7 @@ impl Optimizer {
     }
 
     /// Steps taken.
-    pub fn step_count(&self) -> u64 {
+    pub(crate) fn step_count(&self) -> u64 {
         self.dense.step
     }
 
@@ -244,7 +244,7 @@ impl Optimizer {
     }
 
     /// Sets the learning rate of every parameter.
-    pub fn set_lr(&mut self, lr: f64) {
+    pub(crate) fn set_lr(&mut self, lr: f64) {
         self.dense.lr = lr;
         for t in &mut self.tables {
             t.adam.lr = lr;
@@ -276,7 +276,7 @@ impl Optimizer {
     /// The optimiser's state by name (see [`Adam::state_tensors`] and
     /// [`SparseAdam::state_tensors`]), and the camera corrections with their state when
     /// refined ([`CameraRefinement::state_tensors`]).
-    pub fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
+    pub(crate) fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
         let mut out = self.dense.state_tensors();
         for t in &self.tables {
             out.extend(t.adam.state_tensors()?);
@@ -288,7 +288,11 @@ impl Optimizer {
     }
 
     /// Restores the state of [`Optimizer::state_tensors`] after `step` steps.
-    pub fn load_state(&mut self, tensors: &HashMap<String, Tensor>, step: u64) -> Result<()> {
+    pub(crate) fn load_state(
+        &mut self,
+        tensors: &HashMap<String, Tensor>,
+        step: u64,
+    ) -> Result<()> {
         self.dense.load_state(tensors, step)?;
         for t in &self.tables {
             t.adam.load_state(tensors)?;

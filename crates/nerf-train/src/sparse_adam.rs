@@ -61,7 +61,7 @@ impl SparseAdam {
 
     /// [`SparseAdam::step`] with the gradient as the `R·F` values of a row-major `(R, F)`
     /// buffer.
-    pub fn step_rows(&self, g: &[f32], rows: &[u32]) -> Result<()> {
+    pub(crate) fn step_rows(&self, g: &[f32], rows: &[u32]) -> Result<()> {
         self.state
             .update_from_values(&self.var, g, rows, self.constants())
     }
@@ -74,7 +74,7 @@ impl SparseAdam {
     /// Updates the rows of the parameter whose gradient in `grad` `(R, F)` is not all zero
     /// (tiny-cuda-nn's rule for the hash encoding: a parameter with an exactly zero gradient is
     /// left alone, value and moments) and returns how many rows that was.
-    pub fn step_nonzero(&self, grad: &Tensor) -> Result<usize> {
+    pub(crate) fn step_nonzero(&self, grad: &Tensor) -> Result<usize> {
         let rows = nonzero_rows(grad)?;
         self.step(grad, &rows)?;
         Ok(rows.len())
@@ -82,7 +82,7 @@ impl SparseAdam {
 
     /// State tensors: `adam.exp_avg.<name>`, `adam.exp_avg_sq.<name>` `(R, F)` and
     /// `adam.row_steps.<name>` `(R,)` u32.
-    pub fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
+    pub(crate) fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
         let (m, v, steps) = self.state.tensors(&self.var)?;
         Ok(vec![
             (format!("adam.exp_avg.{}", self.name), m),
@@ -93,7 +93,7 @@ impl SparseAdam {
 
     /// Restores the state written by [`SparseAdam::state_tensors`] (an error names a missing or
     /// misshapen tensor).
-    pub fn load_state(&self, tensors: &HashMap<String, Tensor>) -> Result<()> {
+    pub(crate) fn load_state(&self, tensors: &HashMap<String, Tensor>) -> Result<()> {
         let get = |key: String, dims: &[usize], dtype: DType| -> Result<Tensor> {
             let t = tensors
                 .get(&key)

@@ -21,13 +21,13 @@ use nerf_scene::dataset::Dataset;
 pub type TrainRng = rand_chacha::ChaCha12Rng;
 
 /// Learning rate after `epoch` epochs: `lr · gamma^(epoch / step_size)`.
-pub fn learning_rate(lr: f64, gamma: f64, step_size: usize, epoch: usize) -> f64 {
+pub(crate) fn learning_rate(lr: f64, gamma: f64, step_size: usize, epoch: usize) -> f64 {
     lr * gamma.powf(epoch as f64 / step_size as f64)
 }
 
 /// PSNR in dB of a training loss (an MSE of colours in [0, 1]), capped at 120 dB so that the
 /// log never holds an infinity.
-pub fn logged_psnr(mse: f64) -> f64 {
+pub(crate) fn logged_psnr(mse: f64) -> f64 {
     psnr_from_mse(mse.max(1e-12))
 }
 
@@ -53,7 +53,7 @@ pub fn training_batch(
 /// [`training_batch`] (`(batch_size, rays_from_all_images)`) with each ray moved by its
 /// camera's correction when `cameras` are refined
 /// ([`crate::camera_refinement`]; the rays are then tracked by autograd).
-pub fn training_batch_refined(
+pub(crate) fn training_batch_refined(
     dataset: &Dataset,
     (batch_size, rays_from_all_images): (usize, bool),
     image_index: usize,
@@ -241,7 +241,7 @@ pub struct StepBackground {
 
 /// The [`StepBackground`] of a batch's `target` `(N, 3)` and `transparency` `(N, 1)`: draws
 /// the random background from `rng` when `settings` ask for one.
-pub fn step_background(
+pub(crate) fn step_background(
     settings: &StepSettings,
     target: &Tensor,
     transparency: &Tensor,

@@ -70,7 +70,7 @@ struct Evaluated {
 impl Ngp {
     /// Whether [`Ngp::fused_gradients`] can run: f32 parameters on the CPU with the fused
     /// kernels chosen, and a sink that takes the table's gradient.
-    pub fn has_fused_step(&self) -> bool {
+    pub(crate) fn has_fused_step(&self) -> bool {
         nerf_kernels::use_fused(&self.table) && self.gradient.is_some()
     }
 

@@ -19,7 +19,7 @@ pub const MAX_PHOTOS: usize = 20;
 pub const THUMBNAIL_SIDE: usize = 64;
 
 /// A border pixel counts as white when each channel is at least this (of 1).
-pub const WHITE_LEVEL: f32 = 0.94;
+pub(crate) const WHITE_LEVEL: f32 = 0.94;
 
 /// The backdrop is white when at least this fraction of the border pixels is.
 pub const WHITE_FRACTION: f64 = 0.9;

@@ -19,7 +19,7 @@ use nerf_core::term::error_line;
 /// The frames of the LLFF capture in `dir`: from its COLMAP model when one is there and
 /// registers every photo, else from `poses_bounds.npy`; the format the cameras came from; and
 /// the line that says which and why when both were there (`None` for a plain LLFF folder).
-pub fn read_llff_folder(dir: &Path) -> Result<(SceneFormat, CaptureFrames, Option<String>)> {
+pub(crate) fn read_llff_folder(dir: &Path) -> Result<(SceneFormat, CaptureFrames, Option<String>)> {
     if crate::colmap::find_model_folder(dir).is_none() {
         return Ok((SceneFormat::Llff, super::llff::read_frames(dir)?, None));
     }

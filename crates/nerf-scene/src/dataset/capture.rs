@@ -177,7 +177,7 @@ fn check_stored_frame(dir: &Path, stored: &SceneTransform, poses: &[ColmapPose])
 
 /// Whether frame `index` (of the frames sorted by image name) belongs to `split` under the
 /// every-8th holdout: `test` and `val` hold index % 8 == 0, `train` the rest.
-pub fn in_holdout_split(index: usize, split: Split) -> bool {
+pub(crate) fn in_holdout_split(index: usize, split: Split) -> bool {
     let held_out = index.is_multiple_of(HOLDOUT_EVERY);
     match split {
         Split::Train => !held_out,

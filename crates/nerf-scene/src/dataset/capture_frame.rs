@@ -57,7 +57,7 @@ pub fn cameras_from_sfm(dir: &Path, has_points: bool) -> bool {
 }
 
 /// The folder of a COLMAP or LLFF capture that holds its masks, beside `images/`.
-pub const MASKS_FOLDER: &str = "masks";
+pub(crate) const MASKS_FOLDER: &str = "masks";
 
 /// The mask of the photo `images/<name>` of the capture in `dir` when the capture has a
 /// `masks/` folder: `masks/<name>` with the extension `.png` (nerfstudio's and instant-ngp's

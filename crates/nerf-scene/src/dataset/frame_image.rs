@@ -11,7 +11,7 @@ use nerf_core::image::RgbImage;
 use nerf_files::decode_budget::{file_decode_cost, reserve};
 
 /// Largest image file read (an 800×800 RGBA PNG is about 0.5 MB; 16-bit 4096² is 128 MB).
-pub const MAX_IMAGE_FILE_BYTES: u64 = 256 << 20;
+pub(crate) const MAX_IMAGE_FILE_BYTES: u64 = 256 << 20;
 
 /// Widest and tallest image file decoded (the NeRF-synthetic renders are 800×800; the f32
 /// RGBA copy of an 8192² image is 1 GiB).
@@ -55,7 +55,7 @@ pub fn load_image_and_transparency(
 
 /// One frame's image as [`load_image_and_transparency`] gives it, with what the file itself was.
 #[derive(Debug, Clone)]
-pub struct LoadedImage {
+pub(crate) struct LoadedImage {
     /// `width × height` composited RGB.
     pub image: RgbImage,
     /// `width × height` transparencies `1 − a`.
@@ -67,7 +67,7 @@ pub struct LoadedImage {
 }
 
 /// [`load_image_and_transparency`] with the file's size and whether it has alpha.
-pub fn load_frame_image(
+pub(crate) fn load_frame_image(
     path: &Path,
     width: usize,
     height: usize,

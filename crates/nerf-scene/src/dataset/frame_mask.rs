@@ -53,7 +53,7 @@ impl PixelMask {
 /// enters its colour (the flags as 0 and 1, resized with the filter the images use, must stay
 /// 1), so that what an ignored region holds never reaches training or the score. One-line errors
 /// name the file: unreadable, not a PNG, not the image's size, or ignoring every pixel.
-pub fn load_mask(
+pub(crate) fn load_mask(
     path: &Path,
     image: &Path,
     source_size: (u32, u32),
@@ -117,7 +117,7 @@ pub fn load_mask(
 /// The line that says how many of a split's `frames` (of the dataset in `dir`) have masks
 /// and where they are: `masks: 66 of 66 frames of the train split from masks/ (pixels where
 /// a mask is 0 are neither trained on nor scored)`.
-pub fn masks_line(dir: &Path, split: super::Split, frames: &[super::Frame]) -> String {
+pub(crate) fn masks_line(dir: &Path, split: super::Split, frames: &[super::Frame]) -> String {
     let masked: Vec<&Path> = frames
         .iter()
         .filter_map(|f| f.mask_path.as_deref())

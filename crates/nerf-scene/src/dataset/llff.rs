@@ -17,7 +17,7 @@ use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
 use nerf_files::npy::{parse_npy_header, MAX_HEADER_BYTES};
 
 /// Most photos an LLFF capture may list.
-pub const MAX_LLFF_FRAMES: u64 = 100_000;
+pub(crate) const MAX_LLFF_FRAMES: u64 = 100_000;
 
 /// The frames of the LLFF capture in `dir`. A frame's camera error keeps its
 /// [`nerf_core::camera_error::CameraError`] in the chain; a missing `images/` is a
@@ -72,7 +72,7 @@ fn read_capture(dir: &Path, path: &Path) -> Result<CaptureFrames> {
 
 /// The camera of one `poses_bounds.npy` row: LLFF's (down, right, back) axes are OpenGL's
 /// (right, up, back) as `[c₁, −c₀, c₂]`; a pinhole with the focal length at the centre.
-pub fn camera_of_row(row: &[f64; 17]) -> Result<ColmapCamera> {
+pub(crate) fn camera_of_row(row: &[f64; 17]) -> Result<ColmapCamera> {
     let m = |r: usize, c: usize| row[5 * r + c];
     let opengl = [0, 1, 2].map(|r| [m(r, 1), -m(r, 0), m(r, 2), m(r, 3)]);
     let (h, w, f) = (m(0, 4), m(1, 4), m(2, 4));
@@ -86,7 +86,7 @@ pub fn camera_of_row(row: &[f64; 17]) -> Result<ColmapCamera> {
 
 /// The near and far depth bounds of a `poses_bounds.npy` row; `None` unless `0 < near ≤ far`
 /// (tools that know no bounds write zeros).
-pub fn depth_bounds_of_row(row: &[f64; 17]) -> Option<[f64; 2]> {
+pub(crate) fn depth_bounds_of_row(row: &[f64; 17]) -> Option<[f64; 2]> {
     let (near, far) = (row[15], row[16]);
     (near > 0.0 && far >= near).then_some([near, far])
 }

@@ -23,7 +23,7 @@ use super::transforms_intrinsics::Intrinsics;
 use nerf_core::camera_colmap::ColmapCamera;
 
 /// Largest `transforms.json` read.
-pub const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
+pub(crate) const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
 
 #[derive(Debug, Deserialize)]
 struct FrameEntry {

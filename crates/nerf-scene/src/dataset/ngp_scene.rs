@@ -22,7 +22,7 @@ use serde::Deserialize;
 
 /// instant-ngp's scene keys, each optional.
 #[derive(Debug, Clone, Default, Deserialize)]
-pub struct NgpSceneKeys {
+pub(crate) struct NgpSceneKeys {
     aabb_scale: Option<f64>,
     scale: Option<f64>,
     offset: Option<serde_json::Value>,

@@ -14,7 +14,7 @@ use nerf_core::term::short_number;
 
 /// A camera farther from the centre than this many times the median distance is an outlier
 /// and does not set the scale.
-pub const OUTLIER_DISTANCE_FACTOR: f64 = 3.0;
+pub(crate) const OUTLIER_DISTANCE_FACTOR: f64 = 3.0;
 
 /// The similarity transform applied to a capture: `X' = scale · rotation · (X − center)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -30,7 +30,7 @@ pub struct SceneTransform {
 /// The finest float64 spacing at the cameras' farthest coordinate, as a fraction of their
 /// spread, at which their positions still count as known: centres shifted by 1e17 with a
 /// spread of 4 sit on a 16-unit float64 grid, and normalise to nothing.
-pub const MIN_RESOLVED_FRACTION: f64 = 1e-6;
+pub(crate) const MIN_RESOLVED_FRACTION: f64 = 1e-6;
 
 impl SceneTransform {
     /// The transform that changes nothing.
@@ -175,7 +175,7 @@ impl SceneTransform {
     /// A world → camera pose in the normalised frame, imaging every point where the original
     /// imaged it: with `X = Rᵀ X'/s + c`, the camera point scaled by `s` is
     /// `(R_c Rᵀ) X' + s (R_c c + t_c)`.
-    pub fn apply_pose(&self, pose: &ColmapPose) -> ColmapPose {
+    pub(crate) fn apply_pose(&self, pose: &ColmapPose) -> ColmapPose {
         let rotation = pose.rotation * self.rotation.transpose();
         ColmapPose {
             rotation,
@@ -194,7 +194,7 @@ const MIN_FOCUS_CONDITION: f64 = 1e-3;
 /// camera centre `cᵢ` and viewing direction `dᵢ` (any length). `None` when the axes are
 /// (nearly) parallel or the point lies behind most cameras: the normaliser uses the per-axis
 /// median of the centres then, and the spiral path another focus depth.
-pub fn focus_of_axes(axes: &[(DVec3, DVec3)]) -> Option<DVec3> {
+pub(crate) fn focus_of_axes(axes: &[(DVec3, DVec3)]) -> Option<DVec3> {
     let (mut a, mut b) = (DMat3::ZERO, DVec3::ZERO);
     for (centre, direction) in axes {
         let d = direction.normalize();
@@ -217,7 +217,7 @@ pub fn focus_of_axes(axes: &[(DVec3, DVec3)]) -> Option<DVec3> {
 
 /// The rotation taking unit vector `from` to unit vector `to` (Rodrigues; a half turn about
 /// an axis perpendicular to `from` when they are opposite).
-pub fn rotation_between(from: DVec3, to: DVec3) -> DMat3 {
+pub(crate) fn rotation_between(from: DVec3, to: DVec3) -> DMat3 {
     let axis = from.cross(to);
     let cos = from.dot(to).clamp(-1.0, 1.0);
     if axis.length() < 1e-12 {

@@ -21,7 +21,7 @@ pub const HULL_RESOLUTION: usize = 64;
 
 /// Half the side of the cube that is carved, in the normalised frame (the cameras stand at
 /// most 1 from the centre, so an object they all look at lies inside).
-pub const HULL_HALF_EXTENT: f64 = 1.0;
+pub(crate) const HULL_HALF_EXTENT: f64 = 1.0;
 
 /// The carved box grows by this many voxels on every side: a voxel whose centre projects
 /// just outside a silhouette may still hold some of the object.
@@ -51,12 +51,12 @@ pub struct HullBox {
 
 impl HullBox {
     /// Distance from `point` to the nearest point of the box (0 inside it).
-    pub fn nearest_distance(&self, point: DVec3) -> f64 {
+    pub(crate) fn nearest_distance(&self, point: DVec3) -> f64 {
         (point.clamp(self.min, self.max) - point).length()
     }
 
     /// Distance from `point` to the farthest corner of the box.
-    pub fn farthest_distance(&self, point: DVec3) -> f64 {
+    pub(crate) fn farthest_distance(&self, point: DVec3) -> f64 {
         let far = DVec3::select(
             (point - self.min).cmpgt(self.max - point),
             self.min,

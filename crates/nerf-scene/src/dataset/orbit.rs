@@ -29,7 +29,7 @@ pub struct CaptureOrbit {
 
 /// The mean NDC focal lengths `[f_x, f_y]` of `frames`' cameras: a pinhole frame's own, a
 /// capture camera's pixel focal over half its image width and height (`[0, 0]` for no frames).
-pub fn mean_ndc_focal(frames: &[Frame]) -> [f64; 2] {
+pub(crate) fn mean_ndc_focal(frames: &[Frame]) -> [f64; 2] {
     let n = frames.len() as f64;
     frames.iter().fold([0.0; 2], |sum, f| {
         let f = match &f.camera {

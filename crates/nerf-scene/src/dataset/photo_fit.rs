@@ -22,7 +22,7 @@ use nerf_core::term::short_number;
 /// rescaled (`poses_bounds.npy gives 4000×4000 photos, images/ holds 1000×1000: intrinsics
 /// scaled by 0.25`), `None` when every camera had its photo's size. `source` names the camera
 /// file, `dir` the capture (photo folders are named relative to it).
-pub fn fit_cameras_to_photos(
+pub(crate) fn fit_cameras_to_photos(
     dir: &Path,
     source: &str,
     frames: &mut [CaptureFrame],

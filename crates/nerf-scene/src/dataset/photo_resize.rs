@@ -46,7 +46,7 @@ impl PhotoResize {
 }
 
 /// `image` resized to `width × height` by [`PhotoResize::between`] its size and that one.
-pub fn resize_photo<P>(
+pub(crate) fn resize_photo<P>(
     image: ImageBuffer<P, Vec<f32>>,
     width: u32,
     height: u32,

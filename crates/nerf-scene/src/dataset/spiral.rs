@@ -32,11 +32,11 @@ pub const FORWARD_FACING_MAX_ANGLE_DEG: f64 = 30.0;
 /// The spiral's radius along each axis of the mean camera is this percentile of the cameras'
 /// distances from their mean centre along that axis (nerf-pytorch's choice: a few outlying
 /// cameras do not widen it).
-pub const SPREAD_PERCENTILE: f64 = 90.0;
+pub(crate) const SPREAD_PERCENTILE: f64 = 90.0;
 
 /// Turns the spiral makes over the whole path (in its image plane); its motion along the
 /// viewing axis makes one in-and-out cycle over the same path.
-pub const SPIRAL_TURNS: f64 = 2.0;
+pub(crate) const SPIRAL_TURNS: f64 = 2.0;
 
 /// Focus distance (normalised units) when neither depth bounds nor converging optical axes
 /// say where the content is: the normaliser put the farthest camera at distance 1 from the
@@ -45,7 +45,7 @@ pub const SPIRAL_TURNS: f64 = 2.0;
 pub const FALLBACK_FOCUS_DISTANCE: f64 = 1.0;
 
 /// Unit viewing direction and unit image-up direction of `camera`, in world space.
-pub fn viewing_axes(camera: &FrameCamera) -> (DVec3, DVec3) {
+pub(crate) fn viewing_axes(camera: &FrameCamera) -> (DVec3, DVec3) {
     match camera {
         // OpenCV axes: x right, y down, z forward; the rows of the world → camera rotation.
         FrameCamera::Colmap(c) => (

@@ -141,7 +141,7 @@ struct TransformsFrame {
 pub const MAX_CAMERA_DISTANCE: f64 = 1e4;
 
 /// Largest `transforms_*.json` read (the lego scene's are 60 KB).
-pub const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
+pub(crate) const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
 
 /// Checks that the upper 3×3 block of a camera-to-world matrix is a rotation (orthonormal,
 /// determinant +1, to 1e-3), the bottom row is `(0, 0, 0, 1)` and the camera centre is within

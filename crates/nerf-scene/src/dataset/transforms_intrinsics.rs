@@ -161,13 +161,13 @@ impl Intrinsics {
 
 /// The focal length in pixels of a pinhole whose field of view across `side` pixels is
 /// `angle` radians: `side / 2 / tan(angle / 2)`; `None` unless `0 < angle < π`.
-pub fn focal_from_angle(angle: f64, side: usize) -> Option<f64> {
+pub(crate) fn focal_from_angle(angle: f64, side: usize) -> Option<f64> {
     (angle > 0.0 && angle < std::f64::consts::PI).then(|| 0.5 * side as f64 / (0.5 * angle).tan())
 }
 
 /// `value` of the key `key` as a whole number of pixels (colmap2nerf writes `w` and `h` as
 /// floats: `1920.0`); an error naming the key unless it is one from 1 to [`MAX_IMAGE_SIDE`].
-pub fn whole_pixels(value: f64, key: &str) -> Result<usize> {
+pub(crate) fn whole_pixels(value: f64, key: &str) -> Result<usize> {
     ensure!(
         value.fract() == 0.0 && (1.0..=MAX_IMAGE_SIDE as f64).contains(&value),
         "{key} = {value} is not a whole number of pixels from 1 to {MAX_IMAGE_SIDE}"
