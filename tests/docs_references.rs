@@ -312,7 +312,7 @@ fn item_paths(text: &str) -> Vec<Vec<String>> {
     let mut starts = vec!["crate::".to_string(), "nerf::".to_string()];
     starts.extend(
         workspace_crate_names()
-            .into_iter()
+            .iter()
             .map(|name| format!("{name}::")),
     );
     for start in &starts {
@@ -410,19 +410,22 @@ fn crate_root_for(root: &Path, file: &Path, start: &str) -> Module {
     }
 }
 
-/// The names of the workspace's library crates as paths write them (`nerf_core`).
-fn workspace_crate_names() -> Vec<String> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join(CRATES);
-    let Ok(entries) = fs::read_dir(root) else {
-        return Vec::new();
-    };
-    let mut names: Vec<String> = entries
-        .flatten()
-        .filter(|e| e.path().join("src/lib.rs").is_file())
-        .filter_map(|e| e.file_name().to_str().map(|n| n.replace('-', "_")))
-        .collect();
-    names.sort();
-    names
+/// The names of the workspace's library crates as paths write them (`nerf_core`), read once.
+fn workspace_crate_names() -> &'static [String] {
+    static NAMES: std::sync::OnceLock<Vec<String>> = std::sync::OnceLock::new();
+    NAMES.get_or_init(|| {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join(CRATES);
+        let Ok(entries) = fs::read_dir(root) else {
+            return Vec::new();
+        };
+        let mut names: Vec<String> = entries
+            .flatten()
+            .filter(|e| e.path().join("src/lib.rs").is_file())
+            .filter_map(|e| e.file_name().to_str().map(|n| n.replace('-', "_")))
+            .collect();
+        names.sort();
+        names
+    })
 }
 
 /// The root module of the workspace crate a path calls `name` (`nerf_core`), if there is one.
