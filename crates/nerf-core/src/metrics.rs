@@ -258,7 +258,7 @@ mod tests {
         assert_eq!(last, 3);
         assert_eq!(runs.len(), 3);
         assert!(runs[0] >= 0.2 && runs[2] >= 0.2);
-        // The 200 ms runs cannot be the shortest unless the 1 ms run took longer.
+        // The two long runs cannot be the shortest unless the short one took longer.
         assert!(fastest(&runs) < 0.2, "{runs:?}");
     }
 }

@@ -295,8 +295,7 @@ impl Field for NerfField {
         // The fused MLP runs a chunk in 256-sample tasks, so the chunk bounds only the Candle
         // tensors around it (about 80 MiB at 2^17, the embedding the largest) and, when
         // training, the kept activations (about 4 KiB a sample). The homework's whole training
-        // step in one chunk was 10% faster than in four of 2^15
-        // (docs/speed-and-report.md#allocators).
+        // step runs in one chunk, faster than in smaller ones (docs/speed-and-report.md#allocators).
         1 << 17
     }
 

@@ -404,9 +404,8 @@ impl Field for NgpField {
         // Evaluated samples at once: a chunk's rays times a segment's 16 samples when samples
         // are skipped. The fused kernels keep only a few floats a sample between ops (the
         // encoding's 32 the most), so 2^19 (32,768 rays a chunk, ~64 MB) costs little memory,
-        // and each segment's field call is large enough to keep both threads busy: at the
-        // default 2^16 (4096 rays) a 400² frame made 145 field calls of 3600 samples on
-        // average, and took 0.39 s against 0.32 s (docs/hash-grid.md#rendering).
+        // and each segment's field call is large enough to keep every thread busy, where
+        // smaller chunks made many small calls and slower frames (docs/hash-grid.md#rendering).
         1 << 19
     }
 }

@@ -39,14 +39,20 @@ fn in_flight() -> MutexGuard<'static, Vec<PathBuf>> {
     IN_FLIGHT.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// Fault injection for the interrupted-training test: with `NERF_FAULT_WRITE_DELAY_MS` set,
-/// every atomic write waits that long between writing its temporary file and renaming it,
-/// so that a kill is likely to land mid-write.
+/// Milliseconds every atomic write waits between writing its temporary file and renaming it
+/// (0, none, unless [`set_write_delay_for_tests`] set it).
+static WRITE_DELAY_MS: AtomicU64 = AtomicU64::new(0);
+
+/// Fault injection for the interrupted-training tests: every atomic write from now on waits
+/// `ms` milliseconds between writing its temporary file and renaming it, so that a kill is
+/// likely to land mid-write (the `nerf` command reads it from `NERF_FAULT_WRITE_DELAY_MS`).
+pub fn set_write_delay_for_tests(ms: u64) {
+    WRITE_DELAY_MS.store(ms, Ordering::Relaxed);
+}
+
 fn fault_injection_pause() {
-    if let Some(ms) = std::env::var("NERF_FAULT_WRITE_DELAY_MS")
-        .ok()
-        .and_then(|v| v.parse::<u64>().ok())
-    {
+    let ms = WRITE_DELAY_MS.load(Ordering::Relaxed);
+    if ms > 0 {
         std::thread::sleep(std::time::Duration::from_millis(ms));
     }
 }

@@ -4,17 +4,26 @@
 //! A [`progress_bar`] off a terminal also prints a plain `what: done/len after T s` line every
 //! [`plain_line_seconds`], so a long render in the background shows that it is moving.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-/// Seconds between plain progress lines when stderr is not a terminal (`NERF_PROGRESS_SECONDS`
-/// overrides it; 0 prints a line per step).
+/// Seconds between plain progress lines when stderr is not a terminal, as f64 bits (10 s
+/// until [`set_plain_line_seconds`] says otherwise).
+static PLAIN_LINE_SECONDS: AtomicU64 = AtomicU64::new(0x4024_0000_0000_0000);
+
+/// Seconds between plain progress lines when stderr is not a terminal (10 unless the program
+/// set it with [`set_plain_line_seconds`]; 0 prints a line per step).
 pub fn plain_line_seconds() -> f64 {
-    std::env::var("NERF_PROGRESS_SECONDS")
-        .ok()
-        .and_then(|v| v.parse::<f64>().ok())
-        .filter(|s| s.is_finite() && *s >= 0.0)
-        .unwrap_or(10.0)
+    f64::from_bits(PLAIN_LINE_SECONDS.load(Ordering::Relaxed))
+}
+
+/// Sets [`plain_line_seconds`] for the whole process (the `nerf` command reads it from
+/// `NERF_PROGRESS_SECONDS`). A negative or non-finite value is ignored.
+pub fn set_plain_line_seconds(seconds: f64) {
+    if seconds.is_finite() && seconds >= 0.0 {
+        PLAIN_LINE_SECONDS.store(seconds.to_bits(), Ordering::Relaxed);
+    }
 }
 
 /// Plain progress lines of a hidden bar: its label, start and the time of the last line.

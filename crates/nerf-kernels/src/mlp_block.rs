@@ -41,7 +41,8 @@ const SPARE_FLOATS: usize = 1 << 27;
 
 /// A buffer of `len` floats whose values are unspecified: a reused one keeps what it held, a
 /// new one is zero. For a task's activations and gradients, each of which `gemm` overwrites in
-/// full before it is read; fresh zeroed allocations took 7% of the dense training step.
+/// full before it is read; fresh zeroed allocations took a measurable share of the dense
+/// training step (docs/speed-and-report.md#allocators).
 pub(crate) fn task_buffer(len: usize) -> Vec<f32> {
     let mut spare = SPARE.lock().unwrap_or_else(|e| e.into_inner());
     let reused = spare

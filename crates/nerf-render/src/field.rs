@@ -67,7 +67,8 @@ pub trait Field {
 
     /// The most samples (rays × points per ray) to evaluate at once. The renderer lowers its
     /// `chunk_size` to fit, which bounds memory without changing any output. The default,
-    /// 2^16, suits a field with small MLPs (the hash grid's: a few MiB of activations).
+    /// 2^16, suits a field that keeps large activations a sample; the fields that keep little
+    /// (the fused hash grid) return more.
     fn max_samples_per_chunk(&self) -> usize {
         1 << 16
     }

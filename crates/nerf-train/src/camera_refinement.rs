@@ -78,7 +78,7 @@ pub enum CameraRefinementMode {
     Auto,
     /// Always.
     On,
-    /// Never: the default, since in 3 to 5 minutes refinement cost held-out PSNR on exact
+    /// Never: the default, since in runs of a few minutes refinement cost held-out PSNR on exact
     /// cameras and on COLMAP's (docs/own-scene.md#camera-refinement); it wins back what
     /// cameras off by a degree lose.
     #[default]

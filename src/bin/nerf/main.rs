@@ -54,10 +54,24 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
+/// The two settings the library takes from its program rather than the environment:
+/// `NERF_PROGRESS_SECONDS` (seconds between plain progress lines off a terminal; the tests set
+/// 0) and `NERF_FAULT_WRITE_DELAY_MS` (a pause inside every atomic write, for the tests that
+/// kill a run mid-write). A value that does not parse is ignored.
+fn read_test_settings() {
+    let read = |name: &str| std::env::var(name).ok();
+    if let Some(seconds) = read("NERF_PROGRESS_SECONDS").and_then(|v| v.parse::<f64>().ok()) {
+        nerf::io::progress::set_plain_line_seconds(seconds);
+    }
+    if let Some(ms) = read("NERF_FAULT_WRITE_DELAY_MS").and_then(|v| v.parse::<u64>().ok()) {
+        nerf::io::output::set_write_delay_for_tests(ms);
+    }
+}
+
 fn main() -> ExitCode {
-    // Keep freed mimalloc segments instead of returning them to the OS after 10 ms: training
-    // allocates and frees large activations every op, and each one returned costs page faults
-    // when the next op takes it back (measured: docs/speed-and-report.md#allocators).
+    // Keep freed mimalloc segments instead of returning them to the OS after a short delay:
+    // training allocates and frees large activations every op, and each one returned costs
+    // page faults when the next op takes it back (measured: docs/speed-and-report.md#allocators).
     // SAFETY: sets a process-wide allocator option before any worker threads start.
     // The binding does not export these two enum values of mimalloc v2's `mi_option_e`.
     const MI_OPTION_ARENA_EAGER_COMMIT: libmimalloc_sys::mi_option_t = 4;
@@ -76,6 +90,7 @@ fn main() -> ExitCode {
     if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
         std::env::set_var("CANDLE_NUM_THREADS", "1");
     }
+    read_test_settings();
     nerf::core::term::print_library_messages();
     let cli = Cli::parse();
     // The command's serial work shares the pool's threads instead of competing with them.

@@ -5,9 +5,8 @@
 //! own serial stretches: Candle's element-wise ops, a render's bookkeeping between field
 //! calls. The workers spin a while after each parallel job, so on a machine of few cores the
 //! serial work waits for a core. On a worker of the pool, the caller's serial work and the
-//! other workers share the pool's one thread a core. Measured paired, 2 cores: a 400²
-//! hash-grid frame 0.329-0.333 → 0.300-0.308 s, a hash-grid training step 0.057-0.065 →
-//! 0.050-0.054 s (docs/speed-and-report.md#hash-grid-throughput-against-the-machine).
+//! other workers share the pool's one thread a core: both a hash-grid frame and a training
+//! step got faster (docs/speed-and-report.md#hash-grid-throughput-against-the-machine).
 
 /// Runs `f` on a worker of a new rayon pool of one thread a core (the pool its parallel work
 /// then uses), the calling thread blocked until it returns; on the calling thread if the pool
