@@ -1,7 +1,7 @@
 //! How well a capture's cameras (a nerfstudio `transforms.json`, e.g. what `nerf process`
 //! wrote) recover the true cameras of a benchmark capture: how many registered, and after the
 //! best similarity alignment (rotation from the mean of the per-camera rotations, scale and
-//! shift by least squares on the centres, as `tests/process.rs` aligns its 24 views) the
+//! shift by least squares on the centres, as `apps/nerf/tests/process.rs` aligns its 24 views) the
 //! largest rotation error and the largest and mean centre errors as fractions of the truth's
 //! size. A second line aligns the centres alone by the least-squares similarity (Horn's
 //! quaternion method), which is what "centres within X after a similarity alignment" asks.

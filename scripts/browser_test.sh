@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The viewer in a real browser: headless Chromium (Debian's `chromium`, or $CHROMIUM) loads
 # `nerf view --config lego`, drags, zooms, records a camera path and renders it. A thin wrapper
-# over the Rust integration test tests/browser.rs (which `cargo test --release` also runs).
+# over the Rust integration test apps/nerf/tests/browser.rs (which `cargo test --release` also runs).
 #   scripts/browser_test.sh [SCREENSHOT.png]
 # Chromium missing: `.ci/install` installs it (the test prints SKIPPED without it).
 set -euo pipefail

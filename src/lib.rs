@@ -25,8 +25,8 @@
 //! config file or override); every other failure is an `anyhow::Error` whose text is one line.
 //!
 //! The `nerf` command's jobs (render, camera paths, train, eval, bench, report, export,
-//! process and the `nerf view` web viewer) are not part of the library: they live in the
-//! binary's own module tree, `src/bin/nerf/`, and call the library as any user would.
+//! process and the `nerf view` web viewer) are not part of the library: they are the
+//! `nerf-cli` package (`apps/nerf/src/`), which calls the library as any user would.
 //!
 //! ```no_run
 //! use nerf::{render_view, Pipeline, SdfField, SdfVolume, Sdf, StratifiedSampler, VolumeRenderer};
@@ -58,7 +58,8 @@ pub use candle_nn;
 /// The vector maths of the camera API (`glam::DVec3` for eye, target and up).
 pub use glam;
 
-pub mod config;
+/// The homework's config files and the built-in ones: the `nerf-config` crate.
+pub use nerf_config as config;
 /// The maths every stage shares: the `nerf-core` crate.
 pub use nerf_core as core;
 /// PSNR over a split and the float64 reference renderer: the `nerf-eval` crate.

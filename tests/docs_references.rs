@@ -1,7 +1,7 @@
 //! Docs that stay true (issue 32): what README.md, docs/*.md and the doc comments (`//!`,
 //! `///`) of src/, tests/ and examples/ name must exist in the tree.
 //!
-//! * Every path under `src/` (or `tests/`, `examples/`, `crates/`) names a file or folder
+//! * Every path under `src/` (or `tests/`, `examples/`, `crates/`, `apps/`) names a file or folder
 //!   that exists.
 //! * Every file or folder listed in a row of a layout table (`| folder/ | … |`, as in
 //!   docs/library.md) exists in that row's folder.
@@ -9,8 +9,8 @@
 //!   (`nerf_core`) resolves. Resolution is textual: the
 //!   longest prefix that is a module (a file `a/b.rs` or `a/b/mod.rs`, a `#[path]` module or an
 //!   inline `mod`), then the rest defined in that module's file (an item, a method, a variant,
-//!   a field) or re-exported by a `pub use` there, which is followed. Inside the binary's
-//!   files (src/bin/nerf/) `crate` is the binary's tree, inside a workspace crate's files
+//!   a field) or re-exported by a `pub use` there, which is followed. Inside the command's
+//!   files (apps/nerf/src/) `crate` is the command's tree, inside a workspace crate's files
 //!   (crates/<name>/) that crate's, elsewhere the `nerf` facade's; `nerf` is always the
 //!   facade, and a re-export of a workspace crate is followed into it.
 //!
@@ -23,11 +23,17 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 /// The top folders whose paths are checked when a document names them.
-const CHECKED_PATH_ROOTS: [&str; 4] = ["src/", "tests/", "examples/", "crates/"];
+const CHECKED_PATH_ROOTS: [&str; 5] = ["src/", "tests/", "examples/", "crates/", "apps/"];
 
 /// The folder of the workspace's library crates: `crates/<name>/src/lib.rs` is the crate
 /// `<name>` (with `-` written `_` in paths).
 const CRATES: &str = "crates";
+
+/// The folder of the workspace's applications (the `nerf` command's package, apps/nerf).
+const APPS: &str = "apps";
+
+/// The `nerf` command's sources: `crate` in them is the command's tree, rooted at `main.rs`.
+const COMMAND_SOURCES: &str = "apps/nerf/src";
 
 /// Extensions of other projects' sources: a `src/…` path ending in one names a file of theirs.
 const FOREIGN_EXTENSIONS: [&str; 7] = [".h", ".hpp", ".c", ".cc", ".cpp", ".cu", ".py"];
@@ -128,7 +134,7 @@ fn paths_are_read_as_written_in_prose() {
     assert!(found("all of `src/…` and src/kernels/*.rs").is_empty());
     assert!(found("COLMAP's `src/colmap/sensor/models.h`").is_empty());
     assert!(found("https://github.com/colmap/colmap/blob/main/src/colmap/x.cc").is_empty());
-    let row = "| `src/io/` | PLY (`ply.rs`), `tests/output.rs`, colmap (`colmap/`), `look_at` |";
+    let row = "| `src/io/` | PLY (`ply.rs`), `apps/nerf/tests/output.rs`, colmap (`colmap/`), `look_at` |";
     assert_eq!(
         layout_table_entries(row),
         ["src/io/ply.rs", "src/io/colmap/"]
@@ -159,7 +165,7 @@ fn resolution_finds_modules_items_members_and_reexports() {
         ("README.md", "nerf::config::DataConfig::dataset_image_size"), // a relative re-export
         ("README.md", "nerf::candle_core::Tensor"),          // another crate's item
         (
-            "src/bin/nerf/bench/row.rs",
+            "apps/nerf/src/bench/row.rs",
             "crate::bench::hash_grid_rows::NgpFlops",
         ), // the binary's tree
     ];
@@ -191,7 +197,7 @@ fn resolution_reports_what_is_not_there() {
 fn documentation_lines(root: &Path) -> Vec<DocLine> {
     let mut files = vec![PathBuf::from("README.md")];
     files.extend(files_under(root, Path::new("docs"), "md"));
-    for folder in ["src", "tests", "examples", CRATES] {
+    for folder in ["src", "tests", "examples", CRATES, APPS] {
         files.extend(files_under(root, Path::new(folder), "rs"));
     }
     let mut lines = Vec::new();
@@ -382,14 +388,14 @@ fn group_members(group: &str) -> Vec<Vec<String>> {
 // ---- Resolving an item path ----
 
 /// The module `crate`, `nerf` or a workspace crate's name stands for in `file`: for `crate`,
-/// the binary's tree inside src/bin/nerf/, a workspace crate's inside crates/<name>/, the
+/// the command's tree inside apps/nerf/src/, a workspace crate's inside crates/<name>/, the
 /// facade's everywhere else.
 fn crate_root_for(root: &Path, file: &Path, start: &str) -> Module {
     if let Some(krate) = workspace_crate(start) {
         return krate;
     }
-    let binary = root.join("src/bin/nerf");
-    if start == "crate" && file.starts_with("src/bin/nerf") {
+    let binary = root.join(COMMAND_SOURCES);
+    if start == "crate" && file.starts_with(COMMAND_SOURCES) {
         return Module {
             file: binary.join("main.rs"),
             children_dir: binary,

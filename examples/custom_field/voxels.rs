@@ -3,7 +3,7 @@
 //! harmonics). [`VoxelSpec`] is its sizes ([`nerf::FieldSpec`]), [`VoxelModel`] its parameters
 //! ([`nerf::TrainableField`]), [`VoxelField`] what the renderer queries ([`nerf::Field`]).
 //!
-//! Shared by `examples/custom_field/main.rs` and `tests/custom_field.rs`.
+//! Shared by `examples/custom_field/main.rs` and `apps/nerf/tests/custom_field.rs`.
 
 use std::sync::Arc;
 
