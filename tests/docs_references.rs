@@ -210,8 +210,10 @@ fn documentation_lines(root: &Path) -> Vec<DocLine> {
                 in_diff = !in_diff && line.trim_start_matches('`').trim() == "diff";
             }
             let text = if markdown {
-                // A worked diff's added lines name what does not exist yet.
-                (!(in_diff && line.starts_with('+'))).then_some(line)
+                // A worked diff is code, whose paths are relative to its own file; only its
+                // `--- a/…` lines, which name a file that the diff changes, are checked.
+                (!in_diff || line.starts_with("--- a/"))
+                    .then(|| line.strip_prefix("--- a/").unwrap_or(line))
             } else {
                 doc_comment_text(line)
             };

@@ -7,12 +7,11 @@
 mod common;
 
 use std::path::Path;
-use std::process::Command;
 
 use common::process_tools::*;
 use glam::DVec3;
 use nerf::core::camera_alignment::CameraPair;
-use nerf::io::dataset::{read_capture_split, SceneFormat, Split};
+use nerf::io::dataset::{read_capture_split, Split};
 
 #[test]
 fn no_photos_and_missing_colmap_are_one_line_errors() {
@@ -268,8 +267,14 @@ fn recovers_lego_cameras(lego: &Path, sfm: &[&str]) -> String {
         "{stdout}"
     );
     assert!(frames.len() <= registered, "{stdout}");
-    let train = read_capture_split(&out, SceneFormat::Nerfstudio, Split::Train).unwrap();
-    let test = read_capture_split(&out, SceneFormat::Nerfstudio, Split::Test).unwrap();
+    let train = read_capture_split(
+        &out,
+        nerf::io::dataset::nerfstudio::NERFSTUDIO,
+        Split::Train,
+    )
+    .unwrap();
+    let test =
+        read_capture_split(&out, nerf::io::dataset::nerfstudio::NERFSTUDIO, Split::Test).unwrap();
     assert_eq!(train.total_frames, frames.len());
     assert_eq!(train.frames.len() + test.frames.len(), frames.len());
 

@@ -580,10 +580,7 @@ fn every_subcommand_takes_config_the_same_way() {
     }
     // None defaults to some config: leaving it out is a usage error.
     for cmd in [&["bench"][..], &["import-torch", "x.pth"][..]] {
-        let o = common::nerf_command()
-            .args(cmd)
-            .output()
-            .unwrap();
+        let o = common::nerf_command().args(cmd).output().unwrap();
         assert_eq!(o.status.code(), Some(2), "{cmd:?}");
         assert!(stderr(&o).contains("--config <CONFIG>"));
     }

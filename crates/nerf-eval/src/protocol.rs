@@ -41,12 +41,12 @@ pub fn protocol_line(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nerf_scene::dataset::{SceneFormat, SplitProtocol};
+    use nerf_scene::dataset::SplitProtocol;
 
     #[test]
     fn the_line_names_the_frames_the_appearance_and_the_targets() {
         let info = CaptureInfo {
-            format: SceneFormat::Colmap,
+            format: nerf_scene::dataset::colmap_scene::COLMAP,
             camera_source: "the COLMAP model sparse/0".into(),
             protocol: SplitProtocol::EveryEighth,
             photo_size: Some((544, 960)),

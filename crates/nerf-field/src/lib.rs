@@ -7,18 +7,26 @@
 
 #![warn(missing_docs)]
 
+#[macro_use]
+pub mod registry;
+
 pub mod appearance;
 pub mod field_config;
 pub mod fused_step;
 pub mod nerf;
-pub mod nerf_config;
 pub mod ngp;
-pub mod ngp_config;
-pub mod registry;
 pub mod sdf;
-pub mod sdf_config;
 pub mod spherical_harmonics;
 pub mod trainable;
+
+// The field kinds a config can name, in the order messages list them: each line declares the
+// module that defines the kind's config and registers its `FieldKind`
+// (`registry::FIELD_KINDS`). A new kind is its own file and one line here.
+field_kinds! {
+    sdf_config::SDF_VOLUME,
+    nerf_config::NERF,
+    ngp_config::NGP,
+}
 
 // The renderer's tests on the crate's own fields live here, beside the fields, so that the
 // render layer's files name no concrete field.

@@ -1,18 +1,26 @@
 //! The field kinds a config's `implicit_function.type` can name, listed once
 //! ([`FIELD_KINDS`]): each kind's config (its section's schema, checks and what it becomes
 //! at run time) lives beside the field, in the kind's own file, and registering it is one
-//! line here. The config layer asks this list which kinds exist, and every message that
-//! lists them is written from it. What a kind is: [`crate::field_config`].
+//! line of the `field_kinds!` list in the crate's `lib.rs`, which also declares the file's
+//! module. The config layer asks this list which kinds exist, and every message that lists
+//! them is written from it. What a kind is: [`crate::field_config`].
 
 use crate::field_config::FieldKind;
 use nerf_core::registry::{find_named, listed_names};
 
-/// The built-in field kinds, in the order messages list them: one line each.
-pub const FIELD_KINDS: &[FieldKind] = &[
-    crate::sdf_config::SDF_VOLUME,
-    crate::nerf_config::NERF,
-    crate::ngp_config::NGP,
-];
+/// Declares each kind's module (`module::KIND`: the file `module.rs`, which defines the
+/// `FieldKind` constant `KIND`) and lists the kinds, in order, as the crate's `KINDS`.
+macro_rules! field_kinds {
+    ($($module:ident::$kind:ident),* $(,)?) => {
+        $(pub mod $module;)*
+        /// The registered kinds, in the order of the `field_kinds!` list.
+        pub(crate) const KINDS: &[$crate::field_config::FieldKind] = &[$($module::$kind),*];
+    };
+}
+
+/// The built-in field kinds, in the order messages list them (the `field_kinds!` list of the
+/// crate's `lib.rs`: one line each).
+pub const FIELD_KINDS: &[FieldKind] = crate::KINDS;
 
 /// The registered kind called `name`.
 pub fn find_kind(name: &str) -> Option<&'static FieldKind> {

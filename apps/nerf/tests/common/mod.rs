@@ -29,10 +29,7 @@ pub fn nerf_command() -> Command {
 
 /// Runs the `nerf` binary with `args`.
 pub fn nerf(args: &[&str]) -> Output {
-    nerf_command()
-        .args(args)
-        .output()
-        .expect("run nerf")
+    nerf_command().args(args).output().expect("run nerf")
 }
 
 /// The standard output of a run that must have succeeded (a failure shows its stderr).

@@ -13,15 +13,22 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 
 use super::capture_frame::CaptureFrames;
-use super::scene_format::SceneFormat;
+use super::colmap_scene::COLMAP;
+use super::llff::LLFF;
+use super::scene_format::FormatRead;
 use nerf_core::term::error_line;
 
 /// The frames of the LLFF capture in `dir`: from its COLMAP model when one is there and
 /// registers every photo, else from `poses_bounds.npy`; the format the cameras came from; and
 /// the line that says which and why when both were there (`None` for a plain LLFF folder).
-pub(crate) fn read_llff_folder(dir: &Path) -> Result<(SceneFormat, CaptureFrames, Option<String>)> {
+pub(crate) fn read_llff_folder(dir: &Path) -> Result<FormatRead> {
+    let read = |cameras_from, frames, note| FormatRead {
+        frames,
+        cameras_from,
+        note,
+    };
     if crate::colmap::find_model_folder(dir).is_none() {
-        return Ok((SceneFormat::Llff, super::llff::read_frames(dir)?, None));
+        return Ok(FormatRead::own(LLFF, super::llff::read_frames(dir)?));
     }
     let name = dir
         .file_name()
@@ -46,7 +53,7 @@ pub(crate) fn read_llff_folder(dir: &Path) -> Result<(SceneFormat, CaptureFrames
                         ""
                     }
                 );
-                    Ok((SceneFormat::Colmap, colmap, Some(note)))
+                    Ok(read(COLMAP, colmap, Some(note)))
                 }
                 Some(missing) => {
                     let note = format!(
@@ -54,7 +61,7 @@ pub(crate) fn read_llff_folder(dir: &Path) -> Result<(SceneFormat, CaptureFrames
                      {missing})",
                         colmap.camera_source
                     );
-                    Ok((SceneFormat::Llff, llff, Some(note)))
+                    Ok(read(LLFF, llff, Some(note)))
                 }
             }
         }
@@ -64,7 +71,7 @@ pub(crate) fn read_llff_folder(dir: &Path) -> Result<(SceneFormat, CaptureFrames
                 colmap.camera_source,
                 error_line(llff.as_ref())
             );
-            Ok((SceneFormat::Colmap, colmap, Some(note)))
+            Ok(read(COLMAP, colmap, Some(note)))
         }
         (Ok(llff), Err(colmap)) => {
             let note = format!(
@@ -72,7 +79,7 @@ pub(crate) fn read_llff_folder(dir: &Path) -> Result<(SceneFormat, CaptureFrames
                  read ({})",
                 error_line(colmap.as_ref())
             );
-            Ok((SceneFormat::Llff, llff, Some(note)))
+            Ok(read(LLFF, llff, Some(note)))
         }
         // The LLFF error: its file is what the folder was detected by.
         (Err(llff), Err(_)) => Err(llff),
@@ -160,7 +167,8 @@ mod tests {
     /// The real capture bird_handheld (poses_bounds.npy beside its COLMAP model), when it is
     /// on this machine.
     fn bird() -> Option<PathBuf> {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real/bird_handheld");
+        let dir =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/real/bird_handheld");
         let found = dir.join("poses_bounds.npy").is_file() && dir.join("sparse").is_dir();
         if !found {
             eprintln!("skipping: {} not found", dir.display());
@@ -171,8 +179,12 @@ mod tests {
     #[test]
     fn bird_handheld_takes_its_colmap_model_with_the_same_holdout() {
         let Some(dir) = bird() else { return };
-        let (format, read, note) = read_llff_folder(&dir).unwrap();
-        assert_eq!(format, SceneFormat::Colmap);
+        let FormatRead {
+            frames: read,
+            cameras_from,
+            note,
+        } = read_llff_folder(&dir).unwrap();
+        assert_eq!(cameras_from, COLMAP);
         let note = note.unwrap();
         assert_eq!(
             note,
@@ -191,7 +203,7 @@ mod tests {
         assert!(read.frames.iter().all(|f| f.depth_bounds.is_some()));
         // The split: every 8th of the sorted names, the same photos as poses_bounds.npy's.
         let names = |split: Split, dir: &Path| -> Vec<String> {
-            read_capture_split(dir, SceneFormat::Llff, split)
+            read_capture_split(dir, LLFF, split)
                 .unwrap()
                 .frames
                 .iter()
@@ -208,8 +220,8 @@ mod tests {
         )
         .unwrap();
         std::os::unix::fs::symlink(dir.join("images"), alone.path().join("images")).unwrap();
-        let (format, _, note) = read_llff_folder(alone.path()).unwrap();
-        assert_eq!((format, note), (SceneFormat::Llff, None));
+        let alone_read = read_llff_folder(alone.path()).unwrap();
+        assert_eq!((alone_read.cameras_from, alone_read.note), (LLFF, None));
         assert_eq!(names(Split::Test, alone.path()), test);
         assert_eq!(names(Split::Train, alone.path()), names(Split::Train, &dir));
     }

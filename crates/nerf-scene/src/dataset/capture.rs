@@ -21,6 +21,7 @@ use anyhow::{bail, Result};
 pub use super::capture_frame::{CaptureFrame, CaptureFrames};
 use super::dataset_error::DatasetError;
 use super::normalize::SceneTransform;
+use super::scene_format::FormatRead;
 pub use super::scene_format::SceneFormat;
 use super::transforms::{Frame, Split};
 use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
@@ -214,21 +215,18 @@ fn capture_split(
     split: Split,
     stored: Option<SceneTransform>,
 ) -> Result<CaptureSplit> {
-    let (camera_format, read) = match format {
-        SceneFormat::Nerfstudio => (format, super::nerfstudio::read_frames(dir)?),
-        SceneFormat::Llff => {
-            let (camera_format, read, note) = super::camera_source::read_llff_folder(dir)?;
-            if let Some(note) = note {
-                log_once(note);
-            }
-            (camera_format, read)
-        }
-        SceneFormat::Colmap => (format, super::colmap_scene::read_frames(dir)?),
-        SceneFormat::Blender => {
-            let message = format!("{}: not a capture", dir.display());
-            return Err(DatasetError::no_dataset(dir, message).into());
-        }
+    let Some(read_format) = format.read else {
+        let message = format!("{}: not a capture", dir.display());
+        return Err(DatasetError::no_dataset(dir, message).into());
     };
+    let FormatRead {
+        frames: read,
+        cameras_from: camera_format,
+        note,
+    } = read_format(dir)?;
+    if let Some(note) = note {
+        log_once(note);
+    }
     let CaptureFrames {
         mut frames,
         splits,
@@ -239,11 +237,7 @@ fn capture_split(
     if frames.is_empty() {
         // The file that lists the frames (a COLMAP model without images is refused by its
         // reader, which names its images file).
-        let listing = match format {
-            SceneFormat::Nerfstudio => dir.join("transforms.json"),
-            SceneFormat::Llff => dir.join("poses_bounds.npy"),
-            _ => dir.to_path_buf(),
-        };
+        let listing = (format.listing)(dir);
         let message = format!(
             "{}: the {} capture has no frames",
             listing.display(),

@@ -9,9 +9,21 @@ use anyhow::{Context, Result};
 
 use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
 use super::dataset_error::DatasetError;
-use crate::colmap::find_model;
+use super::scene_format::{FormatRead, SceneFormat};
+use crate::colmap::{find_model, find_model_folder};
 use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
 use nerf_core::term::error_line;
+
+/// A COLMAP capture: a folder with a sparse model (`sparse/0/`, `sparse/`, or the model's
+/// files at the top) and its photos.
+pub const COLMAP: SceneFormat = SceneFormat {
+    key: "colmap",
+    name: "COLMAP",
+    marks: "a COLMAP model (sparse/0/ with its cameras, images and points3D files)",
+    holds: |dir| find_model_folder(dir).is_some(),
+    listing: |dir| dir.to_path_buf(),
+    read: Some(|dir| Ok(FormatRead::own(COLMAP, read_frames(dir)?))),
+};
 
 /// Every registered image of the capture in `dir`, with its camera. A model that does not
 /// read is a [`DatasetError::Metadata`], a missing `images/` a [`DatasetError::MissingFile`]

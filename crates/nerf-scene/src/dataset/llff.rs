@@ -12,9 +12,21 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context, Result};
 
 use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
+use super::scene_format::SceneFormat;
 use super::dataset_error::{metadata_unless_camera, read_dataset_file, DatasetError};
 use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
 use nerf_files::npy::{parse_npy_header, MAX_HEADER_BYTES};
+
+/// An LLFF capture: a folder with `poses_bounds.npy`, whose cameras come from the COLMAP
+/// model beside it when that registers every photo ([`super::camera_source`]).
+pub const LLFF: SceneFormat = SceneFormat {
+    key: "llff",
+    name: "LLFF (poses_bounds.npy)",
+    marks: "poses_bounds.npy (LLFF)",
+    holds: |dir| dir.join("poses_bounds.npy").is_file(),
+    listing: |dir| dir.join("poses_bounds.npy"),
+    read: Some(super::camera_source::read_llff_folder),
+};
 
 /// Most photos an LLFF capture may list.
 pub(crate) const MAX_LLFF_FRAMES: u64 = 100_000;

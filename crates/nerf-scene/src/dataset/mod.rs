@@ -1,27 +1,32 @@
-//! The NeRF-synthetic ("Blender") dataset reader: `transforms_{train,val,test}.json` cameras
-//! converted to pytorch3d cameras ([`transforms`]), and RGBA PNGs composited onto a background
-//! colour ([`frame_image`]); [`Dataset`] loads a split's frames and images together.
+//! Scene data: the NeRF-synthetic release and the captures of other NeRF tools, read into
+//! frames (a photo, its camera, its mask) of one normalised scene.
 //!
-//! Layout of a scene directory (e.g. `lego/`):
+//! * The formats, one file each, listed once in [`SCENE_FORMATS`] and told apart by what the
+//!   folder holds ([`SceneFormat::detect`]): NeRF-synthetic `transforms_{split}.json`
+//!   ([`transforms`]), nerfstudio or instant-ngp `transforms.json` ([`nerfstudio`]), LLFF
+//!   `poses_bounds.npy` ([`llff`]) and COLMAP models ([`colmap_scene`]).
+//! * A capture is read whole, normalised ([`normalize`]) and split by the held-out rule
+//!   ([`capture`]): every 8th photo of the sorted names is held out. [`Dataset`] loads a
+//!   split's frames and images together, the photos fitted to the pixel budget
+//!   ([`photo_resize`]) and composited onto the background ([`frame_image`], [`frame_mask`]).
+//! * Around them: the backdrop a capture has or lacks ([`backdrop`]), the object's hull
+//!   ([`object_hull`]), the camera paths of a capture ([`orbit`], [`spiral`]), and the
+//!   typed error ([`DatasetError`]).
 //!
-//! * `transforms_{split}.json`: `camera_angle_x` (horizontal field of view, radians) and
-//!   `frames`, each with `file_path` (relative, without the `.png` extension) and
-//!   `transform_matrix`, the 4×4 Blender camera-to-world matrix (`[row][col]`).
-//! * `{split}/r_{i}.png`: 8-bit RGBA renders, transparent where there is no object.
-//!
-//! Blender / OpenGL cameras look along their −Z axis with +Y up and +X right; pytorch3d cameras
-//! look along +Z with +Y up and +X left (see [`nerf_core::camera`]).
+//! The NeRF-synthetic layout (e.g. `lego/`): `transforms_{split}.json` holds `camera_angle_x`
+//! (horizontal field of view, radians) and `frames`, each with `file_path` (relative, without
+//! the `.png` extension) and `transform_matrix`, the 4×4 Blender camera-to-world matrix
+//! (`[row][col]`); `{split}/r_{i}.png` are 8-bit RGBA renders, transparent where there is no
+//! object. Blender / OpenGL cameras look along their −Z axis with +Y up and +X right;
+//! pytorch3d cameras look along +Z with +Y up and +X left (see [`nerf_core::camera`]).
 
 pub mod backdrop;
 pub mod camera_source;
 pub mod capture;
 pub mod capture_frame;
-pub mod colmap_scene;
 pub mod dataset_error;
 pub mod frame_image;
 pub mod frame_mask;
-pub mod llff;
-pub mod nerfstudio;
 pub mod ngp_scene;
 pub mod normalize;
 pub mod object_hull;
@@ -32,8 +37,26 @@ pub mod scene_format;
 pub mod shared_view;
 pub mod silhouette;
 pub mod spiral;
-pub mod transforms;
 pub mod transforms_intrinsics;
+
+/// Declares each scene format's module and lists its [`SceneFormat`] in [`SCENE_FORMATS`],
+/// in the order [`SceneFormat::detect`] tries them: a new format is its own file, defining one
+/// `SceneFormat`, and one line in the `scene_formats!` list below.
+macro_rules! scene_formats {
+    ($($module:ident::$format:ident),* $(,)?) => {
+        $(pub mod $module;)*
+        /// Every scene format `--data-dir` takes, in the order [`SceneFormat::detect`] tries
+        /// them (the first a folder holds is its format).
+        pub const SCENE_FORMATS: &[SceneFormat] = &[$($module::$format),*];
+    };
+}
+
+scene_formats! {
+    transforms::BLENDER,
+    nerfstudio::NERFSTUDIO,
+    llff::LLFF,
+    colmap_scene::COLMAP,
+}
 
 use std::path::{Path, PathBuf};
 
@@ -99,17 +122,16 @@ fn split_frames(
     let blender_files = Split::ALL
         .iter()
         .any(|s| s.transforms_path(data_dir).exists());
-    if format == SceneFormat::Blender && data_dir.is_dir() && !blender_files {
+    if format == transforms::BLENDER && data_dir.is_dir() && !blender_files {
         // A folder of something else (photos without cameras, a file named `sparse`): say
         // what a dataset folder holds rather than only that lego's file is missing.
         let sparse = data_dir.join("sparse");
         let message = format!(
-            "{} holds no dataset nerf reads: expected transforms_{{train,val,test}}.json \
-             (NeRF-synthetic, with transforms_{split}.json), transforms.json (nerfstudio or \
-             instant-ngp), poses_bounds.npy (LLFF) or a COLMAP model (sparse/0/ with its \
-             cameras, images and points3D files){}; photos without cameras go through nerf \
-             process first; for lego, {DOWNLOAD_HINT}",
+            "{} holds no dataset nerf reads: expected {}{}; the {split} split of a \
+             NeRF-synthetic scene reads transforms_{split}.json; photos without cameras go \
+             through nerf process first; for lego, {DOWNLOAD_HINT}",
             data_dir.display(),
+            SceneFormat::expected_files(),
             if sparse.exists() && !sparse.is_dir() {
                 " (its `sparse` is a file, not a folder)"
             } else {
@@ -118,7 +140,7 @@ fn split_frames(
         );
         return Err(DatasetError::no_dataset(data_dir, message).into());
     }
-    if format == SceneFormat::Blender {
+    if format == transforms::BLENDER {
         return Ok(SplitFrames {
             frames: read_blender_split(data_dir, split)?,
             normalisation: None,
@@ -343,7 +365,8 @@ pub fn default_data_dir(dataset_name: &str) -> PathBuf {
 /// The shared lego scene for tests, or `None` (with a message) when it is not on this machine.
 #[cfg(test)]
 pub(crate) fn test_lego_dir() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(default_data_dir("lego"));
+    let dir =
+        Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join(default_data_dir("lego"));
     if dir.join("transforms_train.json").is_file() {
         Some(dir)
     } else {

@@ -16,11 +16,22 @@ use anyhow::{anyhow, bail, Result};
 use serde::Deserialize;
 
 use super::capture_frame::{CaptureFrame, CaptureFrames};
+use super::scene_format::{FormatRead, SceneFormat};
 use super::dataset_error::{metadata_unless_camera, read_dataset_file};
 use super::ngp_scene::NgpSceneKeys;
 use super::transforms::Split;
 use super::transforms_intrinsics::Intrinsics;
 use nerf_core::camera_colmap::ColmapCamera;
+
+/// A nerfstudio or instant-ngp capture: a folder with `transforms.json`.
+pub const NERFSTUDIO: SceneFormat = SceneFormat {
+    key: "nerfstudio",
+    name: "nerfstudio or instant-ngp (transforms.json)",
+    marks: "transforms.json (nerfstudio or instant-ngp)",
+    holds: |dir| dir.join("transforms.json").is_file(),
+    listing: |dir| dir.join("transforms.json"),
+    read: Some(|dir| Ok(FormatRead::own(NERFSTUDIO, read_frames(dir)?))),
+};
 
 /// Largest `transforms.json` read.
 pub(crate) const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;

@@ -185,7 +185,7 @@ mod tests {
     /// The cameras of the real captures and lego, when they are on this machine.
     #[test]
     fn the_real_captures_and_lego_share_a_view() {
-        let real = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real");
+        let real = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/real");
         let mut checked = 0;
         if let Some(cameras) = temple_ring(&real.join("temple_ring/templeR_par.txt")) {
             assert_eq!(shared_view(&cameras), Ok(()), "temple_ring");
@@ -199,7 +199,7 @@ mod tests {
         if bird.join("sparse").is_dir() {
             let read = super::super::read_capture_split(
                 &bird,
-                super::super::SceneFormat::Llff,
+                super::super::llff::LLFF,
                 super::super::Split::Train,
             )
             .unwrap();

@@ -9,11 +9,23 @@ use anyhow::{anyhow, Result};
 use glam::{DMat3, DMat4};
 use serde::Deserialize;
 
+use super::scene_format::SceneFormat;
 use super::{DatasetError, DOWNLOAD_HINT};
 use nerf_core::camera::PerspectiveCamera;
 use nerf_core::camera_error::CameraError;
 use nerf_core::frame_camera::FrameCamera;
 use nerf_files::bounded_read::read_regular_file;
+
+/// The NeRF-synthetic release: a folder with `transforms_{split}.json` files, read split by
+/// split ([`read_blender_split`]) rather than as a capture.
+pub const BLENDER: SceneFormat = SceneFormat {
+    key: "blender",
+    name: "NeRF-synthetic (transforms_{split}.json)",
+    marks: "transforms_{train,val,test}.json (NeRF-synthetic)",
+    holds: |dir| Split::ALL.iter().any(|s| s.transforms_path(dir).is_file()),
+    listing: |dir| Split::Train.transforms_path(dir),
+    read: None,
+};
 
 /// A dataset split, naming `transforms_{split}.json` and the `{split}/` image folder.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
