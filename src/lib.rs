@@ -67,6 +67,8 @@ pub use nerf_eval as eval;
 /// The fields (SDF volume, NeRF MLP, hash grid) and their registry: the `nerf-field` crate.
 pub use nerf_field as field;
 pub mod io;
+/// The hash grid: encoding, fused MLPs, box mapping, direction encoding: the `nerf-hash-grid` crate.
+pub use nerf_hash_grid as hash_grid;
 /// The fused CPU kernels and the switch between them and their twins: the `nerf-kernels` crate.
 pub use nerf_kernels as kernels;
 /// Samplers, the `Field` trait, the renderer and the occupancy grid: the `nerf-render` crate.

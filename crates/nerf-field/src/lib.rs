@@ -16,7 +16,6 @@ pub mod fused_step;
 pub mod nerf;
 pub mod ngp;
 pub mod sdf;
-pub mod spherical_harmonics;
 pub mod trainable;
 
 // The field kinds a config can name, in the order messages list them: each line declares the

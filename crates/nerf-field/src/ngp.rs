@@ -1,5 +1,5 @@
 //! An Instant-NGP-class field: a multiresolution hash encoding of the point
-//! ([`nerf_kernels::hash_grid`]) and two small MLPs.
+//! ([`nerf_hash_grid::hash_grid`]) and two small MLPs.
 //!
 //! * The point is mapped from the field's axis-aligned box to [0, 1]³ and encoded (`L·F`
 //!   features); outside the box the density is 0. With a scene contraction
@@ -25,15 +25,15 @@ use candle_nn::{Init, Linear, VarBuilder, VarMap};
 use crate::appearance::{Appearance, AppearanceParams};
 use crate::fused_step::{FusedBatch, FusedGradients};
 use crate::nerf::linear;
-pub use crate::spherical_harmonics::{sh_basis, sh_encode, sh_encode_tensor_ops, SH_DIM};
 use crate::trainable::{
     linear_init_bound, named_vars, seed_uniform, BoxedField, DenseGroup, FieldSpec, ParamGroups,
     SparseRowsGroup, TrainableField,
 };
 use nerf_core::contraction::Contraction;
-use nerf_kernels::box_unit::box_unit;
-use nerf_kernels::hash_grid::{hash_encode, HashGridParams, TableGradient};
-use nerf_kernels::ngp_mlp::{mlp_forward, MlpLayers};
+use nerf_hash_grid::box_unit::box_unit;
+use nerf_hash_grid::hash_grid::{hash_encode, HashGridParams, TableGradient};
+use nerf_hash_grid::ngp_mlp::{mlp_forward, MlpLayers};
+pub use nerf_hash_grid::spherical_harmonics::{sh_basis, sh_encode, sh_encode_tensor_ops, SH_DIM};
 use nerf_render::field::{Field, FieldOutput};
 use nerf_render::occupancy::OccupancyGrid;
 use nerf_render::sampler::RaySamples;

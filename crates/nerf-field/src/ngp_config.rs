@@ -69,7 +69,7 @@ impl NgpConfig {
             .map(|a| (self.aabb[1][a] - self.aabb[0][a]) / 2.0)
             .fold(0.0, f64::max);
         let params = NgpParams {
-            grid: nerf_kernels::hash_grid::HashGridParams {
+            grid: nerf_hash_grid::hash_grid::HashGridParams {
                 n_levels: self.n_levels,
                 n_features: self.n_features_per_level,
                 log2_table_size: self.log2_hashmap_size,

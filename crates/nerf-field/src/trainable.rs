@@ -20,7 +20,7 @@ use candle_nn::VarMap;
 use rand::{Rng, SeedableRng};
 
 use nerf_checkpoint::parameter_shapes::ParameterShapes;
-use nerf_kernels::hash_grid::{HashGridParams, TableGradient};
+use nerf_hash_grid::hash_grid::{HashGridParams, TableGradient};
 use nerf_render::field::Field;
 use nerf_render::occupancy::OccupancyGrid;
 

@@ -14,6 +14,7 @@
 ///     pub fn encode(points: &[f32], out: &mut [f32]) = encode_portable for ["avx512f", "avx2"];
 /// }
 /// ```
+#[macro_export]
 macro_rules! dispatched {
     (
         $(#[$attr:meta])*
@@ -22,7 +23,7 @@ macro_rules! dispatched {
     ) => {
         $(#[$attr])*
         $vis fn $name($($arg: $ty),*) $(-> $ret)? {
-            $crate::cpu_dispatch::dispatched!(
+            $crate::dispatched!(
                 @try [$($feature),+] $portable($($arg: $ty),*) $(-> $ret)?
             );
             $portable($($arg),*)
@@ -41,11 +42,11 @@ macro_rules! dispatched {
                 return unsafe { compiled($($arg),*) };
             }
         }
-        $crate::cpu_dispatch::dispatched!(
+        $crate::dispatched!(
             @try [$($rest),*] $portable($($arg: $ty),*) $(-> $ret)?
         );
     };
     (@try [] $($_:tt)*) => {};
 }
 
-pub(crate) use dispatched;
+pub use crate::dispatched;

@@ -31,7 +31,7 @@ impl<'a> CpuInput<'a> {
 
     /// Every input's f32 values (see [`CpuInput::f32`]), in order; an error naming `op` at the
     /// first input that is strided.
-    pub(crate) fn all_f32<const N: usize>(inputs: &[Self; N], op: &str) -> Result<[&'a [f32]; N]> {
+    pub fn all_f32<const N: usize>(inputs: &[Self; N], op: &str) -> Result<[&'a [f32]; N]> {
         let mut values = [&[] as &[f32]; N];
         for (v, input) in values.iter_mut().zip(inputs) {
             *v = input.f32(op)?;
@@ -41,11 +41,11 @@ impl<'a> CpuInput<'a> {
 }
 
 /// What a kernel's forward pass returns: its f32 values, row-major, and their shape.
-pub(crate) type KernelOutput = Result<(Vec<f32>, Shape)>;
+pub type KernelOutput = Result<(Vec<f32>, Shape)>;
 
 /// What a kernel's backward pass returns: the gradient of each of its `N` inputs, in order,
 /// each of that input's shape (`None`: the input gets no gradient).
-pub(crate) type KernelGradients<const N: usize> = Result<[Option<Tensor>; N]>;
+pub type KernelGradients<const N: usize> = Result<[Option<Tensor>; N]>;
 
 /// A fused CPU kernel with `N` inputs (1 to 3); run it through Candle as [`Fused`].
 pub trait CpuKernel<const N: usize>: Send + Sync {

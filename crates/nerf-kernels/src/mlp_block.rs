@@ -1,9 +1,9 @@
 //! Dense layers on one task's rows, on the calling thread: what the fused MLP kernels
-//! ([`crate::ngp_mlp`], [`crate::nerf_mlp`]) build their passes from.
+//! ([`crate::nerf_mlp`], and `nerf_hash_grid::ngp_mlp`) build their passes from.
 //!
 //! A task takes [`ROWS_PER_TASK`] samples through every layer while they sit in cache; its
 //! backward pass adds the weight gradients into a per-block buffer, and the blocks' buffers are
-//! added in block order ([`add_in_order`]), so a result does not depend on how the work was
+//! added in block order ([`GradientSums::add_in_order`]), so a result does not depend on how the work was
 //! shared between threads (a resumed run repeats an uninterrupted one bit for bit).
 //!
 //! Weights are row-major `(out, in)` as PyTorch's `nn.Linear`; every matrix is given with its
@@ -16,13 +16,13 @@ use std::sync::Mutex;
 use crate::gemm::gemm_f32;
 
 /// Rows a task takes through every layer at once.
-pub(crate) const ROWS_PER_TASK: usize = 256;
+pub const ROWS_PER_TASK: usize = 256;
 
 /// Tasks whose gradients one backward block sums before the blocks are added in order.
-pub(crate) const BLOCKS_PER_SUM: usize = 8;
+pub const BLOCKS_PER_SUM: usize = 8;
 
 /// A matrix `B` read from a weight slice: `B[i][j]` at `slice[i·rs + j·cs]`.
-pub(crate) type Strided<'a> = (&'a [f32], (usize, usize));
+pub type Strided<'a> = (&'a [f32], (usize, usize));
 
 /// Task buffers kept for reuse, by length, with the number of floats they hold.
 struct SpareBuffers {
@@ -43,7 +43,7 @@ const SPARE_FLOATS: usize = 1 << 27;
 /// new one is zero. For a task's activations and gradients, each of which `gemm` overwrites in
 /// full before it is read; fresh zeroed allocations took a measurable share of the dense
 /// training step (docs/speed-and-report.md#allocators).
-pub(crate) fn task_buffer(len: usize) -> Vec<f32> {
+pub fn task_buffer(len: usize) -> Vec<f32> {
     let mut spare = SPARE.lock().unwrap_or_else(|e| e.into_inner());
     let reused = spare
         .by_len
@@ -62,8 +62,8 @@ pub(crate) fn task_buffer(len: usize) -> Vec<f32> {
     }
 }
 
-/// Keeps `buffers` for [`task_buffer`], up to [`SPARE_FLOATS`] in all (the rest are freed).
-pub(crate) fn recycle(buffers: impl IntoIterator<Item = Vec<f32>>) {
+/// Keeps `buffers` for [`task_buffer`], up to 512 MiB of f32 in all (the rest are freed).
+pub fn recycle(buffers: impl IntoIterator<Item = Vec<f32>>) {
     let mut spare = SPARE.lock().unwrap_or_else(|e| e.into_inner());
     for v in buffers {
         if v.is_empty() || spare.floats + v.len() > SPARE_FLOATS {
@@ -77,19 +77,19 @@ pub(crate) fn recycle(buffers: impl IntoIterator<Item = Vec<f32>>) {
 
 /// `Wᵀ` `(k, n)` of a row-major weight `W` `(n, k)` with row stride `w_rs`: a layer's forward
 /// product `x·Wᵀ`.
-pub(crate) fn transposed(w: &[f32], w_rs: usize) -> Strided<'_> {
+pub fn transposed(w: &[f32], w_rs: usize) -> Strided<'_> {
     (w, (1, w_rs))
 }
 
 /// A row-major weight `W` `(k, n)` with row stride `w_rs` as it is: a gradient `D·W` passed
 /// back through the layer.
-pub(crate) fn as_is(w: &[f32], w_rs: usize) -> Strided<'_> {
+pub fn as_is(w: &[f32], w_rs: usize) -> Strided<'_> {
     (w, (w_rs, 1))
 }
 
 /// `out (c×n) [+]= x · B` for `x` `(c, k)` with row stride `x_rs` and `B` `(k, n)`
 /// ([`transposed`] or [`as_is`]); `out` is contiguous.
-pub(crate) fn times(
+pub fn times(
     out: &mut [f32],
     accumulate: bool,
     (x, x_rs): (&[f32], usize),
@@ -116,31 +116,25 @@ pub(crate) fn times(
 }
 
 /// `out (c×n) = x · Wᵀ + b` for contiguous `x` `(c, k)`, `W` `(n, k)` and `b` `(n)`.
-pub(crate) fn linear(
-    out: &mut [f32],
-    x: &[f32],
-    (c, k, n): (usize, usize, usize),
-    w: &[f32],
-    b: &[f32],
-) {
+pub fn linear(out: &mut [f32], x: &[f32], (c, k, n): (usize, usize, usize), w: &[f32], b: &[f32]) {
     times(out, false, (x, k), transposed(w, k), (c, k, n));
     add_bias(out, b);
 }
 
 /// Adds `b` `(n)` to every row of `out` `(c, n)`.
-pub(crate) fn add_bias(out: &mut [f32], b: &[f32]) {
+pub fn add_bias(out: &mut [f32], b: &[f32]) {
     for row in out.chunks_exact_mut(b.len()) {
         row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
     }
 }
 
 /// `max(v, 0)` in place.
-pub(crate) fn relu(v: &mut [f32]) {
+pub fn relu(v: &mut [f32]) {
     v.iter_mut().for_each(|x| *x = x.max(0.0));
 }
 
 /// `d ⊙ [y > 0]` (the ReLU's backward through its output `y`), in place.
-pub(crate) fn mask(d: &mut [f32], y: &[f32]) {
+pub fn mask(d: &mut [f32], y: &[f32]) {
     d.iter_mut()
         .zip(y)
         .for_each(|(d, y)| *d = if *y > 0.0 { *d } else { 0.0 });
@@ -148,7 +142,7 @@ pub(crate) fn mask(d: &mut [f32], y: &[f32]) {
 
 /// `dW (n_out×k, row stride dw_rs) += Dᵀ · X` for `D` `(c, n_out)` contiguous and `X` `(c, k)`
 /// with row stride `x_rs`, and `db += Σ_rows D`.
-pub(crate) fn weight_grad(
+pub fn weight_grad(
     (dw, dw_rs): (&mut [f32], usize),
     db: Option<&mut [f32]>,
     d: &[f32],
@@ -175,7 +169,7 @@ pub(crate) fn weight_grad(
 }
 
 /// An error naming `op` unless `rays` holds one ray for each of `m` samples, each below `n`.
-pub(crate) fn check_rays(op: &str, rays: &[u32], m: usize, n: usize) -> candle_core::Result<()> {
+pub fn check_rays(op: &str, rays: &[u32], m: usize, n: usize) -> candle_core::Result<()> {
     if rays.len() != m {
         candle_core::bail!("{op}: {} ray indices for {m} samples", rays.len());
     }
@@ -187,7 +181,7 @@ pub(crate) fn check_rays(op: &str, rays: &[u32], m: usize, n: usize) -> candle_c
 
 /// `h = relu(h + p_{r(i)})` for every row `i` of `h` `(c, k)`: the per-ray part `per_ray`
 /// `(N, k)` of a colour layer added by each row's ray `rays[i]`, then the ReLU.
-pub(crate) fn add_per_ray_relu(h: &mut [f32], rays: &[u32], per_ray: &[f32]) {
+pub fn add_per_ray_relu(h: &mut [f32], rays: &[u32], per_ray: &[f32]) {
     let k = h.len() / rays.len().max(1);
     for (row, &r) in h.chunks_exact_mut(k).zip(rays) {
         let p = &per_ray[r as usize * k..(r as usize + 1) * k];
@@ -199,7 +193,7 @@ pub(crate) fn add_per_ray_relu(h: &mut [f32], rays: &[u32], per_ray: &[f32]) {
 
 /// `rgb = sigmoid(h·W_oᵀ + b_o)` for `h` `(c, k)`, `W_o` `(3, k)` then `b_o` `(3)` in
 /// `w_and_b`; returns `(c, 3)`.
-pub(crate) fn rgb_head(h: &[f32], w_and_b: &[f32]) -> Vec<f32> {
+pub fn rgb_head(h: &[f32], w_and_b: &[f32]) -> Vec<f32> {
     let k = (w_and_b.len() - 3) / 3;
     let c = h.len() / k;
     let mut rgb = task_buffer(c * 3);
@@ -212,7 +206,7 @@ pub(crate) fn rgb_head(h: &[f32], w_and_b: &[f32]) -> Vec<f32> {
 /// Back through [`rgb_head`] and the ReLU before it, from the gradient `grad` `(c, 4)` of
 /// `[density, r, g, b]` rows: adds `W_o`'s and `b_o`'s gradients into `d_w_and_b` (laid out as
 /// `w_and_b`) and returns the gradient of the ReLU's input, `(c, k)`.
-pub(crate) fn rgb_head_backward(
+pub fn rgb_head_backward(
     (grad, rgb, h): (&[f32], &[f32], &[f32]),
     (w_and_b, d_w_and_b): (&[f32], &mut [f32]),
 ) -> Vec<f32> {
@@ -239,7 +233,7 @@ pub(crate) fn rgb_head_backward(
 
 /// Adds each row of `d` `(c, k)` into row `rays[i]` of `d_per_ray` `(N, k)`: the backward pass
 /// of [`add_per_ray_relu`]'s addition.
-pub(crate) fn add_by_ray(d_per_ray: &mut [f32], d: &[f32], rays: &[u32]) {
+pub fn add_by_ray(d_per_ray: &mut [f32], d: &[f32], rays: &[u32]) {
     let k = d.len() / rays.len().max(1);
     for (row, &r) in d.chunks_exact(k).zip(rays) {
         let dst = &mut d_per_ray[r as usize * k..(r as usize + 1) * k];
@@ -257,17 +251,17 @@ pub struct GradientSums {
     /// The per-ray inputs' gradient, values `per_ray_offset..per_ray_offset + len`.
     pub per_ray: Vec<f32>,
     /// Where `per_ray` starts among all the per-ray values.
-    pub(crate) per_ray_offset: usize,
+    pub per_ray_offset: usize,
 }
 
 impl GradientSums {
     /// All zero, for `n_params` parameters and all `n_per_ray` per-ray values.
-    pub(crate) fn zeros(n_params: usize, n_per_ray: usize) -> Self {
+    pub fn zeros(n_params: usize, n_per_ray: usize) -> Self {
         Self::zeros_from(n_params, 0, n_per_ray)
     }
 
     /// All zero, for `n_params` parameters and the `len` per-ray values from `offset`.
-    pub(crate) fn zeros_from(n_params: usize, offset: usize, len: usize) -> Self {
+    pub fn zeros_from(n_params: usize, offset: usize, len: usize) -> Self {
         Self {
             params: vec![0.0; n_params],
             per_ray: vec![0.0; len],
@@ -278,7 +272,7 @@ impl GradientSums {
     /// Every block's sums added element-wise in block order, into all `n_per_ray` per-ray
     /// values (each block's window at its offset); zeros of those sizes when there are no
     /// blocks. Each value is summed in block order, as when every block held all of them.
-    pub(crate) fn add_in_order(parts: Vec<Self>, n_params: usize, n_per_ray: usize) -> Self {
+    pub fn add_in_order(parts: Vec<Self>, n_params: usize, n_per_ray: usize) -> Self {
         let add = |sum: &mut [f32], part: &[f32]| {
             sum.iter_mut().zip(part).for_each(|(x, y)| *x += y);
         };

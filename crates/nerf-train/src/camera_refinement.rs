@@ -9,7 +9,7 @@
 //! camera optimiser: the rotation and translation parametrised apart, both in world axes.
 //! Gradients reach the corrections through the rendered points `o + t·d`
 //! ([`nerf_render::skipping`] forms them as tensor ops when the rays are tracked, and the
-//! hash encoding differentiates its input, [`nerf_kernels::hash_point_gradient`]); the
+//! hash encoding differentiates its input, [`nerf_hash_grid::hash_point_gradient`]); the
 //! direction's effect on the view-dependent colour (the spherical harmonics of the NGP
 //! field) passes no gradient, so the rotation is learnt from where the rays go.
 //!
@@ -539,7 +539,7 @@ mod tests {
         // hash encoding (its point gradient, fused) → MLPs → compositing.
         use nerf_core::contraction::Contraction;
         use nerf_field::ngp::{DensityActivation, NgpField, NgpParams, NgpState, TABLE};
-        use nerf_kernels::hash_grid::HashGridParams;
+        use nerf_hash_grid::hash_grid::HashGridParams;
         use nerf_render::occupancy::{OccupancyGrid, OccupancyGridParams};
         use nerf_render::renderer::VolumeRenderer;
         use nerf_render::sampler::StratifiedSampler;

@@ -18,7 +18,7 @@ use nerf_core::rays::Rays;
 use nerf_field::appearance::AppearanceParams;
 use nerf_field::ngp::{small_test_params, DensityActivation, NgpParams, NgpState, TABLE};
 use nerf_field::trainable::named_vars;
-use nerf_kernels::hash_grid::{HashGridParams, TableGradient};
+use nerf_hash_grid::hash_grid::{HashGridParams, TableGradient};
 use nerf_kernels::test_support::uniform_values;
 use nerf_render::occupancy::{OccupancyGrid, OccupancyGridParams};
 use nerf_render::ray_sampler::RaySampler;

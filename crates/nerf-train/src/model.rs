@@ -18,7 +18,7 @@ use nerf_checkpoint::checkpoint::{self, CheckpointInfo};
 use nerf_checkpoint::checkpoint_error::CheckpointError;
 use nerf_checkpoint::checkpoint_file;
 use nerf_field::trainable::{BoxedField, FieldSpec, ParamGroups, SparseRowsGroup, TrainableField};
-use nerf_kernels::hash_grid::{HashGridParams, TableGradient};
+use nerf_hash_grid::hash_grid::{HashGridParams, TableGradient};
 use nerf_render::occupancy::{
     grid_for_checkpoint, OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY,
 };

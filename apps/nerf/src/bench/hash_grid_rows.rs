@@ -27,7 +27,7 @@ use nerf::train::model::{Optimizer, TrainModel};
 use nerf::train::step::{train_step, TrainRng};
 
 /// Rows per task of the MLP-shaped product timed with one `gemm` call per task on the calling
-/// thread, as the fused NGP MLP ([`nerf::kernels::ngp_mlp`]) runs it.
+/// thread, as the fused NGP MLP ([`nerf::hash_grid::ngp_mlp`]) runs it.
 const MLP_ROWS_PER_TASK: usize = 256;
 
 /// The matrix-multiply rates measured in this run (GFLOP/s).
@@ -90,7 +90,7 @@ pub struct MachineRates<'a> {
 /// counts 3× forward per sample (the encoding's backward scatters `L·8·F` weighted gradients
 /// into the table, again about its forward count). The per-ray part needs the weight's
 /// gradient only: 2× forward. The fused MLP's backward pass recomputes the forward
-/// activations ([`nerf::kernels::ngp_mlp`]); that recomputation is not useful work and is
+/// activations ([`nerf::hash_grid::ngp_mlp`]); that recomputation is not useful work and is
 /// not counted, so the fractions below are of useful work.
 ///
 /// Table traffic, counted the same way: a sample reads the rows of its 8 corners on each
@@ -190,7 +190,7 @@ fn gemm_row(name: &str, work: String, flop: f64, runs: Vec<f64>) -> (BenchResult
 
 /// This machine's f32 matrix-multiply rate with the `gemm` crate as the fused kernels call it
 /// ([`gemm_f32`]): the MLP-shaped product 65536×64 by 64×64 in 256-row tasks on rayon's
-/// threads (as [`nerf::kernels::ngp_mlp`] runs it) and in one call on `gemm`'s own threads,
+/// threads (as [`nerf::hash_grid::ngp_mlp`] runs it) and in one call on `gemm`'s own threads,
 /// and a square product (`square`³). Best of `repeats`.
 pub fn bench_gemm(repeats: usize, square: usize) -> (Vec<BenchResult>, GemmRates) {
     let (m, k, n) = (65536, HIDDEN, HIDDEN);

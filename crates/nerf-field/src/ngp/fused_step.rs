@@ -21,10 +21,10 @@ use candle_core::{DType, Tensor};
 use super::host_values::{table_values, HostValues};
 use super::{DensityActivation, Ngp, GEO_FEATURES, HIDDEN, SH_DIM};
 use crate::fused_step::{FusedBatch, FusedGradients};
-use crate::spherical_harmonics::sh_basis_values;
+use nerf_hash_grid::ngp_mlp::{mlp_gradients, MlpShape};
+use nerf_hash_grid::spherical_harmonics::sh_basis_values;
 use nerf_kernels::composite::{packed_backward, packed_forward, PackedRays};
 use nerf_kernels::gemm::gemm_f32;
-use nerf_kernels::ngp_mlp::{mlp_gradients, MlpShape};
 use nerf_render::skipping::{march_packed, MarchedSegment};
 
 impl DensityActivation {

@@ -8,9 +8,9 @@ use anyhow::{bail, Result};
 use candle_core::{Layout, Storage};
 
 use super::{Ngp, GEO_FEATURES, HIDDEN};
-use nerf_kernels::box_unit::box_unit_values;
-use nerf_kernels::hash_grid::encode_values;
-use nerf_kernels::ngp_mlp::{mlp_values, pack_parameters, raw_density_values, MlpShape};
+use nerf_hash_grid::box_unit::box_unit_values;
+use nerf_hash_grid::hash_grid::encode_values;
+use nerf_hash_grid::ngp_mlp::{mlp_values, pack_parameters, raw_density_values, MlpShape};
 use nerf_kernels::storage::contiguous_f32;
 
 /// The field's values at samples, on host buffers.

@@ -9,9 +9,9 @@
 //! Written by hand: no crate offers a CPU hash-grid encoding (tiny-cuda-nn and its ports are
 //! CUDA), and the loops must share their layout with the table and the sparse optimiser.
 
-use crate::cpu_dispatch::dispatched;
 use crate::hash_level::{Level, HASH_PRIMES};
 use nerf_core::truncate::truncate_u32;
+use nerf_kernels::cpu_dispatch::dispatched;
 
 /// Points per block.
 pub const BLOCK: usize = 16;
@@ -245,7 +245,7 @@ fn scatter_points_portable(
 mod tests {
     use super::*;
     use crate::hash_level::HashGridParams;
-    use crate::test_support::uniform_values;
+    use nerf_kernels::test_support::uniform_values;
 
     /// The bit patterns (NaN equal to itself).
     fn bits(v: &[f32]) -> Vec<u32> {

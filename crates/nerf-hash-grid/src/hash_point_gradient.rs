@@ -114,10 +114,11 @@ pub fn tracked_corner_weights(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::encoding_f64::hash_encoding_f64;
     use crate::hash_grid::{hash_encode, hash_encode_generic};
-    use crate::test_support::{hash_encoding_f64, uniform_values};
-    use crate::{with_kernel_choice, KernelChoice};
     use candle_core::{Device, Var};
+    use nerf_kernels::test_support::uniform_values;
+    use nerf_kernels::{with_kernel_choice, KernelChoice};
 
     fn params() -> HashGridParams {
         HashGridParams {

@@ -21,10 +21,11 @@ use std::sync::{Arc, Mutex};
 use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 pub use crate::hash_level::{HashGridParams, Level, HASH_PRIMES};
-use crate::storage::host_values;
-use crate::{hash_block, hash_point_gradient, use_fused};
+use crate::{hash_block, hash_point_gradient};
+use nerf_kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use nerf_kernels::storage::host_values;
+use nerf_kernels::use_fused;
 
 /// Points per task of the fused forward pass. A task walks its points one level at a time, so
 /// that its gathers stay in one level's slice of the table (2 MiB at 2^18 rows of 2 features,
@@ -311,7 +312,7 @@ impl HashEncode {
         let candle_core::Storage::Cpu(cpu) = &*storage else {
             candle_core::bail!("hash-encode: the table must be on the CPU");
         };
-        let values = crate::storage::contiguous_f32(cpu, layout, "hash-encode")?;
+        let values = nerf_kernels::storage::contiguous_f32(cpu, layout, "hash-encode")?;
         let p = &self.params;
         let d = hash_point_gradient::point_gradients(&p.levels(), values, pts, g, p.n_features);
         Tensor::from_vec(d, points.shape(), points.device())
@@ -337,11 +338,10 @@ pub fn touched_rows(points: &Tensor, params: &HashGridParams) -> candle_core::Re
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_support::{
-        gradient_values, hash_encoding_f64, uniform_values, weighted_sum_gradients,
-    };
-    use crate::{with_kernel_choice, KernelChoice};
+    use crate::encoding_f64::hash_encoding_f64;
     use candle_core::{Device, Var};
+    use nerf_kernels::test_support::{gradient_values, uniform_values, weighted_sum_gradients};
+    use nerf_kernels::{with_kernel_choice, KernelChoice};
 
     fn params(log2_t: u32) -> HashGridParams {
         HashGridParams {

@@ -36,7 +36,7 @@ pub fn sh_basis(d: [f32; 3]) -> [f32; SH_DIM] {
 
 /// [`sh_basis`] of each unit direction in `directions` (`(N, 3)` row-major host values):
 /// `(N, 16)` row-major.
-pub(crate) fn sh_basis_values(directions: &[f32]) -> Vec<f32> {
+pub fn sh_basis_values(directions: &[f32]) -> Vec<f32> {
     directions
         .chunks_exact(3)
         .flat_map(|v| sh_basis([v[0], v[1], v[2]]))

@@ -22,14 +22,14 @@
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
-use crate::gemm::gemm_f32;
-use crate::mlp_block::{
+use nerf_kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use nerf_kernels::gemm::gemm_f32;
+use nerf_kernels::mlp_block::{
     add_by_ray, add_per_ray_relu, as_is, check_rays, linear, mask, recycle, relu, rgb_head,
     rgb_head_backward, task_buffer, times, transposed, weight_grad, GradientSums, BLOCKS_PER_SUM,
     ROWS_PER_TASK,
 };
-use crate::storage::host_values;
+use nerf_kernels::storage::host_values;
 
 /// Widths of the two MLPs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -163,7 +163,7 @@ pub fn ngp_mlp(
 }
 
 /// The NGP MLPs on `enc` `(M, E)` and `per_ray` `(N, H)`: the fused [`ngp_mlp`] where
-/// [`crate::use_fused`] allows (f32 on the CPU, fused kernels chosen), else its twin
+/// [`nerf_kernels::use_fused`] allows (f32 on the CPU, fused kernels chosen), else its twin
 /// [`ngp_mlp_tensor_ops`]. `ray_index`: each sample's ray, as a `(M,)` u32 tensor on the
 /// inputs' device and as the same values on the host. Returns `(M, 4)`.
 pub fn mlp_forward(
@@ -172,7 +172,7 @@ pub fn mlp_forward(
     (ray_index, rays): (&Tensor, &[u32]),
     layers: &MlpLayers,
 ) -> candle_core::Result<Tensor> {
-    if crate::use_fused(enc) {
+    if nerf_kernels::use_fused(enc) {
         let l = layers;
         let packed = pack_parameters(l.w0, l.b0, l.w1, l.b1, l.wg, [l.w2, l.b2, l.w3, l.b3])?;
         let shape = MlpShape {
@@ -515,9 +515,9 @@ pub fn mlp_gradients(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_support::weighted_sum_gradients;
     use candle_core::{Device, Var};
     use nerf_core::compare::assert_close;
+    use nerf_kernels::test_support::weighted_sum_gradients;
 
     #[test]
     fn fused_matches_tensor_ops_forward_and_backward() {

@@ -1,13 +1,14 @@
 //! Points mapped from an axis-aligned box to [0, 1]³, and whether each lies in the box: one
 //! multi-threaded pass over the points on the CPU, where the tensor-op twin
 //! ([`box_unit_tensor_ops`]) is nine Candle ops, each its own pass over the points (on one
-//! thread, as the binary runs Candle's element-wise ops) — 4% of a 400² hash-grid frame.
+//! thread, as the binary runs Candle's element-wise ops), a share of a hash-grid frame worth
+//! a kernel of its own (docs/speed-and-report.md).
 
 use candle_core::{DType, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
-use crate::use_fused;
+use nerf_kernels::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+use nerf_kernels::use_fused;
 
 /// Points per task.
 const POINTS_PER_TASK: usize = 4096;
@@ -133,9 +134,9 @@ impl CpuKernel<1> for Inside {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_support::{gradient_values, uniform_values, weighted_sum_gradients};
-    use crate::{with_kernel_choice, KernelChoice};
     use candle_core::{Device, Var};
+    use nerf_kernels::test_support::{gradient_values, uniform_values, weighted_sum_gradients};
+    use nerf_kernels::{with_kernel_choice, KernelChoice};
 
     /// Points inside, outside, on the faces and NaN, fused against the twin: the same values
     /// bit for bit, and the same gradient to the points.
