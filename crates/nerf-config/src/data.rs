@@ -77,7 +77,7 @@ impl DataConfig {
 
     /// `nerf_<data.dataset_name>` (`nerf_scene` without one): the file name, less its
     /// extension, of the checkpoint in a `training.checkpoint_path` directory.
-    pub fn dataset_stem(&self) -> String {
+    pub(crate) fn dataset_stem(&self) -> String {
         format!("nerf_{}", self.dataset_name.as_deref().unwrap_or("scene"))
     }
 
@@ -219,7 +219,7 @@ impl Config {
     }
 
     /// [`DataConfig::dataset_stem`].
-    pub fn dataset_stem(&self) -> String {
+    pub(crate) fn dataset_stem(&self) -> String {
         self.data.dataset_stem()
     }
 }

@@ -73,7 +73,7 @@ impl Config {
 
     /// Which SDF parameters the config marks `opt: True`. An error names an `opt: True` on
     /// a parameter the shape does not have (a box's `radius`, a sphere's `side_lengths`).
-    pub fn sdf_trainable(&self) -> Result<SdfTrainable> {
+    pub(crate) fn sdf_trainable(&self) -> Result<SdfTrainable> {
         self.sdf_volume_config()?.trainable()
     }
 

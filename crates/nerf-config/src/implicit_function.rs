@@ -17,7 +17,7 @@ pub struct ImplicitFunctionConfig(Box<dyn FieldConfig>);
 impl ImplicitFunctionConfig {
     /// The `implicit_function` section as written, typed by its `type`; errors name the key
     /// (`implicit_function.…`) and list the registered kinds.
-    pub fn from_section(section: Value) -> Result<Self> {
+    pub(crate) fn from_section(section: Value) -> Result<Self> {
         let name = section
             .get("type")
             .and_then(Value::as_str)

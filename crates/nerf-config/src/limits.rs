@@ -12,7 +12,7 @@ pub const POSES: usize = 3600;
 pub const FRAME_PIXELS: usize = 1 << 26;
 /// Most samples in one training batch (`batch_size × n_pts_per_ray`), all held with
 /// their activations for the backward pass.
-pub const BATCH_SAMPLES: usize = 1 << 21;
+pub(crate) const BATCH_SAMPLES: usize = 1 << 21;
 /// Most samples drawn in one step whose rays adapt to `training.samples_per_step`: with an
 /// occupancy grid or early termination only the evaluated ones hold activations, a drawn
 /// one costs its depth and a grid test.

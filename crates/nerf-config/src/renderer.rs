@@ -218,7 +218,7 @@ impl Config {
     }
 
     /// How training keeps the occupancy grid up to date, when the config has one.
-    pub fn grid_schedule(&self) -> Option<GridSchedule> {
+    pub(crate) fn grid_schedule(&self) -> Option<GridSchedule> {
         let g = self.renderer.occupancy_grid.as_ref()?;
         Some(g.schedule(&self.sampler, self.contraction()))
     }

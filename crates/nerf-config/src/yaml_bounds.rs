@@ -16,7 +16,7 @@ pub const MAX_YAML_DEPTH: usize = 64;
 
 /// An error (one line) when `text` is longer than [`MAX_YAML_BYTES`] or nests deeper than
 /// [`MAX_YAML_DEPTH`]; `what` names it ("config", "override value").
-pub fn check_yaml_bounds(text: &str, what: &str) -> Result<()> {
+pub(crate) fn check_yaml_bounds(text: &str, what: &str) -> Result<()> {
     if text.len() > MAX_YAML_BYTES {
         bail!(
             "{what} is {} bytes, more than the {MAX_YAML_BYTES} read",

@@ -5,7 +5,7 @@ use crate::hash_level::HashGridParams;
 /// The encoding of one point in f64, from the definitions (resolutions, hash, trilinear
 /// weights), written independently of the kernels: `L·F` values; the point (in the box's
 /// `[0, 1]³`) is clamped to it.
-pub fn hash_encoding_f64(q: [f64; 3], table: &[f32], p: &HashGridParams) -> Vec<f64> {
+pub(crate) fn hash_encoding_f64(q: [f64; 3], table: &[f32], p: &HashGridParams) -> Vec<f64> {
     let t = 1u64 << p.log2_table_size;
     let b = ((p.max_resolution.ln() - p.base_resolution.ln()) / (p.n_levels as f64 - 1.0)).exp();
     let mut out = Vec::new();

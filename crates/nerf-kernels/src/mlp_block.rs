@@ -22,7 +22,7 @@ pub const ROWS_PER_TASK: usize = 256;
 pub const BLOCKS_PER_SUM: usize = 8;
 
 /// A matrix `B` read from a weight slice: `B[i][j]` at `slice[i·rs + j·cs]`.
-pub type Strided<'a> = (&'a [f32], (usize, usize));
+pub(crate) type Strided<'a> = (&'a [f32], (usize, usize));
 
 /// Task buffers kept for reuse, by length, with the number of floats they hold.
 struct SpareBuffers {
@@ -122,7 +122,7 @@ pub fn linear(out: &mut [f32], x: &[f32], (c, k, n): (usize, usize, usize), w: &
 }
 
 /// Adds `b` `(n)` to every row of `out` `(c, n)`.
-pub fn add_bias(out: &mut [f32], b: &[f32]) {
+pub(crate) fn add_bias(out: &mut [f32], b: &[f32]) {
     for row in out.chunks_exact_mut(b.len()) {
         row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
     }

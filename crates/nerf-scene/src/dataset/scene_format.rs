@@ -77,7 +77,7 @@ impl SceneFormat {
 
     /// What a folder of each registered format holds, as one message lists them:
     /// `transforms_{train,val,test}.json (NeRF-synthetic), …, poses_bounds.npy (LLFF) or …`.
-    pub fn expected_files() -> String {
+    pub(crate) fn expected_files() -> String {
         let marks: Vec<&str> = super::SCENE_FORMATS.iter().map(|f| f.marks).collect();
         match marks.split_last() {
             Some((last, [])) => last.to_string(),
