@@ -71,11 +71,6 @@ impl Field for TorusField {
         let feature = samples.points.abs()?.clamp(0.02f32, 0.98f32)?;
         Ok(FieldOutput { density, feature })
     }
-
-    fn max_samples_per_chunk(&self) -> usize {
-        // A handful of floats per sample, as for the crate's SDF field.
-        1 << 22
-    }
 }
 
 fn main() -> Result<()> {

@@ -152,8 +152,11 @@ fn check(file: &str, written: &str) -> Result<(), String> {
 #[test]
 fn resolution_finds_modules_items_members_and_reexports() {
     let found = [
-        ("src/lib.rs", "`crate::render::field::Field::render_fused`"), // a trait's method
-        ("src/lib.rs", "[`crate::core::sdf::Sdf::Box`]"),              // a variant
+        (
+            "src/lib.rs",
+            "`crate::render::field::FieldFastPaths::render_fused`",
+        ), // a trait's method
+        ("src/lib.rs", "[`crate::core::sdf::Sdf::Box`]"), // a variant
         ("src/lib.rs", "crate::core::camera_colmap::tests"), // a #[path] module in a re-exported crate
         ("README.md", "nerf_core::rays::Rays"),              // a workspace crate by name
         (

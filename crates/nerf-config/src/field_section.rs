@@ -244,12 +244,13 @@ mod tests {
         let tensors = nerf_checkpoint::checkpoint::model_tensors(&varmap);
         nerf_checkpoint::checkpoint::save(&path, &tensors, Default::default()).unwrap();
         let field = c.load_field(&path, &dev).unwrap();
-        assert!(field.supports_packed() && field.occupancy().is_some());
+        assert!(nerf_render::field::supports_packed(field.as_ref()) && field.occupancy().is_some());
         let points = candle_core::Tensor::rand(-1.4f32, 1.4, (50, 3), &dev).unwrap();
         let dirs = candle_core::Tensor::new(&[[0f32, 0.6, 0.8]], &dev).unwrap();
         let rays = candle_core::Tensor::zeros(50, candle_core::DType::U32, &dev).unwrap();
         let (s0, c0) = model.forward_packed(&points, &rays, &dirs, None).unwrap();
-        let (s1, c1) = field.evaluate_packed(&points, &rays, &dirs).unwrap();
+        let (s1, c1) =
+            nerf_render::field::packed_evaluation(field.as_ref(), &points, &rays, &dirs).unwrap();
         let diff = nerf_core::compare::max_abs_difference;
         assert_eq!(diff(&s0, &s1).unwrap() + diff(&c0, &c1).unwrap(), 0.0);
         // A checkpoint of other sizes is refused in one line.

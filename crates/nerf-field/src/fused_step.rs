@@ -1,5 +1,5 @@
 //! The seam for a training step without an autograd graph over the samples: what the trainer
-//! hands a field kind that has one ([`crate::trainable::TrainableField::fused_gradients`])
+//! hands a field kind that has one ([`crate::trainable::TrainingFastPaths::fused_gradients`])
 //! and what it gets back. The hash-grid field's is [`crate::ngp`]'s `fused_step`.
 
 use candle_core::backprop::GradStore;

@@ -27,7 +27,7 @@ use crate::trainable::{
 };
 use nerf_checkpoint::parameter_shapes::ParameterShapes;
 use nerf_kernels::nerf_mlp::{self, NerfLayers, NerfMlpShape};
-use nerf_render::field::{Field, FieldOutput};
+use nerf_render::field::{Field, FieldFastPaths, FieldOutput};
 use nerf_render::occupancy::OccupancyGrid;
 use nerf_render::sampler::RaySamples;
 
@@ -291,14 +291,6 @@ pub struct NerfField {
 }
 
 impl Field for NerfField {
-    fn max_samples_per_chunk(&self) -> usize {
-        // The fused MLP runs a chunk in 256-sample tasks, so the chunk bounds only the Candle
-        // tensors around it (about 80 MiB at 2^17, the embedding the largest) and, when
-        // training, the kept activations (about 4 KiB a sample). The homework's whole training
-        // step runs in one chunk, faster than in smaller ones (docs/speed-and-report.md#allocators).
-        1 << 17
-    }
-
     fn evaluate(
         &self,
         samples: &RaySamples,
@@ -306,6 +298,28 @@ impl Field for NerfField {
         directions: &Tensor,
     ) -> Result<FieldOutput> {
         self.model.evaluate(samples, directions, self.density_noise)
+    }
+
+    fn occupancy(&self) -> Option<&OccupancyGrid> {
+        self.occupancy.as_deref()
+    }
+
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        self.model.density(points)
+    }
+
+    fn fast_paths(&self) -> Option<&dyn FieldFastPaths> {
+        Some(self)
+    }
+}
+
+impl FieldFastPaths for NerfField {
+    fn max_samples_per_chunk(&self) -> usize {
+        // The fused MLP runs a chunk in 256-sample tasks, so the chunk bounds only the Candle
+        // tensors around it (about 80 MiB at 2^17, the embedding the largest) and, when
+        // training, the kept activations (about 4 KiB a sample). The homework's whole training
+        // step runs in one chunk, faster than in smaller ones (docs/speed-and-report.md#allocators).
+        1 << 17
     }
 
     fn supports_packed(&self) -> bool {
@@ -320,14 +334,6 @@ impl Field for NerfField {
     ) -> Result<(Tensor, Tensor)> {
         self.model
             .forward_packed(points, ray_index, directions, self.density_noise)
-    }
-
-    fn occupancy(&self) -> Option<&OccupancyGrid> {
-        self.occupancy.as_deref()
-    }
-
-    fn density(&self, points: &Tensor) -> Result<Tensor> {
-        self.model.density(points)
     }
 }
 

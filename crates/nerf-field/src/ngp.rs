@@ -27,14 +27,14 @@ use crate::fused_step::{FusedBatch, FusedGradients};
 use crate::nerf::linear;
 use crate::trainable::{
     linear_init_bound, named_vars, seed_uniform, BoxedField, DenseGroup, FieldSpec, ParamGroups,
-    SparseRowsGroup, TrainableField,
+    SparseRowsGroup, TrainableField, TrainingFastPaths,
 };
 use nerf_core::contraction::Contraction;
 use nerf_hash_grid::box_unit::box_unit;
 use nerf_hash_grid::hash_grid::{hash_encode, HashGridParams, TableGradient};
 use nerf_hash_grid::ngp_mlp::{mlp_forward, MlpLayers};
 pub use nerf_hash_grid::spherical_harmonics::{sh_basis, sh_encode, sh_encode_tensor_ops, SH_DIM};
-use nerf_render::field::{Field, FieldOutput};
+use nerf_render::field::{Field, FieldFastPaths, FieldOutput};
 use nerf_render::occupancy::OccupancyGrid;
 use nerf_render::sampler::RaySamples;
 
@@ -368,20 +368,6 @@ impl Field for NgpField {
             .forward(&samples.points, directions, self.camera_index.as_ref())
     }
 
-    fn supports_packed(&self) -> bool {
-        true
-    }
-
-    fn evaluate_packed(
-        &self,
-        points: &Tensor,
-        ray_index: &Tensor,
-        directions: &Tensor,
-    ) -> Result<(Tensor, Tensor)> {
-        self.model
-            .forward_packed(points, ray_index, directions, self.camera_index.as_ref())
-    }
-
     fn for_cameras(&self, camera_index: &Tensor) -> Result<Option<Box<dyn Field + '_>>> {
         if self.model.appearance.is_none() {
             return Ok(None);
@@ -398,6 +384,26 @@ impl Field for NgpField {
 
     fn density(&self, points: &Tensor) -> Result<Tensor> {
         self.model.density(points)
+    }
+
+    fn fast_paths(&self) -> Option<&dyn FieldFastPaths> {
+        Some(self)
+    }
+}
+
+impl FieldFastPaths for NgpField {
+    fn supports_packed(&self) -> bool {
+        true
+    }
+
+    fn evaluate_packed(
+        &self,
+        points: &Tensor,
+        ray_index: &Tensor,
+        directions: &Tensor,
+    ) -> Result<(Tensor, Tensor)> {
+        self.model
+            .forward_packed(points, ray_index, directions, self.camera_index.as_ref())
     }
 
     fn max_samples_per_chunk(&self) -> usize {
@@ -487,13 +493,6 @@ impl TrainableField for NgpState {
         )?)
     }
 
-    fn fused_gradients(&self, batch: &FusedBatch) -> Result<Option<FusedGradients>> {
-        if !self.model.has_fused_step() {
-            return Ok(None);
-        }
-        Ok(Some(self.model.fused_gradients(batch)?))
-    }
-
     fn layout(&self) -> Option<String> {
         let NgpParams {
             grid: g,
@@ -555,6 +554,19 @@ impl TrainableField for NgpState {
             },
             sparse_rows,
         }
+    }
+
+    fn fast_paths(&self) -> Option<&dyn TrainingFastPaths> {
+        Some(self)
+    }
+}
+
+impl TrainingFastPaths for NgpState {
+    fn fused_gradients(&self, batch: &FusedBatch) -> Result<Option<FusedGradients>> {
+        if !self.model.has_fused_step() {
+            return Ok(None);
+        }
+        Ok(Some(self.model.fused_gradients(batch)?))
     }
 }
 

@@ -8,12 +8,12 @@ use anyhow::Result;
 use candle_core::{Device, Tensor, Var};
 use candle_nn::VarMap;
 
-use crate::trainable::{BoxedField, TrainableField};
+use crate::trainable::{BoxedField, TrainableField, TrainingFastPaths};
 use nerf_core::rays::Rays;
 use nerf_core::sdf::{Sdf, SdfVolume};
 use nerf_kernels::sdf_render::sdf_render_mse;
 use nerf_kernels::sdf_volume::{sdf_volume, SdfTensors, ShapeTensors};
-use nerf_render::field::{Composited, Field, FieldOutput};
+use nerf_render::field::{Composited, Field, FieldFastPaths, FieldOutput};
 use nerf_render::occupancy::OccupancyGrid;
 use nerf_render::sampler::RaySamples;
 
@@ -177,6 +177,12 @@ impl TrainableField for SdfModel {
         self.field.clamp_to_valid()
     }
 
+    fn fast_paths(&self) -> Option<&dyn TrainingFastPaths> {
+        Some(self)
+    }
+}
+
+impl TrainingFastPaths for SdfModel {
     /// The fused SDF render-and-loss kernel (`kernels::sdf_render::sdf_render_mse`).
     fn fused_mse(
         &self,
@@ -190,16 +196,6 @@ impl TrainableField for SdfModel {
 }
 
 impl Field for SdfField {
-    fn max_samples_per_chunk(&self) -> usize {
-        // A few floats per sample: 2^22 samples are about 250 MB over all of a chunk's
-        // tensors; the homework's box frame, 256² rays × 64 points, fits in one.
-        1 << 22
-    }
-
-    fn render_fused(&self, rays: &Rays, lengths: &Tensor) -> Result<Option<Composited>> {
-        nerf_kernels::sdf_render::sdf_render(rays, lengths, &self.params)
-    }
-
     fn evaluate(
         &self,
         samples: &RaySamples,
@@ -208,5 +204,21 @@ impl Field for SdfField {
     ) -> Result<FieldOutput> {
         let (density, feature) = sdf_volume(&samples.points, deltas, &self.params)?;
         Ok(FieldOutput { density, feature })
+    }
+
+    fn fast_paths(&self) -> Option<&dyn FieldFastPaths> {
+        Some(self)
+    }
+}
+
+impl FieldFastPaths for SdfField {
+    fn max_samples_per_chunk(&self) -> usize {
+        // A few floats per sample: 2^22 samples are about 250 MB over all of a chunk's
+        // tensors; the homework's box frame, 256² rays × 64 points, fits in one.
+        1 << 22
+    }
+
+    fn render_fused(&self, rays: &Rays, lengths: &Tensor) -> Result<Option<Composited>> {
+        nerf_kernels::sdf_render::sdf_render(rays, lengths, &self.params)
     }
 }

@@ -12,7 +12,7 @@ use nerf_core::rays::Rays;
 use nerf_kernels::composite::composite;
 use nerf_kernels::composite::Composited;
 use nerf_kernels::sample_points::sample_points;
-use nerf_render::field::Field;
+use nerf_render::field::FieldFastPaths;
 use nerf_render::field::FieldOutput;
 use nerf_render::occupancy::{OccupancyGrid, OccupancyGridParams};
 use nerf_render::renderer::{RenderOutput, VolumeRenderer};

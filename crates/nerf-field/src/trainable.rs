@@ -90,6 +90,35 @@ pub trait TrainableField: Send + Sync {
         Ok(())
     }
 
+    /// The kind's fused training kernels, when it has them; `None` (the default) trains
+    /// through the renderer and autograd alone.
+    fn fast_paths(&self) -> Option<&dyn TrainingFastPaths> {
+        None
+    }
+
+    /// What the parameters' names and shapes do not say about how they are read (a hash
+    /// grid's resolutions, the box it covers), as one line: a checkpoint stores it and a model
+    /// whose layout differs refuses to load it, where it would otherwise load and render
+    /// garbage. `None` (the default) for a kind whose shapes say it all.
+    fn layout(&self) -> Option<String> {
+        None
+    }
+
+    /// How the optimiser treats the parameters. The default: PyTorch's Adam on all of them.
+    fn param_groups(&self) -> ParamGroups {
+        ParamGroups {
+            dense: DenseGroup::pytorch(named_vars(self.varmap())),
+            sparse_rows: Vec::new(),
+        }
+    }
+}
+
+/// The trainer's fast paths into a field kind: how the crate's SDF volume and hash grid hand
+/// it a fused render-and-loss kernel or a training step without an autograd graph over the
+/// samples. An inside seam between the trainer and the kernels, not part of what a new kind
+/// implements; a kind offers it through [`TrainableField::fast_paths`], and every method has
+/// the default of a kind without the kernel.
+pub trait TrainingFastPaths {
     /// The mean squared colour error of `rays` (N) rendered at `lengths` `(N, S, 1)` against
     /// `target` `(N, 3)` (composited on white when `white_background`), from a fused
     /// render-and-loss kernel, differentiable in the parameters; `None` (the default) when the
@@ -112,22 +141,6 @@ pub trait TrainableField: Send + Sync {
         _batch: &crate::fused_step::FusedBatch,
     ) -> Result<Option<crate::fused_step::FusedGradients>> {
         Ok(None)
-    }
-
-    /// What the parameters' names and shapes do not say about how they are read (a hash
-    /// grid's resolutions, the box it covers), as one line: a checkpoint stores it and a model
-    /// whose layout differs refuses to load it, where it would otherwise load and render
-    /// garbage. `None` (the default) for a kind whose shapes say it all.
-    fn layout(&self) -> Option<String> {
-        None
-    }
-
-    /// How the optimiser treats the parameters. The default: PyTorch's Adam on all of them.
-    fn param_groups(&self) -> ParamGroups {
-        ParamGroups {
-            dense: DenseGroup::pytorch(named_vars(self.varmap())),
-            sparse_rows: Vec::new(),
-        }
     }
 }
 

@@ -1,6 +1,7 @@
 //! The field abstraction: what the renderer queries at sample points. The renderer, the
-//! occupancy grid and the skipping pass see a field only through this trait, so a new field
-//! kind is one new file in `field/` implementing it.
+//! occupancy grid and the skipping pass see a field only through [`Field`], so a new field
+//! kind is one new file implementing it; the crate's own fields add their fused kernels
+//! through [`FieldFastPaths`], an inside seam a new kind need not know.
 
 use anyhow::Result;
 use candle_core::Tensor;
@@ -42,7 +43,12 @@ impl FieldOutput {
 
 pub use nerf_kernels::composite::Composited;
 
-/// A radiance field.
+/// The samples a field without its own [`FieldFastPaths::max_samples_per_chunk`] is given at
+/// once: a size that suits a field keeping large activations a sample.
+pub const DEFAULT_SAMPLES_PER_CHUNK: usize = 1 << 16;
+
+/// A radiance field: what a new field kind implements. Only [`Field::evaluate`] is required;
+/// a field with fused kernels also offers them through [`Field::fast_paths`].
 pub trait Field {
     /// Evaluates the field at the samples of N rays.
     ///
@@ -56,6 +62,44 @@ pub trait Field {
         directions: &Tensor,
     ) -> Result<FieldOutput>;
 
+    /// The same field for rays of the training cameras `camera_index` `(N,)` u32 (one per
+    /// ray of the batch it will see), for a field with parts learnt per training image
+    /// (appearance); `None` (the default) when it has none, and the field is used as it is.
+    fn for_cameras(&self, _camera_index: &Tensor) -> Result<Option<Box<dyn Field + '_>>> {
+        Ok(None)
+    }
+
+    /// Where the field can have density, when it keeps an occupancy grid (samples elsewhere
+    /// are skipped when the field has packed evaluation, [`FieldFastPaths::evaluate_packed`]).
+    fn occupancy(&self) -> Option<&OccupancyGrid> {
+        None
+    }
+
+    /// Density alone at `points` `(M, 3)`: `(M, 1)` (meshes, grids), for fields with packed
+    /// evaluation, whose density does not depend on the direction. The default evaluates
+    /// [`FieldFastPaths::evaluate_packed`] with every point on one ray along +z and keeps the
+    /// density; an error for a field without packed evaluation.
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        let m = points.dim(0)?;
+        let dev = points.device();
+        let directions = Tensor::new(&[[0f32, 0.0, 1.0]], dev)?.to_dtype(points.dtype())?;
+        let ray_index = Tensor::zeros(m, candle_core::DType::U32, dev)?;
+        Ok(packed_evaluation(self, points, &ray_index, &directions)?.0)
+    }
+
+    /// The field's fast paths, when it has kernels for them; `None` (the default) renders
+    /// through [`Field::evaluate`] alone, in chunks of [`DEFAULT_SAMPLES_PER_CHUNK`] samples.
+    fn fast_paths(&self) -> Option<&dyn FieldFastPaths> {
+        None
+    }
+}
+
+/// The renderer's fast paths into a field: how the crate's own fields (the SDF volume, the
+/// NeRF MLP, the hash grid) hand it fused kernels and packed evaluation. An inside seam
+/// between the renderer and the kernels, not part of what a new field kind implements; a field
+/// offers it through [`Field::fast_paths`], and every method has the default of a field
+/// without the kernel.
+pub trait FieldFastPaths {
     /// Colour `(N, 3)`, depth `(N, 1)` and opacity `(N, 1)` of `rays` (N) densely sampled at
     /// `lengths` `(N, S, 1)`, rendered by the field itself in one fused pass: the values that
     /// [`Field::evaluate`] followed by the renderer's compositing give, and differentiable
@@ -66,15 +110,14 @@ pub trait Field {
     }
 
     /// The most samples (rays × points per ray) to evaluate at once. The renderer lowers its
-    /// `chunk_size` to fit, which bounds memory without changing any output. The default,
-    /// 2^16, suits a field that keeps large activations a sample; the fields that keep little
-    /// (the fused hash grid) return more.
+    /// `chunk_size` to fit, which bounds memory without changing any output. The default is
+    /// [`DEFAULT_SAMPLES_PER_CHUNK`]; the fields that keep little a sample return more.
     fn max_samples_per_chunk(&self) -> usize {
-        1 << 16
+        DEFAULT_SAMPLES_PER_CHUNK
     }
 
-    /// Whether [`Field::evaluate_packed`] is implemented. Fields whose σ does not depend on the
-    /// spacing implement it; the others (the default) are always evaluated densely.
+    /// Whether [`FieldFastPaths::evaluate_packed`] is implemented. Fields whose σ does not
+    /// depend on the spacing implement it; the others (the default) are evaluated densely.
     fn supports_packed(&self) -> bool {
         false
     }
@@ -92,28 +135,44 @@ pub trait Field {
     ) -> Result<(Tensor, Tensor)> {
         anyhow::bail!("this field is evaluated densely only (no packed evaluation)")
     }
+}
 
-    /// The same field for rays of the training cameras `camera_index` `(N,)` u32 (one per
-    /// ray of the batch it will see), for a field with parts learnt per training image
-    /// (appearance); `None` (the default) when it has none, and the field is used as it is.
-    fn for_cameras(&self, _camera_index: &Tensor) -> Result<Option<Box<dyn Field + '_>>> {
-        Ok(None)
+/// The samples `field` evaluates at once ([`FieldFastPaths::max_samples_per_chunk`], else
+/// [`DEFAULT_SAMPLES_PER_CHUNK`]).
+pub fn samples_per_chunk<F: Field + ?Sized>(field: &F) -> usize {
+    field
+        .fast_paths()
+        .map_or(DEFAULT_SAMPLES_PER_CHUNK, |f| f.max_samples_per_chunk())
+}
+
+/// Whether `field` has packed evaluation ([`FieldFastPaths::supports_packed`]).
+pub fn supports_packed<F: Field + ?Sized>(field: &F) -> bool {
+    field.fast_paths().is_some_and(|f| f.supports_packed())
+}
+
+/// `field`'s packed evaluation of M samples ([`FieldFastPaths::evaluate_packed`]): density
+/// `(M, 1)` and feature `(M, 3)`; an error for a field without it.
+pub fn packed_evaluation<F: Field + ?Sized>(
+    field: &F,
+    points: &Tensor,
+    ray_index: &Tensor,
+    directions: &Tensor,
+) -> Result<(Tensor, Tensor)> {
+    match field.fast_paths() {
+        Some(fast) => fast.evaluate_packed(points, ray_index, directions),
+        None => anyhow::bail!("this field is evaluated densely only (no packed evaluation)"),
     }
+}
 
-    /// Where the field can have density, when it keeps an occupancy grid (samples elsewhere
-    /// are skipped when the field supports [`Field::evaluate_packed`]).
-    fn occupancy(&self) -> Option<&OccupancyGrid> {
-        None
-    }
-
-    /// Density alone at `points` `(M, 3)`: `(M, 1)` (meshes, grids), for fields with packed
-    /// evaluation, whose density does not depend on the direction. The default evaluates
-    /// [`Field::evaluate_packed`] with every point on one ray along +z and keeps the density.
-    fn density(&self, points: &Tensor) -> Result<Tensor> {
-        let m = points.dim(0)?;
-        let dev = points.device();
-        let directions = Tensor::new(&[[0f32, 0.0, 1.0]], dev)?.to_dtype(points.dtype())?;
-        let ray_index = Tensor::zeros(m, candle_core::DType::U32, dev)?;
-        Ok(self.evaluate_packed(points, &ray_index, &directions)?.0)
+/// `field`'s own fused render of densely sampled rays ([`FieldFastPaths::render_fused`]), or
+/// `None` when it has none for these inputs.
+pub fn render_fused<F: Field + ?Sized>(
+    field: &F,
+    rays: &Rays,
+    lengths: &Tensor,
+) -> Result<Option<Composited>> {
+    match field.fast_paths() {
+        Some(fast) => fast.render_fused(rays, lengths),
+        None => Ok(None),
     }
 }

@@ -7,7 +7,7 @@
 use anyhow::{bail, Result};
 use candle_core::{DType, Tensor};
 
-use crate::field::{Composited, Field};
+use crate::field::{render_fused, samples_per_chunk, supports_packed, Composited, Field};
 use crate::ray_sampler::RaySampler;
 use crate::sampler::RaySamples;
 use crate::skipping::SampleCounts;
@@ -99,11 +99,12 @@ impl VolumeRenderer {
     /// Whether `field` is rendered through [`crate::skipping`] (an occupancy grid or early
     /// termination is in use) rather than evaluated densely.
     pub fn skips_samples(&self, field: &dyn Field) -> bool {
-        (field.occupancy().is_some() || self.early_termination > 0.0) && field.supports_packed()
+        (field.occupancy().is_some() || self.early_termination > 0.0) && supports_packed(field)
     }
 
     /// Renders one chunk of rays (no chunking): sample → field → weights → aggregate, or the
-    /// field's own fused pass ([`Field::render_fused`]) when it has one for dense sampling.
+    /// field's own fused pass ([`crate::field::FieldFastPaths::render_fused`]) when it has one
+    /// for dense sampling.
     ///
     /// `rays`: N rays; returns colour `(N, 3)`, depth and opacity `(N, 1)`.
     pub(crate) fn render_chunk(
@@ -125,7 +126,7 @@ impl VolumeRenderer {
         if !self.skips_samples(field) {
             let lengths = sampler.lengths(rays, jitter)?;
             if spacing.is_none() {
-                if let Some(out) = field.render_fused(rays, &lengths)? {
+                if let Some(out) = render_fused(field, rays, &lengths)? {
                     return self.finish(out, SampleCounts::dense(lengths.elem_count()));
                 }
             }
@@ -229,8 +230,8 @@ impl VolumeRenderer {
     }
 
     /// Rays [`VolumeRenderer::render`] renders at once: `chunk_size`, fewer where the field's
-    /// [`Field::max_samples_per_chunk`] requires, and, when samples are skipped, no more than
-    /// [`DRAWN_SAMPLES_PER_CHUNK`] drawn samples (at least 1 ray).
+    /// samples at once ([`samples_per_chunk`]) require, and, when samples are skipped, no more
+    /// than [`DRAWN_SAMPLES_PER_CHUNK`] drawn samples (at least 1 ray).
     pub fn rays_per_chunk(&self, field: &dyn Field, sampler: &dyn RaySampler) -> usize {
         // Samples evaluated at once per ray: a segment when skipping, else all of them.
         let skips = self.skips_samples(field);
@@ -242,7 +243,7 @@ impl VolumeRenderer {
         };
         let mut rays = self
             .chunk_size
-            .min((field.max_samples_per_chunk() / per_ray).max(1));
+            .min((samples_per_chunk(field) / per_ray).max(1));
         if skips {
             // A chunk's rays may all stay live to their last sample.
             rays = rays.min((DRAWN_SAMPLES_PER_CHUNK / drawn).max(1));

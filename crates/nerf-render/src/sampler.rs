@@ -123,7 +123,7 @@ impl StratifiedSampler {
     }
 
     /// The sample depths of [`StratifiedSampler::sample`] alone, `(N, S, 1)` in the rays'
-    /// dtype (for fields that place the points themselves, [`crate::field::Field::render_fused`]).
+    /// dtype (for fields that place the points themselves, [`crate::field::FieldFastPaths::render_fused`]).
     pub fn lengths(&self, rays: &Rays, jitter: Option<&mut dyn rand::RngCore>) -> Result<Tensor> {
         let lengths = self.compact_lengths(rays, jitter)?;
         let (_, s, _) = lengths.dims3()?;

@@ -22,7 +22,7 @@ use anyhow::Result;
 use candle_core::{DType, Tensor};
 use rayon::prelude::*;
 
-use crate::field::{Field, FieldOutput};
+use crate::field::{packed_evaluation, Field, FieldOutput};
 use crate::occupancy::{EmptyBlocks, OccupancyGrid, RayFaces};
 use nerf_core::distortion_loss::RaySpacing;
 use nerf_core::rays::Rays;
@@ -124,7 +124,8 @@ pub fn evaluate_packed(
                 true => tracked_points(rays, &ray_index, segment.index, segment.lengths, s)?,
                 false => Tensor::from_vec(segment.points, (m, 3), device)?,
             };
-            let (density, colour) = field.evaluate_packed(&points, &ray_index, &rays.directions)?;
+            let (density, colour) =
+                packed_evaluation(field, &points, &ray_index, &rays.directions)?;
             let values = match early_termination > 0.0 {
                 true => density.flatten_all()?.to_vec1::<f32>()?,
                 false => Vec::new(),

@@ -79,7 +79,7 @@ fn batch(view: &SdfView, pixels: &[usize], device: &Device) -> Result<(Rays, Ten
 
 /// The mean squared error of the rendered `rays` against `target` `(B, 3)`, differentiable
 /// in the model's variables: the model's fused render-and-loss kernel where it has one
-/// ([`TrainableField::fused_mse`]; the SDF volume's on the CPU), else the renderer and tensor
+/// ([`nerf_field::trainable::TrainingFastPaths::fused_mse`]; the SDF volume's on the CPU), else the renderer and tensor
 /// ops.
 pub fn batch_loss(
     model: &dyn TrainableField,
@@ -89,8 +89,10 @@ pub fn batch_loss(
 ) -> Result<Tensor> {
     let lengths = settings.sampler.lengths(rays, None)?;
     let white = settings.renderer.is_white();
-    if let Some(loss) = model.fused_mse(rays, &lengths, target, white)? {
-        return Ok(loss);
+    if let Some(fast) = model.fast_paths() {
+        if let Some(loss) = fast.fused_mse(rays, &lengths, target, white)? {
+            return Ok(loss);
+        }
     }
     let field = model.training_field(None, 0.0);
     let out = settings

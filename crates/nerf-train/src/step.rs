@@ -288,7 +288,7 @@ pub fn fused_step_applies(settings: &StepSettings, field: &dyn nerf_render::fiel
 }
 
 /// The field's fused step on `rays`: `None` when the model has none
-/// ([`nerf_field::trainable::TrainableField::fused_gradients`]). `field` is the training
+/// ([`nerf_field::trainable::TrainingFastPaths::fused_gradients`]). `field` is the training
 /// field (its occupancy grid is marched); the sample depths are drawn from `rng` as the
 /// renderer draws them.
 pub fn fused_gradients(
@@ -299,6 +299,9 @@ pub fn fused_gradients(
     background: &StepBackground,
     rng: &mut TrainRng,
 ) -> Result<Option<StepGradients>> {
+    let Some(fast) = model.field.fast_paths() else {
+        return Ok(None);
+    };
     let lengths = settings.sampler.compact_lengths(rays, Some(rng))?;
     let target = background.target.flatten_all()?.to_vec1::<f32>()?;
     let behind = match &background.random {
@@ -313,14 +316,11 @@ pub fn fused_gradients(
         occupancy: field.occupancy(),
         early_termination: settings.renderer.early_termination,
     };
-    Ok(model
-        .field
-        .fused_gradients(&batch)?
-        .map(|out| StepGradients {
-            mse: out.mse,
-            samples: out.samples,
-            grads: out.grads,
-        }))
+    Ok(fast.fused_gradients(&batch)?.map(|out| StepGradients {
+        mse: out.mse,
+        samples: out.samples,
+        grads: out.grads,
+    }))
 }
 
 /// The step through autograd: the batch rendered by `field`, composited onto the background,
