@@ -13,28 +13,30 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 
 use super::capture_frame::CaptureFrames;
-use super::colmap_scene::COLMAP;
-use super::llff::LLFF;
-use super::scene_format::FormatRead;
 use nerf_core::term::error_line;
 
-/// The frames of the LLFF capture in `dir`: from its COLMAP model when one is there and
-/// registers every photo, else from `poses_bounds.npy`; the format the cameras came from; and
-/// the line that says which and why when both were there (`None` for a plain LLFF folder).
-pub(crate) fn read_llff_folder(dir: &Path) -> Result<FormatRead> {
-    let read = |cameras_from, frames, note| FormatRead {
-        frames,
-        cameras_from,
-        note,
-    };
-    if crate::colmap::find_model_folder(dir).is_none() {
-        return Ok(FormatRead::own(LLFF, super::llff::read_frames(dir)?));
-    }
+/// Where an LLFF folder's cameras come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum CamerasFrom {
+    /// `poses_bounds.npy`.
+    PosesBounds,
+    /// The COLMAP model beside it.
+    ColmapModel,
+}
+
+/// The frames of the LLFF capture in `dir`, which also holds a COLMAP model, from `llff`
+/// (`poses_bounds.npy` read) or `colmap` (the model read): the model's when it reads and
+/// registers every photo, else `poses_bounds.npy`'s; where they came from; and the line that
+/// says which and why. An error only when neither reads (the LLFF error: its file is what the
+/// folder was detected by).
+pub(crate) fn choose_cameras(
+    dir: &Path,
+    llff: Result<CaptureFrames>,
+    colmap: Result<CaptureFrames>,
+) -> Result<(CamerasFrom, CaptureFrames, String)> {
     let name = dir
         .file_name()
         .map_or_else(|| dir.display().to_string(), |n| n.to_string_lossy().into());
-    let llff = super::llff::read_frames(dir);
-    let colmap = super::colmap_scene::read_frames(dir);
     match (llff, colmap) {
         (Ok(llff), Ok(mut colmap)) => {
             match unregistered(&llff, &colmap) {
@@ -53,7 +55,7 @@ pub(crate) fn read_llff_folder(dir: &Path) -> Result<FormatRead> {
                         ""
                     }
                 );
-                    Ok(read(COLMAP, colmap, Some(note)))
+                    Ok((CamerasFrom::ColmapModel, colmap, note))
                 }
                 Some(missing) => {
                     let note = format!(
@@ -61,7 +63,7 @@ pub(crate) fn read_llff_folder(dir: &Path) -> Result<FormatRead> {
                      {missing})",
                         colmap.camera_source
                     );
-                    Ok(read(LLFF, llff, Some(note)))
+                    Ok((CamerasFrom::PosesBounds, llff, note))
                 }
             }
         }
@@ -71,7 +73,7 @@ pub(crate) fn read_llff_folder(dir: &Path) -> Result<FormatRead> {
                 colmap.camera_source,
                 error_line(llff.as_ref())
             );
-            Ok(read(COLMAP, colmap, Some(note)))
+            Ok((CamerasFrom::ColmapModel, colmap, note))
         }
         (Ok(llff), Err(colmap)) => {
             let note = format!(
@@ -79,7 +81,7 @@ pub(crate) fn read_llff_folder(dir: &Path) -> Result<FormatRead> {
                  read ({})",
                 error_line(colmap.as_ref())
             );
-            Ok(read(LLFF, llff, Some(note)))
+            Ok((CamerasFrom::PosesBounds, llff, note))
         }
         // The LLFF error: its file is what the folder was detected by.
         (Err(llff), Err(_)) => Err(llff),
@@ -155,74 +157,5 @@ fn llff_intrinsics(llff: &CaptureFrames) -> &'static str {
     match llff.frames.iter().all(|f| Some(f.camera.focal) == first) {
         true => "one shared focal",
         false => "a pinhole per photo, no distortion",
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::dataset::capture::read_capture_split;
-    use crate::dataset::Split;
-
-    /// The real capture bird_handheld (poses_bounds.npy beside its COLMAP model), when it is
-    /// on this machine.
-    fn bird() -> Option<PathBuf> {
-        let dir =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/real/bird_handheld");
-        let found = dir.join("poses_bounds.npy").is_file() && dir.join("sparse").is_dir();
-        if !found {
-            eprintln!("skipping: {} not found", dir.display());
-        }
-        found.then_some(dir)
-    }
-
-    #[test]
-    fn bird_handheld_takes_its_colmap_model_with_the_same_holdout() {
-        let Some(dir) = bird() else { return };
-        let FormatRead {
-            frames: read,
-            cameras_from,
-            note,
-        } = read_llff_folder(&dir).unwrap();
-        assert_eq!(cameras_from, COLMAP);
-        let note = note.unwrap();
-        assert_eq!(
-            note,
-            "bird_handheld: cameras from the COLMAP model sparse/0 (per-frame intrinsics), not \
-             poses_bounds.npy (one shared focal); its depth bounds kept"
-        );
-        assert_eq!(read.frames.len(), 184);
-        let focals: Vec<f64> = read.frames.iter().map(|f| f.camera.focal[0]).collect();
-        let (low, high) = focals
-            .iter()
-            .fold((f64::INFINITY, 0.0_f64), |(l, h), &f| (l.min(f), h.max(f)));
-        assert!(
-            low >= 792.5 && high <= 1037.5 && high - low > 200.0,
-            "{low} {high}"
-        );
-        assert!(read.frames.iter().all(|f| f.depth_bounds.is_some()));
-        // The split: every 8th of the sorted names, the same photos as poses_bounds.npy's.
-        let names = |split: Split, dir: &Path| -> Vec<String> {
-            read_capture_split(dir, LLFF, split)
-                .unwrap()
-                .frames
-                .iter()
-                .map(|f| f.file_path.file_name().unwrap().to_string_lossy().into())
-                .collect()
-        };
-        let test = names(Split::Test, &dir);
-        assert_eq!(test.len(), 23);
-        // poses_bounds.npy alone: its photos linked in.
-        let alone = tempfile::tempdir().unwrap();
-        std::fs::copy(
-            dir.join("poses_bounds.npy"),
-            alone.path().join("poses_bounds.npy"),
-        )
-        .unwrap();
-        std::os::unix::fs::symlink(dir.join("images"), alone.path().join("images")).unwrap();
-        let alone_read = read_llff_folder(alone.path()).unwrap();
-        assert_eq!((alone_read.cameras_from, alone_read.note), (LLFF, None));
-        assert_eq!(names(Split::Test, alone.path()), test);
-        assert_eq!(names(Split::Train, alone.path()), names(Split::Train, &dir));
     }
 }

@@ -23,7 +23,8 @@ use super::dataset_error::DatasetError;
 use super::normalize::SceneTransform;
 use super::scene_format::FormatRead;
 pub use super::scene_format::SceneFormat;
-use super::transforms::{Frame, Split};
+use super::split::Split;
+use super::transforms::Frame;
 use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
 
 /// Every this-many-th frame (by sorted image name, from 0) is held out for evaluation.

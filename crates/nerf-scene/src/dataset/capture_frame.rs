@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::transforms::Split;
+use super::split::Split;
 use nerf_core::camera_colmap::ColmapCamera;
 
 /// One photograph of a capture and its camera, in the capture's own world frame.

@@ -12,7 +12,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context, Result};
 
 use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
-use super::scene_format::SceneFormat;
+use super::camera_source::{choose_cameras, CamerasFrom};
+use super::scene_format::{FormatRead, SceneFormat};
 use super::dataset_error::{metadata_unless_camera, read_dataset_file, DatasetError};
 use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
 use nerf_files::npy::{parse_npy_header, MAX_HEADER_BYTES};
@@ -25,7 +26,7 @@ pub const LLFF: SceneFormat = SceneFormat {
     marks: "poses_bounds.npy (LLFF)",
     holds: |dir| dir.join("poses_bounds.npy").is_file(),
     listing: |dir| dir.join("poses_bounds.npy"),
-    read: Some(super::camera_source::read_llff_folder),
+    read: Some(read_folder),
 };
 
 /// Most photos an LLFF capture may list.
@@ -165,6 +166,26 @@ fn image_files(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
+/// The frames of the LLFF capture in `dir`: from its COLMAP model when one is there and
+/// registers every photo, else from `poses_bounds.npy` ([`super::camera_source`]); the format
+/// the cameras came from; and the line that says which and why when both were there.
+fn read_folder(dir: &Path) -> Result<FormatRead> {
+    if crate::colmap::find_model_folder(dir).is_none() {
+        return Ok(FormatRead::own(LLFF, read_frames(dir)?));
+    }
+    let colmap = super::colmap_scene::read_frames(dir);
+    let (from, frames, note) = choose_cameras(dir, read_frames(dir), colmap)?;
+    let cameras_from = match from {
+        CamerasFrom::PosesBounds => LLFF,
+        CamerasFrom::ColmapModel => super::colmap_scene::COLMAP,
+    };
+    Ok(FormatRead {
+        frames,
+        cameras_from,
+        note: Some(note),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -195,5 +216,76 @@ mod tests {
         // A point 500 px right of the centre at depth 1: +x.
         let (_, right) = camera.ray_through_pixel(320.0 + 500.0, 240.0);
         assert!((right - DVec3::new(1.0, 0.0, -1.0).normalize()).length() < 1e-12);
+    }
+}
+
+/// An LLFF folder with a COLMAP model beside it ([`super::camera_source`]).
+#[cfg(test)]
+mod folder_tests {
+    use super::*;
+    use crate::dataset::capture::read_capture_split;
+    use crate::dataset::colmap_scene::COLMAP;
+    use crate::dataset::Split;
+
+    /// The real capture bird_handheld (poses_bounds.npy beside its COLMAP model), when it is
+    /// on this machine.
+    fn bird() -> Option<PathBuf> {
+        let dir =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/real/bird_handheld");
+        let found = dir.join("poses_bounds.npy").is_file() && dir.join("sparse").is_dir();
+        if !found {
+            eprintln!("skipping: {} not found", dir.display());
+        }
+        found.then_some(dir)
+    }
+
+    #[test]
+    fn bird_handheld_takes_its_colmap_model_with_the_same_holdout() {
+        let Some(dir) = bird() else { return };
+        let FormatRead {
+            frames: read,
+            cameras_from,
+            note,
+        } = read_folder(&dir).unwrap();
+        assert_eq!(cameras_from, COLMAP);
+        let note = note.unwrap();
+        assert_eq!(
+            note,
+            "bird_handheld: cameras from the COLMAP model sparse/0 (per-frame intrinsics), not \
+             poses_bounds.npy (one shared focal); its depth bounds kept"
+        );
+        assert_eq!(read.frames.len(), 184);
+        let focals: Vec<f64> = read.frames.iter().map(|f| f.camera.focal[0]).collect();
+        let (low, high) = focals
+            .iter()
+            .fold((f64::INFINITY, 0.0_f64), |(l, h), &f| (l.min(f), h.max(f)));
+        assert!(
+            low >= 792.5 && high <= 1037.5 && high - low > 200.0,
+            "{low} {high}"
+        );
+        assert!(read.frames.iter().all(|f| f.depth_bounds.is_some()));
+        // The split: every 8th of the sorted names, the same photos as poses_bounds.npy's.
+        let names = |split: Split, dir: &Path| -> Vec<String> {
+            read_capture_split(dir, LLFF, split)
+                .unwrap()
+                .frames
+                .iter()
+                .map(|f| f.file_path.file_name().unwrap().to_string_lossy().into())
+                .collect()
+        };
+        let test = names(Split::Test, &dir);
+        assert_eq!(test.len(), 23);
+        // poses_bounds.npy alone: its photos linked in.
+        let alone = tempfile::tempdir().unwrap();
+        std::fs::copy(
+            dir.join("poses_bounds.npy"),
+            alone.path().join("poses_bounds.npy"),
+        )
+        .unwrap();
+        std::os::unix::fs::symlink(dir.join("images"), alone.path().join("images")).unwrap();
+        let alone_read = read_folder(alone.path()).unwrap();
+        assert_eq!((alone_read.cameras_from, alone_read.note), (LLFF, None));
+        assert_eq!(names(Split::Test, alone.path()), test);
+        assert_eq!(names(Split::Train, alone.path()), names(Split::Train, &dir));
     }
 }

@@ -37,6 +37,7 @@ pub mod scene_format;
 pub mod shared_view;
 pub mod silhouette;
 pub mod spiral;
+pub mod split;
 pub mod transforms_intrinsics;
 
 /// Declares each scene format's module and lists its [`SceneFormat`] in [`SCENE_FORMATS`],

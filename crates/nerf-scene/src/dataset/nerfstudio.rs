@@ -19,7 +19,7 @@ use super::capture_frame::{CaptureFrame, CaptureFrames};
 use super::scene_format::{FormatRead, SceneFormat};
 use super::dataset_error::{metadata_unless_camera, read_dataset_file};
 use super::ngp_scene::NgpSceneKeys;
-use super::transforms::Split;
+use super::split::Split;
 use super::transforms_intrinsics::Intrinsics;
 use nerf_core::camera_colmap::ColmapCamera;
 

@@ -50,14 +50,15 @@ impl FormatRead {
 }
 
 impl SceneFormat {
-    /// The format of `dir`: the first of [`super::SCENE_FORMATS`] that `dir` holds; the
-    /// NeRF-synthetic release otherwise (whose reader then names the missing file).
+    /// The format of `dir`: the first of [`super::SCENE_FORMATS`] that `dir` holds; the first
+    /// listed (the NeRF-synthetic release) otherwise, whose reader then names the missing file.
     pub fn detect(dir: &Path) -> Self {
-        super::SCENE_FORMATS
+        let formats = super::SCENE_FORMATS;
+        formats
             .iter()
             .find(|format| (format.holds)(dir))
             .copied()
-            .unwrap_or(super::transforms::BLENDER)
+            .unwrap_or(formats[0])
     }
 
     /// The registered format whose [`SceneFormat::key`] is `key`.

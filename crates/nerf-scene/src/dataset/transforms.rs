@@ -1,15 +1,14 @@
 //! `transforms_{split}.json`: the NeRF-synthetic release's camera file, read into [`Frame`]s
 //! whose Blender cameras are converted to pytorch3d's conventions.
 
-use std::fmt;
 use std::path::{Component, Path, PathBuf};
-use std::str::FromStr;
 
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use glam::{DMat3, DMat4};
 use serde::Deserialize;
 
 use super::scene_format::SceneFormat;
+pub use super::split::Split;
 use super::{DatasetError, DOWNLOAD_HINT};
 use nerf_core::camera::PerspectiveCamera;
 use nerf_core::camera_error::CameraError;
@@ -26,53 +25,6 @@ pub const BLENDER: SceneFormat = SceneFormat {
     listing: |dir| Split::Train.transforms_path(dir),
     read: None,
 };
-
-/// A dataset split, naming `transforms_{split}.json` and the `{split}/` image folder.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Split {
-    /// `train`: the training views.
-    Train,
-    /// `val`: the validation views.
-    Val,
-    /// `test`: the test views.
-    Test,
-}
-
-impl Split {
-    /// Every split, in the order of the reference camera file (train, val, test).
-    pub const ALL: [Split; 3] = [Split::Train, Split::Val, Split::Test];
-
-    /// `"train"`, `"val"` or `"test"`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Split::Train => "train",
-            Split::Val => "val",
-            Split::Test => "test",
-        }
-    }
-
-    /// `transforms_{split}.json` inside `data_dir`.
-    pub fn transforms_path(self, data_dir: &Path) -> PathBuf {
-        data_dir.join(format!("transforms_{}.json", self.name()))
-    }
-}
-
-impl fmt::Display for Split {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for Split {
-    type Err = anyhow::Error;
-
-    fn from_str(s: &str) -> Result<Self> {
-        Split::ALL
-            .into_iter()
-            .find(|split| split.name() == s)
-            .ok_or_else(|| anyhow!("unknown dataset split {s:?} (expected train, val or test)"))
-    }
-}
 
 /// One view of a split: its image and its camera.
 #[derive(Debug, Clone, PartialEq)]
