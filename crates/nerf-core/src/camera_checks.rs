@@ -21,7 +21,7 @@
 use glam::DVec2;
 
 use crate::camera_error::CameraError;
-use crate::distortion::LensDistortion;
+use crate::lens_distortion::LensDistortion;
 use crate::term::short_number;
 
 /// The narrowest field of view across an image axis: a 0.5° lens is a 2,900 mm telephoto on

@@ -10,7 +10,7 @@
 //!   corner is `(0, 0)` and the centre of pixel `(i, j)` (column `i`, row `j`) is
 //!   `(i + 0.5, j + 0.5)`. A camera-space point projects to `u = f_x · x_d + c_x`,
 //!   `v = f_y · y_d + c_y`, where `(x_d, y_d)` is the distorted point
-//!   ([`crate::distortion`]) of the normalised point `(X/Z, Y/Z)`.
+//!   ([`crate::lens_distortion`]) of the normalised point `(X/Z, Y/Z)`.
 //! * **Models** and their parameter lists, exactly COLMAP's: `SIMPLE_PINHOLE (f, cx, cy)`,
 //!   `PINHOLE (fx, fy, cx, cy)`, `SIMPLE_RADIAL (f, cx, cy, k)`, `RADIAL (f, cx, cy, k1, k2)`,
 //!   `OPENCV (fx, fy, cx, cy, k1, k2, p1, p2)`,
@@ -25,7 +25,7 @@ use glam::{DMat3, DQuat, DVec2, DVec3};
 
 use crate::camera_error::CameraError;
 use crate::camera_model::CameraModel;
-use crate::distortion::LensDistortion;
+use crate::lens_distortion::LensDistortion;
 
 /// The COLMAP camera models this crate images with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -33,7 +33,7 @@ use crate::process::inputs::{
 };
 use crate::process::mapper::{MapperRun, MappingOptions};
 use nerf::core::camera_colmap::{ColmapCameraModel, ColmapPose};
-use nerf::core::distortion::LensDistortion;
+use nerf::core::lens_distortion::LensDistortion;
 use nerf::io::colmap::{ColmapCameraRecord, ColmapModel};
 
 pub use crate::process::mapper::MIN_REGISTERED;
