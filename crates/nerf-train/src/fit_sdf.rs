@@ -79,8 +79,8 @@ fn batch(view: &SdfView, pixels: &[usize], device: &Device) -> Result<(Rays, Ten
 
 /// The mean squared error of the rendered `rays` against `target` `(B, 3)`, differentiable
 /// in the model's variables: the model's fused render-and-loss kernel where it has one
-/// ([`nerf_field::trainable::TrainingFastPaths::fused_mse`]; the SDF volume's on the CPU), else the renderer and tensor
-/// ops.
+/// ([`nerf_field::trainable::TrainingFastPaths::fused_mse`]; the SDF volume's on the CPU),
+/// else the renderer and tensor ops.
 pub fn batch_loss(
     model: &dyn TrainableField,
     settings: &SdfFitSettings,

@@ -299,9 +299,8 @@ pub fn fused_gradients(
     background: &StepBackground,
     rng: &mut TrainRng,
 ) -> Result<Option<StepGradients>> {
-    let Some(fast) = model.field.fast_paths() else {
-        return Ok(None);
-    };
+    // The depths are drawn before asking for the fast path, as the renderer draws them, so a
+    // model without one leaves the generator where a model whose kernel declines leaves it.
     let lengths = settings.sampler.compact_lengths(rays, Some(rng))?;
     let target = background.target.flatten_all()?.to_vec1::<f32>()?;
     let behind = match &background.random {
@@ -315,6 +314,9 @@ pub fn fused_gradients(
         background: &behind,
         occupancy: field.occupancy(),
         early_termination: settings.renderer.early_termination,
+    };
+    let Some(fast) = model.field.fast_paths() else {
+        return Ok(None);
     };
     Ok(fast.fused_gradients(&batch)?.map(|out| StepGradients {
         mse: out.mse,
