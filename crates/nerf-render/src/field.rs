@@ -164,8 +164,9 @@ pub fn packed_evaluation<F: Field + ?Sized>(
     }
 }
 
-/// `field`'s own fused render of densely sampled rays ([`FieldFastPaths::render_fused`]), or
-/// `None` when it has none for these inputs.
+/// `field`'s own fused render of `rays` (N) densely sampled at `lengths` `(N, S, 1)`
+/// ([`FieldFastPaths::render_fused`]): colour `(N, 3)`, depth and opacity `(N, 1)`; `None` when
+/// it has none for these inputs.
 pub fn render_fused<F: Field + ?Sized>(
     field: &F,
     rays: &Rays,
