@@ -22,7 +22,7 @@ use nerf_files::output::write_atomically;
 use nerf_scene::dataset::{CaptureOrbit, CaptureSpiral, SceneTransform};
 
 /// The metadata key of the scene normalisation a model was trained in.
-pub const SCENE_TRANSFORM_KEY: &str = "scene_transform";
+pub(crate) const SCENE_TRANSFORM_KEY: &str = "scene_transform";
 
 /// The metadata key of the orbit `nerf render` and `nerf view` show a capture's model from.
 pub(crate) const CAPTURE_ORBIT_KEY: &str = "capture_orbit";
@@ -127,7 +127,7 @@ impl CheckpointInfo {
     /// An error naming the key ([`CheckpointError::Metadata`]) when a count is past
     /// [`metadata_limits`] or the training wall time is negative or not finite. (`rng_word_pos`
     /// needs no limit: the stream cycles, and setting it reads only its low 68 bits.)
-    pub fn validate(&self, origin: &Path) -> Result<(), CheckpointError> {
+    pub(crate) fn validate(&self, origin: &Path) -> Result<(), CheckpointError> {
         use metadata_limits as l;
         let counts = [
             ("epoch", self.epoch as u64, l::EPOCHS),
@@ -335,7 +335,7 @@ fn load_safetensors(
 /// An error naming the file and tensor ([`CheckpointError::NonFinite`]) when any of `values` is
 /// NaN or infinite: such a weight makes the ReLU density NaN, which the occupancy grid then
 /// reads as empty space and renders as black, silently.
-pub fn ensure_finite_values(
+pub(crate) fn ensure_finite_values(
     origin: &Path,
     name: &str,
     values: &[f32],

@@ -158,7 +158,7 @@ pub fn relative_note(path: &Path) -> String {
 }
 
 /// The checkpoints in directory `dir` (files of either format, by content), sorted.
-pub fn checkpoints_in(dir: &Path) -> Result<Vec<PathBuf>, CheckpointError> {
+pub(crate) fn checkpoints_in(dir: &Path) -> Result<Vec<PathBuf>, CheckpointError> {
     use anyhow::Context;
     let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("cannot read checkpoint directory {}", dir.display()))

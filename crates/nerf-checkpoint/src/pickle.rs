@@ -62,7 +62,7 @@ pub enum Value {
 
 /// What a [`Node`] is; its items are laid out as each variant says.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Kind {
+pub(crate) enum Kind {
     /// A tuple: its items.
     Tuple,
     /// A list: its items.
@@ -103,7 +103,7 @@ impl Drop for Node {
 
 impl Value {
     /// The string, for a `str`.
-    pub fn as_str(&self) -> Option<&str> {
+    pub(crate) fn as_str(&self) -> Option<&str> {
         match self {
             Value::Str(s) => Some(s),
             _ => None,
@@ -119,7 +119,7 @@ impl Value {
     }
 
     /// The number, for a `float` or an `int`.
-    pub fn as_f64(&self) -> Option<f64> {
+    pub(crate) fn as_f64(&self) -> Option<f64> {
         match self {
             Value::Float(f) => Some(*f),
             Value::Int(i) => Some(*i as f64),
@@ -154,12 +154,12 @@ impl Value {
     }
 
     /// The items of a tuple or a list.
-    pub fn sequence(&self) -> Option<Ref<'_, Vec<Value>>> {
+    pub(crate) fn sequence(&self) -> Option<Ref<'_, Vec<Value>>> {
         self.tuple().or_else(|| self.list())
     }
 
     /// The `(key, value)` pairs, in insertion order, for a dict.
-    pub fn dict(&self) -> Option<Vec<(Value, Value)>> {
+    pub(crate) fn dict(&self) -> Option<Vec<(Value, Value)>> {
         self.node(Kind::Dict).map(|n| {
             n.items
                 .borrow()
@@ -181,7 +181,7 @@ impl Value {
     }
 
     /// `(callable, args)`, for a `REDUCE` or `NEWOBJ`.
-    pub fn reduce(&self) -> Option<(Value, Value)> {
+    pub(crate) fn reduce(&self) -> Option<(Value, Value)> {
         let node = self.node(Kind::Reduce)?;
         let items = node.items.borrow();
         Some((items[0].clone(), items[1].clone()))
@@ -666,7 +666,7 @@ impl<'a> Machine<'a> {
 }
 
 /// A few words for what `v` is, for error messages.
-pub fn describe(v: &Value) -> &'static str {
+pub(crate) fn describe(v: &Value) -> &'static str {
     match v {
         Value::None => "None",
         Value::Bool(_) => "bool",

@@ -64,7 +64,7 @@ pub(crate) struct TensorRef {
 
 impl TensorRef {
     /// Elements of the tensor.
-    pub fn elem_count(&self) -> usize {
+    pub(crate) fn elem_count(&self) -> usize {
         self.shape.iter().product()
     }
 }
@@ -110,7 +110,7 @@ impl TorchArchive {
     }
 
     /// The file this archive was read from.
-    pub fn path(&self) -> &Path {
+    pub(crate) fn path(&self) -> &Path {
         &self.path
     }
 

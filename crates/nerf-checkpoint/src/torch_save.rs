@@ -18,7 +18,7 @@ use nerf_files::output::write_atomically;
 
 /// A Python value to pickle.
 #[derive(Debug, Clone)]
-pub enum PyValue {
+pub(crate) enum PyValue {
     /// `None`.
     None,
     /// `True` / `False`.
@@ -44,8 +44,8 @@ pub enum PyValue {
 /// Pickle protocol 2 opcodes used here.
 mod op {
     pub(crate) const PROTO: u8 = 0x80;
-    pub const STOP: u8 = b'.';
-    pub const MARK: u8 = b'(';
+    pub(crate) const STOP: u8 = b'.';
+    pub(crate) const MARK: u8 = b'(';
     pub(crate) const NONE: u8 = b'N';
     pub(crate) const NEWTRUE: u8 = 0x88;
     pub(crate) const NEWFALSE: u8 = 0x89;
@@ -60,7 +60,7 @@ mod op {
     pub(crate) const APPENDS: u8 = b'e';
     pub(crate) const EMPTY_DICT: u8 = b'}';
     pub(crate) const SETITEMS: u8 = b'u';
-    pub const GLOBAL: u8 = b'c';
+    pub(crate) const GLOBAL: u8 = b'c';
     pub(crate) const REDUCE: u8 = b'R';
     pub(crate) const BINPERSID: u8 = b'Q';
 }
@@ -226,7 +226,7 @@ pub(crate) fn archive_bytes(root: &PyValue) -> Result<Vec<u8>> {
 }
 
 /// Writes `root` as a `torch.save` file at `path`, atomically.
-pub fn torch_save(path: &Path, root: &PyValue) -> Result<()> {
+pub(crate) fn torch_save(path: &Path, root: &PyValue) -> Result<()> {
     let bytes = archive_bytes(root)?;
     write_atomically(path, |w| Ok(w.write_all(&bytes)?))
 }

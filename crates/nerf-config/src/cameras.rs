@@ -66,7 +66,7 @@ impl CamerasConfig {
     }
 
     /// The surround cameras: `n_poses` views around the origin at `radius`.
-    pub fn surround_cameras(&self) -> Vec<PerspectiveCamera> {
+    pub(crate) fn surround_cameras(&self) -> Vec<PerspectiveCamera> {
         surround_cameras(
             self.radius,
             self.n_poses,

@@ -71,7 +71,7 @@ pub enum SizeUse {
 
 impl DataConfig {
     /// Image width and height (`data.image_size`, else [`DEFAULT_VIEW_SIZE`]).
-    pub fn image_size(&self) -> (usize, usize) {
+    pub(crate) fn image_size(&self) -> (usize, usize) {
         self.image_size.map_or(DEFAULT_VIEW_SIZE, |[w, h]| (w, h))
     }
 
@@ -113,7 +113,7 @@ impl DataConfig {
 
 /// The pixel size of the first training frame of the dataset in `data_dir`: a capture
 /// camera's, or a NeRF-synthetic image file's.
-pub fn photo_size(data_dir: &Path) -> Result<(usize, usize)> {
+pub(crate) fn photo_size(data_dir: &Path) -> Result<(usize, usize)> {
     let frames = nerf_scene::dataset::read_split(data_dir, nerf_scene::dataset::Split::Train)?;
     let first = frames
         .first()

@@ -24,7 +24,7 @@ use nerf_train::model::TrainModel;
 impl Config {
     /// How the field maps world points into its grid's space (identity but for an `ngp` field
     /// with `contraction: linf`); the occupancy grid tests points in the same space.
-    pub fn contraction(&self) -> nerf_core::contraction::Contraction {
+    pub(crate) fn contraction(&self) -> nerf_core::contraction::Contraction {
         self.implicit_function.field().contraction()
     }
 
@@ -101,7 +101,7 @@ impl Config {
 
     /// The standard deviation of the noise the NeRF MLP adds to its raw density in training
     /// (`density_noise_std`; 0 for the other kinds).
-    pub fn density_noise(&self) -> f64 {
+    pub(crate) fn density_noise(&self) -> f64 {
         self.implicit_function.field().density_noise()
     }
 

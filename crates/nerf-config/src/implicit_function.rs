@@ -33,7 +33,7 @@ impl ImplicitFunctionConfig {
     }
 
     /// The kind's config, whatever the kind.
-    pub fn field(&self) -> &dyn FieldConfig {
+    pub(crate) fn field(&self) -> &dyn FieldConfig {
         &*self.0
     }
 

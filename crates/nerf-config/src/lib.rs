@@ -14,7 +14,7 @@
 pub mod built_in;
 pub mod cameras;
 pub mod checkpoint_paths;
-pub mod config_error;
+pub(crate) mod config_error;
 pub mod data;
 pub mod field_section;
 pub mod implicit_function;
@@ -35,13 +35,13 @@ use cameras::RawCamerasConfig;
 use messages::{blame, from_value, one_line};
 
 pub use built_in::config_text;
-pub use cameras::CamerasConfig;
+pub(crate) use cameras::CamerasConfig;
 pub use checkpoint_paths::{HOMEWORK_CHECKPOINT, SHIPPED_CHECKPOINT, SHIPPED_NGP_CHECKPOINT};
 pub use config_error::ConfigError;
 pub use data::{
     photo_scale_factor, DataCameraConfig, DataCameras, DataConfig, SizeUse, DEFAULT_PIXEL_BUDGET,
 };
-pub use implicit_function::ImplicitFunctionConfig;
+pub(crate) use implicit_function::ImplicitFunctionConfig;
 pub use messages::{in_user_words, plural};
 pub use overrides::apply_override;
 pub use renderer::{BackgroundConfig, OccupancyGridConfig, RendererConfig, RendererKind};

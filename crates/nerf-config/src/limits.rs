@@ -16,7 +16,7 @@ pub(crate) const BATCH_SAMPLES: usize = 1 << 21;
 /// Most samples drawn in one step whose rays adapt to `training.samples_per_step`: with an
 /// occupancy grid or early termination only the evaluated ones hold activations, a drawn
 /// one costs its depth and a grid test.
-pub const DRAWN_SAMPLES: usize = 1 << 23;
+pub(crate) const DRAWN_SAMPLES: usize = 1 << 23;
 // The NeRF's own sizes (harmonics, widths, depth) are bounded beside its config
 // (`nerf_field::nerf_config`).
 /// Most marching-cubes cells per side of `nerf export mesh`: 513³ density samples, 0.5 GiB

@@ -183,7 +183,11 @@ impl OccupancyGridConfig {
     }
 
     /// How training keeps the grid ([`OccupancyGridConfig::params`]) up to date.
-    pub fn schedule(&self, sampler: &SamplerConfig, contraction: Contraction) -> GridSchedule {
+    pub(crate) fn schedule(
+        &self,
+        sampler: &SamplerConfig,
+        contraction: Contraction,
+    ) -> GridSchedule {
         GridSchedule {
             grid: self.params(sampler, contraction),
             update_interval: self.update_interval,

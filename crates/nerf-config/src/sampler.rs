@@ -92,7 +92,7 @@ impl SamplerConfig {
     /// Samples drawn per ray before any refinement (`n_pts_per_ray`, plus `n_pts_far` for
     /// `depth_then_disparity`): the sampler's own count; `n_pts_per_ray` for a section that
     /// makes no sampler (validation refuses it).
-    pub fn drawn_per_ray(&self) -> usize {
+    pub(crate) fn drawn_per_ray(&self) -> usize {
         self.sampler()
             .map_or(self.n_pts_per_ray, |s| s.drawn_per_ray())
     }

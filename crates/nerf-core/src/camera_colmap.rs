@@ -48,7 +48,7 @@ pub enum ColmapCameraModel {
 
 impl ColmapCameraModel {
     /// Every supported model, in COLMAP's model-id order.
-    pub const ALL: [Self; 7] = [
+    pub(crate) const ALL: [Self; 7] = [
         Self::SimplePinhole,
         Self::Pinhole,
         Self::SimpleRadial,
@@ -59,7 +59,7 @@ impl ColmapCameraModel {
     ];
 
     /// COLMAP's name of the model (`cameras.txt`'s `MODEL` column).
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Self::SimplePinhole => "SIMPLE_PINHOLE",
             Self::Pinhole => "PINHOLE",
@@ -237,12 +237,12 @@ impl ColmapPose {
     }
 
     /// World point → camera-space point (OpenCV axes).
-    pub fn world_to_camera(&self, point: DVec3) -> DVec3 {
+    pub(crate) fn world_to_camera(&self, point: DVec3) -> DVec3 {
         self.rotation * point + self.translation
     }
 
     /// Camera-space point → world point.
-    pub fn camera_to_world(&self, point: DVec3) -> DVec3 {
+    pub(crate) fn camera_to_world(&self, point: DVec3) -> DVec3 {
         self.rotation.transpose() * (point - self.translation)
     }
 }

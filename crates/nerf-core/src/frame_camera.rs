@@ -21,7 +21,7 @@ pub enum FrameCamera {
 
 impl FrameCamera {
     /// The camera as a [`CameraModel`].
-    pub fn model(&self) -> &dyn CameraModel {
+    pub(crate) fn model(&self) -> &dyn CameraModel {
         match self {
             FrameCamera::Pinhole(c) => c,
             FrameCamera::Colmap(c) => c,

@@ -43,7 +43,7 @@ impl VolumeGrid {
     }
 
     /// Checks the shape, the box and that every value is finite.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         ensure!(
             self.dims.iter().all(|&n| n >= 2),
             "a marching-cubes grid needs at least 2 points per axis (got {:?})",
@@ -94,7 +94,7 @@ fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 }
 
 /// `v / |v|`, or `None` for a zero or non-finite vector.
-pub fn normalize(v: [f32; 3]) -> Option<[f32; 3]> {
+pub(crate) fn normalize(v: [f32; 3]) -> Option<[f32; 3]> {
     let len = v.iter().map(|c| c * c).sum::<f32>().sqrt();
     (len > 0.0 && len.is_finite()).then(|| v.map(|c| c / len))
 }

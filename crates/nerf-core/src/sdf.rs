@@ -125,7 +125,7 @@ impl Sdf {
 
     #[inline]
     /// Number of shape parameters: 3 side lengths for a box, 1 radius for a sphere.
-    pub fn shape_len(&self) -> usize {
+    pub(crate) fn shape_len(&self) -> usize {
         match self {
             Sdf::Box { .. } => 3,
             Sdf::Sphere { .. } => 1,
@@ -406,7 +406,7 @@ impl SdfVolume {
     /// `σ = −ln(1 − density)/Δ`, whatever Δ > 0 is) and the partial derivatives of its
     /// optical depth `τ = σΔ = −ln(1 − density)` with respect to the parameters, `∂τ/∂θ =
     /// (∂density/∂θ)/(1 − density)`: what the backward pass of a fused render needs, with no
-    /// logarithm (and `e^x` by [`exp_fast`], within 2 ulps). The partials are 0 where
+    /// logarithm (and `e^x` by `exp_fast`, within 2 ulps). The partials are 0 where
     /// `1 − density` is 0 (the renderer clamps τ there).
     #[inline(always)]
     pub fn transparency_with_partials(&self, p: [f32; 3]) -> (f32, Partials) {
@@ -415,7 +415,7 @@ impl SdfVolume {
 
     /// One sample's transparency `1 − density` (≥ 0) from its signed distance `s`, with
     /// `e = e^{−|s|/β}` and the unit density `½e` (outside) or `1 − ½e` (inside):
-    /// `(1 − α·unit, e, unit)`, `e^x` by [`exp_fast`].
+    /// `(1 − α·unit, e, unit)`, `e^x` by `exp_fast`.
     #[inline(always)]
     pub fn transparency_parts(&self, s: f32) -> (f32, f32, f32) {
         let e = exp_fast(s.abs() * (-1.0 / self.beta) as f32);

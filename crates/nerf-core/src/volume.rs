@@ -70,7 +70,7 @@ pub fn optical_depth(density: &Tensor, deltas: &Tensor) -> Result<Tensor> {
 /// Exclusive transmittance `T_i = exp(−Σ_{j<i} τ_j)` from optical depths `τ`.
 ///
 /// `optical_depth`: `(N, S, 1)`; returns `(N, S, 1)` with `T_1 = 1`.
-pub fn transmittance(optical_depth: &Tensor) -> Result<Tensor> {
+pub(crate) fn transmittance(optical_depth: &Tensor) -> Result<Tensor> {
     let tau = optical_depth.squeeze(D::Minus1)?;
     Ok(exclusive_cumsum(&tau)?.neg()?.exp()?.unsqueeze(D::Minus1)?)
 }

@@ -35,7 +35,7 @@ impl Shape {
 }
 
 /// Signed distance in f64.
-pub fn signed_distance(sdf: &Sdf, p: DVec3) -> f64 {
+pub(crate) fn signed_distance(sdf: &Sdf, p: DVec3) -> f64 {
     match Shape::of(sdf) {
         Shape::Box { c, half } => {
             let q = (p - c).abs() - half;

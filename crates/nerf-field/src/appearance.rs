@@ -33,7 +33,7 @@ pub struct AppearanceParams {
 
 /// The learnt appearance of a field's training images.
 #[derive(Debug, Clone)]
-pub struct Appearance {
+pub(crate) struct Appearance {
     /// `(images, dim)` per-image vectors.
     embedding: Tensor,
     /// `(hidden, dim)`: how a vector moves the colour MLP's first hidden layer.
@@ -43,7 +43,11 @@ pub struct Appearance {
 impl Appearance {
     /// The parameters for `params` (none while `params.images` is 0), created in or loaded
     /// from `vb` (its prefix: the field's), feeding a layer of `hidden` units.
-    pub fn new(params: &AppearanceParams, hidden: usize, vb: &VarBuilder) -> Result<Option<Self>> {
+    pub(crate) fn new(
+        params: &AppearanceParams,
+        hidden: usize,
+        vb: &VarBuilder,
+    ) -> Result<Option<Self>> {
         if params.images == 0 || params.dim == 0 {
             return Ok(None);
         }
@@ -71,7 +75,7 @@ impl Appearance {
     /// The first-layer term of each ray: `W · e_{camera_index[r]}` `(N, hidden)` for
     /// `camera_index` `(N,)` u32 (training rays), or `W · mean(e)` `(1, hidden)` for rays of
     /// no training image (`None`), to broadcast over them.
-    pub fn per_ray(&self, camera_index: Option<&Tensor>) -> Result<Tensor> {
+    pub(crate) fn per_ray(&self, camera_index: Option<&Tensor>) -> Result<Tensor> {
         let vectors = match camera_index {
             Some(index) => self.embedding.index_select(index, 0)?,
             None => self.embedding.mean_keepdim(0)?,
@@ -80,7 +84,7 @@ impl Appearance {
     }
 
     /// The same parameters detached from the autograd graph, for rendering.
-    pub fn detached(&self) -> Self {
+    pub(crate) fn detached(&self) -> Self {
         Self {
             embedding: self.embedding.detach(),
             weight: self.weight.detach(),

@@ -35,7 +35,7 @@ impl nerf_core::registry::Named for FieldKind {
 
 impl FieldKind {
     /// The kind `name` whose config is `T`, read with serde.
-    pub const fn new<T: FieldConfig + DeserializeOwned>(
+    pub(crate) const fn new<T: FieldConfig + DeserializeOwned>(
         name: &'static str,
         trainable: bool,
     ) -> Self {

@@ -32,7 +32,7 @@ use nerf_render::occupancy::OccupancyGrid;
 use nerf_render::sampler::RaySamples;
 
 /// The kind's name: what a config's `implicit_function.type` and a checkpoint call it.
-pub const KIND: &str = "nerf";
+pub(crate) const KIND: &str = "nerf";
 
 /// The sizes of the homework's NeRF (its `implicit_function` keys).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -69,7 +69,7 @@ impl Default for NerfParams {
 /// [`nerf_kernels::harmonic`] op, or its tensor-op twin).
 ///
 /// `x`: `(M, 3)`; returns `(M, 3·2L + 3)`.
-pub fn harmonic_embedding(x: &Tensor, n_harmonic_functions: usize) -> Result<Tensor> {
+pub(crate) fn harmonic_embedding(x: &Tensor, n_harmonic_functions: usize) -> Result<Tensor> {
     Ok(nerf_kernels::harmonic::harmonic_embedding(
         x,
         n_harmonic_functions,
@@ -232,7 +232,7 @@ impl Nerf {
     /// `points`: `(M, 3)`; `ray_index`: `(M,)` u32, the ray of each sample; `directions`:
     /// `(N, 3)` unit vectors. Returns density `(M, 1)` and colour `(M, 3)`, the same values
     /// [`Nerf::forward`] gives at those samples.
-    pub fn forward_packed(
+    pub(crate) fn forward_packed(
         &self,
         points: &Tensor,
         ray_index: &Tensor,
@@ -254,7 +254,7 @@ impl Nerf {
 
     /// The same model with weights detached from the autograd graph, for rendering: ops on it
     /// record nothing, so intermediate activations are freed as soon as they are used.
-    pub fn detached(&self) -> Self {
+    pub(crate) fn detached(&self) -> Self {
         let detach = |l: &Linear| Linear::new(l.weight().detach(), l.bias().map(|b| b.detach()));
         Self {
             config: self.config.clone(),
@@ -268,7 +268,7 @@ impl Nerf {
 
     /// [`Nerf::forward`] on sampled rays: `samples.points` `(N, S, 3)`, `directions` `(N, 3)`;
     /// density `(N, S, 1)` and colour `(N, S, 3)`.
-    pub fn evaluate(
+    pub(crate) fn evaluate(
         &self,
         samples: &RaySamples,
         directions: &Tensor,
@@ -340,7 +340,7 @@ impl FieldFastPaths for NerfField {
 /// `layer(x)` with the bias gradient summed in one pass ([`nerf_kernels::bias::bias_add`]).
 ///
 /// `x`: `(M, in)`; returns `(M, out)`.
-pub fn linear(layer: &Linear, x: &Tensor) -> Result<Tensor> {
+pub(crate) fn linear(layer: &Linear, x: &Tensor) -> Result<Tensor> {
     let pre = x.matmul(&layer.weight().t()?)?;
     Ok(match layer.bias() {
         Some(b) => nerf_kernels::bias::bias_add(&pre, b)?,

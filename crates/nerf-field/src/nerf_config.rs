@@ -13,12 +13,12 @@ use crate::trainable::FieldSpec;
 use nerf_core::key_checks::{count_in_range, finite};
 
 /// The kind's registration ([`crate::registry::FIELD_KINDS`]).
-pub const NERF: FieldKind = FieldKind::new::<NerfConfig>(crate::nerf::KIND, true);
+pub(crate) const NERF: FieldKind = FieldKind::new::<NerfConfig>(crate::nerf::KIND, true);
 
 /// Most harmonic functions of a positional embedding (2^31 is past f32 precision).
 pub(crate) const HARMONICS: usize = 32;
 /// Widest hidden layer.
-pub const HIDDEN: usize = 4096;
+pub(crate) const HIDDEN: usize = 4096;
 /// Deepest trunk.
 pub(crate) const LAYERS: usize = 64;
 

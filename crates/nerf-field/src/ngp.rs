@@ -79,7 +79,7 @@ pub struct NgpParams {
 
 impl NgpParams {
     /// Checks the grid and that the box has positive extent on every axis.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.grid.validate()?;
         ensure!(
             (0..3).all(|a| self.aabb[1][a] > self.aabb[0][a]),
@@ -159,7 +159,7 @@ impl Ngp {
 
     /// The same model whose fused encoding hands the table's gradient to `gradient` instead of
     /// autograd (for `nerf::train::sparse_adam::SparseAdam`).
-    pub fn with_table_gradient(mut self, gradient: Arc<TableGradient>) -> Self {
+    pub(crate) fn with_table_gradient(mut self, gradient: Arc<TableGradient>) -> Self {
         self.gradient = Some(gradient);
         self
     }
@@ -193,7 +193,7 @@ impl Ngp {
     }
 
     /// σ `(M, 1)` (0 outside the box) and the geometry features `(M, 15)` at `points` `(M, 3)`.
-    pub fn geometry(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
+    pub(crate) fn geometry(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
         let (enc, inside) = self.encode(points)?;
         let h = linear(&self.density[0], &enc)?.relu()?;
         let out = linear(&self.density[1], &h)?;
@@ -262,7 +262,7 @@ impl Ngp {
     /// Density `(N, S, 1)` and colour `(N, S, 3)` at `points` `(N, S, 3)` of rays with unit
     /// `directions` `(N, 3)` from training images `camera_index` `(N,)` u32 (`None`: rays of
     /// no training image).
-    pub fn forward(
+    pub(crate) fn forward(
         &self,
         points: &Tensor,
         directions: &Tensor,
@@ -311,7 +311,7 @@ impl Ngp {
     }
 
     /// The same model with parameters detached from the autograd graph, for rendering.
-    pub fn detached(&self) -> Self {
+    pub(crate) fn detached(&self) -> Self {
         let detach = |l: &Linear| Linear::new(l.weight().detach(), l.bias().map(|b| b.detach()));
         Self {
             params: self.params.clone(),

@@ -14,7 +14,7 @@ use crate::trainable::FieldSpec;
 use nerf_core::contraction::Contraction;
 
 /// The kind's registration ([`crate::registry::FIELD_KINDS`]).
-pub const NGP: FieldKind = FieldKind::new::<NgpConfig>(crate::ngp::KIND, true);
+pub(crate) const NGP: FieldKind = FieldKind::new::<NgpConfig>(crate::ngp::KIND, true);
 
 /// `implicit_function` with `type: ngp`: the hash-grid field ([`crate::ngp`]).
 #[derive(Debug, Clone, Deserialize, PartialEq)]

@@ -52,7 +52,11 @@ impl SdfField {
     }
 
     /// A field of `volume`'s values whose `trainable` parameters are variables.
-    pub fn new(volume: &SdfVolume, trainable: SdfTrainable, device: &Device) -> Result<Self> {
+    pub(crate) fn new(
+        volume: &SdfVolume,
+        trainable: SdfTrainable,
+        device: &Device,
+    ) -> Result<Self> {
         let mut variables = Vec::new();
         let mut param = |name: &str, values: &[f32], train: bool| -> Result<Tensor> {
             let t = Tensor::new(values, device)?;

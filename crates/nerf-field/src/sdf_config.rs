@@ -15,7 +15,7 @@ use nerf_core::key_checks::finite;
 use nerf_core::sdf::{Sdf, SdfVolume};
 
 /// The kind's registration ([`crate::registry::FIELD_KINDS`]).
-pub const SDF_VOLUME: FieldKind = FieldKind::new::<SdfVolumeConfig>("sdf_volume", false);
+pub(crate) const SDF_VOLUME: FieldKind = FieldKind::new::<SdfVolumeConfig>("sdf_volume", false);
 
 /// A homework parameter `{val, opt}`; `opt` marks it trainable in the homework.
 #[derive(Debug, Clone, Deserialize, PartialEq)]

@@ -68,7 +68,7 @@ pub fn write_gif(path: &Path, frames: &[RgbImage], delay_cs: u16) -> Result<()> 
 /// quality, whose faster settings lose more; quantette's k-means gains little for its time;
 /// on smooth shading Wu and NeuQuant are even (measured:
 /// docs/speed-and-report.md#gif-palettes).
-pub fn gif_palette(frame: &RgbImage) -> Result<(Vec<u8>, Vec<u8>)> {
+pub(crate) fn gif_palette(frame: &RgbImage) -> Result<(Vec<u8>, Vec<u8>)> {
     use quantette::{ImageBuf, Pipeline, QuantizeMethod};
     let bytes = frame.to_bytes();
     let pixels: Vec<palette::Srgb<u8>> = bytes

@@ -59,7 +59,7 @@ fn fault_injection_pause() {
 
 /// Where a write to a path goes.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Target {
+pub(crate) enum Target {
     /// A regular file (or none yet) at this real path: temp file beside it, then rename.
     Replace(PathBuf),
     /// A character device or FIFO: written directly.
@@ -91,7 +91,7 @@ fn follow_links(path: &Path) -> Result<PathBuf> {
 
 /// Where a write to `path` goes under the module's rule; an error (one line) for a directory,
 /// socket or block device, or a path with no file name.
-pub fn target(path: &Path) -> Result<Target> {
+pub(crate) fn target(path: &Path) -> Result<Target> {
     let cannot = || format!("cannot write {}", path.display());
     // The kernel follows the links (`/dev/stdout`'s `/proc/self/fd/1` to a pipe included).
     let real = match std::fs::metadata(path) {

@@ -95,7 +95,7 @@ fn axis_range(values: impl Iterator<Item = f64>, log: bool) -> Result<(f64, f64)
 }
 
 /// The plot as `(W·H·3)` RGB bytes.
-pub fn draw(plot: &LinePlot) -> Result<Vec<u8>> {
+pub(crate) fn draw(plot: &LinePlot) -> Result<Vec<u8>> {
     REGISTER_FONT.call_once(|| {
         // The font is compiled in and known to parse; an error here would leave text unset,
         // which the drawing below then reports.

@@ -212,7 +212,7 @@ fn corner_rows(points: &[f32], params: &HashGridParams) -> (Vec<u32>, Vec<f32>) 
 /// `(L·T, F)`, weighted and summed per level: `(M, L·F)`; its table gradient is Candle's
 /// `index_add` scatter. Corner rows and weights are computed from `points` `(M, 3)` on the
 /// host; when autograd tracks the points, the weights are tensor ops on them instead (the
-/// same values; [`hash_point_gradient::tracked_corner_weights`]), so the gradient reaches them.
+/// same values; `hash_point_gradient::tracked_corner_weights`), so the gradient reaches them.
 pub fn hash_encode_generic(
     points: &Tensor,
     table: &Tensor,

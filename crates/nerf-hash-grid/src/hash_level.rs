@@ -71,7 +71,7 @@ impl HashGridParams {
     }
 
     /// Each level's resolution `N_l = ⌊N_min · b^l⌋` and whether its table is dense.
-    pub fn levels(&self) -> Vec<Level> {
+    pub(crate) fn levels(&self) -> Vec<Level> {
         let b = self.growth();
         (0..self.n_levels)
             .map(|l| {
@@ -119,7 +119,7 @@ impl Level {
     /// lower corner's integer coordinate `c` and the fraction `v·N − c` of the way to the
     /// upper one.
     #[inline(always)]
-    pub fn cell(&self, v: f32) -> (u32, f32) {
+    pub(crate) fn cell(&self, v: f32) -> (u32, f32) {
         let n = self.resolution;
         let x = v.clamp(0.0, 1.0) * n as f32;
         // x ≥ 0 (NaN clamps to NaN and casts to 0), so truncation is the floor, without

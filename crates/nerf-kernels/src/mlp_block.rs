@@ -256,7 +256,7 @@ pub struct GradientSums {
 
 impl GradientSums {
     /// All zero, for `n_params` parameters and all `n_per_ray` per-ray values.
-    pub fn zeros(n_params: usize, n_per_ray: usize) -> Self {
+    pub(crate) fn zeros(n_params: usize, n_per_ray: usize) -> Self {
         Self::zeros_from(n_params, 0, n_per_ray)
     }
 

@@ -53,7 +53,7 @@ pub struct TrunkShape {
 
 impl TrunkShape {
     /// Input width of layer `i`.
-    pub fn in_dim(&self, i: usize) -> usize {
+    pub(crate) fn in_dim(&self, i: usize) -> usize {
         if i == 0 {
             self.input_dim
         } else if self.skip[i] {

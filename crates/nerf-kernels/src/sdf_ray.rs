@@ -22,7 +22,7 @@ pub const BLOCK: usize = 16;
 
 /// Per-sample values of one ray, one array per quantity (index = sample).
 #[derive(Debug, Default)]
-pub struct RayScratch {
+pub(crate) struct RayScratch {
     /// Depth `t_i`.
     t: Vec<f32>,
     /// `e^{−τ_i}` after the replay's first loop, then the weight `w_i`.
@@ -47,7 +47,7 @@ pub struct RayScratch {
 
 impl RayScratch {
     /// Scratch for rays of `s` samples.
-    pub fn new(s: usize) -> Self {
+    pub(crate) fn new(s: usize) -> Self {
         let v = || vec![0f32; s];
         Self {
             t: v(),
@@ -162,7 +162,7 @@ dispatched! {
     /// blocks of [`BLOCK`] samples' transparency `e^{−τ} = 1 − density` and colour, composited,
     /// stopping after the block in which the transmittance reaches 0. (AVX2 takes 8 samples
     /// per vector instead of SSE2's 4.)
-    pub fn forward(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5]
+    pub(crate) fn forward(volume: &SdfVolume, ray: &[f32], lengths: &[f32]) -> [f32; 5]
         = forward_portable for ["avx2"];
 }
 
@@ -304,7 +304,7 @@ dispatched! {
     /// layout) for the output gradient `grad` (`[G_r, G_g, G_b, G_depth, G_opacity]`):
     /// `Σ_i ∂L/∂τ_i ∂τ_i/∂θ` with `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, `g_i = Σ_c G_c
     /// c_ic + G_depth t_i + G_opacity`, and the colour's `Σ_i w_i G_c ∂c_ic/∂θ`.
-    pub fn reverse(
+    pub(crate) fn reverse(
         volume: &SdfVolume,
         sc: &mut RayScratch,
         n: usize,

@@ -8,7 +8,7 @@
 //! [`crate::sdf_volume`] and [`crate::composite`] compute them — with two
 //! float32-level differences: a sample's `e^{−τ}` is taken as `1 − density` (the twin's
 //! `e^{−(−ln(1 − density)/Δ)·Δ}`, which is the same number up to rounding, and an opaque
-//! sample's clamped τ the same 0), and `e^x` is [`nerf_core::fastexp::exp_fast`] (2 ulps).
+//! sample's clamped τ the same 0), and `e^x` is `nerf_core::fastexp::exp_fast` (2 ulps).
 //! Measured against the twin and the float64 reference in the tests. A ray stops after the
 //! block in which its transmittance is exactly 0: every later weight is exactly 0.
 //!

@@ -104,7 +104,7 @@ impl SdfTensors {
 
     /// Every parameter tensor, in a fixed order: `center` `(3,)`, then `side_lengths` `(3,)` or
     /// `radius` `(1,)`, then `alpha`, `beta` `(1,)` and `feature` `(3,)`.
-    pub fn tensors(&self) -> Vec<&Tensor> {
+    pub(crate) fn tensors(&self) -> Vec<&Tensor> {
         let mut v = match &self.shape {
             ShapeTensors::Box {
                 center,
@@ -119,7 +119,7 @@ impl SdfTensors {
     /// The parameters packed into one `(P,)` tensor, `[center, side_lengths | radius, alpha,
     /// beta, feature]` ([`nerf_core::sdf::PackedLayout`]), by a differentiable
     /// concatenation: gradients with respect to it reach each variable.
-    pub fn packed(&self) -> Result<Tensor> {
+    pub(crate) fn packed(&self) -> Result<Tensor> {
         let dtype = self.center().dtype();
         let parts = self
             .tensors()
@@ -130,7 +130,7 @@ impl SdfTensors {
     }
 
     /// The shape's centre `(3,)`.
-    pub fn center(&self) -> &Tensor {
+    pub(crate) fn center(&self) -> &Tensor {
         match &self.shape {
             ShapeTensors::Box { center, .. } | ShapeTensors::Sphere { center, .. } => center,
         }
@@ -230,7 +230,7 @@ pub fn sdf_volume_tensor_ops(
 /// Signed distance of each point (negative inside).
 ///
 /// `points`: `(N, S, 3)`; returns `(N, S, 1)`.
-pub fn signed_distance(shape: &ShapeTensors, points: &Tensor) -> Result<Tensor> {
+pub(crate) fn signed_distance(shape: &ShapeTensors, points: &Tensor) -> Result<Tensor> {
     let dtype = points.dtype();
     match shape {
         ShapeTensors::Box {

@@ -61,7 +61,7 @@ pub struct DepthThenDisparitySampler {
 
 impl DepthThenDisparitySampler {
     /// The sampler; an error naming the `sampler.…` key for bad counts or depths.
-    pub fn new(
+    pub(crate) fn new(
         n_near: usize,
         (min_depth, max_depth): (f64, f64),
         n_far: usize,
@@ -99,8 +99,10 @@ impl DepthThenDisparitySampler {
         self.n_near + self.n_far
     }
 
-    /// The `n_near + n_far + 1` bin edges, increasing from `min_depth` to `far_depth`.
-    pub fn edges(&self) -> Vec<f64> {
+    /// The `n_near + n_far + 1` bin edges, increasing from `min_depth` to `far_depth` (the
+    /// tests' view of the bins `depths` draws in).
+    #[cfg(test)]
+    fn edges(&self) -> Vec<f64> {
         let near = (0..=self.n_near).map(|i| {
             let u = i as f64 / self.n_near as f64;
             self.min_depth + (self.max_depth - self.min_depth) * u
@@ -131,7 +133,7 @@ impl DepthThenDisparitySampler {
     }
 
     /// The rendering depths: each bin's middle in its own spacing.
-    pub fn depths(&self) -> Vec<f64> {
+    pub(crate) fn depths(&self) -> Vec<f64> {
         (0..self.n_samples())
             .map(|i| self.depth_in_bin(i, 0.5))
             .collect()

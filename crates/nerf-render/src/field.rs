@@ -167,7 +167,7 @@ pub fn packed_evaluation<F: Field + ?Sized>(
 /// `field`'s own fused render of `rays` (N) densely sampled at `lengths` `(N, S, 1)`
 /// ([`FieldFastPaths::render_fused`]): colour `(N, 3)`, depth and opacity `(N, 1)`; `None` when
 /// it has none for these inputs.
-pub fn render_fused<F: Field + ?Sized>(
+pub(crate) fn render_fused<F: Field + ?Sized>(
     field: &F,
     rays: &Rays,
     lengths: &Tensor,

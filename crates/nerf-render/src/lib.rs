@@ -9,7 +9,7 @@
 
 pub mod bands;
 pub mod depth_points;
-pub mod disparity_sampler;
+pub(crate) mod disparity_sampler;
 pub mod field;
 pub mod hierarchical;
 pub mod occupancy;

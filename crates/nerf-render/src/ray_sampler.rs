@@ -5,7 +5,7 @@
 //! trait plays the part of its `Sampler` base class):
 //! [`crate::sampler::StratifiedSampler`] (the homework's),
 //! [`crate::hierarchical::CoarseToFineSampler`] (pytorch3d's NeRF project's
-//! coarse-to-fine) and [`crate::disparity_sampler::DepthThenDisparitySampler`]
+//! coarse-to-fine) and `crate::disparity_sampler::DepthThenDisparitySampler`
 //! (unbounded scenes: uniform in depth near the cameras, uniform in disparity beyond). Each
 //! draws depths per ray ([`RaySampler::compact_lengths`]); a strategy that places further
 //! depths by looking at the field (coarse-to-fine, a proposal network) does so in

@@ -72,7 +72,7 @@ impl SampleCounts {
     }
 
     /// Counts of a dense evaluation of `total` samples.
-    pub fn dense(total: usize) -> Self {
+    pub(crate) fn dense(total: usize) -> Self {
         Self {
             total,
             examined: total,
@@ -540,7 +540,7 @@ impl PackedSamples {
     /// Each ray's distortion loss `(N, 1)` from the packed densities
     /// ([`distortion_loss_packed`]; differentiable), given `lengths` as
     /// [`PackedSamples::composite`] takes them, measured in `spacing`.
-    pub fn distortion(&self, lengths: &Tensor, spacing: RaySpacing) -> Result<Tensor> {
+    pub(crate) fn distortion(&self, lengths: &Tensor, spacing: RaySpacing) -> Result<Tensor> {
         let samples = PackedDensities {
             index: self.index.clone(),
             n_rays: self.rays,

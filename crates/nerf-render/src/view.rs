@@ -57,7 +57,7 @@ impl<'a> Pipeline<'a> {
 
     /// The rays per band that [`render_view`] uses: whole chunks, about
     /// [`crate::bands::BAND_RAYS`] rays.
-    pub fn band_rays(&self) -> usize {
+    pub(crate) fn band_rays(&self) -> usize {
         self.rays_per_band(crate::bands::BAND_RAYS)
     }
 

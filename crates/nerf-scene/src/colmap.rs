@@ -95,7 +95,7 @@ pub struct ColmapCameraRecord {
     /// Image height in pixels.
     pub height: u64,
     /// The model's parameters in COLMAP's order (focal lengths, principal point, then
-    /// distortion), as many as [`CameraModelInfo::num_params`].
+    /// distortion), as many as `CameraModelInfo::num_params`.
     pub params: Vec<f64>,
 }
 

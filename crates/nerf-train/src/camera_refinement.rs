@@ -9,11 +9,11 @@
 //! camera optimiser: the rotation and translation parametrised apart, both in world axes.
 //! Gradients reach the corrections through the rendered points `o + t·d`
 //! ([`nerf_render::skipping`] forms them as tensor ops when the rays are tracked, and the
-//! hash encoding differentiates its input, [`nerf_hash_grid::hash_point_gradient`]); the
+//! hash encoding differentiates its input, `nerf_hash_grid::hash_point_gradient`); the
 //! direction's effect on the view-dependent colour (the spherical harmonics of the NGP
 //! field) passes no gradient, so the rotation is learnt from where the rays go.
 //!
-//! The corrections have their own optimiser: Adam ([`SparseAdam`], β = (0.9, 0.999), ε =
+//! The corrections have their own optimiser: Adam (`SparseAdam`, β = (0.9, 0.999), ε =
 //! 1e‑15) on the rows of the cameras with rays in the step (a camera without rays in a step
 //! keeps its correction and moments), with PyTorch-style weight decay `λ·p` added to the
 //! gradient so that the corrections stay small where the photos do not ask for them (a
@@ -37,20 +37,20 @@ use nerf_scene::dataset::Frame;
 
 /// The checkpoint tensor `(n_cameras, 6)` of the corrections (its optimiser's state is saved
 /// as `adam.*.camera_refinement`).
-pub const CHECKPOINT_KEY: &str = "camera_refinement";
+pub(crate) const CHECKPOINT_KEY: &str = "camera_refinement";
 
 /// The corrections' initial learning rate.
-pub const LEARNING_RATE: f64 = 3e-4;
+pub(crate) const LEARNING_RATE: f64 = 3e-4;
 
 /// The corrections' weight decay `λ` (`λ·p` added to their gradient).
-pub const WEIGHT_DECAY: f64 = 1e-2;
+pub(crate) const WEIGHT_DECAY: f64 = 1e-2;
 
 /// The cameras' gradient is taken on every this many steps (the first of each); on the
 /// steps between, the rays still move by the current corrections but are not tracked, so
 /// the renderer keeps its fast untracked path (a tracked step forms its points as tensor ops
 /// and differentiates the hash encoding by its points: docs/own-scene.md#camera-refinement
 /// measures the cost).
-pub const GRADIENT_EVERY: u64 = 4;
+pub(crate) const GRADIENT_EVERY: u64 = 4;
 
 /// Whether the step after `steps_done` Adam steps takes the cameras' gradient.
 pub(crate) fn tracks_cameras(steps_done: u64) -> bool {
@@ -88,7 +88,7 @@ pub enum CameraRefinementMode {
 impl CameraRefinementMode {
     /// Whether the cameras are refined when the training data's cameras are `from_sfm`,
     /// with the mean reprojection error `sfm_residual` (pixels) when the files give it.
-    pub fn enabled(self, from_sfm: bool, sfm_residual: Option<f64>) -> bool {
+    pub(crate) fn enabled(self, from_sfm: bool, sfm_residual: Option<f64>) -> bool {
         match self {
             Self::Auto => from_sfm && sfm_residual.is_some_and(|r| r >= AUTO_REFINE_RESIDUAL_PX),
             Self::On => true,
@@ -180,7 +180,7 @@ pub struct CameraRefinement {
 impl CameraRefinement {
     /// Zero corrections `(n_cameras, 6)` for the training cameras, their Adam at
     /// [`LEARNING_RATE`] with [`WEIGHT_DECAY`].
-    pub fn new(n_cameras: usize, device: &Device) -> Result<Self> {
+    pub(crate) fn new(n_cameras: usize, device: &Device) -> Result<Self> {
         let corrections = Var::zeros((n_cameras, 6), DType::F32, device)?;
         let mut adam = SparseAdam::new(CHECKPOINT_KEY, corrections.clone(), LEARNING_RATE)?;
         adam.eps = 1e-15;
@@ -201,7 +201,7 @@ impl CameraRefinement {
     /// `rays` (N of them, `(N, 3)` origins and directions) with ray `j` moved by the
     /// correction of camera `cameras[j]`: origins `o + t`, directions `R·d` (tracked by
     /// autograd through the corrections).
-    pub fn apply(&self, rays: &Rays, cameras: &[u32]) -> Result<Rays> {
+    pub(crate) fn apply(&self, rays: &Rays, cameras: &[u32]) -> Result<Rays> {
         let n = rays.len();
         ensure!(
             cameras.len() == n,
@@ -230,7 +230,7 @@ impl CameraRefinement {
 
     /// One Adam step from `grads` on the cameras whose correction has a gradient (those with
     /// rays in the step), weight decay added.
-    pub fn step(&mut self, grads: &GradStore) -> Result<()> {
+    pub(crate) fn step(&mut self, grads: &GradStore) -> Result<()> {
         let Some(g) = grads.get(self.corrections.as_tensor()) else {
             return Ok(());
         };
@@ -274,7 +274,7 @@ impl CameraRefinement {
     }
 
     /// Each camera's correction as (rotation angle in degrees, translation length).
-    pub fn sizes(&self) -> Result<Vec<(f64, f64)>> {
+    pub(crate) fn sizes(&self) -> Result<Vec<(f64, f64)>> {
         let c = self.corrections.as_tensor().to_dtype(DType::F64)?;
         Ok(c.to_vec2::<f64>()?
             .iter()
@@ -287,7 +287,7 @@ impl CameraRefinement {
     }
 
     /// A one-line summary: mean and largest rotation and translation of the corrections.
-    pub fn summary(&self) -> Result<String> {
+    pub(crate) fn summary(&self) -> Result<String> {
         let sizes = self.sizes()?;
         let n = sizes.len().max(1) as f64;
         let (mean_r, mean_t) = sizes

@@ -13,7 +13,7 @@ pub mod fit;
 pub mod fit_sdf;
 pub mod model;
 pub mod schedule;
-pub mod sparse_adam;
+pub(crate) mod sparse_adam;
 pub mod step;
 
 #[cfg(test)]

@@ -72,7 +72,7 @@ fn check_layout(
 
 impl TrainModel {
     /// A model without an occupancy grid.
-    pub fn new(field: Box<dyn TrainableField>) -> Self {
+    pub(crate) fn new(field: Box<dyn TrainableField>) -> Self {
         Self {
             field,
             occupancy: None,
@@ -147,7 +147,7 @@ impl TrainModel {
     }
 
     /// The model's variables.
-    pub fn varmap(&self) -> &VarMap {
+    pub(crate) fn varmap(&self) -> &VarMap {
         self.field.varmap()
     }
 
@@ -181,7 +181,7 @@ impl TrainModel {
     }
 
     /// Every parameter by name, and the occupancy grid under [`CHECKPOINT_KEY`].
-    pub fn tensors(&self, device: &Device) -> Result<Vec<(String, Tensor)>> {
+    pub(crate) fn tensors(&self, device: &Device) -> Result<Vec<(String, Tensor)>> {
         let mut tensors = checkpoint::model_tensors(self.varmap());
         if let Some(grid) = &self.occupancy {
             tensors.push((CHECKPOINT_KEY.to_string(), grid.to_tensor(device)?));
@@ -198,7 +198,7 @@ struct SparseTable {
 }
 
 /// The optimiser of a [`TrainModel`], as its [`ParamGroups`] say: PyTorch's Adam on the dense
-/// parameters and [`SparseAdam`] on each sparsely updated table.
+/// parameters and `SparseAdam` on each sparsely updated table.
 pub struct Optimizer {
     /// Adam on the dense parameters; its step count is the run's.
     pub dense: Adam,
@@ -239,7 +239,7 @@ impl Optimizer {
     }
 
     /// The learning rate now.
-    pub fn lr(&self) -> f64 {
+    pub(crate) fn lr(&self) -> f64 {
         self.dense.lr
     }
 

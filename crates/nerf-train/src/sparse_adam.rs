@@ -30,7 +30,7 @@ pub struct SparseAdam {
 
 impl SparseAdam {
     /// Sparse Adam for `var` `(R, F)`, saved under `name`, PyTorch's defaults.
-    pub fn new(name: &str, var: Var, lr: f64) -> Result<Self> {
+    pub(crate) fn new(name: &str, var: Var, lr: f64) -> Result<Self> {
         var.dims2().context("sparse Adam needs a 2-D parameter")?;
         let state = RowAdamState::new(var.as_tensor())?;
         Ok(Self {
@@ -55,7 +55,7 @@ impl SparseAdam {
 
     /// Updates the `rows` (row indices, any order, no repeats) of the parameter from its
     /// gradient `grad` `(R, F)`; every other row is left exactly as it was.
-    pub fn step(&self, grad: &Tensor, rows: &[u32]) -> Result<()> {
+    pub(crate) fn step(&self, grad: &Tensor, rows: &[u32]) -> Result<()> {
         self.state.update(&self.var, grad, rows, self.constants())
     }
 
@@ -67,7 +67,7 @@ impl SparseAdam {
     }
 
     /// The parameter this optimiser updates.
-    pub fn var(&self) -> &Var {
+    pub(crate) fn var(&self) -> &Var {
         &self.var
     }
 

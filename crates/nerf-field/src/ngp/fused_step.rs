@@ -30,7 +30,7 @@ use nerf_render::skipping::{march_packed, MarchedSegment};
 impl DensityActivation {
     /// σ of the raw density `x` (before the box's inside flag).
     #[inline]
-    pub fn value(self, x: f32) -> f32 {
+    pub(crate) fn value(self, x: f32) -> f32 {
         match self {
             Self::TruncExp => x.exp(),
             Self::Softplus => (x.exp() + 1.0).ln(),
@@ -40,7 +40,7 @@ impl DensityActivation {
     /// The gradient `dσ/dx` autograd takes: `exp(min(x, 15))` for [`super::trunc_exp`], the
     /// logistic function for softplus.
     #[inline]
-    pub fn slope(self, x: f32) -> f32 {
+    pub(crate) fn slope(self, x: f32) -> f32 {
         match self {
             Self::TruncExp => x.min(super::TRUNC_EXP_MAX as f32).exp(),
             Self::Softplus => 1.0 / (1.0 + (-x).exp()),
@@ -77,7 +77,7 @@ impl Ngp {
     /// One training step's forward and backward passes over `batch` (see the module): the
     /// MSE, the sample counts, and the gradients of the MLPs' (and appearance) variables; the
     /// table's gradient is added into the model's sink ([`Ngp::with_table_gradient`]).
-    pub fn fused_gradients(&self, batch: &FusedBatch) -> Result<FusedGradients> {
+    pub(crate) fn fused_gradients(&self, batch: &FusedBatch) -> Result<FusedGradients> {
         let Some(sink) = &self.gradient else {
             bail!("the fused hash-grid step needs the table gradient's sink");
         };

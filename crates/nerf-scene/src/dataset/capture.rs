@@ -18,7 +18,7 @@ use std::path::Path;
 
 use anyhow::{bail, Result};
 
-pub use super::capture_frame::{CaptureFrame, CaptureFrames};
+pub(crate) use super::capture_frame::{CaptureFrame, CaptureFrames};
 use super::dataset_error::DatasetError;
 use super::normalize::SceneTransform;
 use super::scene_format::FormatRead;
@@ -55,7 +55,7 @@ pub struct CaptureInfo {
     /// The format the cameras were read as (COLMAP for an LLFF folder whose COLMAP model
     /// was taken, [`super::camera_source`]).
     pub format: SceneFormat,
-    /// The file they came from ([`CaptureFrames::camera_source`]).
+    /// The file they came from (`CaptureFrames::camera_source`).
     pub camera_source: String,
     /// How the frames are split.
     pub protocol: SplitProtocol,
@@ -78,13 +78,13 @@ pub struct CaptureSplit {
     /// Frames in the whole capture.
     pub total_frames: usize,
     /// The nearest and farthest scene depth over all the capture's frames, in the normalised
-    /// frame's units, when every frame gives bounds ([`CaptureFrame::depth_bounds`]).
+    /// frame's units, when every frame gives bounds (`CaptureFrame::depth_bounds`).
     pub depth_bounds: Option<[f64; 2]>,
     /// Whether its cameras come from structure from motion
     /// ([`super::capture_frame::cameras_from_sfm`]).
     pub from_sfm: bool,
     /// The mean reprojection error of the capture's SfM points, in pixels, when it has them
-    /// ([`super::capture_frame::CaptureFrames::sfm_residual`]).
+    /// (`super::capture_frame::CaptureFrames::sfm_residual`).
     pub sfm_residual: Option<f64>,
     /// Where the cameras came from and how the frames are split.
     pub info: CaptureInfo,
@@ -100,13 +100,13 @@ pub struct Normalisation {
     pub applied: SceneTransform,
     /// Computed from the capture's own cameras (`None`: they give none, one camera, say).
     pub from_cameras: Option<SceneTransform>,
-    /// The capture's scene depth bounds in the normalised frame ([`CaptureSplit::depth_bounds`]).
+    /// The capture's scene depth bounds in the normalised frame (`CaptureSplit::depth_bounds`).
     pub depth_bounds: Option<[f64; 2]>,
     /// Whether the capture's cameras come from structure from motion
-    /// ([`CaptureSplit::from_sfm`]).
+    /// (`CaptureSplit::from_sfm`).
     pub from_sfm: bool,
     /// The mean reprojection error of the capture's SfM points, in pixels
-    /// ([`CaptureSplit::sfm_residual`]).
+    /// (`CaptureSplit::sfm_residual`).
     pub sfm_residual: Option<f64>,
 }
 

@@ -1,7 +1,7 @@
 //! A COLMAP capture: the sparse model that [`crate::colmap::find_model`] finds (the one
 //! with the most registered images when there are several) and its photos in `images/`
 //! (subfolders allowed, as COLMAP's image names carry them), with masks in `masks/` when that
-//! folder is there ([`mask_in_folder`]).
+//! folder is there (`mask_in_folder`).
 
 use std::path::Path;
 
@@ -29,7 +29,7 @@ pub const COLMAP: SceneFormat = SceneFormat {
 /// read is a [`DatasetError::Metadata`], a missing `images/` a [`DatasetError::MissingFile`]
 /// (inside the `anyhow::Error`); a camera's error keeps its
 /// [`nerf_core::camera_error::CameraError`] in the chain.
-pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
+pub(crate) fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let (model_dir, model) =
         find_model(dir).map_err(|e| DatasetError::metadata(dir, error_line(e.as_ref())))?;
     let images = dir.join("images");

@@ -36,7 +36,7 @@ pub(crate) const MAX_LLFF_FRAMES: u64 = 100_000;
 /// [`nerf_core::camera_error::CameraError`] in the chain; a missing `images/` is a
 /// [`DatasetError::MissingFile`], anything else wrong with `poses_bounds.npy` a
 /// [`DatasetError::Metadata`] (inside the `anyhow::Error`).
-pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
+pub(crate) fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let path = dir.join("poses_bounds.npy");
     read_capture(dir, &path).map_err(|e| metadata_unless_camera(&path, e))
 }

@@ -23,8 +23,8 @@
 pub mod backdrop;
 pub mod camera_source;
 pub mod capture;
-pub mod capture_frame;
-pub mod dataset_error;
+pub(crate) mod capture_frame;
+pub(crate) mod dataset_error;
 pub mod frame_image;
 pub mod frame_mask;
 pub mod ngp_scene;
@@ -33,11 +33,11 @@ pub mod object_hull;
 pub mod orbit;
 pub mod photo_fit;
 pub mod photo_resize;
-pub mod scene_format;
+pub(crate) mod scene_format;
 pub mod shared_view;
 pub mod silhouette;
 pub mod spiral;
-pub mod split;
+pub(crate) mod split;
 pub mod transforms_intrinsics;
 
 /// Declares each scene format's module and lists its [`SceneFormat`] in [`SCENE_FORMATS`],

@@ -58,7 +58,7 @@ struct TransformsJson {
 }
 
 /// The frames of `dir/transforms.json`.
-pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
+pub(crate) fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let path = dir.join("transforms.json");
     let bytes = read_dataset_file(&path, "transforms.json", MAX_TRANSFORMS_BYTES)?;
     parse(&bytes, dir, &path)
@@ -67,7 +67,7 @@ pub fn read_frames(dir: &Path) -> Result<CaptureFrames> {
 /// [`read_frames`] of the file's `bytes` (read from `path`, in `dir`). A frame's camera error
 /// keeps its [`nerf_core::camera_error::CameraError`] in the chain; every other error is a
 /// [`super::DatasetError::Metadata`] (inside the `anyhow::Error`).
-pub fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
+pub(crate) fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
     parse_frames(bytes, dir, path).map_err(|e| metadata_unless_camera(path, e))
 }
 

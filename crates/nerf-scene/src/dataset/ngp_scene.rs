@@ -33,7 +33,7 @@ pub(crate) struct NgpSceneKeys {
 impl NgpSceneKeys {
     /// An error naming the first key whose value instant-ngp would not load as this loader
     /// does, in a file of `frames` frames (see the module documentation).
-    pub fn check(&self, frames: usize) -> Result<()> {
+    pub(crate) fn check(&self, frames: usize) -> Result<()> {
         if let Some(a) = self.aabb_scale {
             ensure!(
                 a.is_finite() && a > 0.0,

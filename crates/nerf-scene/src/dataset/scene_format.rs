@@ -72,7 +72,7 @@ impl SceneFormat {
     }
 
     /// The format's name, as users know it.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         self.name
     }
 

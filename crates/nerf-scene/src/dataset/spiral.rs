@@ -107,7 +107,7 @@ pub struct CaptureSpiral {
 
 impl CaptureSpiral {
     /// The spiral for a normalised capture whose training frames are `frames`, or `None` when
-    /// they are not forward-facing ([`is_forward_facing`]) or give none (no frames, up
+    /// they are not forward-facing (`is_forward_facing`) or give none (no frames, up
     /// directions along the viewing direction). `depth_bounds` are the near and far depths
     /// of the scene in the normalised frame when the capture gives them (LLFF's bounds).
     ///
@@ -171,7 +171,7 @@ impl CaptureSpiral {
     }
 
     /// The mean camera's right direction (unit): `forward × up`.
-    pub fn right(&self) -> DVec3 {
+    pub(crate) fn right(&self) -> DVec3 {
         self.forward.cross(self.up)
     }
 

@@ -20,7 +20,7 @@ pub enum Split {
 
 impl Split {
     /// Every split, in the order of the reference camera file (train, val, test).
-    pub const ALL: [Split; 3] = [Split::Train, Split::Val, Split::Test];
+    pub(crate) const ALL: [Split; 3] = [Split::Train, Split::Val, Split::Test];
 
     /// `"train"`, `"val"` or `"test"`.
     pub fn name(self) -> &'static str {
@@ -32,7 +32,7 @@ impl Split {
     }
 
     /// `transforms_{split}.json` inside `data_dir`.
-    pub fn transforms_path(self, data_dir: &Path) -> PathBuf {
+    pub(crate) fn transforms_path(self, data_dir: &Path) -> PathBuf {
         data_dir.join(format!("transforms_{}.json", self.name()))
     }
 }

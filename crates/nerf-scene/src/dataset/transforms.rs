@@ -17,7 +17,7 @@ use nerf_files::bounded_read::read_regular_file;
 
 /// The NeRF-synthetic release: a folder with `transforms_{split}.json` files, read split by
 /// split ([`read_blender_split`]) rather than as a capture.
-pub const BLENDER: SceneFormat = SceneFormat {
+pub(crate) const BLENDER: SceneFormat = SceneFormat {
     key: "blender",
     name: "NeRF-synthetic (transforms_{split}.json)",
     marks: "transforms_{train,val,test}.json (NeRF-synthetic)",
@@ -60,7 +60,7 @@ pub struct Frame {
 /// independent of `width`. The same value is used for y, which is right for square source
 /// images (NeRF-synthetic renders are 800×800) under the homework's pixel grid, whose y runs
 /// over [−1, 1] too, whatever size the images are resized to. The principal point is zero.
-pub fn blender_to_pytorch3d(
+pub(crate) fn blender_to_pytorch3d(
     c2w: [[f64; 4]; 4],
     camera_angle_x: f64,
     width: usize,
@@ -102,7 +102,7 @@ struct TransformsFrame {
 
 /// Farthest a camera may be from the origin, in scene units (the NeRF-synthetic cameras are
 /// 4 away; a camera 1e300 away would see nothing and be scored as a black view).
-pub const MAX_CAMERA_DISTANCE: f64 = 1e4;
+pub(crate) const MAX_CAMERA_DISTANCE: f64 = 1e4;
 
 /// Largest `transforms_*.json` read (the lego scene's are 60 KB).
 pub(crate) const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
@@ -110,7 +110,7 @@ pub(crate) const MAX_TRANSFORMS_BYTES: u64 = 64 << 20;
 /// Checks that the upper 3×3 block of a camera-to-world matrix is a rotation (orthonormal,
 /// determinant +1, to 1e-3), the bottom row is `(0, 0, 0, 1)` and the camera centre is within
 /// [`MAX_CAMERA_DISTANCE`] of the origin; the error is a [`CameraError::Pose`].
-pub fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<(), CameraError> {
+pub(crate) fn check_rigid(c2w: &[[f64; 4]; 4]) -> Result<(), CameraError> {
     let refuse = |message: String| Err(CameraError::Pose { message });
     if c2w.iter().flatten().any(|v| !v.is_finite()) {
         return refuse("transform_matrix has a non-finite entry".to_string());

@@ -17,14 +17,14 @@ use serde::Deserialize;
 use nerf_core::camera_colmap::NerfstudioIntrinsics;
 
 /// The largest image side (`w`, `h`) taken, in pixels.
-pub const MAX_IMAGE_SIDE: usize = 1 << 20;
+pub(crate) const MAX_IMAGE_SIDE: usize = 1 << 20;
 
 /// instant-ngp's lens models that no camera here has: a key of each.
 const UNSUPPORTED_LENS_KEYS: [&str; 3] = ["ftheta_p0", "latlong", "equirectangular"];
 
 /// The intrinsics keys of one level of the file (the top or a frame), each optional.
 #[derive(Debug, Clone, Default, Deserialize)]
-pub struct Intrinsics {
+pub(crate) struct Intrinsics {
     camera_model: Option<String>,
     is_fisheye: Option<bool>,
     fl_x: Option<f64>,
@@ -59,7 +59,7 @@ impl Intrinsics {
     /// An error naming the first key of this level that no camera can take: a `w` or `h`
     /// that is not a whole number of pixels from 1 to [`MAX_IMAGE_SIDE`], a field of view
     /// outside (0, π), or one of instant-ngp's unsupported lens models.
-    pub fn check(&self) -> Result<()> {
+    pub(crate) fn check(&self) -> Result<()> {
         for (key, side) in [("w", self.w), ("h", self.h)] {
             side.map(|v| whole_pixels(v, key)).transpose()?;
         }
@@ -86,7 +86,7 @@ impl Intrinsics {
     /// top. The focal length along an axis is the frame's (`fl_x`, else from `camera_angle_x`,
     /// else from `x_fov`), else the top's; a missing `fl_y` is `fl_x`; a missing `cx`, `cy`
     /// the image centre; missing distortion terms 0. An error names the first missing key.
-    pub fn resolve(&self, top: &Intrinsics) -> Result<NerfstudioIntrinsics> {
+    pub(crate) fn resolve(&self, top: &Intrinsics) -> Result<NerfstudioIntrinsics> {
         let pick = |key: fn(&Intrinsics) -> Option<f64>| key(self).or(key(top));
         let w = pick(|i| i.w).ok_or_else(|| anyhow!("no w"))?;
         let h = pick(|i| i.h).ok_or_else(|| anyhow!("no h"))?;
