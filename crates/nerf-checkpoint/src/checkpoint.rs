@@ -57,7 +57,7 @@ pub(crate) const MAX_BOX_COORDINATE: f64 = 1e3;
 pub(crate) const MAX_LAYOUT_BYTES: usize = 4096;
 
 /// The largest side a stored training image size may have.
-pub const MAX_STORED_SIDE: usize = 1 << 16;
+pub(crate) const MAX_STORED_SIDE: usize = 1 << 16;
 
 /// What a checkpoint holds besides tensors.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -433,7 +433,7 @@ pub const BACKGROUND: StoredEntry<[f32; 3]> = StoredEntry {
     key: BACKGROUND_KEY,
     parse: background_from_text,
 };
-/// The training image size (two whole numbers, 1 to [`MAX_STORED_SIDE`]).
+/// The training image size (two whole numbers, 1 to `MAX_STORED_SIDE`).
 pub const IMAGE_SIZE: StoredEntry<(usize, usize)> = StoredEntry {
     key: IMAGE_SIZE_KEY,
     parse: image_size_from_text,

@@ -7,9 +7,9 @@
 //! filled sees its items, as `pickle.load` does.
 //!
 //! Limits, each an error of one line naming the byte where it was hit:
-//! * the stream is at most [`MAX_PICKLE_BYTES`] long and every length read from it (strings,
+//! * the stream is at most `MAX_PICKLE_BYTES` long and every length read from it (strings,
 //!   bytes) must fit in what is left of it;
-//! * at most [`MAX_OPS`] opcodes are run (each makes one object at most, so memory is bounded
+//! * at most `MAX_OPS` opcodes are run (each makes one object at most, so memory is bounded
 //!   by a constant per opcode plus the stream's own bytes);
 //! * no container nests deeper than [`MAX_DEPTH`]. Nothing here recurses over the tree
 //!   (dropping one included, see [`Node`]'s `Drop`), so even a depth reached by mutating a
@@ -31,9 +31,9 @@ use anyhow::{anyhow, bail, Result};
 
 /// Longest pickle stream read (a state dict of thousands of tensors pickles to well under a
 /// megabyte; the tensors themselves are records of their own).
-pub const MAX_PICKLE_BYTES: usize = 64 << 20;
+pub(crate) const MAX_PICKLE_BYTES: usize = 64 << 20;
 /// Most opcodes one stream may run (a state dict pickles to about 15 per tensor).
-pub const MAX_OPS: usize = 1 << 21;
+pub(crate) const MAX_OPS: usize = 1 << 21;
 /// Deepest nesting of containers (a state dict is 4 deep).
 pub const MAX_DEPTH: u32 = 1000;
 

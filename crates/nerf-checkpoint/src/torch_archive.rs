@@ -384,20 +384,23 @@ pub(crate) fn tensor_ref(obj: &Value) -> Result<Option<TensorRef>> {
     }))
 }
 
+#[cfg(test)]
 /// The key of the storage record a tensor object reads (`"0"`, `"1"`, …). `torch.save`
 /// numbers storages in the order it pickles them, so for a state dict this is the
 /// parameters' order.
-pub fn storage_key(obj: &Value) -> Option<String> {
+pub(crate) fn storage_key(obj: &Value) -> Option<String> {
     tensor_ref(obj).ok().flatten().map(|t| t.key)
 }
 
+#[cfg(test)]
 /// The value under string key `key` of a dict object.
-pub fn dict_get(obj: &Value, key: &str) -> Option<Value> {
+pub(crate) fn dict_get(obj: &Value, key: &str) -> Option<Value> {
     obj.get(key)
 }
 
+#[cfg(test)]
 /// An integer object's value.
-pub fn as_int(obj: &Value) -> Option<i64> {
+pub(crate) fn as_int(obj: &Value) -> Option<i64> {
     obj.as_int()
 }
 

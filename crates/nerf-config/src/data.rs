@@ -17,7 +17,7 @@ use nerf_core::frame_camera::FrameCamera;
 pub struct DataConfig {
     /// `[width, height]` in pixels. Optional: a config without it (the capture configs) loads
     /// a dataset at its photos' own aspect ([`DataConfig::dataset_image_size`]) and renders
-    /// other views at [`DEFAULT_VIEW_SIZE`] or the size a checkpoint was trained at.
+    /// other views at `DEFAULT_VIEW_SIZE` or the size a checkpoint was trained at.
     #[serde(default)]
     pub image_size: Option<[usize; 2]>,
     /// `data.dataset_name`, e.g. `lego`: names the default data directory and the checkpoint file.
@@ -42,7 +42,7 @@ pub const DEFAULT_PIXEL_BUDGET: usize = 640 * 480;
 
 /// The size renders of a config without `data.image_size` take when nothing else gives one
 /// (no checkpoint stores its training size).
-pub const DEFAULT_VIEW_SIZE: (usize, usize) = (256, 256);
+pub(crate) const DEFAULT_VIEW_SIZE: (usize, usize) = (256, 256);
 
 /// The smallest whole factor `n ≥ 1` with `(w / n) · (h / n) ≤ budget`: integer factors keep
 /// each training pixel a whole block of photo pixels.
@@ -152,7 +152,7 @@ pub struct DataCameraConfig {
 impl DataCameraConfig {
     /// The camera: pytorch3d's `look_at_view_transform(eye, scene_center, up)` with the NDC
     /// focal length and principal point.
-    pub fn camera(&self) -> PerspectiveCamera {
+    pub(crate) fn camera(&self) -> PerspectiveCamera {
         let (r, t) = look_at_view_transform(
             DVec3::from_array(self.eye),
             DVec3::from_array(self.scene_center),
@@ -201,7 +201,7 @@ impl Config {
     }
 
     /// The cameras of `data.cameras`, in order, with their names and target image paths (see
-    /// [`DataCameraConfig::camera`]). An error when the config has none.
+    /// `DataCameraConfig::camera`). An error when the config has none.
     pub fn data_cameras(&self) -> Result<Vec<(String, PerspectiveCamera, Option<PathBuf>)>> {
         let cameras = self
             .data

@@ -4,27 +4,27 @@
 //! errors that name the key ([`ConfigError`]). Extensions beyond the homework (all optional):
 //! `cameras` (the surround views to render) and `data.data_dir` (where the dataset lives).
 //!
-//! One file per concern: where the text comes from ([`built_in`]), the overrides
-//! ([`overrides`]), the words of errors ([`messages`]), the range checks ([`validation`]), and
-//! one file per section holding its schema and what it becomes at run time ([`data`],
-//! [`sampler`], [`renderer`], [`cameras`], [`training`]; the `implicit_function` section's
-//! schema in [`implicit_function`], its fields in [`field_section`]); which checkpoint a
-//! command uses is [`checkpoint_paths`]'s.
+//! One file per concern: where the text comes from (`built_in`), the overrides
+//! (`overrides`), the words of errors (`messages`), the range checks (`validation`), and
+//! one file per section holding its schema and what it becomes at run time (`data`,
+//! `sampler`, `renderer`, `cameras`, `training`; the `implicit_function` section's
+//! schema in `implicit_function`, its fields in `field_section`); which checkpoint a
+//! command uses is `checkpoint_paths`'s.
 
-pub mod built_in;
-pub mod cameras;
-pub mod checkpoint_paths;
+pub(crate) mod built_in;
+pub(crate) mod cameras;
+pub(crate) mod checkpoint_paths;
 pub(crate) mod config_error;
-pub mod data;
-pub mod field_section;
-pub mod implicit_function;
+pub(crate) mod data;
+pub(crate) mod field_section;
+pub(crate) mod implicit_function;
 pub mod limits;
-pub mod messages;
-pub mod overrides;
-pub mod renderer;
-pub mod sampler;
-pub mod training;
-pub mod validation;
+pub(crate) mod messages;
+pub(crate) mod overrides;
+pub(crate) mod renderer;
+pub(crate) mod sampler;
+pub(crate) mod training;
+pub(crate) mod validation;
 pub mod yaml_bounds;
 
 use anyhow::Result;

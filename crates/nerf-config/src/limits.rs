@@ -5,7 +5,7 @@
 /// Largest image width or height.
 pub const IMAGE_SIDE: usize = 4096;
 /// Most samples per ray.
-pub const PTS_PER_RAY: usize = 16384;
+pub(crate) const PTS_PER_RAY: usize = 16384;
 /// Most surround poses.
 pub const POSES: usize = 3600;
 /// Most pixels over all surround frames (every frame is kept in memory for the GIF).
@@ -36,7 +36,7 @@ pub const POINT_CLOUD_RAYS: usize = 1 << 27;
 // what a job holds at once is its outputs (the frames, the grid, the mesh) plus that:
 // * the renderer evaluates at most `Field::max_samples_per_chunk` samples at once (an SDF
 //   2^22, about 250 MB; a NeRF 2^17; a hash grid 2^19), and, when it skips samples, draws
-//   at most [`DRAWN_SAMPLES_PER_CHUNK`];
+//   at most `nerf_render::renderer::DRAWN_SAMPLES_PER_CHUNK`;
 // * an image's rays are made, rendered and turned into pixels [`BAND_RAYS`] at a time (the
 //   vis images, the depth points and the mesh's colour rays too);
 // * `point_vis`'s sample points are made and splatted [`POINT_SAMPLES`] at a time;
@@ -52,7 +52,3 @@ pub const BAND_RAYS: usize = nerf_render::bands::BAND_RAYS;
 pub const POINT_SAMPLES: usize = 1 << 22;
 /// Grid points of a mesh grid evaluated at once.
 pub const GRID_BATCH: usize = 1 << 16;
-/// Most samples drawn per renderer chunk when samples are skipped (an occupancy grid or
-/// early termination): each costs its depth and march state, and all of a chunk's may be
-/// evaluated when nothing terminates.
-pub const DRAWN_SAMPLES_PER_CHUNK: usize = nerf_render::renderer::DRAWN_SAMPLES_PER_CHUNK;

@@ -153,7 +153,7 @@ fn d64() -> usize {
 impl RendererConfig {
     /// The renderer: chunk size, background, early termination (the occupancy grid belongs to
     /// the field; see [`OccupancyGridConfig::params`]).
-    pub fn renderer(&self) -> Result<VolumeRenderer> {
+    pub(crate) fn renderer(&self) -> Result<VolumeRenderer> {
         let renderer = VolumeRenderer::new(self.chunk_size, self.white_background)?
             .with_early_termination(self.early_termination)?;
         Ok(match self.background {
@@ -173,7 +173,11 @@ impl OccupancyGridConfig {
     /// The grid, with its density threshold: `alpha_threshold` opacity over one sample step
     /// of `sampler` ([`SamplerConfig::step`]); its box is in the space `contraction` maps
     /// world points into (the field's).
-    pub fn params(&self, sampler: &SamplerConfig, contraction: Contraction) -> OccupancyGridParams {
+    pub(crate) fn params(
+        &self,
+        sampler: &SamplerConfig,
+        contraction: Contraction,
+    ) -> OccupancyGridParams {
         OccupancyGridParams {
             resolution: self.resolution,
             aabb: self.aabb,
@@ -200,7 +204,7 @@ impl OccupancyGridConfig {
 }
 
 impl Config {
-    /// The `renderer` section as a renderer ([`RendererConfig::renderer`]).
+    /// The `renderer` section as a renderer (`RendererConfig::renderer`).
     pub fn renderer(&self) -> Result<VolumeRenderer> {
         self.renderer.renderer()
     }
@@ -215,7 +219,7 @@ impl Config {
     }
 
     /// The occupancy grid the renderer uses, with its density threshold
-    /// ([`OccupancyGridConfig::params`]), or `None` when the config has no grid.
+    /// (`OccupancyGridConfig::params`), or `None` when the config has no grid.
     pub fn occupancy_grid(&self) -> Option<OccupancyGridParams> {
         let g = self.renderer.occupancy_grid.as_ref()?;
         Some(g.params(&self.sampler, self.contraction()))

@@ -48,7 +48,7 @@ pub struct SamplerConfig {
     /// `sampler.type`: `stratified` (the default) or another registered kind.
     #[serde(rename = "type", default)]
     pub kind: SamplerType,
-    /// Samples per ray (`sampler.n_pts_per_ray`, 1 to [`super::limits::PTS_PER_RAY`]).
+    /// Samples per ray (`sampler.n_pts_per_ray`, 1 to `super::limits::PTS_PER_RAY`).
     pub n_pts_per_ray: usize,
     /// Depth of the first sample along each ray, in world units (`sampler.min_depth`, ≥ 0).
     pub min_depth: f64,
@@ -78,7 +78,7 @@ impl SamplerConfig {
     /// The sampler the section's kind builds from its settings: for `stratified`,
     /// `n_pts_per_ray` stratified depths on `[min_depth, max_depth]`, and, with
     /// `n_pts_per_ray_fine` > 0, that many more drawn from a coarse pass's weights.
-    pub fn sampler(&self) -> Result<Arc<dyn RaySampler>> {
+    pub(crate) fn sampler(&self) -> Result<Arc<dyn RaySampler>> {
         (self.kind.0.build)(&SamplerSettings {
             n_pts_per_ray: self.n_pts_per_ray,
             min_depth: self.min_depth,
@@ -98,25 +98,25 @@ impl SamplerConfig {
     }
 
     /// The stratified depths alone (the SDF fit and the float64 reference sample only these).
-    pub fn stratified(&self) -> Result<StratifiedSampler> {
+    pub(crate) fn stratified(&self) -> Result<StratifiedSampler> {
         StratifiedSampler::new(self.n_pts_per_ray, self.min_depth, self.max_depth)
     }
 
     /// One sample step: the spacing of `n_pts_per_ray` depths over `[min_depth, max_depth]`
     /// (at least 1e-6); for `depth_then_disparity`, the step of its near, uniform part.
-    pub fn step(&self) -> f64 {
+    pub(crate) fn step(&self) -> f64 {
         let n = self.n_pts_per_ray.max(2) - 1;
         ((self.max_depth - self.min_depth) / n as f64).max(1e-6)
     }
 }
 
 impl Config {
-    /// The `sampler` section as a sampler ([`SamplerConfig::sampler`]).
+    /// The `sampler` section as a sampler (`SamplerConfig::sampler`).
     pub fn sampler(&self) -> Result<Arc<dyn RaySampler>> {
         self.sampler.sampler()
     }
 
-    /// The `sampler` section's stratified depths alone ([`SamplerConfig::stratified`]).
+    /// The `sampler` section's stratified depths alone (`SamplerConfig::stratified`).
     pub fn stratified_sampler(&self) -> Result<StratifiedSampler> {
         self.sampler.stratified()
     }

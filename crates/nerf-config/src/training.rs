@@ -67,7 +67,7 @@ pub struct TrainingConfig {
     /// Extension: refine each training camera's pose with the field
     /// ([`nerf_train::camera_refinement`]): `off` (the default),
     /// `on`, or `auto` (on for a COLMAP model whose points reproject
-    /// [`nerf_train::camera_refinement::AUTO_REFINE_RESIDUAL_PX`] or more off).
+    /// `nerf_train::camera_refinement::AUTO_REFINE_RESIDUAL_PX` or more off).
     pub camera_refinement: CameraRefinementName,
 }
 

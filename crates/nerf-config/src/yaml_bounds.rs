@@ -5,14 +5,14 @@
 //! The scan counts flow collections (`[`, `{`, outside quoted strings and comments) and block
 //! nesting (each deeper indentation, and each `- ` or `? ` that opens an entry on a line),
 //! skipping the content of block scalars (`|`, `>`). It over-counts rather than under-counts
-//! on odd input; a config nests 4 deep, the limit is [`MAX_YAML_DEPTH`].
+//! on odd input; a config nests 4 deep, the limit is `MAX_YAML_DEPTH`.
 
 use anyhow::{bail, Result};
 
 /// Longest config or override text read.
 pub const MAX_YAML_BYTES: usize = 1 << 20;
 /// Deepest nesting of YAML collections accepted.
-pub const MAX_YAML_DEPTH: usize = 64;
+pub(crate) const MAX_YAML_DEPTH: usize = 64;
 
 /// An error (one line) when `text` is longer than [`MAX_YAML_BYTES`] or nests deeper than
 /// [`MAX_YAML_DEPTH`]; `what` names it ("config", "override value").

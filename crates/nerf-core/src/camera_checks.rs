@@ -5,17 +5,17 @@
 //!
 //! The rules, derived from what a photograph can be (docs/reliability.md#captures):
 //!
-//! * **Field of view** across each image axis between [`MIN_FIELD_OF_VIEW_DEGREES`] and
-//!   [`MAX_FIELD_OF_VIEW_DEGREES`] for a perspective lens, `2·atan(side / 2f)`; a fisheye's
-//!   angle `side / f` (its distorted angle `θ_d`) up to [`MAX_FISHEYE_FIELD_OF_VIEW_DEGREES`].
-//! * **Principal point** within the image, or at most [`PRINCIPAL_POINT_MARGIN`] of its side
+//! * **Field of view** across each image axis between `MIN_FIELD_OF_VIEW_DEGREES` and
+//!   `MAX_FIELD_OF_VIEW_DEGREES` for a perspective lens, `2·atan(side / 2f)`; a fisheye's
+//!   angle `side / f` (its distorted angle `θ_d`) up to `MAX_FISHEYE_FIELD_OF_VIEW_DEGREES`.
+//! * **Principal point** within the image, or at most `PRINCIPAL_POINT_MARGIN` of its side
 //!   outside it (a cropped photo's centre).
 //! * **Distortion** invertible and monotonic over the whole image: at every point of a grid
 //!   over the image, corners included, undistortion converges and the lens keeps its
-//!   orientation ([`LensDistortion::check_invertible_at`]), and along each line from the
+//!   orientation (`LensDistortion::check_invertible_at`), and along each line from the
 //!   principal point to the image's edge the undistorted radius keeps rising.
 //! * **Size**: the camera's image size equal to its photo's, or the same aspect within
-//!   [`ASPECT_TOLERANCE`] and a scale of at most [`MAX_SIZE_RATIO`] either way (a camera
+//!   `ASPECT_TOLERANCE` and a scale of at most `MAX_SIZE_RATIO` either way (a camera
 //!   calibrated at another resolution, [`check_photo_size`]).
 
 use glam::DVec2;
@@ -26,20 +26,20 @@ use crate::term::short_number;
 
 /// The narrowest field of view across an image axis: a 0.5° lens is a 2,900 mm telephoto on
 /// a full-frame sensor.
-pub const MIN_FIELD_OF_VIEW_DEGREES: f64 = 0.5;
+pub(crate) const MIN_FIELD_OF_VIEW_DEGREES: f64 = 0.5;
 /// The widest field of view of a perspective (non-fisheye) lens across an image axis: 180°
 /// needs an infinite image plane.
-pub const MAX_FIELD_OF_VIEW_DEGREES: f64 = 179.0;
+pub(crate) const MAX_FIELD_OF_VIEW_DEGREES: f64 = 179.0;
 /// The widest fisheye angle across an image axis (`θ_d` from edge to edge): beyond 300° the
 /// lens would see behind itself from both edges.
-pub const MAX_FISHEYE_FIELD_OF_VIEW_DEGREES: f64 = 300.0;
+pub(crate) const MAX_FISHEYE_FIELD_OF_VIEW_DEGREES: f64 = 300.0;
 /// How far outside the image the principal point may lie, as a fraction of the image's side.
-pub const PRINCIPAL_POINT_MARGIN: f64 = 0.25;
+pub(crate) const PRINCIPAL_POINT_MARGIN: f64 = 0.25;
 /// A camera's aspect may differ from its photo's by this fraction (rounding a downscaled side).
-pub const ASPECT_TOLERANCE: f64 = 0.01;
+pub(crate) const ASPECT_TOLERANCE: f64 = 0.01;
 /// A camera may describe its photo at most this many times larger or smaller (`data.downscale`
 /// goes to 64).
-pub const MAX_SIZE_RATIO: f64 = 64.0;
+pub(crate) const MAX_SIZE_RATIO: f64 = 64.0;
 
 /// The farthest a stored capture path (an orbit's radius and height, a spiral's centre, radii
 /// and focus distance) may reach in the normalised frame, where the training cameras stand
@@ -104,8 +104,8 @@ pub(crate) fn field_of_view_degrees(side: f64, focal: f64, fisheye: bool) -> f64
 }
 
 /// Checks NDC focal lengths `[fx, fy]` (the image spans 2 NDC units) against the field-of-view
-/// rule of a perspective lens: `2·atan(1 / f)` from [`MIN_FIELD_OF_VIEW_DEGREES`] to
-/// [`MAX_FIELD_OF_VIEW_DEGREES`].
+/// rule of a perspective lens: `2·atan(1 / f)` from `MIN_FIELD_OF_VIEW_DEGREES` to
+/// `MAX_FIELD_OF_VIEW_DEGREES`.
 pub fn check_ndc_focal(focal: [f64; 2]) -> Result<(), CameraError> {
     for f in focal {
         let degrees = field_of_view_degrees(2.0, f, false);
@@ -196,8 +196,8 @@ fn check_distortion(
 }
 
 /// Checks that a camera of `camera` `(width, height)` pixels can describe its photo of `photo`
-/// pixels: the same size, or the same aspect within [`ASPECT_TOLERANCE`] at a scale of at most
-/// [`MAX_SIZE_RATIO`] (a camera calibrated at another resolution; the rays follow the scale).
+/// pixels: the same size, or the same aspect within `ASPECT_TOLERANCE` at a scale of at most
+/// `MAX_SIZE_RATIO` (a camera calibrated at another resolution; the rays follow the scale).
 pub fn check_photo_size(camera: (usize, usize), photo: (u32, u32)) -> Result<(), CameraError> {
     if camera == (photo.0 as usize, photo.1 as usize) {
         return Ok(());

@@ -388,7 +388,7 @@ impl ColmapCamera {
     /// Unit world-space direction of the ray imaged at pixel coordinates `(u, v)` of the
     /// camera's own image size (fractional; the centre of pixel `(i, j)` is
     /// `(i + 0.5, j + 0.5)`): the distortion is removed by Newton's method
-    /// ([`LensDistortion::undistorted_direction`]).
+    /// (`LensDistortion::undistorted_direction`).
     pub fn direction_at_pixel(&self, u: f64, v: f64) -> DVec3 {
         let distorted = DVec2::new(
             (u - self.principal_point[0]) / self.focal[0],
@@ -424,7 +424,7 @@ impl ColmapCamera {
     /// +Y up, [−1, 1] across the image): `u = (1 − x) / 2 · width`, `v = (1 − y) / 2 · height`,
     /// so NDC `(1, 1)` is the image's top-left corner `(0, 0)` and `(−1, −1)` its bottom-right
     /// corner `(width, height)`.
-    pub fn ndc_to_pixel(&self, x: f64, y: f64) -> (f64, f64) {
+    pub(crate) fn ndc_to_pixel(&self, x: f64, y: f64) -> (f64, f64) {
         (
             (1.0 - x) / 2.0 * self.size.0 as f64,
             (1.0 - y) / 2.0 * self.size.1 as f64,
@@ -438,7 +438,7 @@ impl CameraModel for ColmapCamera {
     }
 
     /// The point at camera-space depth `z = depth` on the ray through the pixel
-    /// [`ColmapCamera::ndc_to_pixel`] gives; for a fisheye ray at or beyond 90° from the axis
+    /// `ColmapCamera::ndc_to_pixel` gives; for a fisheye ray at or beyond 90° from the axis
     /// (no positive depth), the point at distance `depth` along the ray.
     fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3 {
         let (u, v) = self.ndc_to_pixel(x, y);

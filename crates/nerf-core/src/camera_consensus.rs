@@ -23,7 +23,7 @@ use crate::camera_alignment::{align_centres, CameraPair};
 pub type Centres = BTreeMap<String, DVec3>;
 
 /// Fewest shared images two runs are compared on (a similarity needs three centres).
-pub const MIN_SHARED: usize = 3;
+pub(crate) const MIN_SHARED: usize = 3;
 
 /// What [`consensus`] chose.
 #[derive(Debug, Clone, PartialEq)]
@@ -62,7 +62,7 @@ pub fn spread(centres: &[DVec3]) -> f64 {
 /// Per image both `reference` and `other` hold (in name order), its centre disagreement:
 /// `other` aligned to `reference` by the least-squares similarity of the shared centres,
 /// distances as fractions of `reference`'s spread over the shared images. `None` when they
-/// share fewer than [`MIN_SHARED`] images or `reference`'s shared centres coincide.
+/// share fewer than `MIN_SHARED` images or `reference`'s shared centres coincide.
 pub fn disagreement(reference: &Centres, other: &Centres) -> Option<Vec<(String, f64)>> {
     let shared: Vec<(&String, DVec3, DVec3)> = reference
         .iter()

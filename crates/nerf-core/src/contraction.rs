@@ -25,17 +25,9 @@ pub enum Contraction {
 /// Largest L∞ norm a contracted point is given when mapped back ([`Contraction::uncontract`]):
 /// the cube of half-size 2 is infinitely far away, so points on it are brought just inside
 /// (at world distance `1 / (2 − UNCONTRACT_MAX) = 10⁴`).
-pub const UNCONTRACT_MAX: f64 = 2.0 - 1e-4;
+pub(crate) const UNCONTRACT_MAX: f64 = 2.0 - 1e-4;
 
 impl Contraction {
-    /// The name a config writes for it (`implicit_function.contraction`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::None => "none",
-            Self::LInf => "linf",
-        }
-    }
-
     /// The contracted point of world point `p`.
     pub fn contract(self, p: [f64; 3]) -> [f64; 3] {
         match self {
@@ -53,7 +45,7 @@ impl Contraction {
         }
     }
 
-    /// The world point whose contraction is `q` (`‖q‖∞` clamped to [`UNCONTRACT_MAX`]): for
+    /// The world point whose contraction is `q` (`‖q‖∞` clamped to `UNCONTRACT_MAX`): for
     /// `1 < ‖q‖∞ = m < 2`, the point along `q` at L∞ distance `1 / (2 − m)`.
     pub fn uncontract(self, q: [f64; 3]) -> [f64; 3] {
         match self {

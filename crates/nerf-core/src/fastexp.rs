@@ -5,7 +5,7 @@
 /// of the exact value: Cephes' `expf`, `x = n·ln 2 + r` with `|r| ≤ ln 2 / 2`, `e^r` by a
 /// degree-7 polynomial, `2^n` built from its exponent bits.
 #[inline(always)]
-pub fn exp_fast(x: f32) -> f32 {
+pub(crate) fn exp_fast(x: f32) -> f32 {
     const LOG2_E: f32 = std::f32::consts::LOG2_E;
     // 1.5·2^23: adding and subtracting it rounds to the nearest integer (|x·log2 e| < 2^22).
     const ROUND: f32 = 12_582_912.0;

@@ -104,7 +104,7 @@ impl LensDistortion {
     /// has none: a fisheye ray 90° or more from the optical axis. Where Newton cannot reach
     /// the tolerance (a fold of the distortion, far outside any calibrated field) this is the
     /// iterate with the smallest residual.
-    pub fn undistort(&self, distorted: DVec2) -> Option<DVec2> {
+    pub(crate) fn undistort(&self, distorted: DVec2) -> Option<DVec2> {
         match self {
             Self::None => Some(distorted),
             Self::RadialTangential { .. } => Some(self.undistort_radial_tangential(distorted)),
@@ -118,7 +118,7 @@ impl LensDistortion {
     /// The unit camera-space direction (OpenCV axes) of the ray imaged at the distorted
     /// normalised point `distorted`. Unlike [`Self::undistort`] this exists for fisheye rays
     /// at or beyond 90° from the axis too (`z ≤ 0`).
-    pub fn undistorted_direction(&self, distorted: DVec2) -> DVec3 {
+    pub(crate) fn undistorted_direction(&self, distorted: DVec2) -> DVec3 {
         match self {
             Self::None => distorted.extend(1.0).normalize(),
             Self::RadialTangential { .. } => self
@@ -143,7 +143,7 @@ impl LensDistortion {
     /// determinant; for a fisheye, `θ_d` rising with `θ`, below 180°). Newton failing to
     /// converge is this error, never a silent fallback to the distorted point. The error says
     /// which point failed and how.
-    pub fn check_invertible_at(&self, points: &[DVec2]) -> Result<(), String> {
+    pub(crate) fn check_invertible_at(&self, points: &[DVec2]) -> Result<(), String> {
         let tolerance = |d: DVec2| 1e-9 * (1.0 + d.length());
         for &d in points {
             match self {

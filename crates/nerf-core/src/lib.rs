@@ -26,7 +26,7 @@ pub mod image;
 pub mod key_checks;
 pub mod lens_distortion;
 pub mod marching_cubes;
-pub mod marching_tables;
+pub(crate) mod marching_tables;
 pub mod metrics;
 pub(crate) mod pixel_grid;
 pub mod rays;

@@ -1,7 +1,7 @@
 //! Marching cubes: the surface where a scalar field sampled on a regular grid crosses a level.
 //!
 //! The cube cases and their triangles are the `mcubes` crate's
-//! ([`crate::marching_tables`]). Cubes are visited in the grid, in place, and each cube's
+//! (`crate::marching_tables`). Cubes are visited in the grid, in place, and each cube's
 //! triangles are welded into the mesh as they are made: the copies that neighbouring cubes make
 //! of the same edge crossing become one vertex (positions quantised to 1/1024 of a cell), the
 //! triangles that welding makes degenerate are dropped, and each vertex gets the area-weighted

@@ -55,20 +55,6 @@ impl Rays {
         }
     }
 
-    /// Rays through the given NDC points.
-    ///
-    /// `ndc_points`: N points `(x, y)`; returns origins and directions of shape `(N, 3)`.
-    pub fn from_ndc_points(
-        camera: &dyn CameraModel,
-        ndc_points: &[[f64; 2]],
-        device: &Device,
-    ) -> Result<Self> {
-        let rays = ndc_points
-            .iter()
-            .map(|&[x, y]| ray_through_ndc(camera, x, y));
-        Self::from_f64_rays(rays, device)
-    }
-
     /// One ray per pixel of a `width × height` image, row-major: `(W·H, 3)` origins and directions.
     pub fn for_image(
         camera: &dyn CameraModel,

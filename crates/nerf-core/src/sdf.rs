@@ -136,14 +136,14 @@ impl Sdf {
 #[inline]
 /// The homework's SDF → density for one value: `α · (½·e^(−s/β) if s > 0 else 1 − ½·e^(s/β))`,
 /// written with `e^(−|s|/β)` so that neither branch overflows.
-pub fn sdf_to_density_scalar(sdf: f32, alpha: f64, beta: f64) -> f32 {
+pub(crate) fn sdf_to_density_scalar(sdf: f32, alpha: f64, beta: f64) -> f32 {
     let e = (sdf.abs() * (-1.0 / beta) as f32).exp();
     let d = if sdf > 0.0 { 0.5 * e } else { 1.0 - 0.5 * e };
     d * alpha as f32
 }
 
 #[inline]
-/// The signed distance at which [`sdf_to_density_scalar`] equals `density`: its inverse,
+/// The signed distance at which `sdf_to_density_scalar` equals `density`: its inverse,
 /// `−β·ln(2d/α)` for `d ≤ α/2` and `β·ln(2(1 − d/α))` above (0 at `α/2`). `None` unless
 /// `0 < density < α` (the density only reaches 0 and α at infinite distance).
 pub fn sdf_at_density(density: f64, alpha: f64, beta: f64) -> Option<f64> {
@@ -169,9 +169,9 @@ pub(crate) fn density_to_sigma_scalar(density: f32, delta: f32) -> f32 {
 pub struct SdfVolume {
     /// The shape.
     pub sdf: Sdf,
-    /// Density scale α of [`sdf_to_density_scalar`], in [0, 1].
+    /// Density scale α of `sdf_to_density_scalar`, in [0, 1].
     pub alpha: f64,
-    /// Falloff β of [`sdf_to_density_scalar`] in world units (> 0; smaller is sharper).
+    /// Falloff β of `sdf_to_density_scalar` in world units (> 0; smaller is sharper).
     pub beta: f64,
     /// Colour `clamp(|p − center|, 0.02, 0.98) · feature` instead of the constant feature.
     pub rainbow: bool,
@@ -402,17 +402,6 @@ impl SdfVolume {
         (scale, d_scale)
     }
 
-    /// One sample's transparency `1 − density` (= `e^{−σΔ}` for the homework's
-    /// `σ = −ln(1 − density)/Δ`, whatever Δ > 0 is) and the partial derivatives of its
-    /// optical depth `τ = σΔ = −ln(1 − density)` with respect to the parameters, `∂τ/∂θ =
-    /// (∂density/∂θ)/(1 − density)`: what the backward pass of a fused render needs, with no
-    /// logarithm (and `e^x` by `exp_fast`, within 2 ulps). The partials are 0 where
-    /// `1 − density` is 0 (the renderer clamps τ there).
-    #[inline(always)]
-    pub fn transparency_with_partials(&self, p: [f32; 3]) -> (f32, Partials) {
-        self.transparency_from_distance(self.sdf.distance_with_gradient(p))
-    }
-
     /// One sample's transparency `1 − density` (≥ 0) from its signed distance `s`, with
     /// `e = e^{−|s|/β}` and the unit density `½e` (outside) or `1 − ½e` (inside):
     /// `(1 − α·unit, e, unit)`, `e^x` by `exp_fast`.
@@ -423,9 +412,15 @@ impl SdfVolume {
         ((1.0 - unit * self.alpha as f32).max(0.0), e, unit)
     }
 
-    /// [`SdfVolume::transparency_with_partials`] from a signed distance and its derivatives
-    /// `(s, ∂s/∂center, ∂s/∂shape)` ([`box_distance_with_gradient`],
-    /// [`sphere_distance_with_gradient`]), so that a loop over samples can pick the shape once.
+    /// One sample's transparency `1 − density` (= `e^{−σΔ}` for the homework's
+    /// `σ = −ln(1 − density)/Δ`, whatever Δ > 0 is) and the partial derivatives of its
+    /// optical depth `τ = σΔ = −ln(1 − density)` with respect to the parameters, `∂τ/∂θ =
+    /// (∂density/∂θ)/(1 − density)`: what the backward pass of a fused render needs, with no
+    /// logarithm. The partials are 0 where `1 − density` is 0 (the renderer clamps τ there).
+    ///
+    /// It takes the sample's signed distance and its derivatives `(s, ∂s/∂center,
+    /// ∂s/∂shape)` ([`box_distance_with_gradient`], [`sphere_distance_with_gradient`]), so
+    /// that a loop over samples can pick the shape once.
     #[inline(always)]
     pub fn transparency_from_distance(
         &self,

@@ -23,7 +23,7 @@ use anyhow::Result;
 use candle_core::{Tensor, D};
 
 /// Spacing used for the last sample of every ray, as in the homework.
-pub const LAST_DELTA: f64 = 1e10;
+pub(crate) const LAST_DELTA: f64 = 1e10;
 
 /// Optical depths are clamped to this value (see the module documentation).
 pub const MAX_OPTICAL_DEPTH: f64 = 1e4;
@@ -60,7 +60,7 @@ pub fn exclusive_cumsum(x: &Tensor) -> Result<Tensor> {
 /// Clamped optical depth `σ·Δ` of each sample (0 where `Δ = 0`).
 ///
 /// `density`, `deltas`: `(N, S, 1)`; returns `(N, S, 1)`.
-pub fn optical_depth(density: &Tensor, deltas: &Tensor) -> Result<Tensor> {
+pub(crate) fn optical_depth(density: &Tensor, deltas: &Tensor) -> Result<Tensor> {
     let tau = density.mul(deltas)?.clamp(0f32, MAX_OPTICAL_DEPTH as f32)?;
     // Zero spacing: zero optical depth, even where σ is ∞ or NaN (σ = −ln(1 − d)/0).
     let zero_spacing = deltas.eq(0f64)?;
@@ -91,7 +91,7 @@ pub fn aggregate(weights: &Tensor, values: &Tensor) -> Result<Tensor> {
     Ok(values.broadcast_mul(weights)?.sum(1)?)
 }
 
-/// Optical depth of one sample, clamped as in [`optical_depth`]: `σΔ` in
+/// Optical depth of one sample, clamped as in `optical_depth`: `σΔ` in
 /// `[0, MAX_OPTICAL_DEPTH]`, and 0 for zero spacing whatever σ is (the homework's SDF σ is
 /// `−ln(1 − density)/Δ`, which is ∞ or NaN at Δ = 0).
 #[inline]
@@ -118,7 +118,7 @@ pub fn ray_weights(tau: &[f32], weights: &mut [f32], transmittance_after: &mut [
 }
 
 /// Spacing after sample `i` of one ray whose sample lengths are `lengths` (S):
-/// `t_{i+1} − t_i`, and [`LAST_DELTA`] for the last sample — the scalar form of [`deltas`].
+/// `t_{i+1} − t_i`, and `LAST_DELTA` for the last sample — the scalar form of [`deltas`].
 #[inline]
 pub fn spacing(lengths: &[f32], i: usize) -> f32 {
     if i + 1 < lengths.len() {

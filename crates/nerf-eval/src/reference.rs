@@ -59,13 +59,13 @@ pub fn surface_color(volume: &SdfVolume, p: DVec3) -> [f64; 3] {
 }
 
 /// Shortest chord through the solid that counts as a hit in [`analytic_hit`].
-pub const MIN_CHORD: f64 = 1e-9;
+pub(crate) const MIN_CHORD: f64 = 1e-9;
 
 /// Distance along the ray `origin + t·direction` (`direction` a unit vector) to the first
 /// point of the surface with `t ≥ 0`, or `None` if the ray misses: the slab method for a box,
 /// the quadratic for a sphere. A ray starting inside hits at `t = 0`. A ray that only touches
 /// the solid (along an edge or a face, or tangent to the sphere: a chord shorter than
-/// [`MIN_CHORD`]) crosses no volume, so volume rendering sees nothing there: a miss.
+/// `MIN_CHORD`) crosses no volume, so volume rendering sees nothing there: a miss.
 pub fn analytic_hit(sdf: &Sdf, origin: DVec3, direction: DVec3) -> Option<f64> {
     match Shape::of(sdf) {
         Shape::Box { c, half } => {

@@ -246,7 +246,7 @@ impl Nerf {
     /// Density alone (no colour branch, no noise), as the occupancy grid needs it.
     ///
     /// `points`: `(M, 3)`; returns `(M, 1)`.
-    pub fn density(&self, points: &Tensor) -> Result<Tensor> {
+    pub(crate) fn density(&self, points: &Tensor) -> Result<Tensor> {
         let x = harmonic_embedding(points, self.config.n_harmonic_functions_xyz)?;
         let (layers, shape) = self.mlp_layers()?;
         Ok(nerf_mlp::density_forward(&x, &layers, &shape)?.relu()?)

@@ -6,7 +6,7 @@
 //!   ([`nerf_core::contraction`], `implicit_function.contraction: linf`) the point is
 //!   contracted first and the box is in contracted space (`[-2, 2]³` covers all of space).
 //! * `density_mlp`: Linear(L·F, 64) + ReLU → Linear(64, 16); output 0 is the raw density
-//!   (through [`trunc_exp`], or softplus), outputs 1..16 are 15 geometry features.
+//!   (through `trunc_exp`, or softplus), outputs 1..16 are 15 geometry features.
 //! * `color_mlp`: Linear(15 + 16, 64) + ReLU → Linear(64, 64) + ReLU → Linear(64, 3) + sigmoid,
 //!   on the geometry features and the degree-4 real spherical harmonics of the direction
 //!   ([`sh_basis`]). The direction half of the first layer depends only on the ray, so it is
@@ -54,7 +54,7 @@ pub(crate) const TRUNC_EXP_MAX: f64 = 15.0;
 /// How the raw density becomes σ ≥ 0.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum DensityActivation {
-    /// `exp(x)` with the gradient of `exp(min(x, 15))` ([`trunc_exp`]), as instant-ngp.
+    /// `exp(x)` with the gradient of `exp(min(x, 15))` (`trunc_exp`), as instant-ngp.
     #[default]
     TruncExp,
     /// `ln(1 + eˣ)`.
@@ -93,7 +93,7 @@ impl NgpParams {
 /// `exp(x)` whose gradient is `exp(min(x, 15))·g` (instant-ngp's `trunc_exp`: the value is
 /// exact, the gradient cannot overflow). Tensor ops only: `(exp(x) − e·x)` detached plus
 /// `e·x` with `e = exp(min(x, 15))` detached. Any shape.
-pub fn trunc_exp(x: &Tensor) -> Result<Tensor> {
+pub(crate) fn trunc_exp(x: &Tensor) -> Result<Tensor> {
     let e = x.detach().clamp(f64::NEG_INFINITY, TRUNC_EXP_MAX)?.exp()?;
     let constant = (x.detach().exp()? - (&e * x.detach())?)?;
     Ok(((&e * x)? + constant)?)
@@ -164,8 +164,9 @@ impl Ngp {
         self
     }
 
+    #[cfg(test)]
     /// The hash table `(L·T, F)` (the parameter the sparse optimiser treats row by row).
-    pub fn table(&self) -> &Tensor {
+    pub(crate) fn table(&self) -> &Tensor {
         &self.table
     }
 
@@ -306,7 +307,7 @@ impl Ngp {
     }
 
     /// Density alone at `points` `(M, 3)`: `(M, 1)` (what the occupancy grid probes).
-    pub fn density(&self, points: &Tensor) -> Result<Tensor> {
+    pub(crate) fn density(&self, points: &Tensor) -> Result<Tensor> {
         Ok(self.geometry(points)?.0)
     }
 
@@ -475,7 +476,7 @@ impl TrainableField for NgpState {
         KIND
     }
 
-    /// The fused kernels on host buffers ([`Ngp::density_values`]) where they run, else the
+    /// The fused kernels on host buffers (`Ngp::density_values`) where they run, else the
     /// render field's density.
     fn density(&self, points: &Tensor) -> Result<Tensor> {
         if !nerf_kernels::use_fused(&self.model.table) {

@@ -1,5 +1,5 @@
 //! The field kinds a config's `implicit_function.type` can name, listed once
-//! ([`FIELD_KINDS`]): each kind's config (its section's schema, checks and what it becomes
+//! (`FIELD_KINDS`): each kind's config (its section's schema, checks and what it becomes
 //! at run time) lives beside the field, in the kind's own file, and registering it is one
 //! line of the `field_kinds!` list in the crate's `lib.rs`, which also declares the file's
 //! module. The config layer asks this list which kinds exist, and every message that lists
@@ -20,7 +20,7 @@ macro_rules! field_kinds {
 
 /// The built-in field kinds, in the order messages list them (the `field_kinds!` list of the
 /// crate's `lib.rs`: one line each).
-pub const FIELD_KINDS: &[FieldKind] = crate::KINDS;
+pub(crate) const FIELD_KINDS: &[FieldKind] = crate::KINDS;
 
 /// The registered kind called `name`.
 pub fn find_kind(name: &str) -> Option<&'static FieldKind> {

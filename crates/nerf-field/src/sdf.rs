@@ -99,7 +99,7 @@ impl SdfField {
     /// optimiser step: α in [0, 1] (above 1 the density exceeds 1 and σ = −ln(1 − density) is
     /// NaN), β, side lengths and radius at least 1e-6. The homework does not clamp; an
     /// unclamped step past these bounds would make its loss NaN.
-    pub fn clamp_to_valid(&self) -> Result<()> {
+    pub(crate) fn clamp_to_valid(&self) -> Result<()> {
         for (name, var) in &self.variables {
             let (lo, hi) = match name.as_str() {
                 "alpha" => (0.0, 1.0),
@@ -176,7 +176,7 @@ impl TrainableField for SdfModel {
         Ok(sdf_volume(&points, &deltas, &params)?.0.squeeze(1)?)
     }
 
-    /// α in [0, 1]; β, side lengths and radius at least 1e-6 ([`SdfField::clamp_to_valid`]).
+    /// α in [0, 1]; β, side lengths and radius at least 1e-6 (`SdfField::clamp_to_valid`).
     fn constrain(&self) -> Result<()> {
         self.field.clamp_to_valid()
     }

@@ -2,7 +2,7 @@
 //! rayon's threads; without a budget each thread holds one image's decoded copies, so the peak
 //! grows with the thread count: a few large photos, small on disk, took gigabytes each while
 //! decoding, and a run on more threads aborted (measured: docs/reliability.md#decoding-budget).
-//! With it, a decode first reserves its cost ([`decode_cost`]) and waits while the images in
+//! With it, a decode first reserves its cost (`decode_cost`) and waits while the images in
 //! flight hold the rest; one image costlier than the whole budget runs alone. So the peak is
 //! about [`DECODE_BUDGET_BYTES`] (or one image's cost) plus what the loaded, resized images
 //! keep, on 2 threads or 64.
@@ -15,7 +15,7 @@ pub const DECODE_BUDGET_BYTES: u64 = 1 << 30;
 /// Bytes one image of `width × height` pixels (a file of `file_bytes`) costs while it is
 /// decoded, composited and resized: the file, its decoded pixels (up to 8 bytes a pixel:
 /// 16-bit RGBA), the RGBA f32 copy (16) and the resize's f32 intermediate (16).
-pub fn decode_cost(width: u32, height: u32, file_bytes: u64) -> u64 {
+pub(crate) fn decode_cost(width: u32, height: u32, file_bytes: u64) -> u64 {
     file_bytes + u64::from(width) * u64::from(height) * (8 + 16 + 16)
 }
 
@@ -65,7 +65,7 @@ pub fn reserve(cost: u64) -> Reservation {
     Reservation { bytes }
 }
 
-/// What decoding the image file at `path` will cost ([`decode_cost`]), from its size on disk
+/// What decoding the image file at `path` will cost (`decode_cost`), from its size on disk
 /// and the dimensions its header gives, read without reading the rest; the file's size alone
 /// when the header does not read (the decode then names the error), 0 when it is not a regular
 /// file (a FIFO is never opened here; the reader refuses it).

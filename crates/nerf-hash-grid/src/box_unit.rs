@@ -1,6 +1,6 @@
 //! Points mapped from an axis-aligned box to [0, 1]³, and whether each lies in the box: one
 //! multi-threaded pass over the points on the CPU, where the tensor-op twin
-//! ([`box_unit_tensor_ops`]) is nine Candle ops, each its own pass over the points (on one
+//! (`box_unit_tensor_ops`) is nine Candle ops, each its own pass over the points (on one
 //! thread, as the binary runs Candle's element-wise ops), a share of a hash-grid frame worth
 //! a kernel of its own (docs/speed-and-report.md).
 
@@ -16,7 +16,7 @@ const POINTS_PER_TASK: usize = 4096;
 /// The unit coordinates `(p − lo)·scale` of `points` `(M, 3)` (`scale` = 1 / the box's size
 /// per axis): `(M, 3)`, with the gradient `scale·g` to `points` when autograd tracks them; and
 /// `(M, 1)` 1 where all three coordinates lie in [0, 1] (faces included), else 0 (also for
-/// NaN), with no gradient. Fused on the CPU for f32; [`box_unit_tensor_ops`] elsewhere.
+/// NaN), with no gradient. Fused on the CPU for f32; `box_unit_tensor_ops` elsewhere.
 pub fn box_unit(
     points: &Tensor,
     lo: [f32; 3],
@@ -36,7 +36,7 @@ pub fn box_unit(
 }
 
 /// The tensor-op twin of [`box_unit`] (any device and dtype).
-pub fn box_unit_tensor_ops(
+pub(crate) fn box_unit_tensor_ops(
     points: &Tensor,
     lo: [f32; 3],
     scale: [f32; 3],

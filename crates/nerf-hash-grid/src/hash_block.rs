@@ -14,7 +14,7 @@ use nerf_core::truncate::truncate_u32;
 use nerf_kernels::cpu_dispatch::dispatched;
 
 /// Points per block.
-pub const BLOCK: usize = 16;
+pub(crate) const BLOCK: usize = 16;
 
 /// The 8 corners' rows (within the level's table) and weights of a block's points, corner
 /// `k` taking bit `a` of `k` on axis `a`, as [`Level::corners`] numbers them.

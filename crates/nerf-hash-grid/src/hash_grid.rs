@@ -10,7 +10,7 @@
 //! so there is no race and no per-thread buffer. The table gradient it returns is dense
 //! (`L·T × F`, zero-initialised: autograd gives every variable a dense gradient; the
 //! allocation is a fresh zero-page mapping, so only the pages a step writes are touched), and
-//! [`touched_rows`] names the rows a step touched, for an optimiser that updates only those.
+//! The tests' `touched_rows` names the rows a step touched, which a sparse optimiser updates.
 //! Its twin gathers the
 //! corner rows with `index_select` and weights them with tensor ops (Candle's `index_select`
 //! backward is the `index_add` scatter); corner indices and weights come from the points
@@ -36,8 +36,8 @@ const POINTS_PER_TASK: usize = 1024;
 
 /// Encodes `points` `(M, 3)` (in [0, 1]³) with `table` `(L·T, F)`: `(M, L·F)`, level-major
 /// (level `l`'s `F` features at columns `l·F..(l+1)·F`). The gradient flows to `table`, and
-/// to `points` when autograd tracks them ([`crate::hash_point_gradient`]; computed
-/// only then). Fused on the CPU for f32 ([`use_fused`]); [`hash_encode_generic`] elsewhere.
+/// to `points` when autograd tracks them (`crate::hash_point_gradient`; computed
+/// only then). Fused on the CPU for f32 ([`use_fused`]); `hash_encode_generic` elsewhere.
 ///
 /// With a `sink`, the fused backward pass adds the table gradient there (touched rows only)
 /// instead of returning a dense one through autograd; the twin ignores it.
@@ -213,7 +213,7 @@ fn corner_rows(points: &[f32], params: &HashGridParams) -> (Vec<u32>, Vec<f32>) 
 /// `index_add` scatter. Corner rows and weights are computed from `points` `(M, 3)` on the
 /// host; when autograd tracks the points, the weights are tensor ops on them instead (the
 /// same values; `hash_point_gradient::tracked_corner_weights`), so the gradient reaches them.
-pub fn hash_encode_generic(
+pub(crate) fn hash_encode_generic(
     points: &Tensor,
     table: &Tensor,
     params: &HashGridParams,
@@ -319,9 +319,13 @@ impl HashEncode {
     }
 }
 
+#[cfg(test)]
 /// The rows of `table` (`L·T` of them) that `points` `(M, 3)` touch (any corner weight, even
 /// 0): sorted, without repeats. What the sparse Adam updates after a step over these points.
-pub fn touched_rows(points: &Tensor, params: &HashGridParams) -> candle_core::Result<Vec<u32>> {
+pub(crate) fn touched_rows(
+    points: &Tensor,
+    params: &HashGridParams,
+) -> candle_core::Result<Vec<u32>> {
     let p = points
         .to_dtype(DType::F32)?
         .flatten_all()?

@@ -102,8 +102,9 @@ pub struct Level {
 }
 
 impl Level {
+    #[cfg(test)]
     /// The row (within this level's table) of the integer corner `c`.
-    pub fn index(&self, c: [u32; 3]) -> u32 {
+    pub(crate) fn index(&self, c: [u32; 3]) -> u32 {
         if self.dense {
             let n = self.resolution + 1;
             c[0] + n * (c[1] + n * c[2])
@@ -141,7 +142,7 @@ impl Level {
     /// The 8 corners of the cell holding `p` as [`Level::corners`] gives them (row, weight),
     /// with each weight's gradient with respect to `p`: on axis `a`,
     /// `±[Level::cell_slope]·Π_{b≠a} w_b` (+ for the corner on the cell's upper side).
-    pub fn corner_gradients(&self, p: [f32; 3]) -> [(u32, f32, [f32; 3]); 8] {
+    pub(crate) fn corner_gradients(&self, p: [f32; 3]) -> [(u32, f32, [f32; 3]); 8] {
         let cells = p.map(|v| self.cell(v));
         let slope = p.map(|v| self.cell_slope(v));
         let w = cells.map(|(_, frac)| [1.0 - frac, frac]);
@@ -161,7 +162,7 @@ impl Level {
 
     /// The 8 corners of the cell holding `p` (in [0, 1]³; clamped there): each corner's row in
     /// this level's table and its trilinear weight (corner `k` takes bit `a` of `k` on axis `a`).
-    pub fn corners(&self, p: [f32; 3]) -> [(u32, f32); 8] {
+    pub(crate) fn corners(&self, p: [f32; 3]) -> [(u32, f32); 8] {
         let n = self.resolution;
         // Per axis: the cell's two corner coordinates' terms of the row index, and their
         // weights. Corner `k` sums (dense) or XORs (hashed) one term per axis.

@@ -28,7 +28,7 @@ const POINTS_PER_TASK: usize = 1024;
 /// The gradient `(m, 3)` of a loss with respect to `points` `(m, 3)` given its gradient
 /// `grads` `(m, L·f)` with respect to their encoding by `table` (the `(L·T, f)` rows, level
 /// `l` at rows `l·T..(l+1)·T`) on `levels`.
-pub fn point_gradients(
+pub(crate) fn point_gradients(
     levels: &[Level],
     table: &[f32],
     points: &[f32],
@@ -70,7 +70,7 @@ pub fn point_gradients(
 /// so that autograd carries their gradient to the points. `host` holds the points' f32
 /// values. The values equal the host weights bit for bit: each axis' fraction is the host's
 /// plus `(p − p̄)·∂fraction/∂p`, where `p̄` is `p` detached (a zero that carries the slope).
-pub fn tracked_corner_weights(
+pub(crate) fn tracked_corner_weights(
     points: &Tensor,
     host: &[f32],
     params: &HashGridParams,

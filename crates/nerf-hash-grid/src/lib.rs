@@ -6,9 +6,9 @@
 //!
 //! * [`hash_grid`]: the multiresolution hash encoding, forward, and backward into a table
 //!   gradient that lists the rows a step touched ([`hash_grid::TableGradient`]); the shape of
-//!   the grid and its levels in [`hash_level`], the vectorised inner loops in [`hash_block`],
+//!   the grid and its levels in `hash_level`, the vectorised inner loops in `hash_block`,
 //!   the gradient with respect to the points (for camera refinement) in
-//!   [`hash_point_gradient`];
+//!   `hash_point_gradient`;
 //! * [`ngp_mlp`]: the density and colour MLPs as one fused op;
 //! * [`box_unit`]: points mapped from the scene's box to the grid's `[0, 1]³`;
 //! * [`spherical_harmonics`]: the direction encoding of the colour MLP.
@@ -22,9 +22,9 @@
 pub mod box_unit;
 #[cfg(test)]
 mod encoding_f64;
-pub mod hash_block;
+pub(crate) mod hash_block;
 pub mod hash_grid;
-pub mod hash_level;
-pub mod hash_point_gradient;
+pub(crate) mod hash_level;
+pub(crate) mod hash_point_gradient;
 pub mod ngp_mlp;
 pub mod spherical_harmonics;

@@ -17,7 +17,7 @@
 //! * `h2 = relu(W2·h1 + b2)`, `rgb = sigmoid(W3·h2 + b3)`.
 //!
 //! The output is `(M, 4)`: `[raw density, r, g, b]`. Parameters are passed packed (see
-//! [`MlpShape`]); the tensor-op twin is [`ngp_mlp_tensor_ops`].
+//! [`MlpShape`]); the tensor-op twin is `ngp_mlp_tensor_ops`.
 
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
@@ -132,7 +132,7 @@ pub fn pack_parameters(
 /// The fused MLPs: `enc` `(M, E)`, `per_ray` `(N, H)`, `ray_index` (the ray of each sample,
 /// `M` entries below `N`), packed `params` `(P)`, all f32 on the CPU; returns `(M, 4)`
 /// (`[raw density, r, g, b]`). Gradients flow to `enc`, `per_ray` and `params`.
-pub fn ngp_mlp(
+pub(crate) fn ngp_mlp(
     enc: &Tensor,
     per_ray: &Tensor,
     ray_index: &[u32],
@@ -162,9 +162,9 @@ pub fn ngp_mlp(
     }
 }
 
-/// The NGP MLPs on `enc` `(M, E)` and `per_ray` `(N, H)`: the fused [`ngp_mlp`] where
+/// The NGP MLPs on `enc` `(M, E)` and `per_ray` `(N, H)`: the fused `ngp_mlp` where
 /// [`nerf_kernels::use_fused`] allows (f32 on the CPU, fused kernels chosen), else its twin
-/// [`ngp_mlp_tensor_ops`]. `ray_index`: each sample's ray, as a `(M,)` u32 tensor on the
+/// `ngp_mlp_tensor_ops`. `ray_index`: each sample's ray, as a `(M,)` u32 tensor on the
 /// inputs' device and as the same values on the host. Returns `(M, 4)`.
 pub fn mlp_forward(
     enc: &Tensor,
@@ -187,7 +187,7 @@ pub fn mlp_forward(
 
 /// The tensor-op twin of [`ngp_mlp`] (any device and dtype): the same layers through Candle
 /// ops, `ray_index` `(M,)` u32 on the tensors' device.
-pub fn ngp_mlp_tensor_ops(
+pub(crate) fn ngp_mlp_tensor_ops(
     enc: &Tensor,
     per_ray: &Tensor,
     ray_index: &Tensor,
@@ -211,7 +211,7 @@ pub fn ngp_mlp_tensor_ops(
     Tensor::cat(&[&o1.narrow(1, 0, 1)?, &rgb], 1)
 }
 
-/// The MLPs' parameters as separate tensors, for [`ngp_mlp_tensor_ops`].
+/// The MLPs' parameters as separate tensors, for `ngp_mlp_tensor_ops`.
 pub struct MlpLayers<'a> {
     /// Density layer 0 weight `(H, E)`.
     pub w0: &'a Tensor,
@@ -405,7 +405,7 @@ impl CpuKernel<3> for NgpMlp {
 
 /// The fused MLPs' forward pass on host values: `(M, 4)` `[raw density, r, g, b]` from the
 /// encoding `enc` `(M, E)`, each sample's ray `rays` `(M)` into `per_ray` `(N, H)`, and the
-/// packed `params` `(P)` ([`MlpShape`]). What [`ngp_mlp`] computes, without a tensor.
+/// packed `params` `(P)` ([`MlpShape`]). What `ngp_mlp` computes, without a tensor.
 pub fn mlp_values(
     shape: MlpShape,
     enc: &[f32],

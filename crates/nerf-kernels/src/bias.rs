@@ -14,7 +14,7 @@ const ROWS_PER_TASK: usize = 512;
 
 /// Sums of the columns of `x` `(M, H)`: `(H)`. On the CPU one multi-threaded pass over the
 /// rows (Candle's `sum(0)` walks the matrix column by column); elsewhere `sum(0)`.
-pub fn column_sum(x: &Tensor) -> candle_core::Result<Tensor> {
+pub(crate) fn column_sum(x: &Tensor) -> candle_core::Result<Tensor> {
     if use_fused(x) {
         x.contiguous()?.apply_op1_no_bwd(&Fused(ColumnSum))
     } else {
@@ -55,7 +55,7 @@ impl CpuKernel<1> for ColumnSum {
 }
 
 /// `x + bias` for `x` `(M, H)` and `bias` `(H)`, with the bias gradient as one
-/// [`column_sum`] (Candle's broadcast-add backward reduces column by column). CPU f32; other
+/// `column_sum` (Candle's broadcast-add backward reduces column by column). CPU f32; other
 /// devices use `broadcast_add`.
 pub fn bias_add(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
     if use_fused(x) {
@@ -66,10 +66,11 @@ pub fn bias_add(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
     }
 }
 
+#[cfg(test)]
 /// `out[i] = x[i] + r[i / group]` for `x` `(N·group, C)` and `r` `(N, C)`: a per-ray term
 /// added to each of the ray's samples, with its gradient summed per ray in one pass. CPU f32;
 /// other devices use a broadcast add.
-pub fn add_per_group(x: &Tensor, r: &Tensor, group: usize) -> candle_core::Result<Tensor> {
+pub(crate) fn add_per_group(x: &Tensor, r: &Tensor, group: usize) -> candle_core::Result<Tensor> {
     if use_fused(x) {
         x.contiguous()?
             .apply_op2(&r.contiguous()?, Fused(AddRows { group }))

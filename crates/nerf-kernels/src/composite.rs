@@ -3,7 +3,7 @@
 //!
 //! Inputs: density σ `(N, S, 1)`, sample lengths t `(N, S, 1)`, features v `(N, S, C)`; σ and
 //! v may be strided views (no copies are made). Spacings are `Δ_i = t_{i+1} − t_i`, with
-//! [`nerf_core::volume::LAST_DELTA`] for the last sample. Output `(N, C + 2)`: colour `Σ_i w_i v_ic`, depth
+//! `nerf_core::volume::LAST_DELTA` for the last sample. Output `(N, C + 2)`: colour `Σ_i w_i v_ic`, depth
 //! `Σ_i w_i t_i`, opacity `Σ_i w_i`, where `τ_i = clamp(σ_i Δ_i, 0, MAX_OPTICAL_DEPTH)`,
 //! `T_i = Π_{j<i} e^{−τ_j}`, `w_i = T_i (1 − e^{−τ_i})` — the maths of
 //! [`nerf_core::volume::weights`].
@@ -82,8 +82,8 @@ pub struct PackedDensities {
 
 /// Colour, depth and opacity of each ray from its samples: the weights and their weighted
 /// sums, with spacings derived from the lengths ([`nerf_core::volume::deltas`]). The fused
-/// [`Composite`] kernel (forward and backward) where [`use_fused`] allows, else
-/// [`composite_tensor_ops`].
+/// `Composite` kernel (forward and backward) where [`use_fused`] allows, else
+/// `composite_tensor_ops`.
 ///
 /// `density`, `lengths`: `(N, S, 1)`; `feature`: `(N, S, C)`. Returns colour `(N, C)`, depth
 /// `(N, 1)` and opacity `(N, 1)`.
@@ -216,7 +216,7 @@ pub fn packed_forward(rays: &PackedRays, density: &[f32], feature: &[f32], c: us
 /// bit for bit (a zero optical depth leaves the transmittance and the sums unchanged), but
 /// only the listed samples are visited, forward and backward. Differentiable in `density`
 /// and `feature`. The fused kernel where [`use_fused`] allows, else its twin
-/// [`composite_packed_tensor_ops`].
+/// `composite_packed_tensor_ops`.
 pub fn composite_packed(values: PackedValues, lengths: &Tensor) -> Result<Composited> {
     if !use_fused(&values.density) {
         return composite_packed_tensor_ops(values, lengths);
@@ -242,7 +242,10 @@ pub fn composite_packed(values: PackedValues, lengths: &Tensor) -> Result<Compos
 /// The twin of [`composite_packed`] (any device and dtype): the packed values scattered into
 /// dense `(N, S, ·)` tensors, zeros at the samples not listed (`index_add`, differentiable),
 /// then [`composite_tensor_ops`].
-pub fn composite_packed_tensor_ops(values: PackedValues, lengths: &Tensor) -> Result<Composited> {
+pub(crate) fn composite_packed_tensor_ops(
+    values: PackedValues,
+    lengths: &Tensor,
+) -> Result<Composited> {
     let rays = (values.n_rays, lengths.dim(1)?);
     let (density, feature) = scatter_packed(values.index, rays, &values.density, &values.feature)?;
     let lengths = lengths_per_ray(lengths, rays.0, density.dtype())?;
@@ -391,7 +394,7 @@ pub fn packed_backward(
 ///
 /// `density`, `lengths`: `(N, S, 1)`; `feature`: `(N, S, C)`. Returns colour `(N, C)`, depth
 /// `(N, 1)` and opacity `(N, 1)`.
-pub fn composite_tensor_ops(
+pub(crate) fn composite_tensor_ops(
     density: &Tensor,
     feature: &Tensor,
     lengths: &Tensor,
@@ -473,7 +476,7 @@ impl Scratch {
 }
 
 /// The forward op: `(σ, t, v) → (N, C + 2)`.
-pub struct Composite;
+pub(crate) struct Composite;
 
 impl CpuKernel<3> for Composite {
     const NAME: &'static str = "volume-composite";

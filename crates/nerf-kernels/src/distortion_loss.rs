@@ -170,7 +170,7 @@ impl CpuKernel<2> for DenseDistortion {
 /// (`samples.density` `(M, 1)` at the flat sample indices `samples.index`, no repeats) over
 /// rays whose lengths are `lengths` `(N, S, 1)` (or `(1, S, 1)` shared). Samples not listed
 /// have σ = 0. Differentiable in the densities; only the listed samples are visited. The fused
-/// kernel where [`use_fused`] allows, else its twin [`distortion_loss_packed_tensor_ops`].
+/// kernel where [`use_fused`] allows, else its twin `distortion_loss_packed_tensor_ops`.
 pub fn distortion_loss_packed(
     samples: PackedDensities,
     lengths: &Tensor,
@@ -197,7 +197,7 @@ pub fn distortion_loss_packed(
 /// The twin of [`distortion_loss_packed`] (any device and dtype): the densities scattered into
 /// a dense `(N, S, 1)` tensor, zeros at the samples not listed (`index_add`,
 /// differentiable), then [`distortion_loss_tensor_ops`].
-pub fn distortion_loss_packed_tensor_ops(
+pub(crate) fn distortion_loss_packed_tensor_ops(
     samples: PackedDensities,
     lengths: &Tensor,
     spacing: RaySpacing,

@@ -8,7 +8,7 @@
 //! doubling at most doubles the error, so after 7 it is under 2^7 · 2^-52 ≈ 3e-14, far below
 //! an f32's resolution, and each value rounds to f32 within one unit in the last place of
 //! `sinf(x·2^k)` (`x·2^k` is exact in f32, so that is the homework's value). The tensor-op twin
-//! is [`harmonic_embedding_tensor_ops`].
+//! is `harmonic_embedding_tensor_ops`.
 
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
@@ -25,7 +25,7 @@ const ROWS_PER_TASK: usize = 4096;
 
 /// `[sin(x·f), cos(x·f), x]` with `f = 2^0 … 2^(L−1)`, ordered as pytorch3d's
 /// `HarmonicEmbedding` (coordinate-major within each of the sin and cos blocks): the fused op
-/// where [`use_fused`] allows, else [`harmonic_embedding_tensor_ops`].
+/// where [`use_fused`] allows, else `harmonic_embedding_tensor_ops`.
 ///
 /// `x`: `(M, C)`; returns `(M, C·2L + C)` (`x` itself when `L = 0`).
 pub fn harmonic_embedding(x: &Tensor, n_frequencies: usize) -> candle_core::Result<Tensor> {
@@ -48,7 +48,7 @@ pub fn harmonic_embedding(x: &Tensor, n_frequencies: usize) -> candle_core::Resu
 /// The tensor-op twin of [`harmonic_embedding`] (any device and dtype, differentiable).
 ///
 /// `x`: `(M, C)`; returns `(M, C·2L + C)`.
-pub fn harmonic_embedding_tensor_ops(
+pub(crate) fn harmonic_embedding_tensor_ops(
     x: &Tensor,
     n_frequencies: usize,
 ) -> candle_core::Result<Tensor> {

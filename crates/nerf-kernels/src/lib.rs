@@ -29,10 +29,10 @@ pub mod harmonic;
 pub mod mlp_block;
 pub mod nerf_mlp;
 pub mod sample_points;
-pub mod sdf_ray;
+pub(crate) mod sdf_ray;
 pub mod sdf_render;
 pub mod sdf_volume;
-pub mod sdf_volume_grad;
+pub(crate) mod sdf_volume_grad;
 pub mod sparse_adam;
 pub mod storage;
 #[cfg(any(test, feature = "test-support"))]

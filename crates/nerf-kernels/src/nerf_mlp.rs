@@ -22,7 +22,7 @@
 //!
 //! The output is `(M, 4)`, `[raw density, r, g, b]`, or `(M, 1)` for the density alone (the
 //! occupancy grid's queries: no colour head, no backward pass). Parameters are packed (see
-//! [`NerfMlpShape`]); the tensor-op twin is [`nerf_mlp_tensor_ops`].
+//! [`NerfMlpShape`]); the tensor-op twin is `nerf_mlp_tensor_ops`.
 
 use std::sync::Mutex;
 
@@ -124,7 +124,7 @@ impl NerfMlpShape {
     }
 }
 
-/// The MLP's layers as Candle tensors (the twin's inputs, and what [`pack_parameters`] packs).
+/// The MLP's layers as Candle tensors (the twin's inputs, and what `pack_parameters` packs).
 pub struct NerfLayers<'a> {
     /// The trunk's layers, `W_l (H, in_l)`.
     pub trunk: &'a [Linear],
@@ -141,7 +141,7 @@ pub struct NerfLayers<'a> {
 
 /// The layers' parameters flattened in the packed order of [`NerfMlpShape`]: `(P)`.
 /// Differentiable (a `cat`).
-pub fn pack_parameters(layers: &NerfLayers) -> candle_core::Result<Tensor> {
+pub(crate) fn pack_parameters(layers: &NerfLayers) -> candle_core::Result<Tensor> {
     let weight_and_bias = |l: &Linear| -> candle_core::Result<[Tensor; 2]> {
         let w = l.weight();
         let b = match l.bias() {
@@ -172,8 +172,8 @@ pub fn shape_of(layers: &NerfLayers, skip: Vec<bool>) -> candle_core::Result<Ner
     })
 }
 
-/// The whole MLP: the fused [`nerf_mlp`] where [`use_fused`] allows (f32 on the CPU, fused
-/// kernels chosen), else its twin [`nerf_mlp_tensor_ops`].
+/// The whole MLP: the fused `nerf_mlp` where [`use_fused`] allows (f32 on the CPU, fused
+/// kernels chosen), else its twin `nerf_mlp_tensor_ops`.
 ///
 /// `x`: `(M, E)` point embedding; `per_ray`: `(N, D)`; `ray_index`: each sample's ray, as a
 /// `(M,)` u32 tensor on the inputs' device and as the same values on the host. Returns `(M, 4)`,
@@ -217,7 +217,7 @@ pub fn density_forward(
 /// The fused MLP: `x` `(M, E)`, `per_ray` `(N, D)`, `rays` (each sample's ray, `M` entries below
 /// `N`), packed `params` `(P)`, all f32 on the CPU; returns `(M, 4)`. Gradients flow to
 /// `per_ray` and `params`, and to `x` when autograd tracks it.
-pub fn nerf_mlp(
+pub(crate) fn nerf_mlp(
     x: &Tensor,
     per_ray: &Tensor,
     rays: &[u32],
@@ -248,7 +248,7 @@ pub fn nerf_mlp(
 
 /// The tensor-op twin of [`nerf_mlp`] (any device and dtype, differentiable): `(M, 4)` with
 /// `Some((per_ray (N, D), ray_index (M,) u32))`, the raw density `(M, 1)` alone with `None`.
-pub fn nerf_mlp_tensor_ops(
+pub(crate) fn nerf_mlp_tensor_ops(
     x: &Tensor,
     colour: Option<(&Tensor, &Tensor)>,
     layers: &NerfLayers,

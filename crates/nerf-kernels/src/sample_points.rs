@@ -9,7 +9,7 @@ use crate::{needs_grad, use_fused};
 
 /// `origins[:, None] + lengths · directions[:, None]`. Where [`use_fused`] allows and no input
 /// is tracked by autograd this is one multi-threaded pass with no backward (rays and lengths
-/// are never trained); otherwise the differentiable twin [`sample_points_tensor_ops`].
+/// are never trained); otherwise the differentiable twin `sample_points_tensor_ops`.
 ///
 /// `origins`, `directions`: `(N, 3)`; `lengths`: `(N, S, 1)`; returns `(N, S, 3)`.
 pub fn sample_points(origins: &Tensor, directions: &Tensor, lengths: &Tensor) -> Result<Tensor> {
@@ -26,7 +26,7 @@ pub fn sample_points(origins: &Tensor, directions: &Tensor, lengths: &Tensor) ->
 /// [`sample_points`] as Candle broadcast ops (any device and dtype, differentiable).
 ///
 /// `origins`, `directions`: `(N, 3)`; `lengths`: `(N, S, 1)`. Returns points `(N, S, 3)`.
-pub fn sample_points_tensor_ops(
+pub(crate) fn sample_points_tensor_ops(
     origins: &Tensor,
     directions: &Tensor,
     lengths: &Tensor,

@@ -18,7 +18,7 @@ use nerf_core::sdf::{
 use nerf_core::volume::spacing;
 
 /// Samples computed together before the running transmittance is checked.
-pub const BLOCK: usize = 16;
+pub(crate) const BLOCK: usize = 16;
 
 /// Per-sample values of one ray, one array per quantity (index = sample).
 #[derive(Debug, Default)]

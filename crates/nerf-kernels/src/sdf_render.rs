@@ -1,7 +1,7 @@
 //! Rendering rays through an SDF volume in one fused CPU pass per ray, forward and backward:
 //! sample points, transparency and colour, and compositing, without materialising the
 //! `(N, S, ·)` sample tensors; per ray, blocks of samples are computed together so that the
-//! work vectorises ([`crate::sdf_ray`]).
+//! work vectorises (`crate::sdf_ray`).
 //!
 //! The maths is the twin's — the sampler's points, [`SdfVolume::evaluate_point`] and
 //! [`nerf_core::volume`]'s weights, as [`crate::sample_points`],
@@ -15,7 +15,7 @@
 //! The backward pass recomputes each ray, then, walking back, forms the compositing
 //! gradients (`∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, `∂L/∂c_i = w_i G`, see
 //! [`crate::composite`]) and turns them into gradients of the packed parameters
-//! ([`SdfVolume::transparency_with_partials`], [`SdfVolume::colour_factors`]). Rays and
+//! ([`SdfVolume::transparency_from_distance`], [`SdfVolume::colour_factors`]). Rays and
 //! depths get no gradient (they are never trained; tracked ones take the twin).
 //!
 //! [`sdf_render_mse`] does a training step's loss in the same pass: the gradient is formed

@@ -48,10 +48,11 @@ pub struct SdfTensors {
 }
 
 impl SdfTensors {
+    #[cfg(test)]
     /// `volume`'s parameters as tensors, each made by `make(name, values)`: `center` (3), then
     /// `side_lengths` (3) or `radius` (1), then `alpha`, `beta` (1) and `feature` (3), in that
     /// order (plain tensors, or variables for the ones being trained).
-    pub fn from_volume<E>(
+    pub(crate) fn from_volume<E>(
         volume: &SdfVolume,
         mut make: impl FnMut(&str, &[f32]) -> std::result::Result<Tensor, E>,
     ) -> std::result::Result<Self, E> {
@@ -170,8 +171,8 @@ impl SdfTensors {
 
 /// σ and colour at every sample. Where [`use_fused`] allows: the fused kernel when nothing is
 /// tracked by autograd (rendering), else the fused kernels with backward passes of
-/// [`crate::sdf_volume_grad`] (training); otherwise, or when the spacings are
-/// tracked, [`sdf_volume_tensor_ops`].
+/// `crate::sdf_volume_grad` (training); otherwise, or when the spacings are
+/// tracked, `sdf_volume_tensor_ops`.
 ///
 /// `points`: `(N, S, 3)`; `deltas`: `(N, S, 1)`. Returns σ `(N, S, 1)` and colour `(N, S, 3)`.
 pub fn sdf_volume(
@@ -201,7 +202,7 @@ pub fn sdf_volume(
 /// [`sdf_volume`] as Candle tensor ops (any device, differentiable in every parameter).
 ///
 /// `points`: `(N, S, 3)`; `deltas`: `(N, S, 1)`. Returns σ `(N, S, 1)` and colour `(N, S, 3)`.
-pub fn sdf_volume_tensor_ops(
+pub(crate) fn sdf_volume_tensor_ops(
     points: &Tensor,
     deltas: &Tensor,
     volume: &SdfTensors,

@@ -46,7 +46,7 @@ fn depth_then_disparity_kind(s: &SamplerSettings) -> Result<Arc<dyn RaySampler>>
 /// Uniform in depth on `[min_depth, max_depth]`, then uniform in disparity on
 /// `[max_depth, far_depth]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DepthThenDisparitySampler {
+pub(crate) struct DepthThenDisparitySampler {
     /// Bins (samples) uniform in depth (`sampler.n_pts_per_ray`, at least 1).
     pub n_near: usize,
     /// Start of the first bin (`sampler.min_depth`, ≥ 0).

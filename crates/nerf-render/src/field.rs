@@ -45,7 +45,7 @@ pub use nerf_kernels::composite::Composited;
 
 /// The samples a field without its own [`FieldFastPaths::max_samples_per_chunk`] is given at
 /// once: a size that suits a field keeping large activations a sample.
-pub const DEFAULT_SAMPLES_PER_CHUNK: usize = 1 << 16;
+pub(crate) const DEFAULT_SAMPLES_PER_CHUNK: usize = 1 << 16;
 
 /// A radiance field: what a new field kind implements. Only [`Field::evaluate`] is required;
 /// a field with fused kernels also offers them through [`Field::fast_paths`].
@@ -88,7 +88,7 @@ pub trait Field {
     }
 
     /// The field's fast paths, when it has kernels for them; `None` (the default) renders
-    /// through [`Field::evaluate`] alone, in chunks of [`DEFAULT_SAMPLES_PER_CHUNK`] samples.
+    /// through [`Field::evaluate`] alone, in chunks of `DEFAULT_SAMPLES_PER_CHUNK` samples.
     fn fast_paths(&self) -> Option<&dyn FieldFastPaths> {
         None
     }
@@ -111,7 +111,7 @@ pub trait FieldFastPaths {
 
     /// The most samples (rays × points per ray) to evaluate at once. The renderer lowers its
     /// `chunk_size` to fit, which bounds memory without changing any output. The default is
-    /// [`DEFAULT_SAMPLES_PER_CHUNK`]; the fields that keep little a sample return more.
+    /// `DEFAULT_SAMPLES_PER_CHUNK`; the fields that keep little a sample return more.
     fn max_samples_per_chunk(&self) -> usize {
         DEFAULT_SAMPLES_PER_CHUNK
     }
@@ -139,7 +139,7 @@ pub trait FieldFastPaths {
 
 /// The samples `field` evaluates at once ([`FieldFastPaths::max_samples_per_chunk`], else
 /// [`DEFAULT_SAMPLES_PER_CHUNK`]).
-pub fn samples_per_chunk<F: Field + ?Sized>(field: &F) -> usize {
+pub(crate) fn samples_per_chunk<F: Field + ?Sized>(field: &F) -> usize {
     field
         .fast_paths()
         .map_or(DEFAULT_SAMPLES_PER_CHUNK, |f| f.max_samples_per_chunk())

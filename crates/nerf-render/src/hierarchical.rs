@@ -2,7 +2,7 @@
 //! `ProbabilisticRaysampler`: a coarse pass renders the stratified samples, the weights of
 //! that pass define a piecewise-constant density over the ray (on the bins between the
 //! midpoints of neighbouring coarse samples), and `n_pts_per_ray_fine` more depths are drawn
-//! from it by inverse transform sampling ([`sample_pdf`]). The fine pass renders the coarse
+//! from it by inverse transform sampling (`sample_pdf`). The fine pass renders the coarse
 //! and fine depths together, sorted. One field serves both passes (pytorch3d trains a second
 //! network for the fine pass; here the option is a sampling strategy for any field).
 //!
@@ -113,7 +113,7 @@ pub(crate) const WEIGHT_EPS: f32 = 1e-5;
 /// `u ∈ [0, 1]` maps to the depth where the cumulative mass reaches `u` (linear inside a bin).
 /// pytorch3d's `sample_pdf` for one ray: `edges` has one more value than `weights`, and the
 /// result has one depth per `u`, in the order of `u` (increasing when `u` is).
-pub fn sample_pdf(edges: &[f32], weights: &[f32], u: &[f32]) -> Vec<f32> {
+pub(crate) fn sample_pdf(edges: &[f32], weights: &[f32], u: &[f32]) -> Vec<f32> {
     debug_assert_eq!(edges.len(), weights.len() + 1);
     let total: f32 = weights.iter().map(|w| w + WEIGHT_EPS).sum();
     // cdf[0] = 0, cdf[j + 1] = mass of bins 0..=j.

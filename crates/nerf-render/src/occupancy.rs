@@ -29,9 +29,9 @@ use rand::Rng;
 const DENSITY_BATCH: usize = 1 << 16;
 
 /// Cells per side of the blocks that ray marching skips whole ([`OccupancyGrid::empty_blocks`]).
-pub const BLOCK: usize = 8;
+pub(crate) const BLOCK: usize = 8;
 
-/// Which blocks of [`BLOCK`]³ cells of a grid are empty (x slowest, as the cells).
+/// Which blocks of `BLOCK`³ cells of a grid are empty (x slowest, as the cells).
 #[derive(Debug, Clone, PartialEq)]
 pub struct EmptyBlocks {
     /// Blocks per side, `ceil(R / BLOCK)`.
@@ -44,7 +44,7 @@ pub struct EmptyBlocks {
 /// the exit face of cell 0 less the margin, relative to the origin, the cell size (0 on an
 /// axis the ray does not move along, whose `first` is +∞) and `1 / direction`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RayFaces {
+pub(crate) struct RayFaces {
     first: [f64; 3],
     first_block: [f64; 3],
     size: [f64; 3],
@@ -56,7 +56,7 @@ impl RayFaces {
     /// `cell` ([`OccupancyGrid::cell_coordinates`]) lies in that cell too (see
     /// [`OccupancyGrid::ray_faces`]).
     #[inline]
-    pub fn exit(&self, cell: [usize; 3]) -> f64 {
+    pub(crate) fn exit(&self, cell: [usize; 3]) -> f64 {
         (0..3)
             .map(|k| (self.first[k] + cell[k] as f64 * self.size[k]) * self.inverse_direction[k])
             .fold(f64::INFINITY, f64::min)
@@ -148,7 +148,7 @@ pub(crate) type DensityFn<'a> = &'a dyn Fn(&Tensor) -> Result<Tensor>;
 
 /// The grid for a trained model: the one saved in the checkpoint's `occupancy.density` when
 /// present and of the configured resolution, else built from the model's `density`
-/// ([`OccupancyGrid::build`]). `tensors`: the checkpoint's, where `occupancy.density` is
+/// (`OccupancyGrid::build`). `tensors`: the checkpoint's, where `occupancy.density` is
 /// `(R, R, R)` for resolution R.
 pub fn grid_for_checkpoint(
     params: &OccupancyGridParams,
@@ -215,7 +215,7 @@ impl OccupancyGrid {
         (0..self.n_cells()).any(|c| self.occupied[c] && !(kept && self.is_far_shell(c)))
     }
 
-    /// Keeps a contracted grid's far shell ([`OccupancyGrid::is_far_shell`]) occupied from now
+    /// Keeps a contracted grid's far shell (`OccupancyGrid::is_far_shell`) occupied from now
     /// on (nothing without a contraction). For photos whose far field is scene, not a backdrop
     /// (a room, a street): every ray then ends on samples of the far shell, so a ray through
     /// space the grid emptied still takes the colour the field learnt far behind it, where it
@@ -232,7 +232,7 @@ impl OccupancyGrid {
 
     /// Whether `cell` is in the outermost layer of the grid: with a contraction, what lies
     /// farthest (beyond 1 / (cell side) of the unit cube).
-    pub fn is_far_shell(&self, cell: usize) -> bool {
+    pub(crate) fn is_far_shell(&self, cell: usize) -> bool {
         let r = self.resolution;
         let i = [cell / (r * r), (cell / r) % r, cell % r];
         i.iter().any(|&k| k == 0 || k + 1 == r)
@@ -254,7 +254,7 @@ impl OccupancyGrid {
     /// The integer coordinates `[ix, iy, iz]` of the cell holding world point `p` (contracted
     /// first when the grid is), or `None` outside the bounding box (or for NaN).
     #[inline]
-    pub fn cell_coordinates(&self, p: [f32; 3]) -> Option<[usize; 3]> {
+    pub(crate) fn cell_coordinates(&self, p: [f32; 3]) -> Option<[usize; 3]> {
         let p = self.contraction.contract_f32(p);
         let r = self.resolution;
         let mut cell = [0; 3];
@@ -279,7 +279,7 @@ impl OccupancyGrid {
     /// The depths `(enter, exit)` between which the ray `origin + t·direction` is inside the
     /// bounding box (the slab test, in f64), or `None` when it misses the box. With a
     /// contraction, the whole ray (`(−∞, ∞)`): the contracted box is not a world box.
-    pub fn crossing(&self, origin: [f32; 3], direction: [f32; 3]) -> Option<(f64, f64)> {
+    pub(crate) fn crossing(&self, origin: [f32; 3], direction: [f32; 3]) -> Option<(f64, f64)> {
         if self.contraction != Contraction::None {
             return Some((f64::NEG_INFINITY, f64::INFINITY));
         }
@@ -300,7 +300,7 @@ impl OccupancyGrid {
         (enter <= exit).then_some((enter, exit))
     }
 
-    /// Which blocks of [`BLOCK`]³ cells hold no occupied cell, from the current flags.
+    /// Which blocks of `BLOCK`³ cells hold no occupied cell, from the current flags.
     pub fn empty_blocks(&self) -> EmptyBlocks {
         let r = self.resolution;
         let per_side = r.div_ceil(BLOCK);
@@ -369,7 +369,7 @@ impl OccupancyGrid {
     /// move one way as `t` grows, so from a point found in a cell on, the samples before its
     /// exit depth stay in it: no face-parallel ray, however grazing, is misplaced (for it the
     /// depth comes out at or before the found point, and nothing is skipped).
-    pub fn ray_faces(&self, origin: [f32; 3], direction: [f32; 3]) -> Option<RayFaces> {
+    pub(crate) fn ray_faces(&self, origin: [f32; 3], direction: [f32; 3]) -> Option<RayFaces> {
         if self.contraction != Contraction::None {
             return None;
         }
@@ -548,7 +548,7 @@ impl OccupancyGrid {
 
     /// A grid for a trained model that has none: every cell is probed at its centre and its
     /// eight corners (shared with the neighbours), keeping the largest density.
-    pub fn build(
+    pub(crate) fn build(
         params: &OccupancyGridParams,
         density: DensityFn,
         device: &Device,

@@ -133,9 +133,10 @@ impl Band {
 /// Points projected at a time (then splatted, each band of rows on its own thread).
 const POINTS_PER_PASS: usize = 1 << 18;
 
+#[cfg(test)]
 /// Splats points (`P × 3` world positions, flattened) into a `size × size` image: a
 /// [`PointSplatter`] given all of them at once.
-pub fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<RgbImage> {
+pub(crate) fn render_points(points: &[f32], size: usize, view: &PointView) -> Result<RgbImage> {
     let mut splatter = PointSplatter::new(size, view)?;
     splatter.add(points);
     splatter.finish()

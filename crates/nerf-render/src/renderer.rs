@@ -230,7 +230,7 @@ impl VolumeRenderer {
     }
 
     /// Rays [`VolumeRenderer::render`] renders at once: `chunk_size`, fewer where the field's
-    /// samples at once ([`samples_per_chunk`]) require, and, when samples are skipped, no more
+    /// samples at once (`samples_per_chunk`) require, and, when samples are skipped, no more
     /// than [`DRAWN_SAMPLES_PER_CHUNK`] drawn samples (at least 1 ray).
     pub fn rays_per_chunk(&self, field: &dyn Field, sampler: &dyn RaySampler) -> usize {
         // Samples evaluated at once per ray: a segment when skipping, else all of them.
@@ -255,7 +255,7 @@ impl VolumeRenderer {
     /// `max_rays` of them: a whole number of [`VolumeRenderer::rays_per_chunk`] chunks (at
     /// least one), so that the renderer sees the same chunks as with the whole image at once
     /// and the pixels are the same bit for bit.
-    pub fn rays_per_band(
+    pub(crate) fn rays_per_band(
         &self,
         field: &dyn Field,
         sampler: &dyn RaySampler,

@@ -2,7 +2,7 @@
 //! [`crate::occupancy::OccupancyGrid`] and early ray termination.
 //!
 //! The samples of a ray that lie in occupied cells are visited in segments, front to back:
-//! [`segment_sizes`] of them per ray (4, 4, 8, then 16 at a time), so that most rays, which
+//! `segment_sizes` of them per ray (4, 4, 8, then 16 at a time), so that most rays, which
 //! end within a few samples of the surface, cost a few field calls. In each segment the field
 //! is evaluated at the next occupied samples of still-live rays, as one packed batch. After a
 //! segment, a ray whose transmittance `exp(−Σ τ)` has fallen below the early-termination
@@ -34,7 +34,7 @@ use nerf_kernels::distortion_loss::distortion_loss_packed;
 pub const SEGMENT: usize = 16;
 
 /// How many occupied samples per ray the `k`-th segment takes: 4, 4, 8, then [`SEGMENT`].
-pub fn segment_sizes(k: usize) -> usize {
+pub(crate) fn segment_sizes(k: usize) -> usize {
     match k {
         0 | 1 => 4,
         2 => 8,
@@ -166,7 +166,7 @@ pub struct MarchedSegment<'a> {
 ///
 /// The samples are marched, not materialised: each ray's points `o + t·d` are formed only
 /// where they are tested, from the first sample that can lie in `grid`'s bounding box
-/// ([`OccupancyGrid::crossing`]) and only as far as the ray is still live, so a ray that
+/// (`OccupancyGrid::crossing`) and only as far as the ray is still live, so a ray that
 /// misses the box costs nothing and one that ends at a surface is not tested behind it.
 ///
 /// `rays`: N rays; `lengths`: each ray's sample depths `(N, S, 1)`, increasing, or `(1, S, 1)`

@@ -62,7 +62,7 @@ impl<'a> Pipeline<'a> {
     }
 
     /// Rays per band of about `max_rays`, a whole number of this pipeline's chunks
-    /// ([`VolumeRenderer::rays_per_band`]).
+    /// (`VolumeRenderer::rays_per_band`).
     pub fn rays_per_band(&self, max_rays: usize) -> usize {
         self.renderer
             .rays_per_band(self.field, self.sampler, max_rays)
@@ -91,7 +91,7 @@ impl RenderSettings {
 #[derive(Clone, Copy)]
 pub struct Interrupt<'a> {
     /// Rays per band (at least 1; whole chunks keep pixels identical, see
-    /// [`VolumeRenderer::rays_per_band`]).
+    /// `VolumeRenderer::rays_per_band`).
     pub band: usize,
     /// Asked before each band; `true` abandons the view.
     pub stop: &'a dyn Fn() -> bool,

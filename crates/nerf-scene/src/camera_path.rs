@@ -81,10 +81,10 @@ pub(crate) fn camera_from_opengl(
 }
 
 /// Largest camera path file read (a 3600-frame path is about 1 MB).
-pub const MAX_CAMERA_PATH_BYTES: u64 = 64 << 20;
+pub(crate) const MAX_CAMERA_PATH_BYTES: u64 = 64 << 20;
 
 /// Reads a `camera_path.json` file; errors name the file and, for a malformed one, the key.
-/// The file must be a regular file of at most [`MAX_CAMERA_PATH_BYTES`].
+/// The file must be a regular file of at most `MAX_CAMERA_PATH_BYTES`.
 pub fn read_camera_path(path: &Path) -> Result<CameraPath> {
     let bytes = read_regular_file(path, "camera path", MAX_CAMERA_PATH_BYTES)?;
     parse_camera_path(&bytes).map_err(|e| anyhow!("camera path {}: {e}", path.display()))

@@ -10,7 +10,7 @@
 //!
 //! Every input is a regular file of bounded size ([`check_regular_file`]), read as a stream;
 //! every count read from a binary file is checked against the bytes left before anything is
-//! allocated for it, and every text line is bounded ([`MAX_TEXT_LINE_BYTES`]). A points file
+//! allocated for it, and every text line is bounded (`MAX_TEXT_LINE_BYTES`). A points file
 //! can be huge: at most [`ColmapReadOptions::max_points3d`] points are kept, evenly spread
 //! over the file. Files newer COLMAP writes beside the model (`rigs.bin`, `frames.bin`) are
 //! ignored: `images.*` holds each image's composed world-to-camera pose either way. Errors
@@ -31,7 +31,7 @@ mod text;
 /// A COLMAP camera model: its id in binary files, its name in text files and how many
 /// parameters it takes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct CameraModelInfo {
+pub(crate) struct CameraModelInfo {
     /// The model's id in `cameras.bin`.
     pub id: i32,
     /// The model's name in `cameras.txt` (and in [`ColmapCameraRecord::model`]).
@@ -50,7 +50,7 @@ const fn model(id: i32, name: &'static str, num_params: usize) -> CameraModelInf
 
 /// Every camera model COLMAP defines (`src/colmap/sensor/models.h`), in id order; ids are
 /// only ever appended there, so older files read the same.
-pub const CAMERA_MODELS: [CameraModelInfo; 18] = [
+pub(crate) const CAMERA_MODELS: [CameraModelInfo; 18] = [
     model(0, "SIMPLE_PINHOLE", 3),
     model(1, "PINHOLE", 4),
     model(2, "SIMPLE_RADIAL", 4),
@@ -88,7 +88,7 @@ pub(crate) fn camera_model_by_id(id: i32) -> Option<&'static CameraModelInfo> {
 pub struct ColmapCameraRecord {
     /// The camera's id, which images refer to.
     pub id: u32,
-    /// COLMAP's model name, e.g. `"OPENCV"` (one of [`CAMERA_MODELS`]).
+    /// COLMAP's model name, e.g. `"OPENCV"` (one of `CAMERA_MODELS`).
     pub model: String,
     /// Image width in pixels.
     pub width: u64,
@@ -204,9 +204,9 @@ pub(crate) const MAX_IMAGES: usize = 1 << 20;
 /// The longest image name, in bytes.
 pub(crate) const MAX_IMAGE_NAME_BYTES: usize = 4096;
 /// The longest line of a text file, in bytes (an image's 2D features are one line).
-pub const MAX_TEXT_LINE_BYTES: usize = 64 << 20;
+pub(crate) const MAX_TEXT_LINE_BYTES: usize = 64 << 20;
 /// How many 3D points are kept by default: 1 000 000 (about 48 MB).
-pub const DEFAULT_MAX_POINTS3D: usize = 1_000_000;
+pub(crate) const DEFAULT_MAX_POINTS3D: usize = 1_000_000;
 
 /// What to read of a model beyond cameras and image poses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -215,7 +215,7 @@ pub struct ColmapReadOptions {
     /// dataset needs only the poses.
     pub points2d: bool,
     /// Keep at most this many 3D points, every k-th of the file's so that they cover the
-    /// whole scene; 0 skips the points file altogether. [`DEFAULT_MAX_POINTS3D`] by default.
+    /// whole scene; 0 skips the points file altogether. `DEFAULT_MAX_POINTS3D` by default.
     pub max_points3d: usize,
 }
 
@@ -496,7 +496,7 @@ fn choose_model(candidates: &[PathBuf]) -> Result<PathBuf> {
 }
 
 /// [`find_model_with`] under the default options (poses, no 2D features, at most
-/// [`DEFAULT_MAX_POINTS3D`] points).
+/// `DEFAULT_MAX_POINTS3D` points).
 pub fn find_model(dir: &Path) -> Result<(PathBuf, ColmapModel)> {
     find_model_with(dir, &ColmapReadOptions::default())
 }

@@ -5,7 +5,7 @@
 //! Each training camera `i` has 6 numbers, zero at the start: a rotation vector `ω_i` (axis
 //! times angle, radians) and a translation `t_i` (world units of the normalised frame). Its
 //! rays are moved before rendering: the origin (the camera centre) to `o + t_i`, the direction
-//! to `R(ω_i)·d`, turned about the camera centre ([`so3_exp`]). This is nerfstudio's `SO3xR3`
+//! to `R(ω_i)·d`, turned about the camera centre (`so3_exp`). This is nerfstudio's `SO3xR3`
 //! camera optimiser: the rotation and translation parametrised apart, both in world axes.
 //! Gradients reach the corrections through the rendered points `o + t·d`
 //! ([`nerf_render::skipping`] forms them as tensor ops when the rays are tracked, and the
@@ -65,13 +65,13 @@ const SMALL_ANGLE_SQ: f64 = 1e-8;
 /// error): refinement raised the held-out PSNR of a phone video's model with a focal per
 /// frame (1.08 px), and lowered it on COLMAP 4's models of the fox (0.61 px) and the temple
 /// ring (0.24 px) (docs/own-scene.md#camera-refinement).
-pub const AUTO_REFINE_RESIDUAL_PX: f64 = 0.8;
+pub(crate) const AUTO_REFINE_RESIDUAL_PX: f64 = 0.8;
 
 /// Whether training refines its cameras (`training.camera_refinement`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CameraRefinementMode {
     /// On for captures whose cameras structure from motion placed loosely: a COLMAP model
-    /// whose 3D points reproject [`AUTO_REFINE_RESIDUAL_PX`] or more off on average. Off for
+    /// whose 3D points reproject `AUTO_REFINE_RESIDUAL_PX` or more off on average. Off for
     /// cameras whose residual the files do not give (LLFF's `poses_bounds.npy`, a
     /// `transforms.json`), for cameras from a calibration or a renderer, and for
     /// NeRF-synthetic scenes, where refinement measured a loss.
@@ -128,7 +128,7 @@ pub(crate) fn auto_choice(refined: bool, from_sfm: bool, sfm_residual: Option<f6
 /// `R = I + A·K + B·K²` with `K` the cross-product matrix of `ω`, `A = sin θ / θ` and
 /// `B = (1 − cos θ)/θ² = 2 sin²(θ/2)/θ²` (`θ = |ω|`), computed in f64, from their Taylor
 /// series near `θ = 0`.
-pub fn so3_exp(omega: &Tensor) -> Result<Tensor> {
+pub(crate) fn so3_exp(omega: &Tensor) -> Result<Tensor> {
     let dtype = omega.dtype();
     let w = omega.to_dtype(DType::F64)?;
     let n = w.dim(0)?;
@@ -190,12 +190,6 @@ impl CameraRefinement {
             base_lr: LEARNING_RATE,
             weight_decay: WEIGHT_DECAY,
         })
-    }
-
-    /// The corrections `(n_cameras, 6)`: per camera the rotation vector (radians), then the
-    /// translation.
-    pub fn corrections(&self) -> &Var {
-        &self.corrections
     }
 
     /// `rays` (N of them, `(N, 3)` origins and directions) with ray `j` moved by the

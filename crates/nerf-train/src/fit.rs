@@ -91,7 +91,7 @@ pub struct TrainSettings {
     pub samples_per_step: Option<usize>,
     /// The most rays an adapted step may take (each draws all its samples before skipping).
     pub max_rays: usize,
-    /// Follow the time budget ([`time_learning_rate`]): with a time limit the run ignores
+    /// Follow the time budget (`time_learning_rate`): with a time limit the run ignores
     /// `num_epochs` and decays the learning rate over the time; without, over the epochs.
     pub time_schedule: bool,
     /// Whether to refine the training cameras ([`crate::camera_refinement`]).

@@ -3,7 +3,7 @@
 
 /// The learning rate after `progress` (0 to 1, clamped) of a run that follows its time budget:
 /// `lr · gamma^progress`, from `lr` at the start to `lr · gamma` at the end.
-pub fn time_learning_rate(lr: f64, gamma: f64, progress: f64) -> f64 {
+pub(crate) fn time_learning_rate(lr: f64, gamma: f64, progress: f64) -> f64 {
     lr * gamma.powf(progress.clamp(0.0, 1.0))
 }
 

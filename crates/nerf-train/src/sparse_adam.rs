@@ -14,7 +14,7 @@ use candle_core::{DType, Tensor, Var};
 use nerf_kernels::sparse_adam::{nonzero_rows, AdamConstants, RowAdamState};
 
 /// Sparse Adam's hyper-parameters and per-row state.
-pub struct SparseAdam {
+pub(crate) struct SparseAdam {
     /// Learning rate.
     pub lr: f64,
     /// First-moment decay (0.9).

@@ -188,8 +188,8 @@ pub struct StepSettings {
 
 /// One optimisation step on a [`training_batch`] (on the MSE, plus the distortion loss when
 /// weighted); returns the MSE and the sample counts. The forward and backward passes are the
-/// field's fused step where it has one for these settings ([`fused_step_applies`]), else
-/// autograd's ([`graph_gradients`]).
+/// field's fused step where it has one for these settings (`fused_step_applies`), else
+/// autograd's (`graph_gradients`).
 pub fn train_step(
     model: &TrainModel,
     settings: &StepSettings,
@@ -281,7 +281,10 @@ pub struct StepGradients {
 /// skipped (an occupancy grid or early termination), by a sampler that does not refine, with
 /// no distortion loss. The field may still have no fused step (then [`fused_gradients`] says
 /// so); rays tracked for camera refinement need autograd too.
-pub fn fused_step_applies(settings: &StepSettings, field: &dyn nerf_render::field::Field) -> bool {
+pub(crate) fn fused_step_applies(
+    settings: &StepSettings,
+    field: &dyn nerf_render::field::Field,
+) -> bool {
     settings.distortion_loss == 0.0
         && !settings.sampler.refines()
         && settings.renderer.skips_samples(field)
@@ -327,7 +330,7 @@ pub fn fused_gradients(
 
 /// The step through autograd: the batch rendered by `field`, composited onto the background,
 /// the MSE (plus the distortion loss when weighted) and its backward pass.
-pub fn graph_gradients(
+pub(crate) fn graph_gradients(
     field: &dyn nerf_render::field::Field,
     settings: &StepSettings,
     rays: &Rays,

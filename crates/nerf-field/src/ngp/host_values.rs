@@ -66,7 +66,7 @@ impl Ngp {
     /// σ `(M)` at world `points` `(M, 3)` (row-major host values), detached: the density of
     /// [`Ngp::density`] through the fused kernels on host buffers, the encoding and the
     /// density MLP only (what the occupancy grid probes, ~2^18 points an update).
-    pub fn density_values(&self, points: &[f32]) -> Result<Vec<f32>> {
+    pub(crate) fn density_values(&self, points: &[f32]) -> Result<Vec<f32>> {
         let (storage, layout) = self.table.storage_and_layout();
         let table = table_values(&storage, layout)?;
         let (unit, inside) = self.unit_points(points.to_vec());

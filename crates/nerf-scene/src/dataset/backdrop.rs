@@ -13,10 +13,10 @@ use crate::dataset::frame_image::load_frame_image;
 use nerf_core::image::RgbImage;
 
 /// Photos looked at, at most (evenly spaced through the list).
-pub const MAX_PHOTOS: usize = 20;
+pub(crate) const MAX_PHOTOS: usize = 20;
 
 /// Side of the thumbnail each photo is reduced to before its border is read.
-pub const THUMBNAIL_SIDE: usize = 64;
+pub(crate) const THUMBNAIL_SIDE: usize = 64;
 
 /// A border pixel counts as white when each channel is at least this (of 1).
 pub(crate) const WHITE_LEVEL: f32 = 0.94;
@@ -24,8 +24,8 @@ pub(crate) const WHITE_LEVEL: f32 = 0.94;
 /// The backdrop is white when at least this fraction of the border pixels is.
 pub const WHITE_FRACTION: f64 = 0.9;
 
-/// The fraction of border pixels (the outermost ring of a [`THUMBNAIL_SIDE`]² thumbnail, each
-/// photo's transparent parts taken as black) that are white, over at most [`MAX_PHOTOS`] of
+/// The fraction of border pixels (the outermost ring of a `THUMBNAIL_SIDE`² thumbnail, each
+/// photo's transparent parts taken as black) that are white, over at most `MAX_PHOTOS` of
 /// `photos` (paths under `dir`). An error names a photo that cannot be read.
 pub fn white_border_fraction(dir: &Path, photos: &[PathBuf]) -> Result<f64> {
     let step = photos.len().div_ceil(MAX_PHOTOS).max(1);
@@ -56,12 +56,12 @@ pub fn white_border_fraction(dir: &Path, photos: &[PathBuf]) -> Result<f64> {
 
 /// A border pixel belongs to a plain backdrop when no channel is further than this (of 1)
 /// from the backdrop's colour: about 15 of 255 levels, room for JPEG noise and vignetting.
-pub const BACKDROP_TOLERANCE: f32 = 0.06;
+pub(crate) const BACKDROP_TOLERANCE: f32 = 0.06;
 
 /// The colour of a plain backdrop behind `images` (each `width × height × 3`, RGB in [0, 1]),
-/// judged by their borders (the outermost ring of pixels, at most [`MAX_PHOTOS`] images,
+/// judged by their borders (the outermost ring of pixels, at most `MAX_PHOTOS` images,
 /// evenly spaced): the per-channel median of the border pixels, when at least
-/// [`WHITE_FRACTION`] of them lie within [`BACKDROP_TOLERANCE`] of it; `None` for anything
+/// [`WHITE_FRACTION`] of them lie within `BACKDROP_TOLERANCE` of it; `None` for anything
 /// else (a room, a street, a sky: borders of many colours). A channel within the tolerance
 /// of 0 or 1 is snapped there, so a white or black backdrop is exactly white or black.
 pub fn backdrop_colour(images: &[RgbImage]) -> Option<[f32; 3]> {

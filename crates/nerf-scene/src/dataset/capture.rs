@@ -28,12 +28,12 @@ use super::transforms::Frame;
 use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
 
 /// Every this-many-th frame (by sorted image name, from 0) is held out for evaluation.
-pub const HOLDOUT_EVERY: usize = 8;
+pub(crate) const HOLDOUT_EVERY: usize = 8;
 
 /// How a capture's frames are split into training and held-out ones.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SplitProtocol {
-    /// Every [`HOLDOUT_EVERY`]th frame of the photos sorted by name, from the first, held out.
+    /// Every `HOLDOUT_EVERY`th frame of the photos sorted by name, from the first, held out.
     EveryEighth,
     /// The capture's own split lists (nerfstudio's `{train,val,test}_filenames`).
     Lists,
@@ -53,7 +53,7 @@ impl SplitProtocol {
 #[derive(Debug, Clone, PartialEq)]
 pub struct CaptureInfo {
     /// The format the cameras were read as (COLMAP for an LLFF folder whose COLMAP model
-    /// was taken, [`super::camera_source`]).
+    /// was taken, `super::camera_source`).
     pub format: SceneFormat,
     /// The file they came from (`CaptureFrames::camera_source`).
     pub camera_source: String,

@@ -10,7 +10,7 @@ use nerf_core::camera_colmap::ColmapCamera;
 
 /// One photograph of a capture and its camera, in the capture's own world frame.
 #[derive(Debug, Clone, PartialEq)]
-pub struct CaptureFrame {
+pub(crate) struct CaptureFrame {
     /// The image file.
     pub file_path: PathBuf,
     /// Its camera.
@@ -24,7 +24,7 @@ pub struct CaptureFrame {
 
 /// A capture's frames with their split named by the files, when they name it.
 #[derive(Debug, Clone, PartialEq)]
-pub struct CaptureFrames {
+pub(crate) struct CaptureFrames {
     /// Every frame.
     pub frames: Vec<CaptureFrame>,
     /// The splits each frame is in when the files say (nerfstudio's
@@ -62,7 +62,7 @@ pub(crate) const MASKS_FOLDER: &str = "masks";
 /// The mask of the photo `images/<name>` of the capture in `dir` when the capture has a
 /// `masks/` folder: `masks/<name>` with the extension `.png` (nerfstudio's and instant-ngp's
 /// layout); `None` without the folder. The file must then exist: loading it names it.
-pub fn mask_in_folder(dir: &Path, name: &Path) -> Option<PathBuf> {
+pub(crate) fn mask_in_folder(dir: &Path, name: &Path) -> Option<PathBuf> {
     let folder = dir.join(MASKS_FOLDER);
     folder
         .is_dir()

@@ -9,7 +9,7 @@ use nerf_core::term::error_line;
 use nerf_files::bounded_read::read_regular_file;
 
 /// Why a scene folder cannot be read as a dataset. Returned by [`super::read_split`],
-/// [`super::read_split_with`], [`super::read_blender_split`], [`super::parse_split`],
+/// [`super::read_split_with`], `super::read_blender_split`, [`super::parse_split`],
 /// [`super::read_capture_split`], [`super::read_capture_split_with`] and
 /// [`super::Dataset::load`] (and its `load_first*` kin).
 ///

@@ -149,7 +149,7 @@ pub(crate) fn masks_line(dir: &Path, split: super::Split, frames: &[super::Frame
 /// Whether a mask pixel is used: any of its colour channels non-zero. `pixel` is the pixel's
 /// bytes as decoded (native-endian samples of `bytes_per_sample` bytes), `colour_samples` how
 /// many of its leading samples are colour (the alpha sample after them is not read).
-pub fn pixel_is_used(pixel: &[u8], colour_samples: usize, bytes_per_sample: usize) -> bool {
+pub(crate) fn pixel_is_used(pixel: &[u8], colour_samples: usize, bytes_per_sample: usize) -> bool {
     pixel[..colour_samples * bytes_per_sample]
         .iter()
         .any(|&b| b != 0)

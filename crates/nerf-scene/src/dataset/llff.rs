@@ -3,9 +3,9 @@
 //! by row, then the near and far depth bounds: the first three columns are the
 //! camera → world rotation with LLFF's axes (down, right, backwards), the fourth the camera
 //! centre, the fifth `[height, width, focal]` in pixels of the full-size photos. The bounds
-//! do not normalise the scene (its cameras do, [`super::normalize`]); they place the focus
+//! do not normalise the scene (its cameras do, `super::normalize`); they place the focus
 //! of the spiral that `render` and `view` show a forward-facing capture from
-//! ([`super::spiral`]).
+//! (`super::spiral`).
 
 use std::path::{Path, PathBuf};
 
@@ -19,7 +19,7 @@ use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
 use nerf_files::npy::{parse_npy_header, MAX_HEADER_BYTES};
 
 /// An LLFF capture: a folder with `poses_bounds.npy`, whose cameras come from the COLMAP
-/// model beside it when that registers every photo ([`super::camera_source`]).
+/// model beside it when that registers every photo (`super::camera_source`).
 pub const LLFF: SceneFormat = SceneFormat {
     key: "llff",
     name: "LLFF (poses_bounds.npy)",

@@ -1,16 +1,16 @@
 //! Scene data: the NeRF-synthetic release and the captures of other NeRF tools, read into
 //! frames (a photo, its camera, its mask) of one normalised scene.
 //!
-//! * The formats, one file each, listed once in [`SCENE_FORMATS`] and told apart by what the
+//! * The formats, one file each, listed once in `SCENE_FORMATS` and told apart by what the
 //!   folder holds ([`SceneFormat::detect`]): NeRF-synthetic `transforms_{split}.json`
 //!   ([`transforms`]), nerfstudio or instant-ngp `transforms.json` ([`nerfstudio`]), LLFF
 //!   `poses_bounds.npy` ([`llff`]) and COLMAP models ([`colmap_scene`]).
-//! * A capture is read whole, normalised ([`normalize`]) and split by the held-out rule
-//!   ([`capture`]): every 8th photo of the sorted names is held out. [`Dataset`] loads a
+//! * A capture is read whole, normalised (`normalize`) and split by the held-out rule
+//!   (`capture`): every 8th photo of the sorted names is held out. [`Dataset`] loads a
 //!   split's frames and images together, the photos fitted to the pixel budget
-//!   ([`photo_resize`]) and composited onto the background ([`frame_image`], [`frame_mask`]).
+//!   ([`photo_resize`]) and composited onto the background (`frame_image`, `frame_mask`).
 //! * Around them: the backdrop a capture has or lacks ([`backdrop`]), the object's hull
-//!   ([`object_hull`]), the camera paths of a capture ([`orbit`], [`spiral`]), and the
+//!   ([`object_hull`]), the camera paths of a capture (`orbit`, `spiral`), and the
 //!   typed error ([`DatasetError`]).
 //!
 //! The NeRF-synthetic layout (e.g. `lego/`): `transforms_{split}.json` holds `camera_angle_x`
@@ -21,24 +21,24 @@
 //! pytorch3d cameras look along +Z with +Y up and +X left (see [`nerf_core::camera`]).
 
 pub mod backdrop;
-pub mod camera_source;
-pub mod capture;
+pub(crate) mod camera_source;
+pub(crate) mod capture;
 pub(crate) mod capture_frame;
 pub(crate) mod dataset_error;
-pub mod frame_image;
-pub mod frame_mask;
-pub mod ngp_scene;
-pub mod normalize;
+pub(crate) mod frame_image;
+pub(crate) mod frame_mask;
+pub(crate) mod ngp_scene;
+pub(crate) mod normalize;
 pub mod object_hull;
-pub mod orbit;
-pub mod photo_fit;
+pub(crate) mod orbit;
+pub(crate) mod photo_fit;
 pub mod photo_resize;
 pub(crate) mod scene_format;
 pub mod shared_view;
 pub mod silhouette;
-pub mod spiral;
+pub(crate) mod spiral;
 pub(crate) mod split;
-pub mod transforms_intrinsics;
+pub(crate) mod transforms_intrinsics;
 
 /// Declares each scene format's module and lists its [`SceneFormat`] in [`SCENE_FORMATS`],
 /// in the order [`SceneFormat::detect`] tries them: a new format is its own file, defining one
@@ -48,7 +48,7 @@ macro_rules! scene_formats {
         $(pub mod $module;)*
         /// Every scene format `--data-dir` takes, in the order [`SceneFormat::detect`] tries
         /// them (the first a folder holds is its format).
-        pub const SCENE_FORMATS: &[SceneFormat] = &[$($module::$format),*];
+        pub(crate) const SCENE_FORMATS: &[SceneFormat] = &[$($module::$format),*];
     };
 }
 
@@ -83,7 +83,7 @@ pub use spiral::CaptureSpiral;
 pub use transforms::*;
 
 /// The frames of `split` of the scene in `data_dir`, whatever its format
-/// ([`SceneFormat::detect`]): a NeRF-synthetic split as [`read_blender_split`] reads it, or a
+/// ([`SceneFormat::detect`]): a NeRF-synthetic split as `read_blender_split` reads it, or a
 /// capture's, normalised by the transform its cameras give ([`read_capture_split`]; what was
 /// applied is logged). Errors: see [`DatasetError`].
 pub fn read_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>, DatasetError> {
@@ -180,7 +180,8 @@ fn split_frames(
 }
 
 /// Where to get the data, appended to errors about a missing scene directory or transforms file.
-pub const DOWNLOAD_HINT: &str = "download the NeRF-synthetic lego scene (nerf_synthetic.zip \
+pub(crate) const DOWNLOAD_HINT: &str =
+    "download the NeRF-synthetic lego scene (nerf_synthetic.zip \
     from the original NeRF project's data release) and pass --data-dir or set data.data_dir, \
     or run scripts/download_lego.sh (the default, ../shared/data/lego, is relative to the \
     working directory)";
@@ -199,7 +200,7 @@ pub struct Dataset {
     pub width: usize,
     /// Height of every image, in pixels.
     pub height: usize,
-    /// Per image, which pixels are used ([`frame_mask`]; `None`: all of them); empty when no
+    /// Per image, which pixels are used (`frame_mask`; `None`: all of them); empty when no
     /// frame has a mask.
     pub masks: Vec<Option<PixelMask>>,
     /// How a capture's cameras were normalised (`None` for a NeRF-synthetic scene): a model

@@ -1,9 +1,9 @@
 //! A nerfstudio or instant-ngp capture: `transforms.json` as nerfstudio's `ns-process-data`
 //! or instant-ngp's `scripts/colmap2nerf.py` writes it. The intrinsics keys of both tools
-//! ([`super::transforms_intrinsics`]) stand at the top or per frame (a frame's own value
-//! wins); instant-ngp's scene keys (`aabb_scale`, `scale`, `offset`, [`super::ngp_scene`])
+//! (`super::transforms_intrinsics`) stand at the top or per frame (a frame's own value
+//! wins); instant-ngp's scene keys (`aabb_scale`, `scale`, `offset`, `super::ngp_scene`)
 //! are checked and change nothing. `transform_matrix` is camera → world in OpenGL axes;
-//! `file_path` (and a frame's optional `mask_path`, [`super::frame_mask`]) is relative to the
+//! `file_path` (and a frame's optional `mask_path`, `super::frame_mask`) is relative to the
 //! directory, and each photo is listed once. `train_filenames`, `val_filenames` and
 //! `test_filenames`, when present, name the splits. `applied_transform` is the transform
 //! nerfstudio already applied to the poses: the poses are read as they stand. Keys of neither

@@ -33,18 +33,9 @@ pub struct SceneTransform {
 pub(crate) const MIN_RESOLVED_FRACTION: f64 = 1e-6;
 
 impl SceneTransform {
-    /// The transform that changes nothing.
-    pub fn identity() -> Self {
-        Self {
-            rotation: DMat3::IDENTITY,
-            center: DVec3::ZERO,
-            scale: 1.0,
-        }
-    }
-
     /// Orientation, centre and scale from the cameras' world → camera poses (see the module
     /// documentation). An error when there is no camera or the cameras all stand at one point.
-    pub fn from_poses(poses: &[ColmapPose]) -> Result<Self> {
+    pub(crate) fn from_poses(poses: &[ColmapPose]) -> Result<Self> {
         if poses.is_empty() {
             bail!("no cameras to normalise the scene by");
         }
@@ -117,7 +108,7 @@ impl SceneTransform {
     }
 
     /// The transform [`SceneTransform::to_text`] wrote; an error saying what is wrong when
-    /// the text is not 13 numbers or not a similarity ([`SceneTransform::validate`]).
+    /// the text is not 13 numbers or not a similarity (`SceneTransform::validate`).
     pub fn from_text(text: &str) -> Result<Self> {
         let values = text
             .split_whitespace()
@@ -139,7 +130,7 @@ impl SceneTransform {
 
     /// An error unless every number is finite, the scale positive and the rotation a
     /// rotation (orthonormal, determinant 1, to 1e-6).
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let finite = self.rotation.is_finite() && self.center.is_finite();
         if !(finite && self.scale.is_finite() && self.scale > 0.0) {
             bail!("not finite, or a scale that is not positive");

@@ -17,7 +17,7 @@ use super::Dataset;
 use nerf_core::frame_camera::FrameCamera;
 
 /// Voxels along each side of the cube that is carved.
-pub const HULL_RESOLUTION: usize = 64;
+pub(crate) const HULL_RESOLUTION: usize = 64;
 
 /// Half the side of the cube that is carved, in the normalised frame (the cameras stand at
 /// most 1 from the centre, so an object they all look at lies inside).
@@ -25,24 +25,24 @@ pub(crate) const HULL_HALF_EXTENT: f64 = 1.0;
 
 /// The carved box grows by this many voxels on every side: a voxel whose centre projects
 /// just outside a silhouette may still hold some of the object.
-pub const HULL_MARGIN_VOXELS: f64 = 2.0;
+pub(crate) const HULL_MARGIN_VOXELS: f64 = 2.0;
 
 /// A voxel is part of the hull only when at least this fraction of the cameras see it (and
 /// none outside its silhouette): below an object photographed from above, the voxels that
 /// only the steepest views see project onto the object in those views and would otherwise
 /// stretch the hull into a cone down to the carved cube's floor.
-pub const HULL_SEEN_SHARE: f64 = 0.5;
+pub(crate) const HULL_SEEN_SHARE: f64 = 0.5;
 
 /// A pixel belongs to the object where its transparency is below this.
-pub const OBJECT_TRANSPARENCY: f32 = 0.5;
+pub(crate) const OBJECT_TRANSPARENCY: f32 = 0.5;
 
 /// The cube a model of an object alone is fitted to is centred on the hull's box, its side
 /// this many times the box's longest side.
-pub const OBJECT_CUBE_SCALE: f64 = 1.1;
+pub(crate) const OBJECT_CUBE_SCALE: f64 = 1.1;
 
 /// An axis-aligned box in the normalised frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct HullBox {
+pub(crate) struct HullBox {
     /// The smallest corner.
     pub min: DVec3,
     /// The largest corner.
@@ -68,7 +68,7 @@ impl HullBox {
     /// The cube `[min x, y, z, max x, y, z]` centred on the box, its side
     /// [`OBJECT_CUBE_SCALE`] times the box's longest side: a hash grid over it has cells of
     /// one size on every axis, all of them on the object's side of the hull.
-    pub fn cube(&self) -> [f64; 6] {
+    pub(crate) fn cube(&self) -> [f64; 6] {
         let centre = 0.5 * (self.min + self.max);
         let half = 0.5 * OBJECT_CUBE_SCALE * (self.max - self.min).max_element();
         let (lo, hi) = (centre - DVec3::splat(half), centre + DVec3::splat(half));
@@ -79,9 +79,9 @@ impl HullBox {
 /// Where an object photographed alone lies, for the sampler and the field to fit.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ObjectFit {
-    /// The cube round its visual hull ([`HullBox::cube`]).
+    /// The cube round its visual hull (`HullBox::cube`).
     pub cube: [f64; 6],
-    /// The sampler's depth range narrowed to the hull ([`hull_depths`]); `None` when the
+    /// The sampler's depth range narrowed to the hull (`hull_depths`); `None` when the
     /// configured range is no wider.
     pub depths: Option<(f64, f64)>,
 }
@@ -93,7 +93,7 @@ pub struct ObjectFit {
 /// [`HULL_MARGIN_VOXELS`]. `None` unless every image has a transparency per pixel, some of it
 /// background (opaque photos are no silhouettes), and a camera with pixel intrinsics (a
 /// capture's); or when nothing is left (silhouettes that share no point).
-pub fn silhouette_hull(dataset: &Dataset) -> Option<HullBox> {
+pub(crate) fn silhouette_hull(dataset: &Dataset) -> Option<HullBox> {
     let (w, h) = (dataset.width, dataset.height);
     let background = |t: &Vec<f32>| t.iter().any(|&v| v >= OBJECT_TRANSPARENCY);
     if dataset.frames.is_empty()
@@ -160,7 +160,7 @@ pub fn silhouette_hull(dataset: &Dataset) -> Option<HullBox> {
 /// The depths along rays from cameras at `centres` that can meet `hull`: from the nearest
 /// camera's distance to the box (0 for a camera inside it) to the farthest camera's distance
 /// to the box's farthest corner.
-pub fn hull_depths(hull: &HullBox, centres: &[DVec3]) -> Option<(f64, f64)> {
+pub(crate) fn hull_depths(hull: &HullBox, centres: &[DVec3]) -> Option<(f64, f64)> {
     let near = centres
         .iter()
         .map(|&c| hull.nearest_distance(c))
@@ -173,8 +173,8 @@ pub fn hull_depths(hull: &HullBox, centres: &[DVec3]) -> Option<(f64, f64)> {
 }
 
 /// The cube and the depths ([`ObjectFit`]) of the object `dataset`'s silhouettes outline
-/// ([`silhouette_hull`]): the depths are the sampler's configured range `(min_depth,
-/// max_depth)` narrowed to those at which the cameras can meet the hull ([`hull_depths`]).
+/// (`silhouette_hull`): the depths are the sampler's configured range `(min_depth,
+/// max_depth)` narrowed to those at which the cameras can meet the hull (`hull_depths`).
 /// `None` when the photos do not outline an object.
 pub fn object_fit(dataset: &Dataset, (min_depth, max_depth): (f64, f64)) -> Option<ObjectFit> {
     use nerf_core::camera_model::CameraModel as _;

@@ -78,7 +78,7 @@ impl CaptureOrbit {
     /// [`MAX_NORMALISED_DISTANCE`](nerf_core::camera_checks::MAX_NORMALISED_DISTANCE) and
     /// the focal lengths a lens's ([`check_ndc_focal`]): the rules a capture's own cameras
     /// follow, so that a checkpoint's stored orbit cannot render black frames.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let values = [self.radius, self.height, self.focal[0], self.focal[1]];
         ensure!(
             values.iter().all(|v| v.is_finite()),
@@ -126,7 +126,7 @@ impl CaptureOrbit {
     }
 
     /// Reads [`CaptureOrbit::to_text`]; an error for anything but four numbers that
-    /// [`CaptureOrbit::validate`] accepts.
+    /// `CaptureOrbit::validate` accepts.
     pub fn from_text(text: &str) -> Result<Self> {
         let values = number_list(text)?;
         let [radius, height, fx, fy] = values[..] else {

@@ -50,7 +50,7 @@ impl FormatRead {
 }
 
 impl SceneFormat {
-    /// The format of `dir`: the first of [`super::SCENE_FORMATS`] that `dir` holds; the first
+    /// The format of `dir`: the first of `super::SCENE_FORMATS` that `dir` holds; the first
     /// listed (the NeRF-synthetic release) otherwise, whose reader then names the missing file.
     pub fn detect(dir: &Path) -> Self {
         let formats = super::SCENE_FORMATS;
@@ -61,13 +61,15 @@ impl SceneFormat {
             .unwrap_or(formats[0])
     }
 
+    #[cfg(test)]
     /// The registered format whose [`SceneFormat::key`] is `key`.
-    pub fn find(key: &str) -> Option<Self> {
+    pub(crate) fn find(key: &str) -> Option<Self> {
         super::SCENE_FORMATS.iter().find(|f| f.key == key).copied()
     }
 
+    #[cfg(test)]
     /// The format's short name (`blender`, `nerfstudio`, `llff`, `colmap`).
-    pub fn key(self) -> &'static str {
+    pub(crate) fn key(self) -> &'static str {
         self.key
     }
 
@@ -87,9 +89,10 @@ impl SceneFormat {
         }
     }
 
+    #[cfg(test)]
     /// Whether the format is a capture, read whole and split by the held-out rule, rather
     /// than a dataset with split files of its own.
-    pub fn is_capture(self) -> bool {
+    pub(crate) fn is_capture(self) -> bool {
         self.read.is_some()
     }
 }

@@ -2,7 +2,7 @@
 //! it from more than one place, so cameras that each look at a different part of the world
 //! (an outward-facing ring, a rig of cameras back to back) give nothing to train.
 //!
-//! **The rule** ([`shared_view`]): the scene is taken to lie within the ball around the
+//! **The rule** (`shared_view`): the scene is taken to lie within the ball around the
 //! cameras (centred on the mean of their centres, reaching the farthest one: every capture
 //! nerf reads looks into it, an object walked around, a facade photographed from a few steps
 //! apart). Two cameras share a view when some point of that ball in front of one, on a ray
@@ -29,7 +29,7 @@ const MAX_CAMERAS: usize = 256;
 
 /// `Ok` when two of `cameras` share a view (see the module documentation); else why not, as
 /// a phrase for a one-line error. Fewer than two cameras are not judged (`Ok`).
-pub fn shared_view(cameras: &[ColmapCamera]) -> Result<(), String> {
+pub(crate) fn shared_view(cameras: &[ColmapCamera]) -> Result<(), String> {
     let step = cameras.len().div_ceil(MAX_CAMERAS).max(1);
     let cameras: Vec<&ColmapCamera> = cameras.iter().step_by(step).collect();
     if cameras.len() < 2 {
@@ -89,7 +89,7 @@ fn ball_exit(origin: DVec3, direction: DVec3, centre: DVec3, radius: f64) -> Opt
 }
 
 /// An error naming the capture in `dir` unless the cameras of its `frames` share a view
-/// ([`shared_view`]); frames of a NeRF-synthetic scene are not captures and pass.
+/// (`shared_view`); frames of a NeRF-synthetic scene are not captures and pass.
 pub fn check_capture_shares_a_view(
     dir: &std::path::Path,
     frames: &[super::Frame],

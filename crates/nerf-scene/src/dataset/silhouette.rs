@@ -12,14 +12,14 @@
 use super::Dataset;
 
 /// A mask outlines an object when at most this fraction of its border ring is used.
-pub const BORDER_USED_AT_MOST: f64 = 0.02;
+pub(crate) const BORDER_USED_AT_MOST: f64 = 0.02;
 
 /// The masks of a capture outline its object when at least this fraction of them do.
-pub const SILHOUETTE_SHARE: f64 = 0.9;
+pub(crate) const SILHOUETTE_SHARE: f64 = 0.9;
 
 /// Whether a row-major `width × height` mask (`used`: true for a used pixel) uses at most
 /// [`BORDER_USED_AT_MOST`] of the pixels of its outermost ring.
-pub fn outlines_an_object(used: &[bool], width: usize, height: usize) -> bool {
+pub(crate) fn outlines_an_object(used: &[bool], width: usize, height: usize) -> bool {
     if width < 3 || height < 3 || used.len() != width * height {
         return false;
     }
@@ -44,8 +44,8 @@ pub struct OutlinedObject {
     pub backdrop: [f32; 3],
 }
 
-/// When the dataset's masks outline an object ([`outlines_an_object`], at least
-/// [`SILHOUETTE_SHARE`] of the masked images), makes every masked-out pixel fully transparent
+/// When the dataset's masks outline an object (`outlines_an_object`, at least
+/// `SILHOUETTE_SHARE` of the masked images), makes every masked-out pixel fully transparent
 /// (its transparency 1, its colour `background`, or with `None` the backdrop the masks leave
 /// out, [`OutlinedObject::backdrop`]: the colour a transparent pixel holds must be the one
 /// training composites the photos on) and drops the masks, so that training draws rays from

@@ -27,7 +27,7 @@ use nerf_core::term::short_number;
 /// quarter turn only (±45°), or a hemisphere such as lego's (up to 90° and more apart) fails
 /// it, and keeps the orbit, which suits a view from every side. 30° (a 60° cone) leaves room
 /// for a rig that is aimed by hand without letting a partial orbit count as forward-facing.
-pub const FORWARD_FACING_MAX_ANGLE_DEG: f64 = 30.0;
+pub(crate) const FORWARD_FACING_MAX_ANGLE_DEG: f64 = 30.0;
 
 /// The spiral's radius along each axis of the mean camera is this percentile of the cameras'
 /// distances from their mean centre along that axis (nerf-pytorch's choice: a few outlying
@@ -42,7 +42,7 @@ pub(crate) const SPIRAL_TURNS: f64 = 2.0;
 /// say where the content is: the normaliser put the farthest camera at distance 1 from the
 /// rig's centre, so this is the rig's own size. [`CaptureSpiral::min_focus_distance`] may
 /// raise it.
-pub const FALLBACK_FOCUS_DISTANCE: f64 = 1.0;
+pub(crate) const FALLBACK_FOCUS_DISTANCE: f64 = 1.0;
 
 /// Unit viewing direction and unit image-up direction of `camera`, in world space.
 pub(crate) fn viewing_axes(camera: &FrameCamera) -> (DVec3, DVec3) {
@@ -71,7 +71,7 @@ fn mean_direction(directions: &[DVec3]) -> Option<DVec3> {
 /// Whether cameras viewing along `forwards` (one direction per camera, any length) form a
 /// forward-facing capture: every direction within [`FORWARD_FACING_MAX_ANGLE_DEG`] of their
 /// mean. False for no cameras, or for directions that are zero or not finite.
-pub fn is_forward_facing(forwards: &[DVec3]) -> bool {
+pub(crate) fn is_forward_facing(forwards: &[DVec3]) -> bool {
     let Some(mean) = mean_direction(forwards) else {
         return false;
     };
@@ -114,8 +114,8 @@ impl CaptureSpiral {
     /// The focus point lies at the depth, in front of the mean camera, that is the first of:
     /// halfway between the depth bounds in disparity (`2 / (1/near + 1/far)`, where near and
     /// far content move equally as the view moves), the depth of the point the optical axes
-    /// converge on (least squares), [`FALLBACK_FOCUS_DISTANCE`]; never nearer than
-    /// [`CaptureSpiral::min_focus_distance`].
+    /// converge on (least squares), `FALLBACK_FOCUS_DISTANCE`; never nearer than
+    /// `CaptureSpiral::min_focus_distance`.
     pub fn from_frames(frames: &[Frame], depth_bounds: Option<[f64; 2]>) -> Option<Self> {
         let axes: Vec<(DVec3, DVec3, DVec3)> = frames
             .iter()
@@ -165,7 +165,7 @@ impl CaptureSpiral {
     /// `r_forward + hypot / tan(angle)` ahead. Nearer content would have the views turn
     /// further than the cameras did (a small positive floor keeps a spiral of zero radii, all
     /// cameras at one point, looking ahead).
-    pub fn min_focus_distance(radii: [f64; 3]) -> f64 {
+    pub(crate) fn min_focus_distance(radii: [f64; 3]) -> f64 {
         let aside = radii[0].hypot(radii[1]);
         (radii[2] + aside / FORWARD_FACING_MAX_ANGLE_DEG.to_radians().tan()).max(1e-3)
     }
@@ -182,7 +182,7 @@ impl CaptureSpiral {
 
     /// Checks the values are finite, the axes unit and perpendicular (to 1e-6), the radii
     /// not negative, the focus distance and focal lengths positive.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let vectors = [self.centre, self.forward, self.up];
         let numbers = [
             self.radii[0],
@@ -269,7 +269,7 @@ impl CaptureSpiral {
     }
 
     /// Reads [`CaptureSpiral::to_text`]; an error for anything but 15 numbers that
-    /// [`CaptureSpiral::validate`] accepts.
+    /// `CaptureSpiral::validate` accepts.
     pub fn from_text(text: &str) -> Result<Self> {
         let values = super::orbit::number_list(text)?;
         let Ok(v) = <[f64; 15]>::try_from(values.as_slice()) else {

@@ -35,7 +35,7 @@ pub struct Frame {
     /// The view's camera: pytorch3d's pinhole for the NeRF-synthetic scenes, COLMAP's
     /// conventions (with distortion) for captures.
     pub camera: FrameCamera,
-    /// The frame's mask ([`super::frame_mask`]), when it has one (captures only).
+    /// The frame's mask (`super::frame_mask`), when it has one (captures only).
     pub mask_path: Option<PathBuf>,
 }
 
@@ -170,7 +170,7 @@ fn image_path(data_dir: &Path, file_path: &str) -> PathBuf {
 /// frame's matrix or the field of view is unusable. Images are not opened here. The errors
 /// ([`DatasetError`]): [`DatasetError::NoDataset`] for a missing directory,
 /// [`DatasetError::MissingFile`] for a missing transforms file, and those of [`parse_split`].
-pub fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>, DatasetError> {
+pub(crate) fn read_blender_split(data_dir: &Path, split: Split) -> Result<Vec<Frame>, DatasetError> {
     if !data_dir.is_dir() {
         let why = match data_dir.exists() {
             true => "is a file, not a directory",
