@@ -303,12 +303,14 @@ pub fn view(args: ViewArgs, device: &Device) -> Result<()> {
     )
 }
 
-/// The config, and the views an export renders: `split` of the dataset that `--data-dir` (or the config)
-/// names, the first `--limit` of them.
+/// The config as `checkpoint` was trained ([`as_trained`]), and the views an export renders:
+/// `split` of the dataset that `--data-dir` (or the config as given) names, the first
+/// `--limit` of them.
 fn export_views(
     config: &ConfigArgs,
     split: SplitArg,
     views: ExportViewsArgs,
+    checkpoint: Option<&std::path::Path>,
 ) -> Result<(Config, ViewSelection)> {
     let config = config.load()?;
     let selection = ViewSelection {
@@ -316,7 +318,7 @@ fn export_views(
         data_dir: jobs::data_dir_for(&config, views.data.data_dir),
         limit: views.limit,
     };
-    Ok((config, selection))
+    Ok((as_trained(config, checkpoint)?, selection))
 }
 
 /// `config` read as the model in `checkpoint` (or the config's) was trained
@@ -354,9 +356,8 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
             ))
         }
         ExportCommand::Points(a) => {
-            let (config, views) = export_views(&a.config, a.split, a.views)?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
-            let config = as_trained(config, checkpoint)?;
+            let (config, views) = export_views(&a.config, a.split, a.views, checkpoint)?;
             let n = export_points(&config, checkpoint, &views, &a.out, device)?;
             say(&format!("wrote {} ({n} points)", a.out.display()))
         }
@@ -373,9 +374,8 @@ pub fn export(what: ExportCommand, device: &Device) -> Result<()> {
             ))
         }
         ExportCommand::Depth(a) => {
-            let (config, views) = export_views(&a.config, a.split, a.views)?;
             let checkpoint = a.checkpoint.checkpoint.as_deref();
-            let config = as_trained(config, checkpoint)?;
+            let (config, views) = export_views(&a.config, a.split, a.views, checkpoint)?;
             let written = export_depth(&config, checkpoint, &views, &a.out, device)?;
             say(&format!(
                 "wrote {} files into {}",

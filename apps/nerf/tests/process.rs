@@ -6,7 +6,7 @@
 
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use common::process_tools::*;
 use glam::DVec3;
@@ -172,27 +172,27 @@ fn failed_stage_and_nothing_registered_are_one_line_errors() {
     assert!(!out.join("transforms.json").exists());
 }
 
+/// The lego scene, when it is here and `installed` says the SfM tool a test runs is too.
+fn lego_if(installed: fn() -> bool) -> Option<std::path::PathBuf> {
+    let lego = common::lego_dir()?;
+    installed().then_some(lego)
+}
+
 #[test]
 fn colmap_recovers_lego_cameras() {
     let _alone = alone();
-    let Some(lego) = common::lego_dir() else {
+    let Some(lego) = lego_if(colmap_installed) else {
         return;
     };
-    if !colmap_installed() {
-        return;
-    }
     recovers_lego_cameras(&lego, &["--sfm", "colmap"]);
 }
 
 #[test]
 fn pycolmap_recovers_lego_cameras() {
     let _alone = alone();
-    let Some(lego) = common::lego_dir() else {
+    let Some(lego) = lego_if(pycolmap_installed) else {
         return;
     };
-    if !pycolmap_installed() {
-        return;
-    }
     // Retrieval pairs (the Python side's bag of visual words) rather than every pair.
     let stdout = recovers_lego_cameras(&lego, &["--sfm", "pycolmap", "--matcher", "retrieval"]);
     // One mapper run by default.
@@ -299,13 +299,21 @@ fn recovers_lego_cameras(lego: &Path, sfm: &[&str]) -> String {
     stdout
 }
 
-#[test]
-fn train_minutes_trains_the_capture_after_structure_from_motion() {
-    let _alone = alone();
+/// Eight photos `p0.png`… in a temporary folder and `seeds` mapper models of a camera ring
+/// ([`ring_models`], with `flipped` the camera a run disputes): the folder, the photos' folder
+/// and the models' folder.
+fn ring_capture(flipped: &str, seeds: u64) -> (tempfile::TempDir, PathBuf, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let photos = photos(dir.path(), 8);
     let names: Vec<String> = (0..8).map(|i| format!("p{i}.png")).collect();
-    let models = ring_models(dir.path(), &names, "none", 2);
+    let models = ring_models(dir.path(), &names, flipped, seeds);
+    (dir, photos, models)
+}
+
+#[test]
+fn train_minutes_trains_the_capture_after_structure_from_motion() {
+    let _alone = alone();
+    let (dir, photos, models) = ring_capture("none", 2);
     // The ring's cameras look the same way: wide-angle ones, so that they share a view.
     for seed in 0..2 {
         let cameras = models.join(format!("seed{seed}/cameras.txt"));
@@ -340,10 +348,7 @@ fn train_minutes_trains_the_capture_after_structure_from_motion() {
 #[test]
 fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camera() {
     let _alone = alone();
-    let dir = tempfile::tempdir().unwrap();
-    let photos = photos(dir.path(), 8);
-    let names: Vec<String> = (0..8).map(|i| format!("p{i}.png")).collect();
-    let models = ring_models(dir.path(), &names, "p3.png", 4);
+    let (dir, photos, models) = ring_capture("p3.png", 4);
     // A COLMAP whose mapper copies the prepared model of its --random_seed, and whose
     // refinement stages copy their input model.
     let colmap = seeded_colmap(dir.path(), &models, "", COPY_INPUT);
@@ -407,9 +412,9 @@ fn mapper_runs_keep_the_run_the_others_agree_with_and_leave_out_a_disputed_camer
     // Photos on white: the hint says to train with a white background.
     let white = dir.path().join("white");
     std::fs::create_dir_all(&white).unwrap();
-    for name in &names {
+    for i in 0..8 {
         image::RgbImage::from_pixel(8, 8, image::Rgb([255, 255, 255]))
-            .save(white.join(name))
+            .save(white.join(format!("p{i}.png")))
             .unwrap();
     }
     let out = dir.path().join("on_white");

@@ -148,6 +148,14 @@ fn centres_in(dir: &Path) -> Result<Centres> {
     if nerf::io::colmap::find_model_folder(dir).is_none() {
         return Ok(Centres::new());
     }
+    Ok(poses_in(dir)?
+        .into_iter()
+        .map(|(name, pose)| (name, pose.center()))
+        .collect())
+}
+
+/// Camera poses by image name of the largest model under `dir`.
+fn poses_in(dir: &Path) -> Result<std::collections::BTreeMap<String, ColmapPose>> {
     let (_, model) = nerf::io::colmap::find_model(dir)?;
     model
         .images
@@ -155,7 +163,7 @@ fn centres_in(dir: &Path) -> Result<Centres> {
         .map(|image| {
             let pose = ColmapPose::from_quaternion(image.qvec, image.tvec)
                 .with_context(|| format!("COLMAP image {}", image.name))?;
-            Ok((image.name.clone(), pose.center()))
+            Ok((image.name.clone(), pose))
         })
         .collect()
 }
@@ -367,19 +375,7 @@ fn final_adjustment<'a>(sfm: &Colmap, lens: &'a Path) -> Vec<&'a OsStr> {
 /// ([`nerf::core::camera_alignment::align_centres`]). `None` when the two do not register
 /// the same images.
 fn lens_change(plain: &Path, richer: &Path) -> Result<Option<(f64, f64)>> {
-    let poses = |dir: &Path| -> Result<std::collections::BTreeMap<String, ColmapPose>> {
-        let (_, model) = nerf::io::colmap::find_model(dir)?;
-        model
-            .images
-            .iter()
-            .map(|image| {
-                let pose = ColmapPose::from_quaternion(image.qvec, image.tvec)
-                    .with_context(|| format!("COLMAP image {}", image.name))?;
-                Ok((image.name.clone(), pose))
-            })
-            .collect()
-    };
-    let (plain, richer) = (poses(plain)?, poses(richer)?);
+    let (plain, richer) = (poses_in(plain)?, poses_in(richer)?);
     if plain.len() < MIN_REGISTERED || !plain.keys().eq(richer.keys()) {
         return Ok(None);
     }

@@ -135,27 +135,29 @@ def feature_extractor(pycolmap, options):
         print(f"Extracted features of {db.num_images()} images, {db.num_cameras()} camera(s)", flush=True)
 
 
+def match_pairs(pycolmap, options, database, pairing, prefix, match):
+    """Runs one of pycolmap's matchers (`match`) with the options of `prefix` set on
+    `pairing`; returns the matching options for a later stage."""
+    matching = matching_options(pycolmap, options)
+    take(options, prefix, pairing)
+    finish(options)
+    match(database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+    return matching
+
+
 def exhaustive_matcher(pycolmap, options):
     database = required(options, "database_path")
-    matching = matching_options(pycolmap, options)
     pairing = pycolmap.ExhaustivePairingOptions()
-    take(options, "ExhaustiveMatching", pairing)
-    finish(options)
-    pycolmap.match_exhaustive(
-        database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
-    )
+    match_pairs(pycolmap, options, database, pairing, "ExhaustiveMatching", pycolmap.match_exhaustive)
     print(f"Matched {count_pairs(pycolmap, database)} image pairs", flush=True)
 
 
 def sequential_matcher(pycolmap, options):
     database = required(options, "database_path")
     neighbours = int(options.pop("retrieval_neighbours", "0"))
-    matching = matching_options(pycolmap, options)
     pairing = pycolmap.SequentialPairingOptions()
-    take(options, "SequentialMatching", pairing)
-    finish(options)
-    pycolmap.match_sequential(
-        database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+    matching = match_pairs(
+        pycolmap, options, database, pairing, "SequentialMatching", pycolmap.match_sequential
     )
     print(f"Matched {count_pairs(pycolmap, database)} image pairs sequentially", flush=True)
     if neighbours > 0:
@@ -284,16 +286,23 @@ def nearest(points, centres):
     return labels
 
 
-def mapper(pycolmap, options):
-    database = required(options, "database_path")
-    images = required(options, "image_path")
-    output = required(options, "output_path")
-    pipeline = pycolmap.IncrementalPipelineOptions()
+def mapping_paths(options):
+    """The database, the photos' folder and the output folder of a mapper stage."""
+    return tuple(required(options, k) for k in ("database_path", "image_path", "output_path"))
+
+
+def seed_all(options, *targets):
+    """Sets the stage's `random_seed` option, when given, on each of `targets`."""
     seed = options.pop("random_seed", None)
     if seed is not None:
-        pipeline.random_seed = int(seed)
-        pipeline.mapper.random_seed = int(seed)
-        pipeline.triangulation.random_seed = int(seed)
+        for target in targets:
+            target.random_seed = int(seed)
+
+
+def mapper(pycolmap, options):
+    database, images, output = mapping_paths(options)
+    pipeline = pycolmap.IncrementalPipelineOptions()
+    seed_all(options, pipeline, pipeline.mapper, pipeline.triangulation)
     take(options, "Mapper", pipeline.mapper)
     take(options, "Pipeline", pipeline)
     finish(options)
@@ -315,13 +324,9 @@ def mapper(pycolmap, options):
 
 
 def global_mapper(pycolmap, options):
-    database = required(options, "database_path")
-    images = required(options, "image_path")
-    output = required(options, "output_path")
+    database, images, output = mapping_paths(options)
     pipeline = pycolmap.GlobalPipelineOptions()
-    seed = options.pop("random_seed", None)
-    if seed is not None:
-        pipeline.random_seed = int(seed)
+    seed_all(options, pipeline)
     take(options, "GlobalMapper", pipeline)
     finish(options)
     models = pycolmap.global_mapping(database, images, output, options=pipeline)

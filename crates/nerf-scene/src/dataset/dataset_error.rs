@@ -74,26 +74,34 @@ pub enum DatasetError {
 impl DatasetError {
     /// [`DatasetError::NoDataset`] with its message.
     pub(crate) fn no_dataset(dir: &Path, message: String) -> Self {
-        let dir = dir.to_path_buf();
-        Self::NoDataset { dir, message }
+        Self::NoDataset {
+            dir: dir.to_path_buf(),
+            message,
+        }
     }
 
     /// [`DatasetError::MissingFile`] with its message.
     pub(crate) fn missing_file(path: &Path, message: String) -> Self {
-        let path = path.to_path_buf();
-        Self::MissingFile { path, message }
+        Self::MissingFile {
+            path: path.to_path_buf(),
+            message,
+        }
     }
 
     /// [`DatasetError::Photo`] with its message.
     pub(crate) fn photo(path: &Path, message: String) -> Self {
-        let path = path.to_path_buf();
-        Self::Photo { path, message }
+        Self::Photo {
+            path: path.to_path_buf(),
+            message,
+        }
     }
 
     /// [`DatasetError::Metadata`] with its message.
     pub(crate) fn metadata(path: &Path, message: String) -> Self {
-        let path = path.to_path_buf();
-        Self::Metadata { path, message }
+        Self::Metadata {
+            path: path.to_path_buf(),
+            message,
+        }
     }
 
     /// The typed error in `error`'s chain (its message then the whole chain's line, when
