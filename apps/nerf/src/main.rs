@@ -11,6 +11,7 @@ mod process;
 mod readme_commands;
 mod render;
 mod report;
+mod timing;
 mod train;
 mod view;
 mod worker_pool;

@@ -304,15 +304,19 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
         ("missing images/", missing_images, ""),
         (
             "unknown camera model",
-            // COLMAP's FOV model (fx fy cx cy omega), which no loader here supports.
+            // COLMAP's THIN_PRISM_FISHEYE model (fx fy cx cy k1 k2 p1 p2 k3 k4 sx1 sy1), which
+            // no lens model here reads.
             |d| {
                 edit_line(
                     model_file(d, "cameras.txt"),
                     |l| l.contains("PINHOLE"),
-                    |line| format!("{} 0.1", line.replace("PINHOLE", "FOV")),
+                    |line| {
+                        let thin_prism = line.replace("PINHOLE", "THIN_PRISM_FISHEYE");
+                        format!("{thin_prism} 0 0 0 0 0 0 0 0")
+                    },
                 )
             },
-            "FOV",
+            "THIN_PRISM_FISHEYE",
         ),
         ("image listed but absent", absent_image, ""),
         (

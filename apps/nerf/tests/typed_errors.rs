@@ -9,7 +9,7 @@ use std::path::Path;
 use candle_core::{Device, Tensor};
 use nerf::config::{apply_override, Config, ConfigError};
 use nerf::core::camera_checks::{check_intrinsics, check_photo_size};
-use nerf::core::lens_distortion::LensDistortion;
+use nerf::core::lens::LensDistortion;
 use nerf::core::term::error_line;
 use nerf::io::checkpoint::{self, CheckpointError, CheckpointInfo};
 use nerf::io::checkpoint_file;
@@ -51,7 +51,7 @@ where
 
 #[test]
 fn camera_checks_return_camera_errors() {
-    let none = LensDistortion::None;
+    let none = LensDistortion::NONE;
     let e = check_intrinsics((64, 48), [1e-300, 50.0], [32.0, 24.0], &none).unwrap_err();
     assert_is!(
         e,

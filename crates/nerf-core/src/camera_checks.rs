@@ -21,7 +21,7 @@
 use glam::DVec2;
 
 use crate::camera_error::CameraError;
-use crate::lens_distortion::LensDistortion;
+use crate::lens::LensDistortion;
 use crate::term::short_number;
 
 /// The narrowest field of view across an image axis: a 0.5° lens is a 2,900 mm telephoto on
@@ -60,7 +60,7 @@ pub fn check_intrinsics(
     principal_point: [f64; 2],
     distortion: &LensDistortion,
 ) -> Result<(), CameraError> {
-    let fisheye = matches!(distortion, LensDistortion::Fisheye { .. });
+    let fisheye = distortion.is_fisheye();
     let sides = [width as f64, height as f64];
     for ((axis, side), f) in ["x", "y"].iter().zip(sides).zip(focal) {
         let degrees = field_of_view_degrees(side, f, fisheye);
@@ -141,7 +141,7 @@ fn check_distortion(
     [cx, cy]: [f64; 2],
     distortion: &LensDistortion,
 ) -> Result<(), CameraError> {
-    if *distortion == LensDistortion::None {
+    if *distortion == LensDistortion::NONE {
         return Ok(());
     }
     let normalised = |u: f64, v: f64| DVec2::new((u - cx) / fx, (v - cy) / fy);
@@ -231,6 +231,7 @@ pub fn check_photo_size(camera: (usize, usize), photo: (u32, u32)) -> Result<(),
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lens::Fisheye;
 
     const SIZE: (usize, usize) = (640, 480);
     const CENTRE: [f64; 2] = [320.0, 240.0];
@@ -250,21 +251,21 @@ mod tests {
 
     #[test]
     fn real_cameras_pass() {
-        let none = LensDistortion::None;
+        let none = LensDistortion::NONE;
         assert_eq!(check([500.0, 500.0], CENTRE, none), Ok(()));
         // A phone's wide lens with OpenCV distortion, and a principal point off-centre.
         let wide = LensDistortion::polynomial([-0.12, 0.03, 0.0, 0.0], [1e-3, -1.5e-3]);
         assert_eq!(check([294.0, 294.0], [300.0, 250.0], wide), Ok(()));
         // A GoPro-like fisheye over 170°.
-        let fisheye = LensDistortion::Fisheye {
+        let fisheye = LensDistortion::Fisheye(Fisheye {
             k: [0.05, -0.01, 0.0, 0.0],
-        };
+        });
         assert_eq!(check([210.0, 210.0], CENTRE, fisheye), Ok(()));
     }
 
     #[test]
     fn impossible_fields_of_view_are_refused_with_the_rule() {
-        let none = LensDistortion::None;
+        let none = LensDistortion::NONE;
         for focal in [1e-300, 1e308, 0.5, 1e6] {
             let err = check([focal, focal], CENTRE, none).unwrap_err();
             assert!(
@@ -274,7 +275,7 @@ mod tests {
             assert!(err.len() < 200, "{err}");
         }
         // A fisheye may see more than 180°, not more than 300°.
-        let fisheye = LensDistortion::Fisheye { k: [0.0; 4] };
+        let fisheye = LensDistortion::Fisheye(Fisheye { k: [0.0; 4] });
         assert_eq!(check([150.0, 150.0], CENTRE, fisheye), Ok(()));
         let err = check([100.0, 100.0], CENTRE, fisheye).unwrap_err();
         assert!(err.contains("fisheye"), "{err}");
@@ -282,7 +283,7 @@ mod tests {
 
     #[test]
     fn a_principal_point_far_outside_the_image_is_refused() {
-        let none = LensDistortion::None;
+        let none = LensDistortion::NONE;
         // A quarter of the side outside is a cropped photo; more is not a photo.
         assert_eq!(check([500.0, 500.0], [-150.0, 590.0], none), Ok(()));
         let err = check([500.0, 500.0], [1e300, 240.0], none).unwrap_err();
@@ -308,9 +309,9 @@ mod tests {
         // The same lens over a narrower field never reaches the fold.
         assert_eq!(check([1000.0, 1000.0], CENTRE, folding), Ok(()));
         // A fisheye whose θ_d turns back: θ(1 − θ²) peaks at θ = 0.577 rad.
-        let turning = LensDistortion::Fisheye {
+        let turning = LensDistortion::Fisheye(Fisheye {
             k: [-1.0, 0.0, 0.0, 0.0],
-        };
+        });
         assert!(check([300.0, 300.0], CENTRE, turning).is_err());
     }
 

@@ -10,7 +10,7 @@
 //!   corner is `(0, 0)` and the centre of pixel `(i, j)` (column `i`, row `j`) is
 //!   `(i + 0.5, j + 0.5)`. A camera-space point projects to `u = f_x · x_d + c_x`,
 //!   `v = f_y · y_d + c_y`, where `(x_d, y_d)` is the distorted point
-//!   ([`crate::lens_distortion`]) of the normalised point `(X/Z, Y/Z)`.
+//!   ([`crate::lens`]) of the normalised point `(X/Z, Y/Z)`.
 //! * **Models** and their parameter lists, exactly COLMAP's: `SIMPLE_PINHOLE (f, cx, cy)`,
 //!   `PINHOLE (fx, fy, cx, cy)`, `SIMPLE_RADIAL (f, cx, cy, k)`, `RADIAL (f, cx, cy, k1, k2)`,
 //!   `OPENCV (fx, fy, cx, cy, k1, k2, p1, p2)`,
@@ -25,132 +25,7 @@ use glam::{DMat3, DQuat, DVec2, DVec3};
 
 use crate::camera_error::CameraError;
 use crate::camera_model::CameraModel;
-use crate::lens_distortion::LensDistortion;
-
-/// The COLMAP camera models this crate images with.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ColmapCameraModel {
-    /// `SIMPLE_PINHOLE`: `f, cx, cy`.
-    SimplePinhole,
-    /// `PINHOLE`: `fx, fy, cx, cy`.
-    Pinhole,
-    /// `SIMPLE_RADIAL`: `f, cx, cy, k` (radial `1 + k r²`).
-    SimpleRadial,
-    /// `RADIAL`: `f, cx, cy, k1, k2` (radial `1 + k1 r² + k2 r⁴`).
-    Radial,
-    /// `OPENCV`: `fx, fy, cx, cy, k1, k2, p1, p2`.
-    OpenCv,
-    /// `FULL_OPENCV`: `fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6` (rational radial term).
-    FullOpenCv,
-    /// `OPENCV_FISHEYE`: `fx, fy, cx, cy, k1, k2, k3, k4` (Kannala–Brandt in `θ`).
-    OpenCvFisheye,
-}
-
-impl ColmapCameraModel {
-    /// Every supported model, in COLMAP's model-id order.
-    pub(crate) const ALL: [Self; 7] = [
-        Self::SimplePinhole,
-        Self::Pinhole,
-        Self::SimpleRadial,
-        Self::Radial,
-        Self::OpenCv,
-        Self::OpenCvFisheye,
-        Self::FullOpenCv,
-    ];
-
-    /// COLMAP's name of the model (`cameras.txt`'s `MODEL` column).
-    pub(crate) fn name(self) -> &'static str {
-        match self {
-            Self::SimplePinhole => "SIMPLE_PINHOLE",
-            Self::Pinhole => "PINHOLE",
-            Self::SimpleRadial => "SIMPLE_RADIAL",
-            Self::Radial => "RADIAL",
-            Self::OpenCv => "OPENCV",
-            Self::FullOpenCv => "FULL_OPENCV",
-            Self::OpenCvFisheye => "OPENCV_FISHEYE",
-        }
-    }
-
-    /// The model's parameter names in COLMAP's order.
-    pub(crate) fn parameter_names(self) -> &'static [&'static str] {
-        match self {
-            Self::SimplePinhole => &["f", "cx", "cy"],
-            Self::Pinhole => &["fx", "fy", "cx", "cy"],
-            Self::SimpleRadial => &["f", "cx", "cy", "k"],
-            Self::Radial => &["f", "cx", "cy", "k1", "k2"],
-            Self::OpenCv => &["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"],
-            Self::FullOpenCv => &[
-                "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6",
-            ],
-            Self::OpenCvFisheye => &["fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"],
-        }
-    }
-
-    /// The model of a COLMAP name; an error naming the unknown model and the supported ones.
-    pub fn from_name(name: &str) -> Result<Self> {
-        Self::ALL
-            .into_iter()
-            .find(|model| model.name() == name)
-            .with_context(|| {
-                let supported: Vec<_> = Self::ALL.iter().map(|m| m.name()).collect();
-                format!(
-                    "unknown COLMAP camera model `{name}` (supported: {})",
-                    supported.join(", ")
-                )
-            })
-    }
-
-    /// Splits COLMAP's parameter list into focal lengths `[fx, fy]`, principal point
-    /// `[cx, cy]` (pixels) and the lens distortion; an error naming the model when the
-    /// parameter count is wrong.
-    pub fn intrinsics(self, params: &[f64]) -> Result<([f64; 2], [f64; 2], LensDistortion)> {
-        let names = self.parameter_names();
-        ensure!(
-            params.len() == names.len(),
-            "COLMAP camera model {} takes {} parameters ({}), got {}",
-            self.name(),
-            names.len(),
-            names.join(", "),
-            params.len()
-        );
-        let p = params;
-        Ok(match self {
-            Self::SimplePinhole => ([p[0], p[0]], [p[1], p[2]], LensDistortion::None),
-            Self::Pinhole => ([p[0], p[1]], [p[2], p[3]], LensDistortion::None),
-            Self::SimpleRadial => (
-                [p[0], p[0]],
-                [p[1], p[2]],
-                LensDistortion::polynomial([p[3], 0.0, 0.0, 0.0], [0.0, 0.0]),
-            ),
-            Self::Radial => (
-                [p[0], p[0]],
-                [p[1], p[2]],
-                LensDistortion::polynomial([p[3], p[4], 0.0, 0.0], [0.0, 0.0]),
-            ),
-            Self::OpenCv => (
-                [p[0], p[1]],
-                [p[2], p[3]],
-                LensDistortion::polynomial([p[4], p[5], 0.0, 0.0], [p[6], p[7]]),
-            ),
-            Self::FullOpenCv => (
-                [p[0], p[1]],
-                [p[2], p[3]],
-                LensDistortion::RadialTangential {
-                    numerator: [p[4], p[5], p[8], 0.0],
-                    denominator: [p[9], p[10], p[11]],
-                    tangential: [p[6], p[7]],
-                },
-            ),
-            Self::OpenCvFisheye => (
-                [p[0], p[1]],
-                [p[2], p[3]],
-                LensDistortion::Fisheye {
-                    k: [p[4], p[5], p[6], p[7]],
-                },
-            ),
-        })
-    }
-}
+use crate::lens::{ColmapCameraModel, Fisheye, LensDistortion};
 
 /// A camera pose as COLMAP stores it: world → camera, `X_cam = rotation · X_world + translation`
 /// with OpenCV camera axes (+x right, +y down, +z forward).
@@ -292,7 +167,7 @@ impl ColmapCamera {
     /// (width, height)` pixels; an error naming the model for a wrong parameter count, or
     /// what [`CameraModel::validate`] rejects.
     pub fn new(
-        model: ColmapCameraModel,
+        model: &ColmapCameraModel,
         params: &[f64],
         size: (usize, usize),
         pose: ColmapPose,
@@ -310,7 +185,7 @@ impl ColmapCamera {
         // `.context`, never by formatting `{e}`, which would print only the model's name.
         camera
             .validate()
-            .with_context(|| format!("COLMAP camera model {}", model.name()))?;
+            .with_context(|| format!("COLMAP camera model {}", model.name))?;
         Ok(camera)
     }
 
@@ -350,7 +225,7 @@ impl ColmapCamera {
                     p[0],
                     p[1]
                 );
-                LensDistortion::Fisheye { k }
+                LensDistortion::Fisheye(Fisheye { k })
             }
             other => bail!(
                 "unsupported nerfstudio camera_model `{other}` (supported: OPENCV, OPENCV_FISHEYE)"

@@ -1,7 +1,5 @@
 //! Image metrics and small statistics, written once: PSNR, SSIM, mean, best-of-N timing.
 
-use std::time::Instant;
-
 use anyhow::{bail, Result};
 
 use crate::image::RgbImage;
@@ -159,24 +157,6 @@ pub fn mean_psnr(predicted: &[&RgbImage], truth: &[RgbImage]) -> f64 {
     )
 }
 
-/// Runs `work` `repeats` times (at least once); returns each run's wall time in seconds and
-/// the last run's result. The best-of-N figure is [`fastest`] of the times.
-pub fn time_runs<T>(repeats: usize, mut work: impl FnMut() -> Result<T>) -> Result<(Vec<f64>, T)> {
-    let mut runs = Vec::with_capacity(repeats.max(1));
-    let mut last = None;
-    for _ in 0..repeats.max(1) {
-        let start = Instant::now();
-        last = Some(work()?);
-        runs.push(start.elapsed().as_secs_f64());
-    }
-    Ok((runs, last.expect("at least one run")))
-}
-
-/// The shortest of `runs` (∞ when empty).
-pub fn fastest(runs: &[f64]) -> f64 {
-    runs.iter().copied().fold(f64::INFINITY, f64::min)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -240,25 +220,5 @@ mod tests {
         assert!(ssim(&a, &small).is_err());
         let w = ssim_weights();
         assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12 && w[5] > w[4] && w[0] == w[10]);
-    }
-
-    #[test]
-    fn time_runs_times_every_run() {
-        let mut n = 0;
-        let (runs, last) = time_runs(3, || {
-            n += 1;
-            std::thread::sleep(std::time::Duration::from_millis(if n == 2 {
-                1
-            } else {
-                200
-            }));
-            Ok(n)
-        })
-        .unwrap();
-        assert_eq!(last, 3);
-        assert_eq!(runs.len(), 3);
-        assert!(runs[0] >= 0.2 && runs[2] >= 0.2);
-        // The two long runs cannot be the shortest unless the short one took longer.
-        assert!(fastest(&runs) < 0.2, "{runs:?}");
     }
 }

@@ -13,9 +13,9 @@ use rand::SeedableRng;
 use rayon::prelude::*;
 
 use crate::bench::row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
+use crate::timing::fastest;
 use nerf::config::Config;
 use nerf::core::frame_camera::FrameCamera;
-use nerf::core::metrics::fastest;
 use nerf::field::ngp::{GEO_FEATURES, HIDDEN, SH_DIM};
 use nerf::field::ngp_config::NgpConfig;
 use nerf::io::dataset::{Dataset, Split};

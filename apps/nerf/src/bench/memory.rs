@@ -12,7 +12,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::bench::row::{BenchResult, Throughput};
-use nerf::core::metrics::fastest;
+use crate::timing::fastest;
 
 /// Rows of one level's table in the shipped configs (`log2_hashmap_size: 18`).
 const LEVEL_ROWS: usize = 1 << 18;

@@ -22,10 +22,11 @@ use crate::bench::mlp_flops::{forward_flop_per_sample, mlp_throughput, TRAIN_FAC
 pub use crate::bench::pytorch_reference::{pytorch_seconds, ReferenceWork};
 pub use crate::bench::row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
 use crate::render::scene::render_views;
+use crate::timing::{fastest, time_runs};
 use nerf::config::{Config, TrainingConfig};
 use nerf::core::camera::PerspectiveCamera;
 use nerf::core::image::RgbImage;
-use nerf::core::metrics::{fastest, mean, time_runs};
+use nerf::core::metrics::mean;
 use nerf::render::view::{render_view, Pipeline, RenderedView};
 use nerf::train::model::{Optimizer, TrainModel};
 

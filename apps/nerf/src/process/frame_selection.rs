@@ -10,7 +10,7 @@
 /// `grey`: `(height, width)` row-major intensities (any scale; the score scales with its
 /// square). Returns 0 for an image under 3×3 pixels or when `grey` is shorter than
 /// `width·height`.
-pub fn laplacian_variance(grey: &[f32], width: usize, height: usize) -> f64 {
+pub(crate) fn laplacian_variance(grey: &[f32], width: usize, height: usize) -> f64 {
     if width < 3 || height < 3 || grey.len() < width * height {
         return 0.0;
     }
@@ -34,7 +34,7 @@ pub fn laplacian_variance(grey: &[f32], width: usize, height: usize) -> f64 {
 /// unless its stretch holds nothing else.
 ///
 /// `scores`: `(n,)`; returns `(min(keep, n),)` increasing indices.
-pub fn sharpest_per_stretch(scores: &[f64], keep: usize) -> Vec<usize> {
+pub(crate) fn sharpest_per_stretch(scores: &[f64], keep: usize) -> Vec<usize> {
     let n = scores.len();
     if keep >= n {
         return (0..n).collect();

@@ -17,6 +17,7 @@
 
 pub mod colmap_run;
 pub mod external_tool;
+pub mod frame_selection;
 pub mod inputs;
 pub mod mapper;
 pub mod video_frames;
@@ -32,8 +33,8 @@ use crate::process::inputs::{
     check_names, check_photos_decode, copy_images, list_images, mark_finished, start_run,
 };
 use crate::process::mapper::{MapperRun, MappingOptions};
-use nerf::core::camera_colmap::{ColmapCameraModel, ColmapPose};
-use nerf::core::lens_distortion::LensDistortion;
+use nerf::core::camera_colmap::ColmapPose;
+use nerf::core::lens::{ColmapCameraModel, Fisheye, LensDistortion, RadialTangential};
 use nerf::io::colmap::{ColmapCameraRecord, ColmapModel};
 
 pub use crate::process::mapper::MIN_REGISTERED;
@@ -557,9 +558,10 @@ pub fn intrinsics_json(camera: &ColmapCameraRecord) -> Result<Map<String, Value>
     let mut put = |k: &str, v: Value| {
         keys.insert(k.to_string(), v);
     };
-    let name = match distortion {
-        LensDistortion::Fisheye { .. } => "OPENCV_FISHEYE",
-        _ => "OPENCV",
+    let name = if distortion.is_fisheye() {
+        "OPENCV_FISHEYE"
+    } else {
+        "OPENCV"
     };
     put("camera_model", json!(name));
     put("fl_x", json!(focal[0]));
@@ -569,12 +571,12 @@ pub fn intrinsics_json(camera: &ColmapCameraRecord) -> Result<Map<String, Value>
     put("w", json!(camera.width));
     put("h", json!(camera.height));
     let (k, p) = match distortion {
-        LensDistortion::None => ([0.0; 4], [0.0; 2]),
-        LensDistortion::RadialTangential {
+        LensDistortion::None(_) => ([0.0; 4], [0.0; 2]),
+        LensDistortion::RadialTangential(RadialTangential {
             numerator,
             denominator,
             tangential,
-        } => {
+        }) => {
             if denominator.iter().any(|&b| b != 0.0) {
                 bail!(
                     "COLMAP camera {} is {} with rational terms k4..k6 {denominator:?}, which nerfstudio's OPENCV cannot hold",
@@ -584,7 +586,12 @@ pub fn intrinsics_json(camera: &ColmapCameraRecord) -> Result<Map<String, Value>
             }
             (numerator, tangential)
         }
-        LensDistortion::Fisheye { k } => (k, [0.0; 2]),
+        LensDistortion::Fisheye(Fisheye { k }) => (k, [0.0; 2]),
+        _ => bail!(
+            "COLMAP camera {} is {}, a lens nerfstudio's OPENCV and OPENCV_FISHEYE cannot hold",
+            camera.id,
+            camera.model
+        ),
     };
     put("k1", json!(k[0]));
     put("k2", json!(k[1]));
@@ -726,5 +733,8 @@ mod tests {
         full[9] = 0.5;
         let e = intrinsics_json(&camera("FULL_OPENCV", full)).unwrap_err();
         assert!(e.to_string().contains("rational"), "{e}");
+        let fov = vec![50.0, 51.0, 20.0, 15.0, 0.9];
+        let e = intrinsics_json(&camera("FOV", fov)).unwrap_err();
+        assert!(e.to_string().contains("is FOV, a lens nerfstudio"), "{e}");
     }
 }

@@ -2,8 +2,8 @@
 //! on `PATH`, or the executable `NERF_FFMPEG` names; Debian's `ffmpeg` package). Candidate
 //! frames spread evenly over the clip ([`CANDIDATES_PER_FRAME`] per frame kept, at most every
 //! frame of the clip) are streamed from ffmpeg as small grey thumbnails and scored
-//! ([`nerf::core::frame_selection::laplacian_variance`]); the sharpest of each stretch
-//! ([`nerf::core::frame_selection::sharpest_per_stretch`]) is then written at full size as a
+//! ([`crate::process::frame_selection::laplacian_variance`]); the sharpest of each stretch
+//! ([`crate::process::frame_selection::sharpest_per_stretch`]) is then written at full size as a
 //! JPEG by a second ffmpeg pass over the same candidates. Nothing but the scores is held in
 //! memory, and ffmpeg is stopped after twice the candidates asked for, whatever the file says
 //! its length is.
@@ -15,7 +15,7 @@ use std::process::{Command, Stdio};
 
 use anyhow::{anyhow, bail, Context, Result};
 
-use nerf::core::frame_selection::{laplacian_variance, sharpest_per_stretch};
+use crate::process::frame_selection::{laplacian_variance, sharpest_per_stretch};
 use nerf::io::progress::progress_bar;
 
 /// The environment variable naming the ffmpeg executable (default: `ffmpeg` on `PATH`).

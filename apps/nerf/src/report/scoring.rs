@@ -6,10 +6,10 @@ use anyhow::Result;
 use candle_core::Device;
 use serde::Serialize;
 
+use crate::timing::{fastest, time_runs};
 use nerf::config::Config;
 use nerf::core::camera::PerspectiveCamera;
 use nerf::core::metrics::psnr_from_mse;
-use nerf::core::metrics::{fastest, time_runs};
 use nerf::render::field::Field;
 use nerf::render::view::{render_view, RenderedView};
 

@@ -199,8 +199,9 @@ mod tests {
         object_fit(dataset, range)?.depths
     }
     use crate::dataset::Frame;
-    use nerf_core::camera_colmap::{ColmapCamera, ColmapCameraModel, ColmapPose};
+    use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
     use nerf_core::image::RgbImage;
+    use nerf_core::lens::ColmapCameraModel;
 
     /// A pinhole camera at `eye` looking at the origin, world +z up (OpenCV axes: x right,
     /// y down, z forward), `size × size` pixels with a 60° field of view.
@@ -215,7 +216,7 @@ mod tests {
         let f = 0.5 * size as f64 / (30f64.to_radians()).tan();
         let c = 0.5 * size as f64;
         ColmapCamera::new(
-            ColmapCameraModel::SimplePinhole,
+            ColmapCameraModel::from_name("SIMPLE_PINHOLE").unwrap(),
             &[f, c, c],
             (size, size),
             pose,

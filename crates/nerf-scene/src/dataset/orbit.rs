@@ -158,7 +158,7 @@ pub(crate) fn number_list(text: &str) -> Result<Vec<f64>> {
 mod tests {
     use super::*;
     use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
-    use nerf_core::lens_distortion::LensDistortion;
+    use nerf_core::lens::LensDistortion;
 
     /// A capture camera at `centre` looking at the origin, `focal` px for a `size` image.
     fn frame(centre: DVec3, focal: f64, size: (usize, usize)) -> Frame {

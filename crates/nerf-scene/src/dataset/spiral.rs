@@ -303,7 +303,7 @@ mod tests {
     use super::*;
     use glam::DMat3;
     use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
-    use nerf_core::lens_distortion::LensDistortion;
+    use nerf_core::lens::LensDistortion;
 
     /// A capture frame: a 200×100 pinhole of focal 150 px at `eye`, looking along `forward`
     /// with image up as near `up` as it can be.
