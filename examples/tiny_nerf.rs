@@ -84,7 +84,7 @@ fn main() -> Result<()> {
         let target = Tensor::from_vec(target, (rays.len(), 3), &device)?;
 
         // The model with its variables (not detached), so the loss reaches them.
-        let field = state.training_field(None, 0.0);
+        let field = state.training_field(0.0);
         let out = renderer.render(&field, &sampler, &rays, Some(&mut rng))?;
         let loss = out.color.sub(&target)?.sqr()?.mean_all()?;
         adam.step(&loss.backward()?)?;
@@ -99,7 +99,7 @@ fn main() -> Result<()> {
     }
 
     // The trained model from camera 0, beside its target.
-    let trained = state.field(None);
+    let trained = state.field();
     let view = render_view(
         &Pipeline::new(&trained, &sampler, &renderer),
         &cameras[0],

@@ -14,9 +14,7 @@ use nerf::config::Config;
 use nerf::field::trainable::{
     named_vars, seed_uniform, BoxedField, DenseGroup, ParamGroups, SparseRowsGroup,
 };
-use nerf::{
-    Field, FieldOutput, FieldSpec, OccupancyGrid, RaySamples, TrainSettings, TrainableField,
-};
+use nerf::{Field, FieldOutput, FieldSpec, RaySamples, TrainSettings, TrainableField};
 
 /// A config's NeRF training settings with the model swapped for `spec`: no occupancy grid,
 /// fixed rays per step, one epoch, the grid's learning rate (0.05), no previews.
@@ -92,14 +90,14 @@ impl TrainableField for VoxelModel {
         &self.varmap
     }
 
-    fn training_field(&self, _: Option<Arc<OccupancyGrid>>, _: f64) -> BoxedField {
+    fn training_field(&self, _: f64) -> BoxedField {
         Box::new(VoxelField {
             spec: self.spec,
             voxels: self.voxels(),
         })
     }
 
-    fn render_field(&self, _: Option<Arc<OccupancyGrid>>) -> BoxedField {
+    fn render_field(&self) -> BoxedField {
         Box::new(VoxelField {
             spec: self.spec,
             voxels: self.voxels().detach(),

@@ -7,27 +7,28 @@ use candle_core::{Device, Tensor};
 use common::{max_abs_diff, nerf_ok, read_npy};
 use nerf::config::Config;
 use nerf::core::rays::Rays;
-use nerf::{named_vars, with_kernel_choice, KernelChoice, NerfField, NerfState};
+use nerf::render::occupied_field::OccupiedField;
+use nerf::{named_vars, with_kernel_choice, KernelChoice, NerfState};
 
 /// `d(Σ colour + Σ depth)/d(weight)` for every NeRF parameter, with `choice` in force.
 fn nerf_gradients(config: &Config, choice: KernelChoice) -> Vec<(String, Vec<f32>)> {
     with_kernel_choice(choice, || {
         let device = Device::Cpu;
         let state = NerfState::seeded(&config.nerf_params().unwrap(), 11, &device).unwrap();
-        let occupancy = config
-            .occupancy_grid()
-            .map(|g| std::sync::Arc::new(nerf::OccupancyGrid::new(&g).unwrap()));
-        let field = NerfField {
-            model: state.model.clone(),
-            density_noise: 0.0,
-            occupancy,
+        // The weights as variables, rendered through the config's grid when it has one.
+        let field: Box<dyn nerf::Field> = match config.occupancy_grid() {
+            Some(g) => Box::new(OccupiedField {
+                field: state.training_field(0.0),
+                grid: std::sync::Arc::new(nerf::OccupancyGrid::new(&g).unwrap()),
+            }),
+            None => Box::new(state.training_field(0.0)),
         };
         let cam = config.surround_cameras()[1];
         let rays = Rays::for_image(&cam, 7, 5, &device).unwrap();
         let out = config
             .renderer()
             .unwrap()
-            .render(&field, config.sampler().unwrap().as_ref(), &rays, None)
+            .render(&*field, config.sampler().unwrap().as_ref(), &rays, None)
             .unwrap();
         let loss = (out.color.sum_all().unwrap() + out.depth.sum_all().unwrap()).unwrap();
         let grads = loss.backward().unwrap();

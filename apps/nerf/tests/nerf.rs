@@ -13,7 +13,7 @@ use nerf::io::checkpoint::{self, CheckpointInfo};
 use nerf::io::dataset::{Dataset, Frame};
 use nerf::train::model::{Optimizer, TrainModel};
 use nerf::train::step::train_step;
-use nerf::{render_view, NerfField, NerfParams, NerfState, Pipeline};
+use nerf::{render_view, NerfParams, NerfState, Pipeline};
 use rand::SeedableRng;
 
 /// A small NeRF config (the homework's architecture, smaller sizes) with overrides.
@@ -125,9 +125,14 @@ fn gradients_reach_every_parameter() {
         let config = tiny_config(extra);
         let nerf_cfg = config.nerf_params().unwrap();
         let state = NerfState::new(&nerf_cfg, &Device::Cpu).unwrap();
-        let occupancy = config
-            .occupancy_grid()
-            .map(|g| std::sync::Arc::new(nerf::OccupancyGrid::new(&g).unwrap()));
+        // The weights as variables, rendered through the config's grid when it has one.
+        let field: Box<dyn nerf::Field> = match config.occupancy_grid() {
+            Some(g) => Box::new(nerf::render::occupied_field::OccupiedField {
+                field: state.training_field(0.0),
+                grid: std::sync::Arc::new(nerf::OccupancyGrid::new(&g).unwrap()),
+            }),
+            None => Box::new(state.training_field(0.0)),
+        };
         let cam = config.surround_cameras()[0];
         let rays = nerf::core::rays::Rays::for_image(&cam, 6, 6, &Device::Cpu).unwrap();
         let mut rng = rand::rngs::StdRng::seed_from_u64(1);
@@ -135,11 +140,7 @@ fn gradients_reach_every_parameter() {
             .renderer()
             .unwrap()
             .render(
-                &NerfField {
-                    model: state.model.clone(),
-                    density_noise: 0.0,
-                    occupancy,
-                },
+                &*field,
                 config.sampler().unwrap().as_ref(),
                 &rays,
                 Some(&mut rng),
@@ -453,7 +454,7 @@ fn nerf_render_does_not_depend_on_chunking() {
     let sampler = config.sampler().unwrap();
     let render = |chunk: usize| {
         let renderer = nerf::render::renderer::VolumeRenderer::new(chunk, false).unwrap();
-        let field = state.field(None);
+        let field = state.field();
         render_view(
             &Pipeline::new(&field, &*sampler, &renderer),
             &cam,

@@ -303,7 +303,6 @@ fn nerf_gradients_and_adam_stay_finite_at_extremes() {
         let field = NerfField {
             model,
             density_noise: 0.0,
-            occupancy: None,
         };
         let out = VolumeRenderer::new(4096, false)
             .unwrap()

@@ -16,8 +16,6 @@
 //! `.bias`), with PyTorch's shapes (`(out, in)`) and PyTorch's default `nn.Linear`
 //! initialisation, U(−1/√fan_in, 1/√fan_in).
 
-use std::sync::Arc;
-
 use anyhow::{ensure, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{Init, Linear, VarBuilder, VarMap};
@@ -28,7 +26,6 @@ use crate::trainable::{
 use nerf_checkpoint::parameter_shapes::ParameterShapes;
 use nerf_kernels::nerf_mlp::{self, NerfLayers, NerfMlpShape};
 use nerf_render::field::{Field, FieldFastPaths, FieldOutput};
-use nerf_render::occupancy::OccupancyGrid;
 use nerf_render::sampler::RaySamples;
 
 /// The kind's name: what a config's `implicit_function.type` and a checkpoint call it.
@@ -278,16 +275,13 @@ impl Nerf {
     }
 }
 
-/// A NeRF as a field: the model, the training-time density noise (0 when rendering) and,
-/// when present, the occupancy grid that marks where it can have density.
+/// A NeRF as a field: the model and the training-time density noise (0 when rendering).
 #[derive(Debug, Clone)]
 pub struct NerfField {
     /// The NeRF MLP.
     pub model: Nerf,
     /// Standard deviation of the Gaussian noise added before the density ReLU (0 = off).
     pub density_noise: f64,
-    /// The occupancy grid used to skip empty space when rendering, if any.
-    pub occupancy: Option<Arc<OccupancyGrid>>,
 }
 
 impl Field for NerfField {
@@ -298,10 +292,6 @@ impl Field for NerfField {
         directions: &Tensor,
     ) -> Result<FieldOutput> {
         self.model.evaluate(samples, directions, self.density_noise)
-    }
-
-    fn occupancy(&self) -> Option<&OccupancyGrid> {
-        self.occupancy.as_deref()
     }
 
     fn density(&self, points: &Tensor) -> Result<Tensor> {
@@ -418,25 +408,19 @@ impl NerfState {
     }
 
     /// The field for training: the model's weights as variables (gradients reach them) with
-    /// `density_noise`, and `occupancy` if given.
-    pub fn training_field(
-        &self,
-        occupancy: Option<Arc<OccupancyGrid>>,
-        density_noise: f64,
-    ) -> NerfField {
+    /// `density_noise`.
+    pub fn training_field(&self, density_noise: f64) -> NerfField {
         NerfField {
             model: self.model.clone(),
             density_noise,
-            occupancy,
         }
     }
 
     /// The field for rendering: detached weights (no gradient graph), no density noise.
-    pub fn field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> NerfField {
+    pub fn field(&self) -> NerfField {
         NerfField {
             model: self.model.detached(),
             density_noise: 0.0,
-            occupancy,
         }
     }
 }
@@ -469,16 +453,12 @@ impl TrainableField for NerfState {
         parameter_shapes(&self.model.config)
     }
 
-    fn training_field(
-        &self,
-        occupancy: Option<Arc<OccupancyGrid>>,
-        density_noise: f64,
-    ) -> BoxedField {
-        Box::new(NerfState::training_field(self, occupancy, density_noise))
+    fn training_field(&self, density_noise: f64) -> BoxedField {
+        Box::new(NerfState::training_field(self, density_noise))
     }
 
-    fn render_field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> BoxedField {
-        Box::new(self.field(occupancy))
+    fn render_field(&self) -> BoxedField {
+        Box::new(self.field())
     }
 }
 

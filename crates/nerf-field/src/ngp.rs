@@ -35,7 +35,6 @@ use nerf_hash_grid::hash_grid::{hash_encode, HashGridParams, TableGradient};
 use nerf_hash_grid::ngp_mlp::{mlp_forward, MlpLayers};
 pub use nerf_hash_grid::spherical_harmonics::{sh_basis, sh_encode, sh_encode_tensor_ops, SH_DIM};
 use nerf_render::field::{Field, FieldFastPaths, FieldOutput};
-use nerf_render::occupancy::OccupancyGrid;
 use nerf_render::sampler::RaySamples;
 
 mod fused_step;
@@ -346,13 +345,11 @@ fn rays_in_use(rays: &[u32], n: usize) -> Result<(Vec<u32>, Vec<u32>)> {
     Ok((used, local))
 }
 
-/// An NGP model as a field, with the occupancy grid that marks where it can have density.
+/// An NGP model as a field.
 #[derive(Debug, Clone)]
 pub struct NgpField {
     /// The model.
     pub model: Ngp,
-    /// The occupancy grid used to skip empty space, if any.
-    pub occupancy: Option<Arc<OccupancyGrid>>,
     /// `(N,)` u32: the training image of each ray of the batch this field renders
     /// ([`Field::for_cameras`]); `None`: rays of no training image.
     pub camera_index: Option<Tensor>,
@@ -377,10 +374,6 @@ impl Field for NgpField {
             camera_index: Some(camera_index.clone()),
             ..self.clone()
         })))
-    }
-
-    fn occupancy(&self) -> Option<&OccupancyGrid> {
-        self.occupancy.as_deref()
     }
 
     fn density(&self, points: &Tensor) -> Result<Tensor> {
@@ -513,22 +506,16 @@ impl TrainableField for NgpState {
         &self.varmap
     }
 
-    fn training_field(
-        &self,
-        occupancy: Option<Arc<OccupancyGrid>>,
-        _density_noise: f64,
-    ) -> BoxedField {
+    fn training_field(&self, _density_noise: f64) -> BoxedField {
         Box::new(NgpField {
             model: self.model.clone(),
-            occupancy,
             camera_index: None,
         })
     }
 
-    fn render_field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> BoxedField {
+    fn render_field(&self) -> BoxedField {
         Box::new(NgpField {
             model: self.model.detached(),
-            occupancy,
             camera_index: None,
         })
     }

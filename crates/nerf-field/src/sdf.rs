@@ -2,8 +2,6 @@
 //! constant or rainbow colour. Each parameter the config marks `opt: True` is a trainable
 //! variable; the others are constants.
 
-use std::sync::Arc;
-
 use anyhow::Result;
 use candle_core::{Device, Tensor, Var};
 use candle_nn::VarMap;
@@ -14,7 +12,6 @@ use nerf_core::sdf::{Sdf, SdfVolume};
 use nerf_kernels::sdf_render::sdf_render_mse;
 use nerf_kernels::sdf_volume::{sdf_volume, SdfTensors, ShapeTensors};
 use nerf_render::field::{Composited, Field, FieldFastPaths, FieldOutput};
-use nerf_render::occupancy::OccupancyGrid;
 use nerf_render::sampler::RaySamples;
 
 /// Which parameters of an SDF volume are trained (the homework's `opt` flags). `side_lengths`
@@ -153,15 +150,14 @@ impl TrainableField for SdfModel {
         &self.varmap
     }
 
-    /// The field itself: its variables are tracked. (An SDF volume has no occupancy grid and
-    /// no density noise.)
-    fn training_field(&self, _: Option<Arc<OccupancyGrid>>, _: f64) -> BoxedField {
+    /// The field itself: its variables are tracked. (An SDF volume has no density noise.)
+    fn training_field(&self, _: f64) -> BoxedField {
         Box::new(self.field.clone())
     }
 
     /// Every parameter a constant of its current value: no gradient graph, and the fused
     /// kernels can run.
-    fn render_field(&self, _: Option<Arc<OccupancyGrid>>) -> BoxedField {
+    fn render_field(&self) -> BoxedField {
         Box::new(SdfField {
             params: self.field.params.detach(),
             variables: Vec::new(),

@@ -12,9 +12,10 @@ use nerf_core::rays::Rays;
 use nerf_kernels::composite::composite;
 use nerf_kernels::composite::Composited;
 use nerf_kernels::sample_points::sample_points;
-use nerf_render::field::FieldFastPaths;
+use nerf_render::field::Field;
 use nerf_render::field::FieldOutput;
 use nerf_render::occupancy::{OccupancyGrid, OccupancyGridParams};
+use nerf_render::occupied_field::OccupiedField;
 use nerf_render::renderer::{RenderOutput, VolumeRenderer};
 use nerf_render::sampler::{RaySamples, StratifiedSampler};
 use nerf_render::skipping::*;
@@ -44,7 +45,7 @@ fn rays() -> Rays {
 
 fn render(
     renderer: VolumeRenderer,
-    field: &NerfField,
+    field: &dyn Field,
     sampler: &StratifiedSampler,
 ) -> RenderOutput {
     renderer.render(field, sampler, &rays(), None).unwrap()
@@ -54,11 +55,18 @@ fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
     nerf_core::compare::max_abs_difference(a, b).unwrap()
 }
 
-fn field(model: &Nerf, grid: Option<OccupancyGrid>) -> NerfField {
-    NerfField {
+/// The NeRF `model` as a field, rendered through `grid` when given.
+fn field(model: &Nerf, grid: Option<OccupancyGrid>) -> Box<dyn Field> {
+    let field = NerfField {
         model: model.clone(),
         density_noise: 0.0,
-        occupancy: grid.map(Arc::new),
+    };
+    match grid {
+        Some(grid) => Box::new(OccupiedField {
+            field,
+            grid: Arc::new(grid),
+        }),
+        None => Box::new(field),
     }
 }
 
@@ -70,7 +78,11 @@ fn a_chunk_of_skipping_rays_draws_a_bounded_number_of_samples() {
         .unwrap()
         .with_early_termination(1e-3)
         .unwrap();
-    let per_segment = f.max_samples_per_chunk() / SEGMENT;
+    let per_segment = f
+        .fast_paths()
+        .expect("a NeRF's fast paths")
+        .max_samples_per_chunk()
+        / SEGMENT;
     for s in [16, 128, 1024, 4096, 16384] {
         let sampler = StratifiedSampler::new(s, 0.1, 6.0).unwrap();
         let rays = renderer.rays_per_chunk(&f, &sampler);

@@ -22,7 +22,6 @@ use rand::{Rng, SeedableRng};
 use nerf_checkpoint::parameter_shapes::ParameterShapes;
 use nerf_hash_grid::hash_grid::{HashGridParams, TableGradient};
 use nerf_render::field::Field;
-use nerf_render::occupancy::OccupancyGrid;
 
 /// A field that can be handed to other threads (the viewer renders on a worker).
 pub type BoxedField = Box<dyn Field + Send + Sync>;
@@ -66,22 +65,19 @@ pub trait TrainableField: Send + Sync {
             .collect()
     }
 
-    /// The field to train through: the parameters as variables, so gradients reach them,
-    /// skipping space outside `occupancy`. `density_noise` is the standard deviation of the
-    /// noise the NeRF MLP adds to its raw density; kinds without such noise ignore it.
-    fn training_field(
-        &self,
-        occupancy: Option<Arc<OccupancyGrid>>,
-        density_noise: f64,
-    ) -> BoxedField;
+    /// The field to train through: the parameters as variables, so gradients reach them.
+    /// `density_noise` is the standard deviation of the noise the NeRF MLP adds to its raw
+    /// density; kinds without such noise ignore it. (An occupancy grid is not the field's:
+    /// the trainer pairs the two, `nerf_render::occupied_field::OccupiedField`.)
+    fn training_field(&self, density_noise: f64) -> BoxedField;
 
     /// The field to render or score: detached parameters (no gradient graph), no noise.
-    fn render_field(&self, occupancy: Option<Arc<OccupancyGrid>>) -> BoxedField;
+    fn render_field(&self) -> BoxedField;
 
     /// Density σ `(M, 1)` at points `(M, 3)`, detached (the occupancy grid's probe). The
     /// default asks the render field ([`Field::density`]).
     fn density(&self, points: &Tensor) -> Result<Tensor> {
-        self.render_field(None).density(points)
+        self.render_field().density(points)
     }
 
     /// After each optimiser step: holds the parameters inside the range where the field is

@@ -69,8 +69,9 @@ pub trait Field {
         Ok(None)
     }
 
-    /// Where the field can have density, when it keeps an occupancy grid (samples elsewhere
-    /// are skipped when the field has packed evaluation, [`FieldFastPaths::evaluate_packed`]).
+    /// Where the field can have density, when it is rendered through an occupancy grid
+    /// ([`crate::occupied_field::OccupiedField`]; samples elsewhere are skipped when the field
+    /// has packed evaluation, [`FieldFastPaths::evaluate_packed`]). A field kind leaves it.
     fn occupancy(&self) -> Option<&OccupancyGrid> {
         None
     }
@@ -91,6 +92,35 @@ pub trait Field {
     /// through [`Field::evaluate`] alone, in chunks of `DEFAULT_SAMPLES_PER_CHUNK` samples.
     fn fast_paths(&self) -> Option<&dyn FieldFastPaths> {
         None
+    }
+}
+
+/// A boxed field is the field it holds (so that a wrapper such as
+/// [`crate::occupied_field::OccupiedField`] can hold one).
+impl<T: Field + ?Sized> Field for Box<T> {
+    fn evaluate(
+        &self,
+        samples: &RaySamples,
+        deltas: &Tensor,
+        directions: &Tensor,
+    ) -> Result<FieldOutput> {
+        (**self).evaluate(samples, deltas, directions)
+    }
+
+    fn for_cameras(&self, camera_index: &Tensor) -> Result<Option<Box<dyn Field + '_>>> {
+        (**self).for_cameras(camera_index)
+    }
+
+    fn occupancy(&self) -> Option<&OccupancyGrid> {
+        (**self).occupancy()
+    }
+
+    fn density(&self, points: &Tensor) -> Result<Tensor> {
+        (**self).density(points)
+    }
+
+    fn fast_paths(&self) -> Option<&dyn FieldFastPaths> {
+        (**self).fast_paths()
     }
 }
 

@@ -13,6 +13,7 @@ pub(crate) mod disparity_sampler;
 pub mod field;
 pub mod hierarchical;
 pub mod occupancy;
+pub mod occupied_field;
 pub mod pointcloud;
 pub mod ray_sampler;
 pub mod renderer;

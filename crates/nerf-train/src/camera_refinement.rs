@@ -535,6 +535,7 @@ mod tests {
         use nerf_field::ngp::{DensityActivation, NgpField, NgpParams, NgpState, TABLE};
         use nerf_hash_grid::hash_grid::HashGridParams;
         use nerf_render::occupancy::{OccupancyGrid, OccupancyGridParams};
+        use nerf_render::occupied_field::OccupiedField;
         use nerf_render::renderer::VolumeRenderer;
         use nerf_render::sampler::StratifiedSampler;
         let dev = Device::Cpu;
@@ -565,10 +566,12 @@ mod tests {
             contraction: Contraction::LInf,
         })
         .unwrap();
-        let field = NgpField {
-            model: state.model.clone(),
-            occupancy: Some(std::sync::Arc::new(grid)),
-            camera_index: None,
+        let field = OccupiedField {
+            field: NgpField {
+                model: state.model.clone(),
+                camera_index: None,
+            },
+            grid: std::sync::Arc::new(grid),
         };
         let renderer = VolumeRenderer::new(4096, false).unwrap();
         assert!(renderer.skips_samples(&field));

@@ -94,7 +94,7 @@ pub fn batch_loss(
             return Ok(loss);
         }
     }
-    let field = model.training_field(None, 0.0);
+    let field = model.training_field(0.0);
     let out = settings
         .renderer
         .render(&*field, &settings.sampler, rays, None)?;

@@ -22,6 +22,7 @@ use nerf_hash_grid::hash_grid::{HashGridParams, TableGradient};
 use nerf_render::occupancy::{
     grid_for_checkpoint, OccupancyGrid, OccupancyGridParams, CHECKPOINT_KEY,
 };
+use nerf_render::occupied_field::OccupiedField;
 
 /// A model read from a checkpoint, with everything else the checkpoint holds.
 pub struct LoadedCheckpoint {
@@ -152,16 +153,27 @@ impl TrainModel {
     }
 
     /// The field to train: parameters as variables (gradients reach them); `density_noise`
-    /// for the kinds that add noise to their raw density.
+    /// for the kinds that add noise to their raw density. Rendered through the occupancy
+    /// grid, when there is one.
     pub fn training_field(&self, density_noise: f64) -> BoxedField {
-        let occupancy = self.occupancy.clone().map(Arc::new);
-        self.field.training_field(occupancy, density_noise)
+        self.through_grid(self.field.training_field(density_noise))
     }
 
-    /// The field to render or score: detached parameters, no density noise.
+    /// The field to render or score: detached parameters, no density noise, rendered
+    /// through the occupancy grid when there is one.
     pub fn render_field(&self) -> BoxedField {
-        self.field
-            .render_field(self.occupancy.clone().map(Arc::new))
+        self.through_grid(self.field.render_field())
+    }
+
+    /// `field` paired with a copy of the occupancy grid, when there is one.
+    fn through_grid(&self, field: BoxedField) -> BoxedField {
+        match &self.occupancy {
+            Some(grid) => Box::new(OccupiedField {
+                field,
+                grid: Arc::new(grid.clone()),
+            }),
+            None => field,
+        }
     }
 
     /// Updates the occupancy grid (if any) from the current model's density; see

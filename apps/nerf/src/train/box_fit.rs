@@ -128,14 +128,14 @@ pub fn train_sdf(config: &Config, out_dir: &Path, device: &Device) -> Result<Sdf
     prepare_out_dir(out_dir)?;
     let mut written = write_views(
         config,
-        &*model.render_field(None),
+        &*model.render_field(),
         &cameras,
         out_dir,
         "render_box_before_training",
         device,
     )?;
     let report = fit_sdf(&model, &views, &settings, device, |_, _, _| {})?;
-    let fitted = model.render_field(None);
+    let fitted = model.render_field();
     written.extend(write_views(
         config,
         &*fitted,
