@@ -18,7 +18,7 @@ fn nerf_gradients(config: &Config, choice: KernelChoice) -> Vec<(String, Vec<f32
         // The weights as variables, rendered through the config's grid when it has one.
         let field: Box<dyn nerf::Field> = match config.occupancy_grid() {
             Some(g) => Box::new(OccupiedField {
-                field: state.training_field(0.0),
+                field: Box::new(state.training_field(0.0)),
                 grid: std::sync::Arc::new(nerf::OccupancyGrid::new(&g).unwrap()),
             }),
             None => Box::new(state.training_field(0.0)),

@@ -128,7 +128,7 @@ fn gradients_reach_every_parameter() {
         // The weights as variables, rendered through the config's grid when it has one.
         let field: Box<dyn nerf::Field> = match config.occupancy_grid() {
             Some(g) => Box::new(nerf::render::occupied_field::OccupiedField {
-                field: state.training_field(0.0),
+                field: Box::new(state.training_field(0.0)),
                 grid: std::sync::Arc::new(nerf::OccupancyGrid::new(&g).unwrap()),
             }),
             None => Box::new(state.training_field(0.0)),

@@ -63,7 +63,7 @@ fn field(model: &Nerf, grid: Option<OccupancyGrid>) -> Box<dyn Field> {
     };
     match grid {
         Some(grid) => Box::new(OccupiedField {
-            field,
+            field: Box::new(field),
             grid: Arc::new(grid),
         }),
         None => Box::new(field),
@@ -85,7 +85,7 @@ fn a_chunk_of_skipping_rays_draws_a_bounded_number_of_samples() {
         / SEGMENT;
     for s in [16, 128, 1024, 4096, 16384] {
         let sampler = StratifiedSampler::new(s, 0.1, 6.0).unwrap();
-        let rays = renderer.rays_per_chunk(&f, &sampler);
+        let rays = renderer.rays_per_chunk(&*f, &sampler);
         assert!(
             rays * s <= nerf_render::renderer::DRAWN_SAMPLES_PER_CHUNK,
             "S = {s}"
@@ -159,8 +159,8 @@ fn all_occupied_grid_without_termination_is_dense_rendering() {
     let sampler = StratifiedSampler::new(24, 2.0, 6.0).unwrap();
     let grid = all_occupied_grid();
     let renderer = VolumeRenderer::new(1000, false).unwrap();
-    let dense = render(renderer, &field(&m, None), &sampler);
-    let skipped = render(renderer, &field(&m, Some(grid)), &sampler);
+    let dense = render(renderer, &*field(&m, None), &sampler);
+    let skipped = render(renderer, &*field(&m, Some(grid)), &sampler);
     assert_eq!(skipped.samples.evaluated, skipped.samples.total);
     assert!(max_diff(&dense.color, &skipped.color) < 1e-6);
     assert!(max_diff(&dense.depth, &skipped.depth) < 1e-5);
@@ -173,7 +173,7 @@ fn early_termination_error_is_bounded_by_its_threshold() {
     let sampler = StratifiedSampler::new(64, 2.0, 6.0).unwrap();
     let dense = render(
         VolumeRenderer::new(1000, false).unwrap(),
-        &field(&m, None),
+        &*field(&m, None),
         &sampler,
     );
     for threshold in [1e-2, 1e-4] {
@@ -181,7 +181,7 @@ fn early_termination_error_is_bounded_by_its_threshold() {
             .unwrap()
             .with_early_termination(threshold)
             .unwrap();
-        let out = render(renderer, &field(&m, None), &sampler);
+        let out = render(renderer, &*field(&m, None), &sampler);
         // Every ray turns opaque within its first 16 samples, so it stops by the end of
         // the fourth segment (4 + 4 + 8 + 16 of its 64 samples).
         assert!(
@@ -206,7 +206,7 @@ fn empty_cells_render_as_zero_density() {
     let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
     let grid = striped_grid(3, 0);
     let renderer = VolumeRenderer::new(1000, false).unwrap();
-    let out = render(renderer, &field(&m, Some(grid.clone())), &sampler);
+    let out = render(renderer, &*field(&m, Some(grid.clone())), &sampler);
     assert!(out.samples.evaluated < out.samples.total);
     // Independent recomputation: dense field, density zeroed outside occupied cells.
     let samples = sampler.sample(&rays(), None).unwrap();
@@ -354,7 +354,7 @@ fn assert_marching_keeps_the_occupied_samples(
             sampler.compact_lengths(rays, None)
         }
         .unwrap();
-        let packed = evaluate_packed(&f, 0.0, rays, &lengths).unwrap();
+        let packed = evaluate_packed(&*f, 0.0, rays, &lengths).unwrap();
         let n = sampler.n_pts_per_ray;
         let (points, expected) = occupied_samples(grid, rays, &lengths, n);
         check(&packed, &points, &expected);
@@ -372,7 +372,7 @@ fn packed_compositing_equals_the_dense_scatter_bit_for_bit() {
     let f = field(&m.detached(), Some(grid));
     let samples = sampler.sample(&rays(), None).unwrap();
     for termination in [0.0, 1e-2] {
-        let packed = evaluate_packed(&f, termination, &rays(), &samples.lengths).unwrap();
+        let packed = evaluate_packed(&*f, termination, &rays(), &samples.lengths).unwrap();
         assert!(!packed.tracks_gradient());
         let (direct, dense) = composited_packed_and_dense(packed, &samples.lengths);
         for (what, a, b) in [
@@ -414,7 +414,7 @@ fn packed_compositing_gradients_equal_the_dense_paths() {
     let grid = striped_grid(4, 1);
     let f = field(&state.model, Some(grid));
     let samples = sampler.sample(&rays(), None).unwrap();
-    let packed = evaluate_packed(&f, 1e-3, &rays(), &samples.lengths).unwrap();
+    let packed = evaluate_packed(&*f, 1e-3, &rays(), &samples.lengths).unwrap();
     assert!(packed.tracks_gradient());
     let (direct, dense) = composited_packed_and_dense(packed, &samples.lengths);
     let weight = Tensor::randn(0f32, 1.0, direct.color.shape(), &Device::Cpu).unwrap();
@@ -478,8 +478,8 @@ fn distortion_loss_of_the_packed_and_dense_paths_equals_its_recomputation() {
     let mut renderer = VolumeRenderer::new(1000, false).unwrap();
     renderer.distortion_loss = true;
     // Dense, then packed through the grid (its empty cells as zero density).
-    let dense_out = render(renderer, &field(&m, None), &sampler);
-    let packed_out = render(renderer, &field(&m, Some(grid.clone())), &sampler);
+    let dense_out = render(renderer, &*field(&m, None), &sampler);
+    let packed_out = render(renderer, &*field(&m, Some(grid.clone())), &sampler);
     assert!(packed_out.samples.evaluated < packed_out.samples.total);
     let samples = sampler.sample(&rays(), None).unwrap();
     let (dense, masked) = dense_and_masked(&m, &grid, &samples);
@@ -491,7 +491,7 @@ fn distortion_loss_of_the_packed_and_dense_paths_equals_its_recomputation() {
     }
     // Off unless asked for.
     renderer.distortion_loss = false;
-    assert!(render(renderer, &field(&m, None), &sampler)
+    assert!(render(renderer, &*field(&m, None), &sampler)
         .distortion
         .is_none());
 }
@@ -514,15 +514,15 @@ fn tracked_rays_get_the_dense_paths_gradient_through_the_packed_pass() {
         camera_index: None,
     };
     let untracked = renderer
-        .render(&field(&m, grid()), &sampler, &plain, None)
+        .render(&*field(&m, grid()), &sampler, &plain, None)
         .unwrap();
     let packed = renderer
-        .render(&field(&m, grid()), &sampler, &tracked, None)
+        .render(&*field(&m, grid()), &sampler, &tracked, None)
         .unwrap();
     // (Not bit for bit: the field's trunk runs as tensor ops on tracked points.)
     assert!(max_diff(&untracked.color, &packed.color) < 1e-6);
     let dense = renderer
-        .render(&field(&m, None), &sampler, &tracked, None)
+        .render(&*field(&m, None), &sampler, &tracked, None)
         .unwrap();
     let weight = Tensor::randn(0f32, 1.0, packed.color.shape(), &Device::Cpu).unwrap();
     let grads = |out: &RenderOutput| {

@@ -95,35 +95,6 @@ pub trait Field {
     }
 }
 
-/// A boxed field is the field it holds (so that a wrapper such as
-/// [`crate::occupied_field::OccupiedField`] can hold one).
-impl<T: Field + ?Sized> Field for Box<T> {
-    fn evaluate(
-        &self,
-        samples: &RaySamples,
-        deltas: &Tensor,
-        directions: &Tensor,
-    ) -> Result<FieldOutput> {
-        (**self).evaluate(samples, deltas, directions)
-    }
-
-    fn for_cameras(&self, camera_index: &Tensor) -> Result<Option<Box<dyn Field + '_>>> {
-        (**self).for_cameras(camera_index)
-    }
-
-    fn occupancy(&self) -> Option<&OccupancyGrid> {
-        (**self).occupancy()
-    }
-
-    fn density(&self, points: &Tensor) -> Result<Tensor> {
-        (**self).density(points)
-    }
-
-    fn fast_paths(&self) -> Option<&dyn FieldFastPaths> {
-        (**self).fast_paths()
-    }
-}
-
 /// The renderer's fast paths into a field: how the crate's own fields (the SDF volume, the
 /// NeRF MLP, the hash grid) hand it fused kernels and packed evaluation. An inside seam
 /// between the renderer and the kernels, not part of what a new field kind implements; a field

@@ -4,6 +4,7 @@
 //! density as a function), and it is paired with a field only to render, so that the
 //! renderer skips the samples it marks empty.
 
+use std::ops::Deref;
 use std::sync::Arc;
 
 use anyhow::Result;
@@ -14,6 +15,7 @@ use crate::occupancy::OccupancyGrid;
 use crate::sampler::RaySamples;
 
 /// `field`, rendered through `grid`: everything is the field's but [`Field::occupancy`].
+/// `F` is a pointer to a field (a `Box<dyn Field>`, an `Arc`, a reference).
 #[derive(Debug, Clone)]
 pub struct OccupiedField<F> {
     /// The field.
@@ -22,7 +24,11 @@ pub struct OccupiedField<F> {
     pub grid: Arc<OccupancyGrid>,
 }
 
-impl<F: Field> Field for OccupiedField<F> {
+impl<F> Field for OccupiedField<F>
+where
+    F: Deref,
+    F::Target: Field,
+{
     fn evaluate(
         &self,
         samples: &RaySamples,

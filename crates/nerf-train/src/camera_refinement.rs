@@ -567,10 +567,10 @@ mod tests {
         })
         .unwrap();
         let field = OccupiedField {
-            field: NgpField {
+            field: Box::new(NgpField {
                 model: state.model.clone(),
                 camera_index: None,
-            },
+            }),
             grid: std::sync::Arc::new(grid),
         };
         let renderer = VolumeRenderer::new(4096, false).unwrap();
