@@ -35,12 +35,12 @@ impl Config {
     /// for another field kind.
     pub fn fit_to_object(&mut self, cube: [f64; 6]) -> bool {
         use nerf_core::contraction::Contraction;
-        use nerf_field::ngp_config::{ContractionName, NgpConfig};
+        use nerf_field::ngp_config::NgpConfig;
         let Some(ngp) = self.implicit_function.get_mut::<NgpConfig>() else {
             return false;
         };
         ngp.aabb = [[cube[0], cube[1], cube[2]], [cube[3], cube[4], cube[5]]];
-        ngp.contraction = ContractionName(Contraction::None);
+        ngp.contraction = Contraction::None;
         if let Some(grid) = self.renderer.occupancy_grid.as_mut() {
             grid.aabb = cube;
         }

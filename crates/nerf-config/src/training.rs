@@ -68,7 +68,7 @@ pub struct TrainingConfig {
     /// ([`nerf_train::camera_refinement`]): `off` (the default),
     /// `on`, or `auto` (on for a COLMAP model whose points reproject
     /// `nerf_train::camera_refinement::AUTO_REFINE_RESIDUAL_PX` or more off).
-    pub camera_refinement: CameraRefinementName,
+    pub camera_refinement: CameraRefinementMode,
 }
 
 /// `training.schedule` (extension): what the run's length and learning-rate decay follow.
@@ -80,45 +80,6 @@ pub enum Schedule {
     Epochs,
     /// The time budget of `--minutes` (else the epochs).
     Time,
-}
-
-/// `training.camera_refinement`: `auto`, `on` or `off` (`true` and `false` too).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct CameraRefinementName(pub CameraRefinementMode);
-
-impl<'de> Deserialize<'de> for CameraRefinementName {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
-        struct Mode;
-        impl serde::de::Visitor<'_> for Mode {
-            type Value = CameraRefinementMode;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str("auto, on or off")
-            }
-            fn visit_bool<E: serde::de::Error>(
-                self,
-                on: bool,
-            ) -> std::result::Result<Self::Value, E> {
-                Ok(match on {
-                    true => CameraRefinementMode::On,
-                    false => CameraRefinementMode::Off,
-                })
-            }
-            fn visit_str<E: serde::de::Error>(
-                self,
-                name: &str,
-            ) -> std::result::Result<Self::Value, E> {
-                match name {
-                    "auto" => Ok(CameraRefinementMode::Auto),
-                    "on" => Ok(CameraRefinementMode::On),
-                    "off" => Ok(CameraRefinementMode::Off),
-                    other => Err(E::custom(format!(
-                        "unknown `{other}` (expected auto, on or off)"
-                    ))),
-                }
-            }
-        }
-        Ok(Self(d.deserialize_any(Mode)?))
-    }
 }
 
 impl TrainingConfig {
@@ -192,7 +153,7 @@ impl Config {
             samples_per_step: t.samples_per_step,
             max_rays: self.max_rays_per_step()?,
             time_schedule: t.schedule == Schedule::Time,
-            camera_refinement: t.camera_refinement.0,
+            camera_refinement: t.camera_refinement,
             sample_depths: None,
             object_box: None,
         })

@@ -27,6 +27,13 @@ pub enum Contraction {
 /// (at world distance `1 / (2 − UNCONTRACT_MAX) = 10⁴`).
 pub(crate) const UNCONTRACT_MAX: f64 = 2.0 - 1e-4;
 
+/// `none` or `linf`, as a config writes it (`implicit_function.contraction`).
+impl<'de> serde::Deserialize<'de> for Contraction {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        crate::key_checks::deserialize_name(d, &[("none", Self::None), ("linf", Self::LInf)])
+    }
+}
+
 impl Contraction {
     /// The contracted point of world point `p`.
     pub fn contract(self, p: [f64; 3]) -> [f64; 3] {

@@ -18,3 +18,48 @@ pub fn count_in_range(key: &str, v: usize, max: usize) -> Result<()> {
     }
     Ok(())
 }
+
+/// The message for a name that is none of `expected`: `` unknown `name` (expected a, b or
+/// c) ``, as every config key that takes one of a few names says it.
+pub fn unknown_name(name: &str, expected: &[&str]) -> String {
+    let list = match expected.split_last() {
+        Some((last, [])) => last.to_string(),
+        Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+        None => String::new(),
+    };
+    format!("unknown `{name}` (expected {list})")
+}
+
+/// Deserialises a value written as one of a few names: the value of the name `d` holds among
+/// `names`, else the [`unknown_name`] error.
+pub fn deserialize_name<'de, D: serde::Deserializer<'de>, T: Copy>(
+    d: D,
+    names: &[(&str, T)],
+) -> std::result::Result<T, D::Error> {
+    let name = <String as serde::Deserialize>::deserialize(d)?;
+    match names.iter().find(|(n, _)| *n == name) {
+        Some(&(_, value)) => Ok(value),
+        None => {
+            let expected: Vec<&str> = names.iter().map(|(n, _)| *n).collect();
+            Err(serde::de::Error::custom(unknown_name(&name, &expected)))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_names_list_what_is_expected() {
+        assert_eq!(unknown_name("x", &["a"]), "unknown `x` (expected a)");
+        assert_eq!(
+            unknown_name("x", &["a", "b"]),
+            "unknown `x` (expected a or b)"
+        );
+        assert_eq!(
+            unknown_name("x", &["a", "b", "c"]),
+            "unknown `x` (expected a, b or c)"
+        );
+    }
+}

@@ -60,6 +60,16 @@ pub enum DensityActivation {
     Softplus,
 }
 
+/// `trunc_exp` or `softplus`, as a config writes it (`implicit_function.density_activation`).
+impl<'de> serde::Deserialize<'de> for DensityActivation {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        nerf_core::key_checks::deserialize_name(
+            d,
+            &[("trunc_exp", Self::TruncExp), ("softplus", Self::Softplus)],
+        )
+    }
+}
+
 /// The sizes of an NGP field (its `implicit_function` keys with `type: ngp`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct NgpParams {

@@ -5,11 +5,11 @@ use std::sync::Arc;
 
 use anyhow::Result;
 use serde::de::IgnoredAny;
-use serde::{Deserialize, Deserializer};
+use serde::Deserialize;
 
 use crate::appearance::AppearanceParams;
 use crate::field_config::{FieldConfig, FieldKind};
-use crate::ngp::NgpParams;
+use crate::ngp::{DensityActivation, NgpParams};
 use crate::trainable::FieldSpec;
 use nerf_core::contraction::Contraction;
 
@@ -44,13 +44,13 @@ pub struct NgpConfig {
     pub aabb: [[f64; 3]; 2],
     /// `trunc_exp` (default, instant-ngp) or `softplus` (`density_activation`).
     #[serde(default)]
-    pub density_activation: DensityActivationName,
+    pub density_activation: DensityActivation,
     /// Scene contraction (`contraction`): `none` (default; the grid covers `aabb` of the
     /// world) or `linf` (unbounded scenes: points are contracted into `[-2, 2]³` first, and
     /// `aabb`, like the occupancy grid's, is in contracted space; see
     /// [`nerf_core::contraction`]).
     #[serde(default)]
-    pub contraction: ContractionName,
+    pub contraction: Contraction,
     /// Length of the appearance embedding learnt per training image (`appearance_dim`,
     /// default 0 = none; see [`crate::appearance`]).
     #[serde(default)]
@@ -60,11 +60,6 @@ pub struct NgpConfig {
 impl NgpConfig {
     /// The field's sizes (an error for a bad grid or box).
     pub fn params(&self) -> Result<NgpParams> {
-        use crate::ngp::DensityActivation;
-        let density_activation = match self.density_activation {
-            DensityActivationName::TruncExp => DensityActivation::TruncExp,
-            DensityActivationName::Softplus => DensityActivation::Softplus,
-        };
         let half = (0..3)
             .map(|a| (self.aabb[1][a] - self.aabb[0][a]) / 2.0)
             .fold(0.0, f64::max);
@@ -77,8 +72,8 @@ impl NgpConfig {
                 max_resolution: self.max_resolution.unwrap_or(2048.0 * half),
             },
             aabb: self.aabb,
-            density_activation,
-            contraction: self.contraction.0,
+            density_activation: self.density_activation,
+            contraction: self.contraction,
             // The number of images is the training set's, known when it is loaded
             // (FieldSpec::for_training_images) or read from a checkpoint.
             appearance: (self.appearance_dim > 0).then_some(AppearanceParams {
@@ -105,48 +100,7 @@ impl FieldConfig for NgpConfig {
     }
 
     fn contraction(&self) -> Contraction {
-        self.contraction.0
-    }
-}
-
-/// `implicit_function.contraction` of an `ngp` field.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct ContractionName(pub nerf_core::contraction::Contraction);
-
-impl<'de> Deserialize<'de> for ContractionName {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
-        use nerf_core::contraction::Contraction;
-        let name = String::deserialize(d)?;
-        match name.as_str() {
-            "none" => Ok(Self(Contraction::None)),
-            "linf" => Ok(Self(Contraction::LInf)),
-            other => Err(serde::de::Error::custom(format!(
-                "unknown `{other}` (expected none or linf)"
-            ))),
-        }
-    }
-}
-
-/// `implicit_function.density_activation` of an `ngp` field: how the raw density becomes σ.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub enum DensityActivationName {
-    /// `trunc_exp` (the default, instant-ngp's).
-    #[default]
-    TruncExp,
-    /// `softplus`.
-    Softplus,
-}
-
-impl<'de> Deserialize<'de> for DensityActivationName {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
-        let name = String::deserialize(d)?;
-        match name.as_str() {
-            "trunc_exp" => Ok(Self::TruncExp),
-            "softplus" => Ok(Self::Softplus),
-            other => Err(serde::de::Error::custom(format!(
-                "unknown `{other}` (expected trunc_exp or softplus)"
-            ))),
-        }
+        self.contraction
     }
 }
 

@@ -85,6 +85,44 @@ pub enum CameraRefinementMode {
     Off,
 }
 
+/// `auto`, `on` or `off` (`true` and `false` too), as a config writes it
+/// (`training.camera_refinement`).
+impl<'de> serde::Deserialize<'de> for CameraRefinementMode {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct Mode;
+        impl serde::de::Visitor<'_> for Mode {
+            type Value = CameraRefinementMode;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("auto, on or off")
+            }
+            fn visit_bool<E: serde::de::Error>(
+                self,
+                on: bool,
+            ) -> std::result::Result<Self::Value, E> {
+                Ok(match on {
+                    true => CameraRefinementMode::On,
+                    false => CameraRefinementMode::Off,
+                })
+            }
+            fn visit_str<E: serde::de::Error>(
+                self,
+                name: &str,
+            ) -> std::result::Result<Self::Value, E> {
+                match name {
+                    "auto" => Ok(CameraRefinementMode::Auto),
+                    "on" => Ok(CameraRefinementMode::On),
+                    "off" => Ok(CameraRefinementMode::Off),
+                    other => Err(E::custom(nerf_core::key_checks::unknown_name(
+                        other,
+                        &["auto", "on", "off"],
+                    ))),
+                }
+            }
+        }
+        d.deserialize_any(Mode)
+    }
+}
+
 impl CameraRefinementMode {
     /// Whether the cameras are refined when the training data's cameras are `from_sfm`,
     /// with the mean reprojection error `sfm_residual` (pixels) when the files give it.
