@@ -310,10 +310,7 @@ fn each_loaders_bad_input_is_one_line_naming_the_file_and_nothing_is_written() {
                 edit_line(
                     model_file(d, "cameras.txt"),
                     |l| l.contains("PINHOLE"),
-                    |line| {
-                        let thin_prism = line.replace("PINHOLE", "THIN_PRISM_FISHEYE");
-                        format!("{thin_prism} 0 0 0 0 0 0 0 0")
-                    },
+                    |line| line.replace("PINHOLE", "THIN_PRISM_FISHEYE") + " 0 0 0 0 0 0 0 0",
                 )
             },
             "THIN_PRISM_FISHEYE",
