@@ -14,6 +14,9 @@ use std::path::Path;
 use glam::DVec3;
 use nerf::core::camera_model::CameraModel;
 use nerf::io::checkpoint;
+use nerf::io::dataset::colmap_scene::COLMAP;
+use nerf::io::dataset::llff::LLFF;
+use nerf::io::dataset::nerfstudio::NERFSTUDIO;
 use nerf::io::dataset::{read_capture_split, Dataset, SceneFormat, Split};
 
 /// Reads the capture in `dir` as `format` and checks every split's cameras against the lego
@@ -67,19 +70,19 @@ fn colmap_text_and_binary_nerfstudio_and_llff_captures_give_the_lego_cameras() {
     };
     let lego = &scratch.lego;
     let text = scratch.colmap_text("colmap_text");
-    check_capture(lego, &text, nerf::io::dataset::colmap_scene::COLMAP);
+    check_capture(lego, &text, COLMAP);
     // The same model written as binary, beside a second, smaller model: the larger is chosen.
     let binary = scratch.path("colmap_binary");
     let mut model = write_colmap_binary(lego, &text, &binary);
     model.images.truncate(3);
     nerf::io::colmap::write_binary(&binary.join("sparse").join("1"), &model).unwrap();
-    check_capture(lego, &binary, nerf::io::dataset::colmap_scene::COLMAP);
+    check_capture(lego, &binary, COLMAP);
     let ns = scratch.path("nerfstudio");
     write_nerfstudio(lego, &ns);
-    check_capture(lego, &ns, nerf::io::dataset::nerfstudio::NERFSTUDIO);
+    check_capture(lego, &ns, NERFSTUDIO);
     let llff = scratch.path("llff");
     write_llff(lego, &llff);
-    check_capture(lego, &llff, nerf::io::dataset::llff::LLFF);
+    check_capture(lego, &llff, LLFF);
 }
 
 #[test]
@@ -92,7 +95,7 @@ fn an_llff_file_written_for_larger_photos_is_scaled_to_the_photos_on_disk() {
     // poses_bounds.npy says 4× the photos' size, as LLFF keeps it beside downscaled photos.
     write_llff_for_size(lego, &dir, 4.0);
     // The cameras are the photos' own: the same rays as lego's views.
-    check_capture(lego, &dir, nerf::io::dataset::llff::LLFF);
+    check_capture(lego, &dir, LLFF);
     let data: nerf::config::DataConfig =
         serde_yaml_ng::from_str("downscale: 2").expect("a data section");
     let size = data
@@ -130,7 +133,7 @@ fn an_llff_file_written_for_larger_photos_is_scaled_to_the_photos_on_disk() {
         bytes[at..at + 8].copy_from_slice(&(2.0 * h).to_le_bytes());
     }
     std::fs::write(&npy, bytes).unwrap();
-    let err = read_capture_split(&wrong, nerf::io::dataset::llff::LLFF, Split::Train)
+    let err = read_capture_split(&wrong, LLFF, Split::Train)
         .unwrap_err()
         .to_string();
     let (w, h) = lego.size;
@@ -251,17 +254,12 @@ fn the_checkpoint_keeps_the_scene_normalisation_it_was_trained_in() {
     // cameras give another normalisation.
     let subset = scratch.path("subset");
     write_colmap_text(&lego.first(9), &subset);
-    let trained_in =
-        read_capture_split(&full, nerf::io::dataset::colmap_scene::COLMAP, Split::Test)
-            .unwrap()
-            .transform;
-    let recomputed = read_capture_split(
-        &subset,
-        nerf::io::dataset::colmap_scene::COLMAP,
-        Split::Test,
-    )
-    .unwrap()
-    .transform;
+    let trained_in = read_capture_split(&full, COLMAP, Split::Test)
+        .unwrap()
+        .transform;
+    let recomputed = read_capture_split(&subset, COLMAP, Split::Test)
+        .unwrap()
+        .transform;
     assert!(!trained_in.agrees_with(&recomputed, 1e-3));
 
     let scene = scratch.tiny_scene("nerf_scene_bounded", 2);
@@ -382,13 +380,11 @@ fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
     let same = scratch.path("ngp");
     write_colmap2nerf(lego, &same, None);
     // The lego projection check holds in the lego world frame, which `same` keeps.
-    check_capture(lego, &same, nerf::io::dataset::nerfstudio::NERFSTUDIO);
+    check_capture(lego, &same, NERFSTUDIO);
     for dir in [&moved, &same] {
         for split in [Split::Train, Split::Test] {
-            let a =
-                read_capture_split(&ns, nerf::io::dataset::nerfstudio::NERFSTUDIO, split).unwrap();
-            let b =
-                read_capture_split(dir, nerf::io::dataset::nerfstudio::NERFSTUDIO, split).unwrap();
+            let a = read_capture_split(&ns, NERFSTUDIO, split).unwrap();
+            let b = read_capture_split(dir, NERFSTUDIO, split).unwrap();
             assert_eq!(a.frames.len(), b.frames.len());
             for (a, b) in a.frames.iter().zip(&b.frames) {
                 assert_eq!(a.file_path.file_name(), b.file_path.file_name());

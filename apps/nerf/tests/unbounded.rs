@@ -9,6 +9,7 @@ mod common;
 use std::path::Path;
 
 use nerf::io::checkpoint::{self, read_metadata};
+use nerf::io::dataset::nerfstudio::NERFSTUDIO;
 use nerf::io::dataset::{read_capture_split, CaptureOrbit, Split};
 
 const FRAMES: usize = 16;
@@ -82,13 +83,9 @@ fn an_unbounded_capture_trains_evaluates_and_renders_and_views_from_its_orbit() 
     );
 
     // The checkpoint stores the orbit the training cameras give, exactly.
-    let train_frames = read_capture_split(
-        &capture,
-        nerf::io::dataset::nerfstudio::NERFSTUDIO,
-        Split::Train,
-    )
-    .unwrap()
-    .frames;
+    let train_frames = read_capture_split(&capture, NERFSTUDIO, Split::Train)
+        .unwrap()
+        .frames;
     let expected = CaptureOrbit::from_frames(&train_frames).unwrap();
     let stored = checkpoint::CAPTURE_ORBIT
         .read(&read_metadata(&ckpt).unwrap(), &ckpt)
