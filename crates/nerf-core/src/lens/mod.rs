@@ -38,8 +38,8 @@ macro_rules! lens_models {
         }
 
         impl LensDistortion {
-            /// The lens as its model.
-            fn model(&self) -> &dyn LensModel {
+            /// The lens behind the trait every model implements.
+            fn lens_model(&self) -> &dyn LensModel {
                 match self {
                     $(Self::$variant(lens) => lens,)+
                 }
@@ -79,17 +79,17 @@ impl LensDistortion {
 
     /// Every coefficient, for finiteness checks.
     pub fn coefficients(&self) -> Vec<f64> {
-        self.model().coefficients()
+        self.lens_model().coefficients()
     }
 
     /// Whether the lens images angles rather than tangents (a fisheye).
     pub fn is_fisheye(&self) -> bool {
-        self.model().is_fisheye()
+        self.lens_model().is_fisheye()
     }
 
     /// The distorted normalised point of the undistorted normalised point `p`.
     pub(crate) fn distort(&self, p: DVec2) -> DVec2 {
-        self.model().distort(p)
+        self.lens_model().distort(p)
     }
 
     /// The undistorted normalised point whose distortion is `distorted`, or `None` when it
@@ -97,14 +97,14 @@ impl LensDistortion {
     /// the tolerance (a fold of the distortion, far outside any calibrated field) this is the
     /// iterate with the smallest residual.
     pub(crate) fn undistort(&self, distorted: DVec2) -> Option<DVec2> {
-        self.model().undistort(distorted)
+        self.lens_model().undistort(distorted)
     }
 
     /// The unit camera-space direction (OpenCV axes) of the ray imaged at the distorted
     /// normalised point `distorted`. Unlike [`Self::undistort`] this exists for fisheye rays
     /// at or beyond 90° from the axis too (`z ≤ 0`).
     pub(crate) fn undistorted_direction(&self, distorted: DVec2) -> DVec3 {
-        self.model().undistorted_direction(distorted)
+        self.lens_model().undistorted_direction(distorted)
     }
 
     /// Whether the lens maps one ray to each of `points` (distorted normalised points, spread
@@ -114,10 +114,10 @@ impl LensDistortion {
     /// converge is this error, never a silent fallback to the distorted point. The error says
     /// which point failed and how.
     pub(crate) fn check_invertible_at(&self, points: &[DVec2]) -> Result<(), String> {
-        let model = self.model();
+        let lens = self.lens_model();
         points
             .iter()
-            .try_for_each(|&d| model.check_invertible_at(d, 1e-9 * (1.0 + d.length())))
+            .try_for_each(|&d| lens.check_invertible_at(d, 1e-9 * (1.0 + d.length())))
     }
 }
 
