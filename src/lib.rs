@@ -79,11 +79,11 @@ pub use nerf_train as train;
 pub use crate::config::ConfigError;
 pub use crate::core::allocator::{ensure_allocator_tuned, tune_allocator};
 pub use crate::core::camera::{
-    camera_position_from_spherical_angles, look_at_view_transform, surround_cameras,
+    camera_position_from_spherical_angles, look_at_view_transform, surround_cameras, Camera,
     PerspectiveCamera,
 };
 pub use crate::core::camera_error::CameraError;
-pub use crate::core::camera_model::CameraModel;
+
 pub use crate::core::image::RgbImage;
 pub use crate::core::rays::{pixel_grid, random_pixel_indices, Rays};
 pub use crate::core::sdf::{Sdf, SdfVolume};

@@ -12,7 +12,7 @@ use common::lego_capture::*;
 use std::path::Path;
 
 use glam::DVec3;
-use nerf::core::camera_model::CameraModel;
+use nerf::core::camera::Camera;
 use nerf::io::checkpoint;
 use nerf::io::dataset::colmap_scene::COLMAP;
 use nerf::io::dataset::llff::LLFF;

@@ -11,8 +11,8 @@ mod common;
 use std::path::Path;
 
 use glam::DVec3;
+use nerf::core::camera::Camera;
 use nerf::core::camera::PerspectiveCamera;
-use nerf::core::camera_model::CameraModel;
 use nerf::io::checkpoint::{self, read_metadata};
 use nerf::io::dataset::SceneTransform;
 

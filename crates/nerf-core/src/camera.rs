@@ -11,6 +11,42 @@ use glam::{DMat3, DVec3};
 
 use crate::camera_error::CameraError;
 
+/// A camera: its pose and how it images the world. The camera seam, how a point of the
+/// homework's pixel grid becomes a ray: [`PerspectiveCamera`] here (pytorch3d's) and
+/// [`crate::camera_colmap::ColmapCamera`] (pixel intrinsics with a lens, one file per lens
+/// model in [`crate::lens`]) implement it; rays ([`crate::rays::Rays`]) and the renderer take
+/// any of them.
+pub trait Camera: std::fmt::Debug + Send + Sync {
+    /// The camera centre in world space.
+    fn center(&self) -> DVec3;
+
+    /// The world-space point imaged at the NDC point `(x, y)` (the homework's convention: +X
+    /// left, +Y up, both in [-1, 1] across the image) at view depth `depth`.
+    fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3;
+
+    /// An error naming what is wrong when the camera cannot image anything (a non-finite or
+    /// degenerate pose or intrinsics; see [`CameraError`]).
+    fn validate(&self) -> Result<(), CameraError>;
+
+    /// Origin and unit direction of the ray through the NDC point `(x, y)`: from the centre
+    /// towards the point unprojected at depth 1.
+    fn ray_through_ndc(&self, x: f64, y: f64) -> (DVec3, DVec3) {
+        let origin = self.center();
+        let target = self.unproject_ndc(x, y, 1.0);
+        (origin, (target - origin).normalize())
+    }
+
+    /// Origin and unit direction of the ray through pixel `(column, row)` of a
+    /// `width × height` image (row 0 the top). The default is the homework's pixel grid
+    /// ([`crate::pixel_grid::homework_ndc`]: pixel centres reach the image's edges); a camera
+    /// with pixel intrinsics overrides it with its own convention (COLMAP's: the centre of
+    /// pixel `i` at `i + 0.5`).
+    fn pixel_ray(&self, column: usize, row: usize, size: (usize, usize)) -> (DVec3, DVec3) {
+        let [x, y] = crate::pixel_grid::homework_ndc(column, row, size);
+        self.ray_through_ndc(x, y)
+    }
+}
+
 /// A pinhole camera with pytorch3d `PerspectiveCameras` parameters (NDC focal length and
 /// principal point).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -109,7 +145,7 @@ impl PerspectiveCamera {
     }
 }
 
-impl crate::camera_model::CameraModel for PerspectiveCamera {
+impl Camera for PerspectiveCamera {
     fn center(&self) -> DVec3 {
         PerspectiveCamera::center(self)
     }

@@ -23,8 +23,8 @@
 use anyhow::{bail, ensure, Context, Result};
 use glam::{DMat3, DQuat, DVec2, DVec3};
 
+use crate::camera::Camera;
 use crate::camera_error::CameraError;
-use crate::camera_model::CameraModel;
 use crate::lens::{ColmapCameraModel, Fisheye, LensDistortion};
 
 /// A camera pose as COLMAP stores it: world → camera, `X_cam = rotation · X_world + translation`
@@ -165,7 +165,7 @@ pub struct ColmapCamera {
 impl ColmapCamera {
     /// A camera of `model` with COLMAP's parameter list `params` for images of `size =
     /// (width, height)` pixels; an error naming the model for a wrong parameter count, or
-    /// what [`CameraModel::validate`] rejects.
+    /// what [`Camera::validate`] rejects.
     pub fn new(
         model: &ColmapCameraModel,
         params: &[f64],
@@ -208,7 +208,7 @@ impl ColmapCamera {
     /// A camera from a nerfstudio frame: camera → world in OpenGL axes (the top three rows of
     /// `transform_matrix`, see [`ColmapPose::from_opengl_camera_to_world`]) and its intrinsics.
     /// Errors name an unsupported `camera_model`, tangential terms given to a fisheye, or what
-    /// [`CameraModel::validate`] rejects.
+    /// [`Camera::validate`] rejects.
     pub fn from_nerfstudio(
         camera_to_world: [[f64; 4]; 3],
         intrinsics: &NerfstudioIntrinsics,
@@ -307,7 +307,7 @@ impl ColmapCamera {
     }
 }
 
-impl CameraModel for ColmapCamera {
+impl Camera for ColmapCamera {
     fn center(&self) -> DVec3 {
         self.pose.center()
     }

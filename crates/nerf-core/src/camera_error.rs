@@ -1,5 +1,5 @@
 //! [`CameraError`]: why a camera cannot image anything, as the camera checks
-//! ([`crate::camera_checks`]) and camera validation ([`crate::camera_model::CameraModel::validate`])
+//! ([`crate::camera_checks`]) and camera validation ([`crate::camera::Camera::validate`])
 //! say it. Each variant holds the values it names, and its text is the one-line message the
 //! checks have always given (it has no source: nothing further is printed after it).
 
@@ -8,7 +8,7 @@ use crate::term::short_number;
 /// A camera that cannot be right: non-finite or degenerate values, a field of view or
 /// principal point no lens has, a distortion that cannot be inverted, a size its photo does
 /// not have, or a pose too far away. Returned by the functions of
-/// [`crate::camera_checks`], [`crate::camera_model::CameraModel::validate`] (so
+/// [`crate::camera_checks`], [`crate::camera::Camera::validate`] (so
 /// [`crate::camera::PerspectiveCamera::validate`] and the COLMAP camera's),
 /// [`crate::camera_colmap::ColmapPose::from_quaternion`] and
 /// `nerf::io::dataset::check_rigid`; a dataset wraps it in

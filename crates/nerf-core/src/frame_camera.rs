@@ -1,13 +1,13 @@
 //! The camera of one dataset frame: the camera kinds that dataset loaders produce, in one
 //! enum so that a frame stays a plain value (`Clone`, `PartialEq`). A loader that brings a new
-//! [`CameraModel`] kind adds one variant here.
+//! [`Camera`] kind adds one variant here.
 
 use glam::DVec3;
 
+use crate::camera::Camera;
 use crate::camera::PerspectiveCamera;
 use crate::camera_colmap::ColmapCamera;
 use crate::camera_error::CameraError;
-use crate::camera_model::CameraModel;
 
 /// One frame's camera.
 #[derive(Debug, Clone, PartialEq)]
@@ -20,8 +20,8 @@ pub enum FrameCamera {
 }
 
 impl FrameCamera {
-    /// The camera as a [`CameraModel`].
-    pub(crate) fn model(&self) -> &dyn CameraModel {
+    /// The camera as a [`Camera`].
+    pub(crate) fn model(&self) -> &dyn Camera {
         match self {
             FrameCamera::Pinhole(c) => c,
             FrameCamera::Colmap(c) => c,
@@ -49,7 +49,7 @@ impl From<ColmapCamera> for FrameCamera {
     }
 }
 
-impl CameraModel for FrameCamera {
+impl Camera for FrameCamera {
     fn center(&self) -> DVec3 {
         self.model().center()
     }

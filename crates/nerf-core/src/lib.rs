@@ -14,7 +14,6 @@ pub mod camera_checks;
 pub mod camera_colmap;
 pub mod camera_consensus;
 pub mod camera_error;
-pub mod camera_model;
 pub mod compare;
 pub mod contraction;
 pub mod distortion_loss;

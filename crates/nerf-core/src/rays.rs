@@ -10,7 +10,7 @@ use glam::DVec3;
 use rand::seq::index::sample;
 use rand::Rng;
 
-use crate::camera_model::CameraModel;
+use crate::camera::Camera;
 pub use crate::pixel_grid::{
     homework_ndc, linspace, linspace_value, pixel_grid, pixel_grid_values,
 };
@@ -28,8 +28,8 @@ pub fn random_pixel_indices(
 }
 
 /// Origin and unit direction of the ray through NDC point `(x, y)` of any camera kind
-/// ([`CameraModel::ray_through_ndc`]).
-pub fn ray_through_ndc(camera: &dyn CameraModel, x: f64, y: f64) -> (DVec3, DVec3) {
+/// ([`Camera::ray_through_ndc`]).
+pub fn ray_through_ndc(camera: &dyn Camera, x: f64, y: f64) -> (DVec3, DVec3) {
     camera.ray_through_ndc(x, y)
 }
 
@@ -57,7 +57,7 @@ impl Rays {
 
     /// One ray per pixel of a `width × height` image, row-major: `(W·H, 3)` origins and directions.
     pub fn for_image(
-        camera: &dyn CameraModel,
+        camera: &dyn Camera,
         width: usize,
         height: usize,
         device: &Device,
@@ -66,9 +66,9 @@ impl Rays {
     }
 
     /// Rays through the pixels with the given row-major indices: `(len(indices), 3)`, each
-    /// [`CameraModel::pixel_ray`].
+    /// [`Camera::pixel_ray`].
     pub fn for_pixels(
-        camera: &dyn CameraModel,
+        camera: &dyn Camera,
         width: usize,
         height: usize,
         indices: &[usize],
@@ -80,7 +80,7 @@ impl Rays {
     /// Rays through the row-major pixels `pixels` of a `width × height` image:
     /// `(len, 3)` rows of [`Rays::for_image`].
     pub fn for_pixel_range(
-        camera: &dyn CameraModel,
+        camera: &dyn Camera,
         size: (usize, usize),
         pixels: std::ops::Range<usize>,
         device: &Device,
@@ -89,7 +89,7 @@ impl Rays {
     }
 
     fn from_pixels(
-        camera: &dyn CameraModel,
+        camera: &dyn Camera,
         (width, height): (usize, usize),
         pixels: impl ExactSizeIterator<Item = usize>,
         device: &Device,
@@ -241,7 +241,7 @@ mod tests {
 mod camera_model_tests {
     use super::*;
     use crate::camera::surround_cameras;
-    use crate::camera_model::CameraModel;
+    use crate::camera::Camera;
     use candle_core::Device;
 
     /// An orthographic camera looking down −z from z = 5, imaging a 2×2 square: a kind whose
@@ -249,7 +249,7 @@ mod camera_model_tests {
     #[derive(Debug)]
     struct Orthographic;
 
-    impl CameraModel for Orthographic {
+    impl Camera for Orthographic {
         fn center(&self) -> DVec3 {
             DVec3::new(0.0, 0.0, 5.0)
         }
@@ -279,7 +279,7 @@ mod camera_model_tests {
     #[test]
     fn the_pinhole_kind_is_pytorch3d_unprojection() {
         let camera = surround_cameras(4.0, 3, DVec3::Y, 1.5)[1];
-        let (o, d) = CameraModel::ray_through_ndc(&camera, 0.3, -0.6);
+        let (o, d) = Camera::ray_through_ndc(&camera, 0.3, -0.6);
         assert!((o - camera.center()).length() < 1e-12);
         let target = camera.unproject_ndc(0.3, -0.6, 1.0);
         assert!((d - (target - o).normalize()).length() < 1e-12);

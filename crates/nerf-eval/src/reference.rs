@@ -5,7 +5,7 @@
 
 use glam::DVec3;
 
-use nerf_core::camera_model::CameraModel;
+use nerf_core::camera::Camera;
 use nerf_core::sdf::{Sdf, SdfVolume};
 use nerf_render::sampler::StratifiedSampler;
 
@@ -162,7 +162,7 @@ pub fn render_ray(
 /// Every pixel of a `width × height` image: `(H·W·3)` colours and `(H·W)` depths, row-major.
 pub fn render_image(
     volume: &SdfVolume,
-    camera: &dyn CameraModel,
+    camera: &dyn Camera,
     (width, height): (usize, usize),
     sampler: &StratifiedSampler,
 ) -> (Vec<f64>, Vec<f64>) {

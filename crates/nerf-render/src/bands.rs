@@ -8,7 +8,7 @@ use std::ops::Range;
 use anyhow::Result;
 use candle_core::Device;
 
-use nerf_core::camera_model::CameraModel;
+use nerf_core::camera::Camera;
 use nerf_core::rays::{linspace, Rays};
 
 /// Rays per band of an image by default (rounded to whole renderer chunks where rendered):
@@ -34,7 +34,7 @@ pub fn band_ndc(width: usize, height: usize, pixels: Range<usize>) -> Vec<[f64; 
 /// The rays of pixels `pixels` (row-major indices) of `camera`'s `width × height` image: rows
 /// `pixels` of [`Rays::for_image`], bit for bit.
 pub fn band_rays(
-    camera: &dyn CameraModel,
+    camera: &dyn Camera,
     (width, height): (usize, usize),
     pixels: Range<usize>,
     device: &Device,

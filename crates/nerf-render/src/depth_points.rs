@@ -8,7 +8,7 @@ use candle_core::Device;
 use crate::bands::{band_rays, pixel_bands};
 use crate::renderer::{RenderOutput, VolumeRenderer};
 use crate::view::Pipeline;
-use nerf_core::camera_model::CameraModel;
+use nerf_core::camera::Camera;
 use nerf_core::rays::Rays;
 
 /// Coloured points in world space.
@@ -26,7 +26,7 @@ pub struct ColoredPoints {
 /// rendered about `band` at a time (whole renderer chunks, so the points do not depend on it).
 pub fn depth_points(
     pipeline: &Pipeline,
-    camera: &dyn CameraModel,
+    camera: &dyn Camera,
     size: (usize, usize),
     min_opacity: f32,
     band: usize,

@@ -10,7 +10,7 @@ use crate::field::Field;
 use crate::ray_sampler::RaySampler;
 use crate::renderer::{RenderOutput, VolumeRenderer};
 use crate::skipping::SampleCounts;
-use nerf_core::camera_model::CameraModel;
+use nerf_core::camera::Camera;
 use nerf_core::image::RgbImage;
 
 /// One rendered view.
@@ -101,7 +101,7 @@ pub struct Interrupt<'a> {
 /// needed): colour `(H·W·3)` and depth `(H·W)`, row-major.
 pub fn render_view(
     pipeline: &Pipeline,
-    camera: &dyn CameraModel,
+    camera: &dyn Camera,
     size: (usize, usize),
     device: &Device,
 ) -> Result<RenderedView> {
@@ -122,7 +122,7 @@ pub fn render_view(
 /// is rendered alone, so the image does not depend on the band size.
 pub fn render_view_interruptible(
     pipeline: &Pipeline,
-    camera: &dyn CameraModel,
+    camera: &dyn Camera,
     (width, height): (usize, usize),
     device: &Device,
     interrupt: Interrupt,

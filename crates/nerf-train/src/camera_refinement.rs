@@ -30,7 +30,7 @@ use candle_core::backprop::GradStore;
 use candle_core::{DType, Device, Tensor, Var};
 
 use crate::sparse_adam::SparseAdam;
-use nerf_core::camera_model::CameraModel;
+use nerf_core::camera::Camera;
 use nerf_core::rays::Rays;
 use nerf_kernels::sparse_adam::nonzero_rows;
 use nerf_scene::dataset::Frame;

@@ -190,7 +190,7 @@ fn read_folder(dir: &Path) -> Result<FormatRead> {
 mod tests {
     use super::*;
     use glam::DVec3;
-    use nerf_core::camera_model::CameraModel;
+    use nerf_core::camera::Camera;
 
     #[test]
     fn an_llff_row_becomes_the_camera_it_describes() {

@@ -234,8 +234,8 @@ fn median(mut values: Vec<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nerf_core::camera::Camera;
     use nerf_core::camera_colmap::ColmapCamera;
-    use nerf_core::camera_model::CameraModel;
 
     /// Cameras on a circle of radius 3 about (5, −2, 1) in a frame where "up" is world +x,
     /// all looking at the centre, plus one outlier far away.

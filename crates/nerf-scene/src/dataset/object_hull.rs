@@ -177,7 +177,7 @@ pub(crate) fn hull_depths(hull: &HullBox, centres: &[DVec3]) -> Option<(f64, f64
 /// max_depth)` narrowed to those at which the cameras can meet the hull (`hull_depths`).
 /// `None` when the photos do not outline an object.
 pub fn object_fit(dataset: &Dataset, (min_depth, max_depth): (f64, f64)) -> Option<ObjectFit> {
-    use nerf_core::camera_model::CameraModel as _;
+    use nerf_core::camera::Camera as _;
     let hull = silhouette_hull(dataset)?;
     let centres: Vec<DVec3> = dataset.frames.iter().map(|f| f.camera.center()).collect();
     let depths = hull_depths(&hull, &centres).and_then(|(near, far)| {

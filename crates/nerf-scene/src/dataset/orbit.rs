@@ -10,9 +10,9 @@ use anyhow::{bail, ensure, Result};
 use glam::DVec3;
 
 use crate::dataset::Frame;
+use nerf_core::camera::Camera;
 use nerf_core::camera::{look_at_view_transform, PerspectiveCamera};
 use nerf_core::camera_checks::{check_ndc_focal, check_normalised_distance};
-use nerf_core::camera_model::CameraModel;
 use nerf_core::frame_camera::FrameCamera;
 use nerf_core::term::short_number;
 
