@@ -22,12 +22,10 @@ pub fn count_in_range(key: &str, v: usize, max: usize) -> Result<()> {
 /// The message for a name that is none of `expected`: `` unknown `name` (expected a, b or
 /// c) ``, as every config key that takes one of a few names says it.
 pub fn unknown_name(name: &str, expected: &[&str]) -> String {
-    let list = match expected.split_last() {
-        Some((last, [])) => last.to_string(),
-        Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
-        None => String::new(),
-    };
-    format!("unknown `{name}` (expected {list})")
+    format!(
+        "unknown `{name}` (expected {})",
+        crate::term::or_list(expected)
+    )
 }
 
 /// Deserialises a value written as one of a few names: the value of the name `d` holds among

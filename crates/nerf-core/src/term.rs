@@ -74,7 +74,7 @@ pub fn print_library_messages() {
 }
 
 /// Names as a message lists them: `a`, `a or b`, `a, b or c`.
-pub(crate) fn or_list(names: &[&str]) -> String {
+pub fn or_list(names: &[&str]) -> String {
     match names.split_last() {
         Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
         Some((last, _)) => last.to_string(),

@@ -82,11 +82,7 @@ impl SceneFormat {
     /// `transforms_{train,val,test}.json (NeRF-synthetic), …, poses_bounds.npy (LLFF) or …`.
     pub(crate) fn expected_files() -> String {
         let marks: Vec<&str> = super::SCENE_FORMATS.iter().map(|f| f.marks).collect();
-        match marks.split_last() {
-            Some((last, [])) => last.to_string(),
-            Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
-            None => String::new(),
-        }
+        nerf_core::term::or_list(&marks)
     }
 
     #[cfg(test)]
