@@ -43,9 +43,9 @@ pub use data::{
 };
 pub(crate) use implicit_function::ImplicitFunctionConfig;
 pub use messages::{in_user_words, plural};
+use nerf_render::sampler_kind::SamplerSettings;
 pub use overrides::apply_override;
 pub use renderer::{BackgroundConfig, OccupancyGridConfig, RendererConfig, RendererKind};
-pub use sampler::{SamplerConfig, SamplerType};
 pub use training::TrainingConfig;
 
 /// The homework's top-level `type`: the job `nerf run` (the homework's `main.py`) runs.
@@ -87,7 +87,7 @@ struct RawConfig {
     kind: Option<JobKind>,
     data: DataConfig,
     renderer: RendererConfig,
-    sampler: SamplerConfig,
+    sampler: SamplerSettings,
     implicit_function: Value,
     training: Option<TrainingConfig>,
     cameras: Option<RawCamerasConfig>,
@@ -106,7 +106,7 @@ pub struct Config {
     /// The `renderer` section.
     pub renderer: RendererConfig,
     /// The `sampler` section.
-    pub sampler: SamplerConfig,
+    pub sampler: SamplerSettings,
     /// The `implicit_function` section, typed by its `type`.
     pub implicit_function: ImplicitFunctionConfig,
     /// The `training` section, when present (needed to train).

@@ -36,7 +36,7 @@ pub(super) fn key_error(e: SectionError, prefix: &str) -> ConfigError {
 }
 
 /// A deserialiser message with Rust type names replaced by what a config writer knows:
-/// "expected usize" → "expected a whole number", "expected struct SamplerConfig" → "expected a
+/// "expected usize" → "expected a whole number", "expected struct SamplerSettings" → "expected a
 /// section of `key: value` lines", and so on.
 pub fn in_user_words(message: &str) -> String {
     let mut m = message.to_string();

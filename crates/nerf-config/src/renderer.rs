@@ -4,11 +4,11 @@
 use anyhow::Result;
 use serde::Deserialize;
 
-use super::sampler::SamplerConfig;
 use super::Config;
 use nerf_core::contraction::Contraction;
 use nerf_render::occupancy::{density_threshold, OccupancyGridParams};
 use nerf_render::renderer::{VolumeRenderer, BLACK, WHITE};
+use nerf_render::sampler_kind::SamplerSettings;
 use nerf_render::view::RenderSettings;
 use nerf_train::fit::GridSchedule;
 
@@ -171,11 +171,11 @@ impl RendererConfig {
 
 impl OccupancyGridConfig {
     /// The grid, with its density threshold: `alpha_threshold` opacity over one sample step
-    /// of `sampler` ([`SamplerConfig::step`]); its box is in the space `contraction` maps
+    /// of `sampler` ([`SamplerSettings::step`]); its box is in the space `contraction` maps
     /// world points into (the field's).
     pub(crate) fn params(
         &self,
-        sampler: &SamplerConfig,
+        sampler: &SamplerSettings,
         contraction: Contraction,
     ) -> OccupancyGridParams {
         OccupancyGridParams {
@@ -189,7 +189,7 @@ impl OccupancyGridConfig {
     /// How training keeps the grid ([`OccupancyGridConfig::params`]) up to date.
     pub(crate) fn schedule(
         &self,
-        sampler: &SamplerConfig,
+        sampler: &SamplerSettings,
         contraction: Contraction,
     ) -> GridSchedule {
         GridSchedule {
