@@ -53,6 +53,7 @@ fn main() -> Result<()> {
         n_hidden_neurons_dir: 32,
         n_layers_xyz: 3,
         append_xyz: vec![],
+        density_noise_std: 0.0,
     };
     let state = NerfState::seeded(&params, 0, &device)?;
     // Much above 2e-3 the density ReLU tends to die early on (σ = 0 everywhere, a black

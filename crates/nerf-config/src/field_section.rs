@@ -14,7 +14,6 @@ use super::Config;
 use nerf_checkpoint::checkpoint::CheckpointInfo;
 use nerf_core::sdf::SdfVolume;
 use nerf_field::nerf::NerfParams;
-use nerf_field::nerf_config::NerfConfig;
 use nerf_field::registry::kind_names;
 use nerf_field::sdf::{SdfField, SdfModel, SdfTrainable};
 use nerf_field::sdf_config::SdfVolumeConfig;
@@ -35,8 +34,8 @@ impl Config {
     /// for another field kind.
     pub fn fit_to_object(&mut self, cube: [f64; 6]) -> bool {
         use nerf_core::contraction::Contraction;
-        use nerf_field::ngp_config::NgpConfig;
-        let Some(ngp) = self.implicit_function.get_mut::<NgpConfig>() else {
+        use nerf_field::ngp::NgpParams;
+        let Some(ngp) = self.implicit_function.get_mut::<NgpParams>() else {
             return false;
         };
         ngp.aabb = [[cube[0], cube[1], cube[2]], [cube[3], cube[4], cube[5]]];
@@ -49,8 +48,8 @@ impl Config {
 
     /// The NeRF's sizes, or an error naming the key when the config describes another field.
     pub fn nerf_params(&self) -> Result<NerfParams> {
-        match self.implicit_function.get::<NerfConfig>() {
-            Some(n) => Ok(n.params()),
+        match self.implicit_function.get::<NerfParams>() {
+            Some(n) => Ok(n.clone()),
             None => bail!(
                 "implicit_function.type is {}: these are the NeRF MLP's sizes, for a nerf config such as lego (Config::field_spec gives any trainable kind)",
                 self.implicit_function.kind()
@@ -147,7 +146,7 @@ impl Config {
 #[cfg(test)]
 mod tests {
     use crate::Config;
-    use nerf_field::ngp_config::NgpConfig;
+    use nerf_field::ngp::NgpParams;
 
     /// The built-in lego config's text with its `implicit_function` section's body replaced
     /// by `body` (indented lines).
@@ -173,7 +172,7 @@ mod tests {
         assert_eq!(c.contraction(), Contraction::LInf);
         let cube = [-0.25, -0.5, -0.125, 0.5, 0.25, 0.625];
         assert!(c.fit_to_object(cube));
-        let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
+        let n = c.implicit_function.get::<NgpParams>().expect("ngp");
         assert_eq!(n.aabb, [[-0.25, -0.5, -0.125], [0.5, 0.25, 0.625]]);
         assert_eq!(c.contraction(), Contraction::None);
         assert_eq!(c.renderer.occupancy_grid.as_ref().unwrap().aabb, cube);
@@ -186,22 +185,16 @@ mod tests {
     #[test]
     fn ngp_keys_and_defaults() {
         let c = Config::from_yaml(&yaml("  type: ngp"), &[]).unwrap();
-        let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
-        let p = n.params().unwrap();
-        assert_eq!(
-            (p.grid.n_levels, p.grid.n_features, p.grid.log2_table_size),
-            (16, 2, 19)
-        );
-        assert_eq!(
-            (p.grid.base_resolution, p.grid.max_resolution),
-            (16.0, 3072.0)
-        );
-        assert_eq!(p.aabb, [[-1.5; 3], [1.5; 3]]);
+        let n = c.implicit_function.get::<NgpParams>().expect("ngp");
+        let p = n.grid();
+        assert_eq!((p.n_levels, p.n_features, p.log2_table_size), (16, 2, 19));
+        assert_eq!((p.base_resolution, p.max_resolution), (16.0, 3072.0));
+        assert_eq!(n.aabb, [[-1.5; 3], [1.5; 3]]);
         let o = vec!["implicit_function.log2_hashmap_size=12".to_string()];
         let c = Config::from_yaml(&yaml("  type: ngp\n  max_resolution: 512"), &o).unwrap();
-        let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
-        assert_eq!(n.params().unwrap().grid.max_resolution, 512.0);
-        assert_eq!(n.params().unwrap().grid.log2_table_size, 12);
+        let n = c.implicit_function.get::<NgpParams>().expect("ngp");
+        assert_eq!(n.grid().max_resolution, 512.0);
+        assert_eq!(n.grid().log2_table_size, 12);
         assert!(c.nerf_params().unwrap_err().to_string().contains("ngp"));
         for bad in [
             "  type: ngp\n  density_activation: relu",
@@ -235,11 +228,11 @@ mod tests {
         use nerf_field::ngp::Ngp;
         let body = "  type: ngp\n  n_levels: 4\n  log2_hashmap_size: 10\n  max_resolution: 64";
         let c = Config::from_yaml(&yaml(body), &[]).unwrap();
-        let n = c.implicit_function.get::<NgpConfig>().expect("ngp");
+        let n = c.implicit_function.get::<NgpParams>().expect("ngp");
         let dev = candle_core::Device::Cpu;
         let varmap = candle_nn::VarMap::new();
         let vb = candle_nn::VarBuilder::from_varmap(&varmap, candle_core::DType::F32, &dev);
-        let model = Ngp::new(&n.params().unwrap(), vb).unwrap();
+        let model = Ngp::new(n, vb).unwrap();
         let (_dir, path) = nerf_files::test_files::temp_file("ngp.safetensors");
         let tensors = nerf_checkpoint::checkpoint::model_tensors(&varmap);
         nerf_checkpoint::checkpoint::save(&path, &tensors, Default::default()).unwrap();

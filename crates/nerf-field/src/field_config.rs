@@ -23,7 +23,8 @@ pub struct FieldKind {
     /// Whether the kind trains (a [`FieldSpec`]) rather than rendering from the parameters
     /// the config writes, as the homework's SDF volume does.
     pub trainable: bool,
-    /// The `implicit_function` section (a YAML mapping) as the kind's typed config.
+    /// The `implicit_function` section (a YAML mapping) as the kind's typed config; its
+    /// `type` key, which named the kind, is not passed on.
     pub parse: fn(Value) -> Result<Box<dyn FieldConfig>, SectionError>,
 }
 
@@ -47,10 +48,43 @@ impl FieldKind {
     }
 }
 
+/// The section read as `T`, without its `type` (which chose `T`, and so is no key of it).
 fn parse_as<T: FieldConfig + DeserializeOwned>(
-    section: Value,
+    mut section: Value,
 ) -> Result<Box<dyn FieldConfig>, SectionError> {
-    Ok(Box::new(serde_path_to_error::deserialize::<_, T>(section)?))
+    if let Value::Mapping(keys) = &mut section {
+        keys.remove("type");
+    }
+    serde_path_to_error::deserialize::<_, T>(section)
+        .map(|config| Box::new(config) as Box<dyn FieldConfig>)
+        .map_err(with_type_key)
+}
+
+/// `error` with `type` among the keys that an unknown key's message lists: the section's
+/// `type` is one of its keys, though `T` does not hold it. serde lists one key as
+/// ``expected `a` ``, two as ``expected `a` or `b` `` and more as ``expected one of `a`, `b`,
+/// `c` ``.
+fn with_type_key(error: SectionError) -> SectionError {
+    const EXPECTED: &str = ", expected ";
+    let message = error.inner().to_string();
+    // The listed names are identifiers: the last `, expected ` is serde's, not the key's.
+    let Some(i) = message
+        .starts_with("unknown field `")
+        .then(|| message.rfind(EXPECTED))
+        .flatten()
+    else {
+        return error;
+    };
+    let (head, listed) = message.split_at(i + EXPECTED.len());
+    let listed = if let Some(rest) = listed.strip_prefix("one of ") {
+        format!("one of `type`, {rest}")
+    } else if let Some((a, b)) = listed.split_once(" or ") {
+        format!("one of `type`, {a}, {b}")
+    } else {
+        format!("`type` or {listed}")
+    };
+    let inner = serde::de::Error::custom(format!("{head}{listed}"));
+    SectionError::new(error.path().clone(), inner)
 }
 
 /// A field kind's typed config: the `implicit_function` section of a config that names it.
@@ -106,5 +140,55 @@ impl<T: FieldConfig + Clone + PartialEq> ConfigObject for T {
 
     fn as_any_mut(&mut self) -> &mut dyn Any {
         self
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct One {
+        #[allow(dead_code)]
+        a: Option<u8>,
+    }
+
+    #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Two {
+        #[allow(dead_code)]
+        a: Option<u8>,
+        #[allow(dead_code)]
+        b: Option<u8>,
+    }
+
+    fn unknown_key_message<T: serde::de::DeserializeOwned + std::fmt::Debug>() -> String {
+        let section: Value = serde_yaml_ng::from_str("{type: t, zz: 1}").unwrap();
+        let mut section = section;
+        if let Value::Mapping(keys) = &mut section {
+            keys.remove("type");
+        }
+        let error = serde_path_to_error::deserialize::<_, T>(section).unwrap_err();
+        with_type_key(error).inner().to_string()
+    }
+
+    #[test]
+    fn an_unknown_key_lists_type_among_the_expected_keys() {
+        assert_eq!(
+            unknown_key_message::<One>(),
+            "unknown field `zz`, expected `type` or `a`"
+        );
+        assert_eq!(
+            unknown_key_message::<Two>(),
+            "unknown field `zz`, expected one of `type`, `a`, `b`"
+        );
+        let many = unknown_key_message::<crate::nerf::NerfParams>();
+        assert!(
+            many.starts_with(
+                "unknown field `zz`, expected one of `type`, `n_harmonic_functions_xyz`"
+            ),
+            "{many}"
+        );
     }
 }

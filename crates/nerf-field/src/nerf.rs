@@ -31,8 +31,12 @@ use nerf_render::sampler::RaySamples;
 /// The kind's name: what a config's `implicit_function.type` and a checkpoint call it.
 pub(crate) const KIND: &str = "nerf";
 
-/// The sizes of the homework's NeRF (its `implicit_function` keys).
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// The homework's NeRF as a config's `implicit_function` section with `type: nerf` writes
+/// it, read straight from the section (a key left out takes the homework's default): the
+/// model's sizes and its training's density noise. The kind's checks and registration are
+/// [`crate::nerf_config`].
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct NerfParams {
     /// Harmonic frequencies of the point embedding (`n_harmonic_functions_xyz`).
     pub n_harmonic_functions_xyz: usize,
@@ -42,14 +46,18 @@ pub struct NerfParams {
     pub n_hidden_neurons_xyz: usize,
     /// Width of the colour head's hidden layer (`n_hidden_neurons_dir`).
     pub n_hidden_neurons_dir: usize,
+    /// Std of the Gaussian noise added to the raw density in training (`density_noise_std`);
+    /// not a size: the model's parameters do not depend on it.
+    pub density_noise_std: f64,
     /// Layers of the `mlp_xyz` trunk (`n_layers_xyz`, at least 1).
     pub n_layers_xyz: usize,
-    /// Trunk layers before which the xyz embedding is concatenated again.
+    /// Trunk layers before which the xyz embedding is concatenated again (`append_xyz`).
     pub append_xyz: Vec<usize>,
 }
 
 impl Default for NerfParams {
-    /// The homework's defaults: 6 and 2 harmonics, widths 128 and 64, 6 layers, skip at 3.
+    /// The homework's defaults: 6 and 2 harmonics, widths 128 and 64, 6 layers, skip at 3, no
+    /// density noise.
     fn default() -> Self {
         Self {
             n_harmonic_functions_xyz: 6,
@@ -58,6 +66,7 @@ impl Default for NerfParams {
             n_hidden_neurons_dir: 64,
             n_layers_xyz: 6,
             append_xyz: vec![3],
+            density_noise_std: 0.0,
         }
     }
 }

@@ -1,11 +1,10 @@
-//! The `nerf` field kind's config: the homework's NeRF MLP, with the homework's keys and
-//! defaults ([`crate::nerf`]).
+//! The `nerf` field kind's config: the homework's NeRF MLP, whose `implicit_function`
+//! section reads straight into [`NerfParams`] (the homework's keys and defaults); here are
+//! its registration and the ranges its keys must keep.
 
 use std::sync::Arc;
 
 use anyhow::{bail, Result};
-use serde::de::IgnoredAny;
-use serde::Deserialize;
 
 use crate::field_config::{FieldConfig, FieldKind};
 use crate::nerf::NerfParams;
@@ -13,7 +12,7 @@ use crate::trainable::FieldSpec;
 use nerf_core::key_checks::{count_in_range, finite};
 
 /// The kind's registration ([`crate::registry::FIELD_KINDS`]).
-pub(crate) const NERF: FieldKind = FieldKind::new::<NerfConfig>(crate::nerf::KIND, true);
+pub(crate) const NERF: FieldKind = FieldKind::new::<NerfParams>(crate::nerf::KIND, true);
 
 /// Most harmonic functions of a positional embedding (2^31 is past f32 precision).
 pub(crate) const HARMONICS: usize = 32;
@@ -22,53 +21,7 @@ pub(crate) const HIDDEN: usize = 4096;
 /// Deepest trunk.
 pub(crate) const LAYERS: usize = 64;
 
-/// `implicit_function` with `type: nerf` (the homework's keys and defaults).
-#[derive(Debug, Clone, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct NerfConfig {
-    /// `implicit_function.type`, which chose this kind.
-    #[serde(rename = "type")]
-    pub kind: IgnoredAny,
-    /// Harmonic frequencies of the point embedding (`n_harmonic_functions_xyz`, default 6).
-    #[serde(default = "d6")]
-    pub n_harmonic_functions_xyz: usize,
-    /// Harmonic frequencies of the direction embedding (`n_harmonic_functions_dir`, default 2).
-    #[serde(default = "d2")]
-    pub n_harmonic_functions_dir: usize,
-    /// Width of the `mlp_xyz` trunk layers (`n_hidden_neurons_xyz`, default 128).
-    #[serde(default = "d128")]
-    pub n_hidden_neurons_xyz: usize,
-    /// Width of the colour head's hidden layer (`n_hidden_neurons_dir`, default 64).
-    #[serde(default = "d64")]
-    pub n_hidden_neurons_dir: usize,
-    /// Std of the Gaussian noise added to the raw density in training (`density_noise_std`,
-    /// default 0).
-    #[serde(default)]
-    pub density_noise_std: f64,
-    /// Layers of the `mlp_xyz` trunk (`n_layers_xyz`, default 6).
-    #[serde(default = "d6")]
-    pub n_layers_xyz: usize,
-    /// Trunk layers before which the point embedding is concatenated again (`append_xyz`,
-    /// default `[3]`).
-    #[serde(default = "default_append_xyz")]
-    pub append_xyz: Vec<usize>,
-}
-
-impl NerfConfig {
-    /// The model's sizes.
-    pub fn params(&self) -> NerfParams {
-        NerfParams {
-            n_harmonic_functions_xyz: self.n_harmonic_functions_xyz,
-            n_harmonic_functions_dir: self.n_harmonic_functions_dir,
-            n_hidden_neurons_xyz: self.n_hidden_neurons_xyz,
-            n_hidden_neurons_dir: self.n_hidden_neurons_dir,
-            n_layers_xyz: self.n_layers_xyz,
-            append_xyz: self.append_xyz.clone(),
-        }
-    }
-}
-
-impl FieldConfig for NerfConfig {
+impl FieldConfig for NerfParams {
     fn kind(&self) -> &'static str {
         NERF.name
     }
@@ -113,26 +66,10 @@ impl FieldConfig for NerfConfig {
     }
 
     fn field_spec(&self) -> Option<Result<Arc<dyn FieldSpec>>> {
-        Some(Ok(Arc::new(self.params())))
+        Some(Ok(Arc::new(self.clone())))
     }
 
     fn density_noise(&self) -> f64 {
         self.density_noise_std
     }
-}
-
-fn d2() -> usize {
-    2
-}
-fn d6() -> usize {
-    6
-}
-fn d64() -> usize {
-    64
-}
-fn d128() -> usize {
-    128
-}
-fn default_append_xyz() -> Vec<usize> {
-    vec![3]
 }

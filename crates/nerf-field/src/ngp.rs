@@ -70,26 +70,79 @@ impl<'de> serde::Deserialize<'de> for DensityActivation {
     }
 }
 
-/// The sizes of an NGP field (its `implicit_function` keys with `type: ngp`).
-#[derive(Debug, Clone, PartialEq)]
+/// The hash-grid field as a config's `implicit_function` section with `type: ngp` writes
+/// it, read straight from the section (a key left out takes its default): the grid's shape,
+/// its box, density activation, scene contraction and appearance embedding. The kind's
+/// registration and checks are [`crate::ngp_config`].
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct NgpParams {
-    /// The hash encoding's shape.
-    pub grid: HashGridParams,
-    /// The box the encoding covers: `[min, max]` corners in world units.
+    /// Levels of the hash grid `L` (`n_levels`, default 16).
+    #[serde(default = "crate::ngp_config::default_levels")]
+    pub n_levels: usize,
+    /// Features per level `F` (`n_features_per_level`, default 2).
+    #[serde(default = "crate::ngp_config::default_features")]
+    pub n_features_per_level: usize,
+    /// `log2` of the rows of each level's table `T` (`log2_hashmap_size`, default 19).
+    #[serde(default = "crate::ngp_config::default_log2_rows")]
+    pub log2_hashmap_size: u32,
+    /// Coarsest grid resolution `N_min` (`base_resolution`, default 16).
+    #[serde(default = "crate::ngp_config::default_base_resolution")]
+    pub base_resolution: f64,
+    /// Finest grid resolution `N_max` (`max_resolution`; `None`: 2048 × the box's half-size,
+    /// the largest over the axes, 3072 for the default box; see [`NgpParams::grid`]).
+    pub max_resolution: Option<f64>,
+    /// The box the grid covers, `[[min x, y, z], [max x, y, z]]` in world units, or in
+    /// contracted space with a contraction (`aabb`, default ±1.5 on every axis: the lego
+    /// scene and its occupancy grid).
+    #[serde(default = "crate::ngp_config::default_aabb")]
     pub aabb: [[f64; 3]; 2],
-    /// The density activation.
+    /// `trunc_exp` (default, instant-ngp) or `softplus` (`density_activation`).
+    #[serde(default)]
     pub density_activation: DensityActivation,
-    /// How world points map into the space `aabb` is in (identity for a bounded scene).
+    /// Scene contraction (`contraction`): `none` (default; the grid covers `aabb` of the
+    /// world) or `linf` (unbounded scenes: points are contracted into `[-2, 2]³` first; see
+    /// [`nerf_core::contraction`]).
+    #[serde(default)]
     pub contraction: Contraction,
-    /// A vector learnt per training image, added into the colour MLP
-    /// ([`crate::appearance`]); `None`: no per-image appearance.
-    pub appearance: Option<AppearanceParams>,
+    /// Length of the vector learnt per training image and added into the colour MLP
+    /// (`appearance_dim`, default 0 = none; see [`crate::appearance`]).
+    #[serde(default)]
+    pub appearance_dim: usize,
+    /// Training images the appearance embedding has a vector for: no key of the config, but
+    /// the training set's size (`FieldSpec::for_training_images`) or the checkpoint's (0
+    /// until then: no embedding parameters).
+    #[serde(skip)]
+    pub appearance_images: usize,
 }
 
 impl NgpParams {
+    /// The hash encoding's shape: the grid keys, with `max_resolution` defaulting to 2048 ×
+    /// the box's largest half-size.
+    pub fn grid(&self) -> HashGridParams {
+        let half = (0..3)
+            .map(|a| (self.aabb[1][a] - self.aabb[0][a]) / 2.0)
+            .fold(0.0, f64::max);
+        HashGridParams {
+            n_levels: self.n_levels,
+            n_features: self.n_features_per_level,
+            log2_table_size: self.log2_hashmap_size,
+            base_resolution: self.base_resolution,
+            max_resolution: self.max_resolution.unwrap_or(2048.0 * half),
+        }
+    }
+
+    /// The appearance embedding's sizes; `None` without one (`appearance_dim: 0`).
+    pub(crate) fn appearance(&self) -> Option<AppearanceParams> {
+        (self.appearance_dim > 0).then_some(AppearanceParams {
+            dim: self.appearance_dim,
+            images: self.appearance_images,
+        })
+    }
+
     /// Checks the grid and that the box has positive extent on every axis.
     pub(crate) fn validate(&self) -> Result<()> {
-        self.grid.validate()?;
+        self.grid().validate()?;
         ensure!(
             (0..3).all(|a| self.aabb[1][a] > self.aabb[0][a]),
             "implicit_function.aabb: max must exceed min on every axis, got {:?}",
@@ -125,6 +178,8 @@ fn new_linear(in_dim: usize, out_dim: usize, vb: VarBuilder) -> Result<Linear> {
 pub struct Ngp {
     /// The sizes the model was built with.
     pub params: NgpParams,
+    /// The hash encoding's shape (`params.grid()`, kept: every evaluation reads it).
+    grid: HashGridParams,
     table: Tensor,
     density: [Linear; 2],
     color: [Linear; 3],
@@ -138,7 +193,7 @@ impl Ngp {
     /// Builds the model; parameters are created in (or loaded from) `vb`.
     pub fn new(params: &NgpParams, vb: VarBuilder) -> Result<Self> {
         params.validate()?;
-        let g = &params.grid;
+        let g = &params.grid();
         let init = Init::Uniform {
             lo: -1e-4,
             up: 1e-4,
@@ -148,6 +203,7 @@ impl Ngp {
         let c = vb.pp("color_mlp");
         Ok(Self {
             params: params.clone(),
+            grid: *g,
             table,
             density: [
                 new_linear(g.output_dim(), HIDDEN, d.pp("0"))?,
@@ -158,7 +214,7 @@ impl Ngp {
                 new_linear(HIDDEN, HIDDEN, c.pp("2"))?,
                 new_linear(HIDDEN, 3, c.pp("4"))?,
             ],
-            appearance: match &params.appearance {
+            appearance: match &params.appearance() {
                 Some(a) => Appearance::new(a, HIDDEN, &vb)?,
                 None => None,
             },
@@ -193,12 +249,7 @@ impl Ngp {
     /// point is inside it `(M, 1)`.
     fn encode(&self, points: &Tensor) -> Result<(Tensor, Tensor)> {
         let (unit, inside) = self.normalise(points)?;
-        let enc = hash_encode(
-            &unit,
-            &self.table,
-            &self.params.grid,
-            self.gradient.as_ref(),
-        )?;
+        let enc = hash_encode(&unit, &self.table, &self.grid, self.gradient.as_ref())?;
         Ok((enc, inside))
     }
 
@@ -325,6 +376,7 @@ impl Ngp {
         let detach = |l: &Linear| Linear::new(l.weight().detach(), l.bias().map(|b| b.detach()));
         Self {
             params: self.params.clone(),
+            grid: self.grid,
             table: self.table.detach(),
             density: self.density.clone().map(|l| detach(&l)),
             color: self.color.clone().map(|l| detach(&l)),
@@ -439,7 +491,7 @@ impl NgpState {
     /// (PyTorch's default), drawn in name order.
     pub fn seeded(params: &NgpParams, seed: u64, device: &Device) -> Result<Self> {
         let varmap = VarMap::new();
-        let gradient = Arc::new(TableGradient::new(&params.grid));
+        let gradient = Arc::new(TableGradient::new(&params.grid()));
         let model = Ngp::new(params, VarBuilder::from_varmap(&varmap, DType::F32, device))?
             .with_table_gradient(gradient.clone());
         let bound = |name: &str, shapes: &_| match name {
@@ -466,9 +518,9 @@ impl FieldSpec for NgpParams {
     }
 
     fn for_training_images(&self, images: usize) -> Option<Arc<dyn FieldSpec>> {
-        let dim = self.appearance?.dim;
+        self.appearance()?;
         Some(Arc::new(NgpParams {
-            appearance: Some(AppearanceParams { dim, images }),
+            appearance_images: images,
             ..self.clone()
         }))
     }
@@ -498,8 +550,8 @@ impl TrainableField for NgpState {
     }
 
     fn layout(&self) -> Option<String> {
+        let g = &self.model.grid;
         let NgpParams {
-            grid: g,
             aabb,
             density_activation,
             contraction,
@@ -540,7 +592,7 @@ impl TrainableField for NgpState {
         let sparse_rows = table
             .into_iter()
             .map(|(name, var)| {
-                let sink = (self.gradient.clone(), self.model.params.grid);
+                let sink = (self.gradient.clone(), self.model.grid);
                 SparseRowsGroup::instant_ngp(name, var, Some(sink))
             })
             .collect();
@@ -573,17 +625,16 @@ impl TrainingFastPaths for NgpState {
 #[cfg(any(test, feature = "test-support"))]
 pub fn small_test_params() -> NgpParams {
     NgpParams {
-        grid: HashGridParams {
-            n_levels: 4,
-            n_features: 2,
-            log2_table_size: 8,
-            base_resolution: 4.0,
-            max_resolution: 32.0,
-        },
+        n_levels: 4,
+        n_features_per_level: 2,
+        log2_hashmap_size: 8,
+        base_resolution: 4.0,
+        max_resolution: Some(32.0),
         aabb: [[-1.5; 3], [1.5; 3]],
         density_activation: DensityActivation::TruncExp,
         contraction: Contraction::None,
-        appearance: None,
+        appearance_dim: 0,
+        appearance_images: 0,
     }
 }
 
@@ -680,7 +731,8 @@ mod tests {
     fn appearance_moves_colour_per_image_and_trains() {
         let dev = Device::Cpu;
         let (varmap, model) = model_of(&NgpParams {
-            appearance: Some(AppearanceParams { dim: 4, images: 3 }),
+            appearance_dim: 4,
+            appearance_images: 3,
             ..small_test_params()
         });
         let points = Tensor::rand(-1f32, 1.0, (6, 3), &dev).unwrap();

@@ -5,7 +5,6 @@
 use std::sync::Arc;
 
 use anyhow::{bail, Result};
-use serde::de::IgnoredAny;
 use serde::Deserialize;
 
 use crate::field_config::{FieldConfig, FieldKind};
@@ -72,9 +71,6 @@ pub struct FeatureConfig {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SdfVolumeConfig {
-    /// `implicit_function.type`, which chose this kind.
-    #[serde(rename = "type")]
-    pub kind: IgnoredAny,
     /// `implicit_function.sdf`: the shape.
     pub sdf: SdfShapeConfig,
     /// `implicit_function.feature`: the colour.

@@ -29,6 +29,7 @@ fn model(density_bias: f32) -> Nerf {
         n_hidden_neurons_dir: 16,
         n_layers_xyz: 3,
         append_xyz: vec![2],
+        density_noise_std: 0.0,
     };
     // Seeded, so every run tests the same weights.
     let state = crate::nerf::NerfState::seeded(&cfg, 3, &Device::Cpu).unwrap();
@@ -407,6 +408,7 @@ fn packed_compositing_gradients_equal_the_dense_paths() {
             n_hidden_neurons_dir: 8,
             n_layers_xyz: 2,
             append_xyz: vec![1],
+            density_noise_std: 0.0,
         };
         crate::nerf::NerfState::seeded(&cfg, 5, &Device::Cpu).unwrap()
     };

@@ -571,24 +571,22 @@ mod tests {
         // hash encoding (its point gradient, fused) → MLPs → compositing.
         use nerf_core::contraction::Contraction;
         use nerf_field::ngp::{DensityActivation, NgpField, NgpParams, NgpState, TABLE};
-        use nerf_hash_grid::hash_grid::HashGridParams;
         use nerf_render::occupancy::{OccupancyGrid, OccupancyGridParams};
         use nerf_render::occupied_field::OccupiedField;
         use nerf_render::renderer::VolumeRenderer;
         use nerf_render::sampler::StratifiedSampler;
         let dev = Device::Cpu;
         let params = NgpParams {
-            grid: HashGridParams {
-                n_levels: 4,
-                n_features: 2,
-                log2_table_size: 10,
-                base_resolution: 4.0,
-                max_resolution: 24.0,
-            },
+            n_levels: 4,
+            n_features_per_level: 2,
+            log2_hashmap_size: 10,
+            base_resolution: 4.0,
+            max_resolution: Some(24.0),
             aabb: [[-2.0; 3], [2.0; 3]],
             density_activation: DensityActivation::TruncExp,
             contraction: Contraction::LInf,
-            appearance: None,
+            appearance_dim: 0,
+            appearance_images: 0,
         };
         let state = NgpState::seeded(&params, 3, &dev).unwrap();
         let table = state.varmap.data().lock().unwrap()[TABLE].clone();

@@ -15,7 +15,6 @@ use crate::step::{
 };
 use nerf_core::contraction::Contraction;
 use nerf_core::rays::Rays;
-use nerf_field::appearance::AppearanceParams;
 use nerf_field::ngp::{small_test_params, DensityActivation, NgpParams, NgpState, TABLE};
 use nerf_field::trainable::named_vars;
 use nerf_hash_grid::hash_grid::{HashGridParams, TableGradient};
@@ -146,7 +145,8 @@ fn fused_step_matches_the_autograd_step() {
             NgpParams {
                 aabb: [[-2.0; 3], [2.0; 3]],
                 contraction: Contraction::LInf,
-                appearance: Some(AppearanceParams { dim: 4, images: 3 }),
+                appearance_dim: 4,
+                appearance_images: 3,
                 density_activation: DensityActivation::Softplus,
                 ..small_test_params()
             },
@@ -169,7 +169,7 @@ fn fused_step_matches_the_autograd_step() {
         let (mut rng_graph, mut rng_fused) = (rng.clone(), rng);
         let graph =
             graph_gradients(&*field, &settings, &rays, &background, &mut rng_graph).unwrap();
-        let graph_table = table_gradient(&sink, &params.grid);
+        let graph_table = table_gradient(&sink, &params.grid());
         let fused = fused_gradients(
             &model,
             &settings,
@@ -180,7 +180,7 @@ fn fused_step_matches_the_autograd_step() {
         )
         .unwrap()
         .expect("the hash-grid field has a fused step");
-        let fused_table = table_gradient(&sink, &params.grid);
+        let fused_table = table_gradient(&sink, &params.grid());
 
         assert_eq!(fused.samples, graph.samples, "{what}: sample counts");
         assert!(
@@ -206,7 +206,7 @@ fn fused_step_matches_the_autograd_step() {
             f.keys().collect::<Vec<_>>(),
             "{what}: the same variables"
         );
-        let expected = 10 + if params.appearance.is_some() { 2 } else { 0 };
+        let expected = 10 + if params.appearance_dim > 0 { 2 } else { 0 };
         assert_eq!(names.len(), expected, "{what}: {names:?}");
         for (name, want) in &g {
             assert_near(&f[name], want, 1e-4, &format!("{what}: {name}"));

@@ -16,8 +16,8 @@ use crate::bench::row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
 use crate::timing::fastest;
 use nerf::config::Config;
 use nerf::core::frame_camera::FrameCamera;
+use nerf::field::ngp::NgpParams;
 use nerf::field::ngp::{GEO_FEATURES, HIDDEN, SH_DIM};
-use nerf::field::ngp_config::NgpConfig;
 use nerf::io::dataset::{Dataset, Split};
 use nerf::kernels::gemm::gemm_f32;
 use nerf::render::occupancy::OccupancyGrid;
@@ -124,7 +124,7 @@ impl NgpFlops {
 
     /// The count of the NGP field of `config` (an error for another field kind).
     pub fn of_config(config: &Config) -> Result<Self> {
-        match config.implicit_function.get::<NgpConfig>() {
+        match config.implicit_function.get::<NgpParams>() {
             Some(n) => Ok(Self::new(n.n_levels, n.n_features_per_level)),
             None => anyhow::bail!("the FLOP count is of hash-grid (type: ngp) fields only"),
         }

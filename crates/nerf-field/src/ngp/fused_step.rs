@@ -89,7 +89,7 @@ impl Ngp {
             batch.target.len(),
             batch.background.len()
         );
-        let grid = &self.params.grid;
+        let grid = &self.grid;
         let shape = self.mlp_shape();
         let params = self.packed_mlp_values()?;
         let directions = rays

@@ -37,7 +37,7 @@ impl Ngp {
     /// The MLPs' widths, for the fused MLP kernel.
     pub(super) fn mlp_shape(&self) -> MlpShape {
         MlpShape {
-            enc: self.params.grid.output_dim(),
+            enc: self.grid.output_dim(),
             hidden: HIDDEN,
             geo: GEO_FEATURES,
         }
@@ -70,7 +70,7 @@ impl Ngp {
         let (storage, layout) = self.table.storage_and_layout();
         let table = table_values(&storage, layout)?;
         let (unit, inside) = self.unit_points(points.to_vec());
-        let encoding = encode_values(&self.params.grid, table, &unit);
+        let encoding = encode_values(&self.grid, table, &unit);
         drop(storage);
         let raw = raw_density_values(self.mlp_shape(), &encoding, &self.packed_mlp_values()?);
         let activation = self.params.density_activation;
@@ -105,7 +105,7 @@ impl Ngp {
         (rays, per_ray): (&[u32], &[f32]),
     ) -> HostValues {
         let (unit, inside) = self.unit_points(points);
-        let encoding = encode_values(&self.params.grid, table, &unit);
+        let encoding = encode_values(&self.grid, table, &unit);
         let out = mlp_values(self.mlp_shape(), &encoding, (rays, per_ray), params);
         HostValues {
             unit,
