@@ -5,7 +5,7 @@
 //! largest rotation error and the largest and mean centre errors as fractions of the truth's
 //! size. A second line aligns the centres alone by the least-squares similarity (Horn's
 //! quaternion method), which is what "centres within X after a similarity alignment" asks.
-//! Both alignments are `nerf::core::camera_alignment`'s; the truth readers are
+//! Both alignments are `nerf::core::camera::alignment`'s; the truth readers are
 //! `nerf::io::camera_truth`'s. Frames are matched by image stem (`images/r_7.jpg` ↔
 //! `train/r_7`). TRUTH is one of:
 //!
@@ -29,11 +29,11 @@ use std::path::Path;
 
 use anyhow::{bail, Result};
 use glam::{DMat3, DVec3};
-use nerf::core::camera_alignment::{
+use nerf::core::camera::alignment::{
     align_by_orientations, align_centres, CameraAlignment, CameraPair,
 };
-use nerf::core::camera_colmap::ColmapPose;
-use nerf::core::camera_consensus::spread;
+use nerf::core::camera::consensus::spread;
+use nerf::core::camera::ColmapPose;
 use nerf::io::camera_truth::{
     image_stem, read_middlebury_par, read_strecha_cameras, read_transforms, TrueCamera,
 };

@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use glam::{DMat3, DQuat, DVec3};
-use nerf::core::camera_colmap::{ColmapCamera, ColmapPose};
+use nerf::core::camera::{ColmapCamera, ColmapPose};
 use nerf::io::colmap::{self, ColmapImage, ColmapModel};
 
 /// OPENCV distortion `k1 k2 p1 p2`: a moderate barrel distortion with a little tangential

@@ -33,7 +33,15 @@ fn main() -> Result<()> {
     let start = Instant::now();
     let frames = nerf::surround_cameras(3.0, 20, glam::DVec3::Y, 1.0)
         .iter()
-        .map(|camera| Ok(render_view(&pipeline, camera, (size, size), &device)?.color))
+        .map(|camera| {
+            Ok(render_view(
+                &pipeline,
+                &nerf::Camera::from(*camera),
+                (size, size),
+                &device,
+            )?
+            .color)
+        })
         .collect::<Result<Vec<_>>>()?;
     let path = out_dir.join("box.gif");
     nerf::io::images::write_gif(&path, &frames, 10)?;

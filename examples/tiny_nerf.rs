@@ -42,7 +42,15 @@ fn main() -> Result<()> {
     let cameras = nerf::surround_cameras(3.0, 4, glam::DVec3::Y, 1.0);
     let targets = cameras
         .iter()
-        .map(|c| Ok(render_view(&targets_pipeline, c, (SIZE, SIZE), &device)?.color))
+        .map(|c| {
+            Ok(render_view(
+                &targets_pipeline,
+                &nerf::Camera::from(*c),
+                (SIZE, SIZE),
+                &device,
+            )?
+            .color)
+        })
         .collect::<Result<Vec<RgbImage>>>()?;
 
     // A small NeRF and Adam over its variables.
@@ -68,7 +76,8 @@ fn main() -> Result<()> {
         let mut target = Vec::new();
         for (camera, image) in cameras.iter().zip(&targets) {
             let pixels = random_pixel_indices(SIZE, SIZE, RAYS_PER_CAMERA, &mut rng);
-            let rays = Rays::for_pixels(camera, SIZE, SIZE, &pixels, &device)?;
+            let rays =
+                Rays::for_pixels(&nerf::Camera::from(*camera), SIZE, SIZE, &pixels, &device)?;
             origins.push(rays.origins);
             directions.push(rays.directions);
             target.extend(
@@ -103,7 +112,7 @@ fn main() -> Result<()> {
     let trained = state.field();
     let view = render_view(
         &Pipeline::new(&trained, &sampler, &renderer),
-        &cameras[0],
+        &nerf::Camera::from(cameras[0]),
         (SIZE, SIZE),
         &device,
     )?;

@@ -104,7 +104,15 @@ fn main() -> Result<()> {
     let pipeline = Pipeline::new(&field, &sampler, &renderer);
     let mut frames = Vec::with_capacity(cameras.len());
     for camera in &cameras {
-        frames.push(render_view(&pipeline, camera, (size, size), &device)?.color);
+        frames.push(
+            render_view(
+                &pipeline,
+                &nerf::Camera::from(*camera),
+                (size, size),
+                &device,
+            )?
+            .color,
+        );
     }
     let rendered = start.elapsed().as_secs_f64();
 

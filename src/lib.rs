@@ -40,7 +40,7 @@
 //!     feature: [1.0; 3],
 //! };
 //! let field = SdfField::fixed(&volume, &device)?;
-//! let camera = nerf::surround_cameras(3.0, 20, glam::DVec3::Y, 1.0)[0];
+//! let camera: nerf::Camera = nerf::surround_cameras(3.0, 20, glam::DVec3::Y, 1.0)[0].into();
 //! let sampler = StratifiedSampler::new(64, 0.0, 5.0)?;
 //! let renderer = VolumeRenderer::new(32768, false)?;
 //! let view = render_view(&Pipeline::new(&field, &sampler, &renderer), &camera, (256, 256), &device)?;
@@ -78,11 +78,11 @@ pub use nerf_train as train;
 
 pub use crate::config::ConfigError;
 pub use crate::core::allocator::{ensure_allocator_tuned, tune_allocator};
+pub use crate::core::camera::CameraError;
 pub use crate::core::camera::{
     camera_position_from_spherical_angles, look_at_view_transform, surround_cameras, Camera,
     PerspectiveCamera,
 };
-pub use crate::core::camera_error::CameraError;
 
 pub use crate::core::image::RgbImage;
 pub use crate::core::rays::{pixel_grid, random_pixel_indices, Rays};

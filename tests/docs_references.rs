@@ -157,16 +157,20 @@ fn resolution_finds_modules_items_members_and_reexports() {
             "`crate::render::field::FieldFastPaths::render_fused`",
         ), // a trait's method
         ("src/lib.rs", "[`crate::core::sdf::Sdf::Box`]"), // a variant
-        ("src/lib.rs", "crate::core::camera_colmap::tests"), // a #[path] module in a re-exported crate
-        ("README.md", "nerf_core::rays::Rays"),              // a workspace crate by name
+        ("src/lib.rs", "crate::core::camera::colmap::tests"), // a #[path] module in a re-exported crate
+        ("README.md", "nerf_core::rays::Rays"),               // a workspace crate by name
         (
             "crates/nerf-core/src/rays.rs",
             "crate::volume::transmittance",
         ), // inside that crate
-        ("src/lib.rs", "crate::io::dataset::Split"),         // a glob re-export
-        ("README.md", "`nerf::VolumeRenderer::render`"),     // lib.rs's re-export
+        ("src/lib.rs", "crate::io::dataset::Split"),          // a glob re-export
+        (
+            "crates/nerf-core/src/rays.rs",
+            "crate::camera::ColmapCamera::project",
+        ), // an entry of a list of kinds that its macro re-exports
+        ("README.md", "`nerf::VolumeRenderer::render`"),      // lib.rs's re-export
         ("README.md", "nerf::config::DataConfig::dataset_image_size"), // a relative re-export
-        ("README.md", "nerf::candle_core::Tensor"),          // another crate's item
+        ("README.md", "nerf::candle_core::Tensor"),           // another crate's item
         (
             "apps/nerf/src/bench/row.rs",
             "crate::bench::hash_grid_rows::NgpFlops",
@@ -186,6 +190,7 @@ fn resolution_reports_what_is_not_there() {
         ("src/lib.rs", "crate::bench::hash_grid_rows::NgpFlops"), // the binary's, not the library's
         ("README.md", "nerf::NoSuchReexport"),
         ("README.md", "nerf::io::dataset::NoSuchItem"),
+        ("crates/nerf-core/src/rays.rs", "crate::camera::NoSuchKind"), // not in the list
     ];
     for (file, written) in not_found {
         assert!(check(file, written).is_err(), "{written} in {file}");
@@ -613,7 +618,24 @@ fn reexport_targets(text: &str, name: &str) -> Vec<Vec<String>> {
             }
         }
     }
+    targets.extend(kind_list_targets(text, name));
     targets
+}
+
+/// The entries of a list of kinds whose macro re-exports each (`pub use $module::$kind;` in
+/// its body, one `Variant => module::Kind,` line an entry, as `camera_kinds!` and
+/// `lens_models!` write them) that are called `name`: `module::name`.
+fn kind_list_targets(text: &str, name: &str) -> Vec<Vec<String>> {
+    if !text.contains("pub use $module::$") {
+        return Vec::new();
+    }
+    text.lines()
+        .filter_map(|line| {
+            let (_, path) = line.trim().strip_suffix(',')?.split_once(" => ")?;
+            let (module, kind) = path.split_once("::")?;
+            (kind == name).then(|| vec![module.to_string(), kind.to_string()])
+        })
+        .collect()
 }
 
 /// The use trees of the `pub use …;` statements in `text` (a statement may span lines), each

@@ -24,7 +24,7 @@ fn render(
     sampler: &StratifiedSampler,
     chunk: usize,
 ) -> (Vec<f32>, Vec<f32>) {
-    let rays = Rays::for_image(cam, w, h, &Device::Cpu).unwrap();
+    let rays = Rays::for_image(&nerf::Camera::from(*cam), w, h, &Device::Cpu).unwrap();
     let out = VolumeRenderer::new(chunk, false)
         .unwrap()
         .render(field, sampler, &rays, None)
@@ -71,7 +71,7 @@ fn hard_box_depth_matches_analytic_intersection() {
     for cam in surround_cameras(3.0, 20, DVec3::Y, 1.0).iter().step_by(3) {
         let (_, depth) = render(&field, cam, w, h, &sampler, 32768);
         for (i, [x, y]) in pixel_grid_values(w, h).into_iter().enumerate() {
-            let (o, d) = ray_through_ndc(cam, x, y);
+            let (o, d) = ray_through_ndc(&nerf::Camera::from(*cam), x, y);
             match ray_box(o, d, DVec3::ZERO, half) {
                 // Rays that cross the box squarely (not grazing an edge).
                 Some((t0, t1)) if t1 - t0 > 3.0 * step => {
@@ -113,7 +113,7 @@ fn box_render_agrees_with_float64_recomputation() {
     for cam in surround_cameras(3.0, 20, DVec3::Y, 1.0).iter().step_by(4) {
         let (color, depth) = render(&field, cam, w, h, &sampler, 500);
         for (i, [x, y]) in pixel_grid_values(w, h).into_iter().enumerate() {
-            let (o, d) = ray_through_ndc(cam, x, y);
+            let (o, d) = ray_through_ndc(&nerf::Camera::from(*cam), x, y);
             let (rc, rd) = nerf::eval::reference::render_ray(volume, o, d, &sampler);
             for k in 0..3 {
                 max_color = max_color.max((color[3 * i + k] as f64 - rc[k]).abs());

@@ -99,7 +99,7 @@ fn setup() -> Setup {
     let mut camera = PerspectiveCamera::new(r, t, 1.1);
     camera.principal_point = [0.05, -0.03];
     let (w, h) = (14, 11);
-    let rays = Rays::for_image(&camera, w, h, &Device::Cpu).unwrap();
+    let rays = Rays::for_image(&nerf::Camera::from(camera), w, h, &Device::Cpu).unwrap();
     let weights: Vec<f64> = {
         use rand::{Rng, SeedableRng};
         let mut rng = rand::rngs::StdRng::seed_from_u64(7);

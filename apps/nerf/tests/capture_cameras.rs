@@ -2,7 +2,7 @@
 //! instant-ngp, LLFF): finite but impossible focal lengths, principal points and distortions, a camera of
 //! another shape than its photos, centres too far from the origin to resolve, and a lone
 //! camera. Each is one `error:` line naming the file (and the camera or frame) with the rule
-//! it broke, exit 1, and nothing written (`core::camera_checks`, docs/reliability.md#captures).
+//! it broke, exit 1, and nothing written (`core::camera::checks`, docs/reliability.md#captures).
 
 mod common;
 

@@ -12,7 +12,6 @@ use common::lego_capture::*;
 use std::path::Path;
 
 use glam::DVec3;
-use nerf::core::camera::Camera;
 use nerf::io::checkpoint;
 use nerf::io::dataset::colmap_scene::COLMAP;
 use nerf::io::dataset::llff::LLFF;
@@ -39,7 +38,7 @@ fn check_capture(lego: &Lego, dir: &Path, format: SceneFormat) {
             // Sorted names frame_00..frame_15: the held-out ones are 0 and 8.
             assert_eq!(index.is_multiple_of(8), split == Split::Test, "{name}");
             let view = &lego.views[index];
-            let nerf::core::frame_camera::FrameCamera::Colmap(camera) = &frame.camera else {
+            let nerf::core::camera::Camera::Colmap(camera) = &frame.camera else {
                 panic!("a capture's camera is COLMAP's");
             };
             for p in points {
@@ -107,7 +106,7 @@ fn an_llff_file_written_for_larger_photos_is_scaled_to_the_photos_on_disk() {
     assert_eq!((loaded.width, loaded.height), half);
     assert_eq!(loaded.capture.as_ref().unwrap().photo_size, Some(lego.size));
     for frame in &loaded.frames {
-        let nerf::core::frame_camera::FrameCamera::Colmap(camera) = &frame.camera else {
+        let nerf::core::camera::Camera::Colmap(camera) = &frame.camera else {
             panic!("a capture's camera is COLMAP's");
         };
         assert_eq!(camera.size, (lego.size.0 as usize, lego.size.1 as usize));
@@ -388,10 +387,8 @@ fn an_instant_ngp_capture_gives_the_nerfstudio_cameras_and_trains() {
             assert_eq!(a.frames.len(), b.frames.len());
             for (a, b) in a.frames.iter().zip(&b.frames) {
                 assert_eq!(a.file_path.file_name(), b.file_path.file_name());
-                let (
-                    nerf::core::frame_camera::FrameCamera::Colmap(a),
-                    nerf::core::frame_camera::FrameCamera::Colmap(b),
-                ) = (&a.camera, &b.camera)
+                let (nerf::core::camera::Camera::Colmap(a), nerf::core::camera::Camera::Colmap(b)) =
+                    (&a.camera, &b.camera)
                 else {
                     panic!("a capture's camera is COLMAP's");
                 };

@@ -150,7 +150,7 @@ fn true_coverage(
             let hits = (0..size.1)
                 .flat_map(|row| (0..size.0).map(move |col| (col, row)))
                 .filter(|&(col, row)| {
-                    let (o, d) = cam.pixel_ray(col, row, size);
+                    let (o, d) = Camera::from(*cam).pixel_ray(col, row, size);
                     trace(&spheres, o, d).is_some()
                 })
                 .count();

@@ -24,7 +24,7 @@ fn nerf_gradients(config: &Config, choice: KernelChoice) -> Vec<(String, Vec<f32
             None => Box::new(state.training_field(0.0)),
         };
         let cam = config.surround_cameras()[1];
-        let rays = Rays::for_image(&cam, 7, 5, &device).unwrap();
+        let rays = Rays::for_image(&nerf::Camera::from(cam), 7, 5, &device).unwrap();
         let out = config
             .renderer()
             .unwrap()

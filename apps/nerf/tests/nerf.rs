@@ -45,7 +45,7 @@ fn box_dataset(config: &Config) -> Dataset {
     let mut images = Vec::new();
     for cam in cameras.iter().take(4) {
         let pipeline = Pipeline::new(&field, &*sampler, &renderer);
-        let f = render_view(&pipeline, cam, (12, 12), &Device::Cpu).unwrap();
+        let f = render_view(&pipeline, &nerf::Camera::from(*cam), (12, 12), &Device::Cpu).unwrap();
         frames.push(Frame {
             file_path: PathBuf::from("synthetic"),
             camera: (*cam).into(),
@@ -134,7 +134,8 @@ fn gradients_reach_every_parameter() {
             None => Box::new(state.training_field(0.0)),
         };
         let cam = config.surround_cameras()[0];
-        let rays = nerf::core::rays::Rays::for_image(&cam, 6, 6, &Device::Cpu).unwrap();
+        let rays = nerf::core::rays::Rays::for_image(&nerf::Camera::from(cam), 6, 6, &Device::Cpu)
+            .unwrap();
         let mut rng = rand::rngs::StdRng::seed_from_u64(1);
         let out = config
             .renderer()
@@ -457,7 +458,7 @@ fn nerf_render_does_not_depend_on_chunking() {
         let field = state.field();
         render_view(
             &Pipeline::new(&field, &*sampler, &renderer),
-            &cam,
+            &nerf::Camera::from(cam),
             (10, 9),
             &Device::Cpu,
         )

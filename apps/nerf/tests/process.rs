@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use common::process_tools::*;
 use glam::DVec3;
-use nerf::core::camera_alignment::CameraPair;
+use nerf::core::camera::alignment::CameraPair;
 use nerf::io::dataset::{read_capture_split, Split};
 
 #[test]

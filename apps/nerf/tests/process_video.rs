@@ -7,7 +7,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use common::process_tools::*;
-use nerf::core::camera_alignment::CameraPair;
+use nerf::core::camera::alignment::CameraPair;
 
 /// Whether ffmpeg runs here (`ffmpeg` on PATH, or `$NERF_FFMPEG`); else a visible skip, and a
 /// failure under `CI=true` ([`tool_installed`]).

@@ -142,7 +142,8 @@ fn float64_errors(
     sampler: &StratifiedSampler,
 ) -> (f64, f64) {
     let size = (frame.color.width, frame.color.height);
-    let (colours, depths) = nerf::eval::reference::render_image(volume, cam, size, sampler);
+    let (colours, depths) =
+        nerf::eval::reference::render_image(volume, &nerf::Camera::from(*cam), size, sampler);
     let max = |a: &[f32], b: &[f64]| {
         a.iter()
             .zip(b)
@@ -163,11 +164,12 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
         let renderer = config.renderer().unwrap();
         let cam = config.surround_cameras()[3];
         let pipeline = Pipeline::new(&field, &sampler, &renderer);
-        let frame = render_view(&pipeline, &cam, (24, 18), &Device::Cpu).unwrap();
+        let frame =
+            render_view(&pipeline, &nerf::Camera::from(cam), (24, 18), &Device::Cpu).unwrap();
         assert!(frame.color.data.iter().all(|v| v.is_finite()));
         assert!(frame.depth.iter().all(|v| v.is_finite()));
         // Per-sample weights of every ray (points far inside and outside the box included).
-        let rays = Rays::for_image(&cam, 24, 18, &Device::Cpu).unwrap();
+        let rays = Rays::for_image(&nerf::Camera::from(cam), 24, 18, &Device::Cpu).unwrap();
         let samples = sampler.sample(&rays, None).unwrap();
         let d = deltas(&samples.lengths).unwrap();
         let out = field.evaluate(&samples, &d, &rays.directions).unwrap();
@@ -268,7 +270,8 @@ fn float32_against_float64_at_64_and_1024_samples() {
         let cam = config.surround_cameras()[1];
         let renderer = config.renderer().unwrap();
         let pipeline = Pipeline::new(&field, &sampler, &renderer);
-        let frame = render_view(&pipeline, &cam, (32, 32), &Device::Cpu).unwrap();
+        let frame =
+            render_view(&pipeline, &nerf::Camera::from(cam), (32, 32), &Device::Cpu).unwrap();
         let (c, d) = float64_errors(&frame, &volume, &cam, &sampler);
         eprintln!(
             "{n} samples: f32 vs f64 max colour difference {c:.1e}, max depth difference {d:.1e}"
@@ -298,7 +301,7 @@ fn nerf_gradients_and_adam_stay_finite_at_extremes() {
         let vars = nerf::named_vars(&varmap);
         let mut adam = nerf::train::adam::Adam::new(vars.clone(), 5e-4).unwrap();
         let cam = config.surround_cameras()[0];
-        let rays = Rays::for_image(&cam, 8, 8, &Device::Cpu).unwrap();
+        let rays = Rays::for_image(&nerf::Camera::from(cam), 8, 8, &Device::Cpu).unwrap();
         let sampler = StratifiedSampler::new(32, 2.0, 6.0).unwrap();
         let field = NerfField {
             model,

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use candle_core::{Device, Tensor};
 use nerf::config::{apply_override, Config, ConfigError};
-use nerf::core::camera_checks::{check_intrinsics, check_photo_size};
+use nerf::core::camera::checks::{check_intrinsics, check_photo_size};
 use nerf::core::lens::LensDistortion;
 use nerf::core::term::error_line;
 use nerf::io::checkpoint::{self, CheckpointError, CheckpointInfo};

@@ -8,8 +8,8 @@ use glam::DVec3;
 use serde::Deserialize;
 
 use super::Config;
+use nerf_core::camera::Camera;
 use nerf_core::camera::{look_at_view_transform, PerspectiveCamera};
-use nerf_core::frame_camera::FrameCamera;
 
 /// The `data` section.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
@@ -119,8 +119,8 @@ pub(crate) fn photo_size(data_dir: &Path) -> Result<(usize, usize)> {
         .first()
         .with_context(|| format!("{}: no training frames", data_dir.display()))?;
     Ok(match &first.camera {
-        FrameCamera::Colmap(c) => c.size,
-        FrameCamera::Pinhole(_) => {
+        Camera::Colmap(c) => c.size,
+        _ => {
             let (w, h) = image::image_dimensions(&first.file_path)
                 .with_context(|| format!("size of {}", first.file_path.display()))?;
             (w as usize, h as usize)

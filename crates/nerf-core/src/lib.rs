@@ -9,17 +9,11 @@
 
 pub mod allocator;
 pub mod camera;
-pub mod camera_alignment;
-pub mod camera_checks;
-pub mod camera_colmap;
-pub mod camera_consensus;
-pub mod camera_error;
 pub mod compare;
 pub mod contraction;
 pub mod distortion_loss;
 pub mod error_chain;
 pub(crate) mod fastexp;
-pub mod frame_camera;
 pub mod image;
 pub mod key_checks;
 pub mod lens;

@@ -29,7 +29,7 @@ pub fn random_pixel_indices(
 
 /// Origin and unit direction of the ray through NDC point `(x, y)` of any camera kind
 /// ([`Camera::ray_through_ndc`]).
-pub fn ray_through_ndc(camera: &dyn Camera, x: f64, y: f64) -> (DVec3, DVec3) {
+pub fn ray_through_ndc(camera: &Camera, x: f64, y: f64) -> (DVec3, DVec3) {
     camera.ray_through_ndc(x, y)
 }
 
@@ -57,7 +57,7 @@ impl Rays {
 
     /// One ray per pixel of a `width × height` image, row-major: `(W·H, 3)` origins and directions.
     pub fn for_image(
-        camera: &dyn Camera,
+        camera: &Camera,
         width: usize,
         height: usize,
         device: &Device,
@@ -68,7 +68,7 @@ impl Rays {
     /// Rays through the pixels with the given row-major indices: `(len(indices), 3)`, each
     /// [`Camera::pixel_ray`].
     pub fn for_pixels(
-        camera: &dyn Camera,
+        camera: &Camera,
         width: usize,
         height: usize,
         indices: &[usize],
@@ -80,7 +80,7 @@ impl Rays {
     /// Rays through the row-major pixels `pixels` of a `width × height` image:
     /// `(len, 3)` rows of [`Rays::for_image`].
     pub fn for_pixel_range(
-        camera: &dyn Camera,
+        camera: &Camera,
         size: (usize, usize),
         pixels: std::ops::Range<usize>,
         device: &Device,
@@ -89,7 +89,7 @@ impl Rays {
     }
 
     fn from_pixels(
-        camera: &dyn Camera,
+        camera: &Camera,
         (width, height): (usize, usize),
         pixels: impl ExactSizeIterator<Item = usize>,
         device: &Device,
@@ -181,7 +181,8 @@ mod tests {
     fn rays_have_unit_directions_and_shapes() {
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[4];
         for (w, h) in [(5, 3), (16, 16), (20, 15)] {
-            let rays = Rays::for_image(&cam, w, h, &Device::Cpu).unwrap();
+            let rays =
+                Rays::for_image(&crate::camera::Camera::from(cam), w, h, &Device::Cpu).unwrap();
             assert_eq!(rays.origins.dims(), &[w * h, 3]);
             assert_eq!(rays.directions.dims(), &[w * h, 3]);
             let norms = rays
@@ -201,7 +202,7 @@ mod tests {
     #[test]
     fn central_ray_points_at_the_origin() {
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[7];
-        let (o, d) = ray_through_ndc(&cam, 0.0, 0.0);
+        let (o, d) = ray_through_ndc(&crate::camera::Camera::from(cam), 0.0, 0.0);
         // The camera looks at the origin, so o + 3·d = 0.
         assert!((o + d * 3.0).length() < 1e-12);
     }
@@ -210,7 +211,7 @@ mod tests {
     fn corner_ray_matches_the_focal_length() {
         // In view space the corner ray of a focal-1 camera is (1, 1, 1)/√3.
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[0];
-        let (_, d) = ray_through_ndc(&cam, 1.0, 1.0);
+        let (_, d) = ray_through_ndc(&crate::camera::Camera::from(cam), 1.0, 1.0);
         let view = cam.world_to_view(d) - cam.world_to_view(DVec3::ZERO);
         let expected = DVec3::splat(1.0 / 3f64.sqrt());
         assert!((view - expected).length() < 1e-12);
@@ -220,11 +221,12 @@ mod tests {
     fn pixel_subsets_match_the_full_grid() {
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[2];
         let (w, h) = (9, 6);
-        let all = Rays::for_image(&cam, w, h, &Device::Cpu).unwrap();
+        let all = Rays::for_image(&crate::camera::Camera::from(cam), w, h, &Device::Cpu).unwrap();
         let mut rng = rand::rng();
         let idx = random_pixel_indices(w, h, 10, &mut rng);
         assert_eq!(idx.len(), 10);
-        let sub = Rays::for_pixels(&cam, w, h, &idx, &Device::Cpu).unwrap();
+        let sub =
+            Rays::for_pixels(&crate::camera::Camera::from(cam), w, h, &idx, &Device::Cpu).unwrap();
         let all_d = all.directions.to_vec2::<f32>().unwrap();
         let sub_d = sub.directions.to_vec2::<f32>().unwrap();
         for (k, &i) in idx.iter().enumerate() {
@@ -238,50 +240,18 @@ mod tests {
 }
 
 #[cfg(test)]
-mod camera_model_tests {
+mod camera_kind_tests {
     use super::*;
     use crate::camera::surround_cameras;
-    use crate::camera::Camera;
-    use candle_core::Device;
-
-    /// An orthographic camera looking down −z from z = 5, imaging a 2×2 square: a kind whose
-    /// rays do not share an origin, so it overrides the default ray.
-    #[derive(Debug)]
-    struct Orthographic;
-
-    impl Camera for Orthographic {
-        fn center(&self) -> DVec3 {
-            DVec3::new(0.0, 0.0, 5.0)
-        }
-        fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3 {
-            // +X left in NDC: world x = −x for a camera looking down −z with +y up.
-            DVec3::new(-x, y, 5.0 - depth)
-        }
-        fn validate(&self) -> Result<(), crate::camera_error::CameraError> {
-            Ok(())
-        }
-        fn ray_through_ndc(&self, x: f64, y: f64) -> (DVec3, DVec3) {
-            (self.unproject_ndc(x, y, 0.0), DVec3::new(0.0, 0.0, -1.0))
-        }
-    }
-
-    #[test]
-    fn rays_come_from_any_camera_kind() {
-        let rays = Rays::for_image(&Orthographic, 3, 2, &Device::Cpu).unwrap();
-        let origins = rays.origins.to_vec2::<f32>().unwrap();
-        let directions = rays.directions.to_vec2::<f32>().unwrap();
-        // First pixel: top-left of the image, NDC (+1, +1) → world (−1, 1).
-        assert_eq!(origins[0], [-1.0, 1.0, 5.0]);
-        assert_eq!(origins[5], [1.0, -1.0, 5.0]);
-        assert!(directions.iter().all(|d| *d == [0.0, 0.0, -1.0]));
-    }
 
     #[test]
     fn the_pinhole_kind_is_pytorch3d_unprojection() {
-        let camera = surround_cameras(4.0, 3, DVec3::Y, 1.5)[1];
-        let (o, d) = Camera::ray_through_ndc(&camera, 0.3, -0.6);
+        let pinhole = surround_cameras(4.0, 3, DVec3::Y, 1.5)[1];
+        let camera = Camera::from(pinhole);
+        let (o, d) = camera.ray_through_ndc(0.3, -0.6);
+        assert_eq!((o, d), ray_through_ndc(&camera, 0.3, -0.6));
         assert!((o - camera.center()).length() < 1e-12);
-        let target = camera.unproject_ndc(0.3, -0.6, 1.0);
+        let target = pinhole.unproject_ndc(0.3, -0.6, 1.0);
         assert!((d - (target - o).normalize()).length() < 1e-12);
     }
 }

@@ -162,7 +162,7 @@ pub fn render_ray(
 /// Every pixel of a `width × height` image: `(H·W·3)` colours and `(H·W)` depths, row-major.
 pub fn render_image(
     volume: &SdfVolume,
-    camera: &dyn Camera,
+    camera: &Camera,
     (width, height): (usize, usize),
     sampler: &StratifiedSampler,
 ) -> (Vec<f64>, Vec<f64>) {

@@ -41,7 +41,7 @@ fn model(density_bias: f32) -> Nerf {
 
 fn rays() -> Rays {
     let cam = nerf_core::camera::surround_cameras(4.0, 3, glam::DVec3::Z, 2.0)[1];
-    Rays::for_image(&cam, 9, 7, &Device::Cpu).unwrap()
+    Rays::for_image(&nerf_core::camera::Camera::from(cam), 9, 7, &Device::Cpu).unwrap()
 }
 
 fn render(
@@ -272,7 +272,8 @@ fn marching_keeps_exactly_the_samples_in_occupied_cells() {
         *o = x * x + y * y + z * z < 100.0 && rng.random::<f32>() < 0.3;
     }
     let cam = nerf_core::camera::surround_cameras(4.0, 3, glam::DVec3::Z, 2.0)[1];
-    let rays = Rays::for_image(&cam, 24, 20, &Device::Cpu).unwrap();
+    let rays =
+        Rays::for_image(&nerf_core::camera::Camera::from(cam), 24, 20, &Device::Cpu).unwrap();
     let sampler = StratifiedSampler::new(96, 2.0, 6.0).unwrap();
     let check = |packed: &PackedSamples, _: &[f32], expected: &[u32]| {
         assert!(!expected.is_empty());
@@ -451,7 +452,8 @@ fn marching_a_contracted_grid_keeps_exactly_the_samples_in_occupied_cells() {
     }
     // A camera inside the unit cube, as a normalised capture's.
     let cam = nerf_core::camera::surround_cameras(0.9, 3, glam::DVec3::Z, 0.5)[1];
-    let rays = Rays::for_image(&cam, 16, 12, &Device::Cpu).unwrap();
+    let rays =
+        Rays::for_image(&nerf_core::camera::Camera::from(cam), 16, 12, &Device::Cpu).unwrap();
     let sampler = StratifiedSampler::new(256, 0.02, 100.0).unwrap();
     let check = |packed: &PackedSamples, points: &[f32], expected: &[u32]| {
         // Samples in the shell (far from the unit cube) are among them.

@@ -28,7 +28,13 @@ fn scene() -> (
 fn bands_give_the_whole_image_rays_give() {
     let (field, sampler, renderer, camera) = scene();
     let size = (13, 7);
-    let whole = Rays::for_image(&camera, size.0, size.1, &Device::Cpu).unwrap();
+    let whole = Rays::for_image(
+        &nerf_core::camera::Camera::from(camera),
+        size.0,
+        size.1,
+        &Device::Cpu,
+    )
+    .unwrap();
     let pipeline = Pipeline::new(&field, &sampler, &renderer);
     let reference = pipeline.render(&whole).unwrap().color;
     let reference = reference.flatten_all().unwrap().to_vec1::<f32>().unwrap();
@@ -37,9 +43,15 @@ fn bands_give_the_whole_image_rays_give() {
             band,
             stop: &|| false,
         };
-        let view = render_view_interruptible(&pipeline, &camera, size, &Device::Cpu, never)
-            .unwrap()
-            .unwrap();
+        let view = render_view_interruptible(
+            &pipeline,
+            &nerf_core::camera::Camera::from(camera),
+            size,
+            &Device::Cpu,
+            never,
+        )
+        .unwrap()
+        .unwrap();
         assert_eq!(view.color.data, reference, "band {band}");
         assert_eq!(view.depth.len(), 13 * 7);
     }
@@ -58,8 +70,14 @@ fn stop_is_asked_before_every_band_and_first_before_any_work() {
             true
         },
     };
-    let view =
-        render_view_interruptible(&pipeline, &camera, (4096, 4096), &Device::Cpu, at_once).unwrap();
+    let view = render_view_interruptible(
+        &pipeline,
+        &nerf_core::camera::Camera::from(camera),
+        (4096, 4096),
+        &Device::Cpu,
+        at_once,
+    )
+    .unwrap();
     assert!(view.is_none());
     assert_eq!(asked.get(), 1);
     // Stopped before the third band of 10 rays: asked three times.
@@ -71,8 +89,14 @@ fn stop_is_asked_before_every_band_and_first_before_any_work() {
             asked.get() == 3
         },
     };
-    let view =
-        render_view_interruptible(&pipeline, &camera, (10, 10), &Device::Cpu, third).unwrap();
+    let view = render_view_interruptible(
+        &pipeline,
+        &nerf_core::camera::Camera::from(camera),
+        (10, 10),
+        &Device::Cpu,
+        third,
+    )
+    .unwrap();
     assert!(view.is_none());
     assert_eq!(asked.get(), 3);
 }

@@ -34,7 +34,7 @@ pub fn band_ndc(width: usize, height: usize, pixels: Range<usize>) -> Vec<[f64; 
 /// The rays of pixels `pixels` (row-major indices) of `camera`'s `width × height` image: rows
 /// `pixels` of [`Rays::for_image`], bit for bit.
 pub fn band_rays(
-    camera: &dyn Camera,
+    camera: &Camera,
     (width, height): (usize, usize),
     pixels: Range<usize>,
     device: &Device,
@@ -60,8 +60,15 @@ mod tests {
         }
         assert_eq!(band_ndc(w, h, 0..w * h), pixel_grid_values(w, h));
         let camera = surround_cameras(3.0, 1, DVec3::Y, 1.0)[0];
-        let whole = Rays::for_image(&camera, w, h, &Device::Cpu).unwrap();
-        let part = band_rays(&camera, (w, h), 9..23, &Device::Cpu).unwrap();
+        let whole =
+            Rays::for_image(&nerf_core::camera::Camera::from(camera), w, h, &Device::Cpu).unwrap();
+        let part = band_rays(
+            &nerf_core::camera::Camera::from(camera),
+            (w, h),
+            9..23,
+            &Device::Cpu,
+        )
+        .unwrap();
         let rows = |t: &candle_core::Tensor| t.to_vec2::<f32>().unwrap();
         assert_eq!(
             rows(&part.directions),

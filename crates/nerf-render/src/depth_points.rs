@@ -26,7 +26,7 @@ pub struct ColoredPoints {
 /// rendered about `band` at a time (whole renderer chunks, so the points do not depend on it).
 pub fn depth_points(
     pipeline: &Pipeline,
-    camera: &dyn Camera,
+    camera: &Camera,
     size: (usize, usize),
     min_opacity: f32,
     band: usize,

@@ -262,7 +262,8 @@ mod tests {
     fn lengths_follow_the_rays_dtype_and_jitter() {
         let s = sampler();
         let cam = nerf_core::camera::surround_cameras(0.9, 4, glam::DVec3::Z, 1.0)[0];
-        let rays = Rays::for_image(&cam, 3, 2, &Device::Cpu).unwrap();
+        let rays =
+            Rays::for_image(&nerf_core::camera::Camera::from(cam), 3, 2, &Device::Cpu).unwrap();
         let fixed = s.compact_lengths(&rays, None).unwrap();
         assert_eq!(fixed.dims(), &[1, 40, 1]);
         let dense = RaySampler::lengths(&s, &rays, None).unwrap();

@@ -176,7 +176,13 @@ mod tests {
 
     fn rays(n_w: usize, n_h: usize) -> Rays {
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[1];
-        Rays::for_image(&cam, n_w, n_h, &Device::Cpu).unwrap()
+        Rays::for_image(
+            &nerf_core::camera::Camera::from(cam),
+            n_w,
+            n_h,
+            &Device::Cpu,
+        )
+        .unwrap()
     }
 
     #[test]

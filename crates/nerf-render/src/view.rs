@@ -101,7 +101,7 @@ pub struct Interrupt<'a> {
 /// needed): colour `(H·W·3)` and depth `(H·W)`, row-major.
 pub fn render_view(
     pipeline: &Pipeline,
-    camera: &dyn Camera,
+    camera: &Camera,
     size: (usize, usize),
     device: &Device,
 ) -> Result<RenderedView> {
@@ -122,7 +122,7 @@ pub fn render_view(
 /// is rendered alone, so the image does not depend on the band size.
 pub fn render_view_interruptible(
     pipeline: &Pipeline,
-    camera: &dyn Camera,
+    camera: &Camera,
     (width, height): (usize, usize),
     device: &Device,
     interrupt: Interrupt,

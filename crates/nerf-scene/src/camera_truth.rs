@@ -1,5 +1,5 @@
 //! True cameras of benchmark captures, to measure what structure from motion recovered
-//! ([`nerf_core::camera_alignment`]): each as an image stem, a camera → world rotation in
+//! ([`nerf_core::camera::alignment`]): each as an image stem, a camera → world rotation in
 //! OpenGL camera axes (+x right, +y up, +z backward: nerfstudio's `transform_matrix`) and a
 //! centre. Three formats:
 //!

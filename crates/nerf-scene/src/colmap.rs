@@ -83,7 +83,7 @@ pub(crate) fn camera_model_by_id(id: i32) -> Option<&'static CameraModelInfo> {
 
 /// One camera as COLMAP's `cameras.txt` or `cameras.bin` records it (a set of intrinsics several
 /// images may share); the camera model it describes is
-/// [`nerf_core::camera_colmap::ColmapCamera`].
+/// [`nerf_core::camera::ColmapCamera`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct ColmapCameraRecord {
     /// The camera's id, which images refer to.

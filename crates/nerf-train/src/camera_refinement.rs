@@ -30,7 +30,6 @@ use candle_core::backprop::GradStore;
 use candle_core::{DType, Device, Tensor, Var};
 
 use crate::sparse_adam::SparseAdam;
-use nerf_core::camera::Camera;
 use nerf_core::rays::Rays;
 use nerf_kernels::sparse_adam::nonzero_rows;
 use nerf_scene::dataset::Frame;
@@ -570,23 +569,18 @@ mod tests {
         // The whole chain: corrections → rays → packed points (tensor ops) → contraction →
         // hash encoding (its point gradient, fused) → MLPs → compositing.
         use nerf_core::contraction::Contraction;
-        use nerf_field::ngp::{DensityActivation, NgpField, NgpParams, NgpState, TABLE};
+        use nerf_field::ngp::{NgpField, NgpParams, NgpState, TABLE};
         use nerf_render::occupancy::{OccupancyGrid, OccupancyGridParams};
         use nerf_render::occupied_field::OccupiedField;
         use nerf_render::renderer::VolumeRenderer;
         use nerf_render::sampler::StratifiedSampler;
         let dev = Device::Cpu;
         let params = NgpParams {
-            n_levels: 4,
-            n_features_per_level: 2,
             log2_hashmap_size: 10,
-            base_resolution: 4.0,
             max_resolution: Some(24.0),
             aabb: [[-2.0; 3], [2.0; 3]],
-            density_activation: DensityActivation::TruncExp,
             contraction: Contraction::LInf,
-            appearance_dim: 0,
-            appearance_images: 0,
+            ..nerf_field::ngp::small_test_params()
         };
         let state = NgpState::seeded(&params, 3, &dev).unwrap();
         let table = state.varmap.data().lock().unwrap()[TABLE].clone();
@@ -613,7 +607,7 @@ mod tests {
         assert!(renderer.skips_samples(&field));
         let sampler = StratifiedSampler::new(40, 0.05, 4.0).unwrap();
         let camera = nerf_core::camera::surround_cameras(1.2, 3, DVec3::Z, 2.0)[1];
-        let rays = Rays::for_image(&camera, 5, 4, &dev).unwrap();
+        let rays = Rays::for_image(&nerf_core::camera::Camera::from(camera), 5, 4, &dev).unwrap();
         let cameras = vec![0u32; rays.len()];
         let weights: Vec<f32> = (0..rays.len() * 3)
             .map(|i| (i as f32 * 1.3).cos())

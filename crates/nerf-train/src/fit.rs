@@ -695,7 +695,6 @@ pub fn fit(
             grid.keep_far_shell();
         }
         if schedule.camera_clearance > 0.0 {
-            use nerf_core::camera::Camera;
             let centres: Vec<[f64; 3]> = (dataset.frames.iter())
                 .map(|f| f.camera.center().to_array())
                 .collect();

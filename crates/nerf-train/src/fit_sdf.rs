@@ -68,7 +68,7 @@ pub struct SdfFitReport {
 /// The rays of `pixels` of `view` and their target colours `(B, 3)`.
 fn batch(view: &SdfView, pixels: &[usize], device: &Device) -> Result<(Rays, Tensor)> {
     let (w, h) = (view.image.width, view.image.height);
-    let rays = Rays::for_pixels(&view.camera, w, h, pixels, device)?;
+    let rays = Rays::for_pixels(&view.camera.into(), w, h, pixels, device)?;
     let data = &view.image.data;
     let target: Vec<f32> = pixels
         .iter()

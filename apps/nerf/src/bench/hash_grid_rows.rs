@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use crate::bench::row::{mean_psnr_of_views, BenchResult, LegoBench, Throughput};
 use crate::timing::fastest;
 use nerf::config::Config;
-use nerf::core::frame_camera::FrameCamera;
+use nerf::core::camera::Camera;
 use nerf::field::ngp::NgpParams;
 use nerf::field::ngp::{GEO_FEATURES, HIDDEN, SH_DIM};
 use nerf::io::dataset::{Dataset, Split};
@@ -446,7 +446,7 @@ pub fn bench_ngp_render_400(
                 .surround_cameras()
                 .into_iter()
                 .take(views)
-                .map(FrameCamera::from)
+                .map(Camera::from)
                 .collect(),
             None,
             "surround views",

@@ -154,7 +154,7 @@ pub fn bench_train_box(repeats: usize, device: &Device) -> Result<BenchResult> {
         .iter()
         .map(|(_, camera, _)| {
             let pipeline = Pipeline::new(&field, &*sampler, &renderer);
-            let image = render_view(&pipeline, camera, (w, h), device)?.color;
+            let image = render_view(&pipeline, &nerf::Camera::from(*camera), (w, h), device)?.color;
             Ok(SdfView {
                 camera: *camera,
                 image,
@@ -257,7 +257,7 @@ fn base_rows(
     let cam = config.surround_cameras()[0];
     let (colors, depths) = nerf::eval::reference::render_image(
         &volume,
-        &cam,
+        &nerf::Camera::from(cam),
         config.image_size(),
         &config.stratified_sampler()?,
     );
@@ -321,7 +321,8 @@ pub fn bench_nerf(
     let mut adam = Optimizer::new(&state, lr)?;
     let (step_runs, ()) = time_runs(repeats, || {
         let pixels = nerf::core::rays::random_pixel_indices(w, h, batch_size, &mut rng);
-        let rays = nerf::core::rays::Rays::for_pixels(&camera, w, h, &pixels, device)?;
+        let rays =
+            nerf::core::rays::Rays::for_pixels(&nerf::Camera::from(camera), w, h, &pixels, device)?;
         let target = candle_core::Tensor::full(0.5f32, (pixels.len(), 3), device)?;
         let field = state.training_field(0.0);
         let out = renderer.render(&*field, sampler.as_ref(), &rays, Some(&mut rng))?;
@@ -333,7 +334,7 @@ pub fn bench_nerf(
         let field = state.render_field();
         render_view(
             &Pipeline::new(&*field, &*sampler, &renderer),
-            &camera,
+            &nerf::Camera::from(camera),
             (w, h),
             device,
         )
@@ -476,7 +477,12 @@ fn render_run(
     let mut runs = Vec::with_capacity(n);
     for cam in cameras {
         let t = Instant::now();
-        frames.push(render_view(&render.with(field), cam, (w, h), device)?);
+        frames.push(render_view(
+            &render.with(field),
+            &nerf::Camera::from(*cam),
+            (w, h),
+            device,
+        )?);
         runs.push(t.elapsed().as_secs_f64());
     }
     Ok(RenderRun {

@@ -13,7 +13,7 @@ use candle_core::{Device, Tensor};
 use crate::render::scene::{load_scene_field, write_all, SceneField, WorkChunks};
 use crate::render::scene_frame::{note_scene_frame, stored_transform};
 use nerf::config::{limits, Config, OccupancyGridConfig, SizeUse};
-use nerf::core::frame_camera::FrameCamera;
+use nerf::core::camera::Camera;
 use nerf::core::marching_cubes::{marching_cubes, TriMesh, VolumeGrid};
 use nerf::core::sdf::{sdf_at_density, Sdf, SdfVolume};
 use nerf::io::dataset::{read_split_with, Split};
@@ -250,8 +250,8 @@ fn export_cameras(
     checkpoint: Option<&Path>,
     scene: &SceneField,
     views: &ViewSelection,
-) -> Result<Vec<(String, FrameCamera)>> {
-    let mut cameras: Vec<(String, FrameCamera)> = match scene {
+) -> Result<Vec<(String, Camera)>> {
+    let mut cameras: Vec<(String, Camera)> = match scene {
         SceneField::Nerf(_) => nerf_views(config, checkpoint, views)?
             .into_iter()
             .map(|f| {

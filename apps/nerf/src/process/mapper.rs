@@ -1,6 +1,6 @@
 //! The mapping stage of `nerf process`: COLMAP's incremental mapper run once (COLMAP 4
 //! through pycolmap) or several times (the COLMAP program) with different `--random_seed`s, the run the others agree with best kept as `colmap/sparse`
-//! ([`nerf::core::camera_consensus`]), the images the other runs place elsewhere named so
+//! ([`nerf::core::camera::consensus`]), the images the other runs place elsewhere named so
 //! that `transforms.json` can leave them out, and the kept model refined: observations further
 //! than [`MappingOptions::max_reprojection_error`] from their point's projection dropped
 //! (`colmap point_filtering`), then one more global bundle adjustment (`colmap
@@ -24,9 +24,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 
 use crate::process::colmap_run::{last_line, run_stage, Colmap};
-use nerf::core::camera_alignment::{align_centres, CameraPair};
-use nerf::core::camera_colmap::ColmapPose;
-use nerf::core::camera_consensus::{consensus, spread, Centres};
+use nerf::core::camera::alignment::{align_centres, CameraPair};
+use nerf::core::camera::consensus::{consensus, spread, Centres};
+use nerf::core::camera::ColmapPose;
 
 /// A run that registered at least this fraction of the most any run registered is compared
 /// with the others; fewer, and it is not a candidate.
@@ -321,7 +321,7 @@ fn settled(centres: &[Centres], best: usize) -> bool {
         .collect();
     comparable.iter().enumerate().any(|(i, a)| {
         comparable[i + 1..].iter().any(|b| {
-            nerf::core::camera_consensus::disagreement(a, b)
+            nerf::core::camera::consensus::disagreement(a, b)
                 .is_some_and(|d| d.iter().all(|e| e.1 <= SETTLED_FRACTION))
         })
     })
@@ -372,7 +372,7 @@ fn final_adjustment<'a>(sfm: &Colmap, lens: &'a Path) -> Vec<&'a OsStr> {
 /// How far the cameras of the model in `richer` stand from those of the model in `plain`:
 /// the largest turn (degrees) and the largest move (a fraction of `plain`'s camera spread)
 /// after the least-squares similarity of their centres
-/// ([`nerf::core::camera_alignment::align_centres`]). `None` when the two do not register
+/// ([`nerf::core::camera::alignment::align_centres`]). `None` when the two do not register
 /// the same images.
 fn lens_change(plain: &Path, richer: &Path) -> Result<Option<(f64, f64)>> {
     let (plain, richer) = (poses_in(plain)?, poses_in(richer)?);

@@ -33,7 +33,7 @@ use crate::process::inputs::{
     check_names, check_photos_decode, copy_images, list_images, mark_finished, start_run,
 };
 use crate::process::mapper::{MapperRun, MappingOptions};
-use nerf::core::camera_colmap::ColmapPose;
+use nerf::core::camera::ColmapPose;
 use nerf::core::lens::{ColmapCameraModel, Fisheye, LensDistortion, RadialTangential};
 use nerf::io::colmap::{ColmapCameraRecord, ColmapModel};
 

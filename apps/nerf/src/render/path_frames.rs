@@ -97,7 +97,12 @@ pub fn render_camera_path(
     let mut frames = Vec::new();
     let mut written = Vec::new();
     for (i, camera) in camera_path.cameras.iter().enumerate() {
-        let view = render_view(&render.with(scene.as_field()), camera, size, device)?;
+        let view = render_view(
+            &render.with(scene.as_field()),
+            &nerf::Camera::from(*camera),
+            size,
+            device,
+        )?;
         let png = out_dir.join(format!("frame_{i:04}.png"));
         write_png(&png, &view.color)?;
         written.push(png);

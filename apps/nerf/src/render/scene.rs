@@ -103,8 +103,14 @@ pub fn render_views_in_bands(
                 band,
                 stop: &|| false,
             };
-            let f = render_view_interruptible(pipeline, cam, size, device, never)?
-                .context("a render nobody stops was stopped");
+            let f = render_view_interruptible(
+                pipeline,
+                &nerf::Camera::from(*cam),
+                size,
+                device,
+                never,
+            )?
+            .context("a render nobody stops was stopped");
             bar.inc(1);
             f
         })
@@ -139,7 +145,12 @@ pub fn ray_image(
 ) -> Result<RgbImage> {
     let mut data = Vec::with_capacity(3 * width * height);
     for pixels in pixel_bands(width * height, band) {
-        let rays = band_rays(camera, (width, height), pixels, device)?;
+        let rays = band_rays(
+            &nerf::Camera::from(*camera),
+            (width, height),
+            pixels,
+            device,
+        )?;
         data.extend(rays.directions.abs()?.flatten_all()?.to_vec1::<f32>()?);
     }
     RgbImage::new(width, height, data)
@@ -160,7 +171,12 @@ pub fn point_image(
     // The points every sampler starts from.
     let band = (max_points / sampler.drawn_per_ray()).max(1);
     for pixels in pixel_bands(width * height, band) {
-        let rays = band_rays(camera, (width, height), pixels, device)?;
+        let rays = band_rays(
+            &nerf::Camera::from(*camera),
+            (width, height),
+            pixels,
+            device,
+        )?;
         let lengths = sampler.lengths(&rays, None)?;
         let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
         splatter.add(&points.flatten_all()?.to_vec1::<f32>()?);

@@ -82,7 +82,12 @@ pub(super) fn timed_frames(
     let mut total = 0.0;
     for camera in cameras {
         let (runs, frame) = time_runs(repeats, || {
-            render_view(&render.with(field), camera, config.image_size(), device)
+            render_view(
+                &render.with(field),
+                &nerf::Camera::from(*camera),
+                config.image_size(),
+                device,
+            )
         })?;
         frames.push(frame);
         total += fastest(&runs);
@@ -136,7 +141,7 @@ pub fn analytic_image(
 ) -> AnalyticImage {
     let mut image = AnalyticImage::default();
     for [x, y] in nerf::core::rays::pixel_grid_values(width, height) {
-        let (o, d) = nerf::core::rays::ray_through_ndc(camera, x, y);
+        let (o, d) = nerf::core::rays::ray_through_ndc(&nerf::Camera::from(*camera), x, y);
         match nerf::eval::reference::analytic_hit(&volume.sdf, o, d) {
             Some(t) => {
                 image

@@ -96,7 +96,7 @@ impl Worker {
         };
         let view = render_view_interruptible(
             &self.render.with(self.scene.as_field()),
-            &r.camera,
+            &nerf::Camera::from(r.camera),
             (r.width, r.height),
             &self.device,
             interrupt,

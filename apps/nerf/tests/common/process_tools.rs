@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use glam::{DMat3, DVec3};
-use nerf::core::camera_alignment::{align_by_orientations, CameraPair};
+use nerf::core::camera::alignment::{align_by_orientations, CameraPair};
 
 /// `nerf process --images IMAGES --out OUT`, with `colmap` (when given) as `NERF_COLMAP`.
 pub fn process(images: &Path, out: &Path, colmap: Option<&Path>) -> Output {

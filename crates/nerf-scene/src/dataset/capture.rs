@@ -25,7 +25,7 @@ use super::scene_format::FormatRead;
 pub use super::scene_format::SceneFormat;
 use super::split::Split;
 use super::transforms::Frame;
-use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
+use nerf_core::camera::{ColmapCamera, ColmapPose};
 
 /// Every this-many-th frame (by sorted image name, from 0) is held out for evaluation.
 pub(crate) const HOLDOUT_EVERY: usize = 8;
@@ -153,7 +153,7 @@ fn check_link_stays_inside(dir: &Path, file: &Path) -> Result<()> {
 
 /// An error unless the scene normalisation `stored` in a checkpoint puts the capture's cameras
 /// (`poses`, in the capture's own frame) within
-/// [`MAX_NORMALISED_DISTANCE`](nerf_core::camera_checks::MAX_NORMALISED_DISTANCE) of the
+/// [`MAX_NORMALISED_DISTANCE`](nerf_core::camera::checks::MAX_NORMALISED_DISTANCE) of the
 /// centre, as the frame it was trained in put its cameras within 1: an overflowing stored
 /// transform would otherwise train and score on nothing.
 fn check_stored_frame(dir: &Path, stored: &SceneTransform, poses: &[ColmapPose]) -> Result<()> {
@@ -164,7 +164,7 @@ fn check_stored_frame(dir: &Path, stored: &SceneTransform, poses: &[ColmapPose])
             0.0,
             |a: f64, d| if d.is_nan() { f64::INFINITY } else { a.max(d) },
         );
-    let limit = nerf_core::camera_checks::MAX_NORMALISED_DISTANCE;
+    let limit = nerf_core::camera::checks::MAX_NORMALISED_DISTANCE;
     if farthest > limit {
         bail!(
             "{}: the scene normalisation stored in the checkpoint (metadata scene_transform) \

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use super::split::Split;
-use nerf_core::camera_colmap::ColmapCamera;
+use nerf_core::camera::ColmapCamera;
 
 /// One photograph of a capture and its camera, in the capture's own world frame.
 #[derive(Debug, Clone, PartialEq)]

@@ -11,7 +11,7 @@ use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
 use super::dataset_error::DatasetError;
 use super::scene_format::{FormatRead, SceneFormat};
 use crate::colmap::{find_model, find_model_folder};
-use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
+use nerf_core::camera::{ColmapCamera, ColmapPose};
 use nerf_core::term::error_line;
 
 /// A COLMAP capture: a folder with a sparse model (`sparse/0/`, `sparse/`, or the model's
@@ -28,7 +28,7 @@ pub const COLMAP: SceneFormat = SceneFormat {
 /// Every registered image of the capture in `dir`, with its camera. A model that does not
 /// read is a [`DatasetError::Metadata`], a missing `images/` a [`DatasetError::MissingFile`]
 /// (inside the `anyhow::Error`); a camera's error keeps its
-/// [`nerf_core::camera_error::CameraError`] in the chain.
+/// [`nerf_core::camera::CameraError`] in the chain.
 pub(crate) fn read_frames(dir: &Path) -> Result<CaptureFrames> {
     let (model_dir, model) =
         find_model(dir).map_err(|e| DatasetError::metadata(dir, error_line(e.as_ref())))?;

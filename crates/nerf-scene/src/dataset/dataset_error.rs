@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use nerf_core::camera_error::CameraError;
+use nerf_core::camera::CameraError;
 use nerf_core::error_chain;
 use nerf_core::term::error_line;
 use nerf_files::bounded_read::read_regular_file;

@@ -15,7 +15,7 @@ use super::capture_frame::{mask_in_folder, CaptureFrame, CaptureFrames};
 use super::camera_source::{choose_cameras, CamerasFrom};
 use super::scene_format::{FormatRead, SceneFormat};
 use super::dataset_error::{metadata_unless_camera, read_dataset_file, DatasetError};
-use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
+use nerf_core::camera::{ColmapCamera, ColmapPose};
 use nerf_files::npy::{parse_npy_header, MAX_HEADER_BYTES};
 
 /// An LLFF capture: a folder with `poses_bounds.npy`, whose cameras come from the COLMAP
@@ -33,7 +33,7 @@ pub const LLFF: SceneFormat = SceneFormat {
 pub(crate) const MAX_LLFF_FRAMES: u64 = 100_000;
 
 /// The frames of the LLFF capture in `dir`. A frame's camera error keeps its
-/// [`nerf_core::camera_error::CameraError`] in the chain; a missing `images/` is a
+/// [`nerf_core::camera::CameraError`] in the chain; a missing `images/` is a
 /// [`DatasetError::MissingFile`], anything else wrong with `poses_bounds.npy` a
 /// [`DatasetError::Metadata`] (inside the `anyhow::Error`).
 pub(crate) fn read_frames(dir: &Path) -> Result<CaptureFrames> {
@@ -190,7 +190,6 @@ fn read_folder(dir: &Path) -> Result<FormatRead> {
 mod tests {
     use super::*;
     use glam::DVec3;
-    use nerf_core::camera::Camera;
 
     #[test]
     fn an_llff_row_becomes_the_camera_it_describes() {
@@ -207,7 +206,7 @@ mod tests {
         }
         let camera = camera_of_row(&row).unwrap();
         assert_eq!(camera.size, (640, 480));
-        assert!((camera.center() - DVec3::new(1.0, 2.0, 3.0)).length() < 1e-12);
+        assert!((camera.pose.center() - DVec3::new(1.0, 2.0, 3.0)).length() < 1e-12);
         // The image centre looks along −z; the top of the image is +y.
         let (_, d) = camera.ray_through_pixel(320.0, 240.0);
         assert!((d - DVec3::NEG_Z).length() < 1e-12);

@@ -65,8 +65,8 @@ use anyhow::Result;
 use rayon::prelude::*;
 
 use frame_mask::load_mask;
-use nerf_core::camera_checks::check_photo_size;
-use nerf_core::frame_camera::FrameCamera;
+use nerf_core::camera::checks::check_photo_size;
+use nerf_core::camera::Camera;
 use nerf_core::image::RgbImage;
 
 pub use capture::{
@@ -332,7 +332,7 @@ fn check_sizes_agree(frames: &[Frame], loaded: &[LoadedImage]) -> Result<()> {
         return Ok(());
     };
     for (frame, image) in frames.iter().zip(loaded) {
-        if let FrameCamera::Colmap(camera) = &frame.camera {
+        if let Camera::Colmap(camera) = &frame.camera {
             check_photo_size(camera.size, image.source_size).map_err(|camera| {
                 let message = format!("{}: {camera}", frame.file_path.display());
                 DatasetError::Camera { camera, message }

@@ -21,7 +21,7 @@ use super::dataset_error::{metadata_unless_camera, read_dataset_file};
 use super::ngp_scene::NgpSceneKeys;
 use super::split::Split;
 use super::transforms_intrinsics::Intrinsics;
-use nerf_core::camera_colmap::ColmapCamera;
+use nerf_core::camera::ColmapCamera;
 
 /// A nerfstudio or instant-ngp capture: a folder with `transforms.json`.
 pub const NERFSTUDIO: SceneFormat = SceneFormat {
@@ -65,7 +65,7 @@ pub(crate) fn read_frames(dir: &Path) -> Result<CaptureFrames> {
 }
 
 /// [`read_frames`] of the file's `bytes` (read from `path`, in `dir`). A frame's camera error
-/// keeps its [`nerf_core::camera_error::CameraError`] in the chain; every other error is a
+/// keeps its [`nerf_core::camera::CameraError`] in the chain; every other error is a
 /// [`super::DatasetError::Metadata`] (inside the `anyhow::Error`).
 pub(crate) fn parse(bytes: &[u8], dir: &Path, path: &Path) -> Result<CaptureFrames> {
     parse_frames(bytes, dir, path).map_err(|e| metadata_unless_camera(path, e))

@@ -82,7 +82,7 @@ mod tests {
     use super::*;
     use crate::dataset::normalize::SceneTransform;
     use glam::{DMat3, DVec3};
-    use nerf_core::camera_colmap::ColmapPose;
+    use nerf_core::camera::ColmapPose;
 
     /// A camera at `eye` looking at `at`, its up near +y (OpenCV axes: +y down, +z forward).
     fn looking_at(eye: DVec3, at: DVec3) -> ColmapPose {

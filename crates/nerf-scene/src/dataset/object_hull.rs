@@ -14,7 +14,7 @@
 use glam::DVec3;
 
 use super::Dataset;
-use nerf_core::frame_camera::FrameCamera;
+use nerf_core::camera::Camera;
 
 /// Voxels along each side of the cube that is carved.
 pub(crate) const HULL_RESOLUTION: usize = 64;
@@ -109,8 +109,8 @@ pub(crate) fn silhouette_hull(dataset: &Dataset) -> Option<HullBox> {
         .frames
         .iter()
         .map(|f| match &f.camera {
-            FrameCamera::Colmap(c) => Some(c),
-            FrameCamera::Pinhole(_) => None,
+            Camera::Colmap(c) => Some(c),
+            _ => None,
         })
         .collect::<Option<_>>()?;
     let n = HULL_RESOLUTION;
@@ -177,7 +177,6 @@ pub(crate) fn hull_depths(hull: &HullBox, centres: &[DVec3]) -> Option<(f64, f64
 /// max_depth)` narrowed to those at which the cameras can meet the hull (`hull_depths`).
 /// `None` when the photos do not outline an object.
 pub fn object_fit(dataset: &Dataset, (min_depth, max_depth): (f64, f64)) -> Option<ObjectFit> {
-    use nerf_core::camera::Camera as _;
     let hull = silhouette_hull(dataset)?;
     let centres: Vec<DVec3> = dataset.frames.iter().map(|f| f.camera.center()).collect();
     let depths = hull_depths(&hull, &centres).and_then(|(near, far)| {
@@ -199,7 +198,7 @@ mod tests {
         object_fit(dataset, range)?.depths
     }
     use crate::dataset::Frame;
-    use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
+    use nerf_core::camera::{ColmapCamera, ColmapPose};
     use nerf_core::image::RgbImage;
     use nerf_core::lens::ColmapCameraModel;
 

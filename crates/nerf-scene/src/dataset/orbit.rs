@@ -10,10 +10,8 @@ use anyhow::{bail, ensure, Result};
 use glam::DVec3;
 
 use crate::dataset::Frame;
-use nerf_core::camera::Camera;
+use nerf_core::camera::checks::{check_ndc_focal, check_normalised_distance};
 use nerf_core::camera::{look_at_view_transform, PerspectiveCamera};
-use nerf_core::camera_checks::{check_ndc_focal, check_normalised_distance};
-use nerf_core::frame_camera::FrameCamera;
 use nerf_core::term::short_number;
 
 /// A circle of views around the z axis, looking at the origin.
@@ -32,13 +30,7 @@ pub struct CaptureOrbit {
 pub(crate) fn mean_ndc_focal(frames: &[Frame]) -> [f64; 2] {
     let n = frames.len() as f64;
     frames.iter().fold([0.0; 2], |sum, f| {
-        let f = match &f.camera {
-            FrameCamera::Pinhole(c) => c.focal,
-            FrameCamera::Colmap(c) => [
-                c.focal[0] / (0.5 * c.size.0 as f64),
-                c.focal[1] / (0.5 * c.size.1 as f64),
-            ],
-        };
+        let f = f.camera.ndc_focal();
         [sum[0] + f[0] / n, sum[1] + f[1] / n]
     })
 }
@@ -75,7 +67,7 @@ impl CaptureOrbit {
     }
 
     /// Checks the values are finite, the radius positive, radius and height within
-    /// [`MAX_NORMALISED_DISTANCE`](nerf_core::camera_checks::MAX_NORMALISED_DISTANCE) and
+    /// [`MAX_NORMALISED_DISTANCE`](nerf_core::camera::checks::MAX_NORMALISED_DISTANCE) and
     /// the focal lengths a lens's ([`check_ndc_focal`]): the rules a capture's own cameras
     /// follow, so that a checkpoint's stored orbit cannot render black frames.
     pub(crate) fn validate(&self) -> Result<()> {
@@ -157,7 +149,8 @@ pub(crate) fn number_list(text: &str) -> Result<Vec<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
+    use nerf_core::camera::Camera;
+    use nerf_core::camera::{ColmapCamera, ColmapPose};
     use nerf_core::lens::LensDistortion;
 
     /// A capture camera at `centre` looking at the origin, `focal` px for a `size` image.
@@ -206,13 +199,13 @@ mod tests {
                 "{i}"
             );
             // The centre pixel's ray passes through the origin.
-            let (o, d) = cam.ray_through_ndc(0.0, 0.0);
+            let (o, d) = Camera::from(*cam).ray_through_ndc(0.0, 0.0);
             assert!(o.cross(d).length() < 1e-9, "{i}: {o} {d}");
             assert!(d.dot(-o) > 0.0);
             assert_eq!(cam.focal, orbit.focal);
         }
         // The pixel grid's top row sees above the origin (+z up on screen).
-        let (o, d) = cameras[0].ray_through_ndc(0.0, 0.9);
+        let (o, d) = Camera::from(cameras[0]).ray_through_ndc(0.0, 0.9);
         let at = o + d * (o.length() / d.dot(-o.normalize()));
         assert!(at.z > 0.0, "{at}");
     }

@@ -14,7 +14,7 @@ use anyhow::Result;
 
 use super::capture_frame::CaptureFrame;
 use super::dataset_error::DatasetError;
-use nerf_core::camera_checks::check_photo_size;
+use nerf_core::camera::checks::check_photo_size;
 use nerf_core::term::short_number;
 
 /// Rescales every frame's camera to its photo's size on disk (a photo that cannot be read
@@ -93,7 +93,7 @@ fn photo_dimensions(path: &Path) -> Option<(u32, u32)> {
 mod tests {
     use super::*;
     use glam::DMat3;
-    use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
+    use nerf_core::camera::{ColmapCamera, ColmapPose};
 
     fn frame(dir: &Path, name: &str, photo: (u32, u32), camera: (usize, usize)) -> CaptureFrame {
         let file_path = dir.join(name);

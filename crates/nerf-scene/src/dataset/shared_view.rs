@@ -15,7 +15,7 @@
 
 use glam::DVec3;
 
-use nerf_core::camera_colmap::ColmapCamera;
+use nerf_core::camera::ColmapCamera;
 
 /// Rays per image side.
 const GRID: usize = 5;
@@ -97,8 +97,8 @@ pub fn check_capture_shares_a_view(
     let cameras: Vec<ColmapCamera> = frames
         .iter()
         .filter_map(|f| match &f.camera {
-            nerf_core::frame_camera::FrameCamera::Colmap(c) => Some(c.clone()),
-            nerf_core::frame_camera::FrameCamera::Pinhole(_) => None,
+            nerf_core::camera::Camera::Colmap(c) => Some(c.clone()),
+            _ => None,
         })
         .collect();
     if cameras.len() < frames.len() {
@@ -125,7 +125,7 @@ fn images_inside(camera: &ColmapCamera, point: DVec3) -> bool {
 mod tests {
     use super::*;
     use glam::DMat3;
-    use nerf_core::camera_colmap::ColmapPose;
+    use nerf_core::camera::ColmapPose;
     use std::path::Path;
 
     /// A 640×480 pinhole of about 60° across at `eye` looking along `forward`, up `up`.
@@ -207,7 +207,7 @@ mod tests {
                 .frames
                 .iter()
                 .filter_map(|f| match &f.camera {
-                    nerf_core::frame_camera::FrameCamera::Colmap(c) => Some(c.clone()),
+                    nerf_core::camera::Camera::Colmap(c) => Some(c.clone()),
                     _ => None,
                 })
                 .collect();

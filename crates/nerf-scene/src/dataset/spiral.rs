@@ -15,10 +15,8 @@ use glam::DVec3;
 use super::normalize::focus_of_axes;
 use super::orbit::mean_ndc_focal;
 use crate::dataset::Frame;
-use nerf_core::camera::Camera;
+use nerf_core::camera::checks::{check_ndc_focal, check_normalised_distance};
 use nerf_core::camera::{look_at_view_transform, PerspectiveCamera};
-use nerf_core::camera_checks::{check_ndc_focal, check_normalised_distance};
-use nerf_core::frame_camera::FrameCamera;
 use nerf_core::term::short_number;
 
 /// A capture is forward-facing when every camera's viewing direction lies within this many
@@ -43,23 +41,6 @@ pub(crate) const SPIRAL_TURNS: f64 = 2.0;
 /// rig's centre, so this is the rig's own size. [`CaptureSpiral::min_focus_distance`] may
 /// raise it.
 pub(crate) const FALLBACK_FOCUS_DISTANCE: f64 = 1.0;
-
-/// Unit viewing direction and unit image-up direction of `camera`, in world space.
-pub(crate) fn viewing_axes(camera: &FrameCamera) -> (DVec3, DVec3) {
-    match camera {
-        // OpenCV axes: x right, y down, z forward; the rows of the world → camera rotation.
-        FrameCamera::Colmap(c) => (
-            c.pose.rotation.row(2).normalize(),
-            -c.pose.rotation.row(1).normalize(),
-        ),
-        // pytorch3d: X_view = X_world · R, so R's columns are the view axes (x left, y up,
-        // z forward) in world space.
-        FrameCamera::Pinhole(c) => {
-            let column = |j: usize| DVec3::new(c.r[0][j], c.r[1][j], c.r[2][j]);
-            (column(2).normalize(), column(1).normalize())
-        }
-    }
-}
 
 /// The normalised mean of the unit vectors along `directions`; `None` for none, or when they
 /// cancel out (cameras looking opposite ways).
@@ -120,7 +101,7 @@ impl CaptureSpiral {
         let axes: Vec<(DVec3, DVec3, DVec3)> = frames
             .iter()
             .map(|f| {
-                let (forward, up) = viewing_axes(&f.camera);
+                let (forward, up) = f.camera.viewing_axes();
                 (f.camera.center(), forward, up)
             })
             .collect();
@@ -302,7 +283,8 @@ fn short_vector(v: DVec3) -> String {
 mod tests {
     use super::*;
     use glam::DMat3;
-    use nerf_core::camera_colmap::{ColmapCamera, ColmapPose};
+    use nerf_core::camera::Camera;
+    use nerf_core::camera::{ColmapCamera, ColmapPose};
     use nerf_core::lens::LensDistortion;
 
     /// A capture frame: a 200×100 pinhole of focal 150 px at `eye`, looking along `forward`
@@ -360,7 +342,7 @@ mod tests {
     }
 
     fn forwards(frames: &[Frame]) -> Vec<DVec3> {
-        frames.iter().map(|f| viewing_axes(&f.camera).0).collect()
+        frames.iter().map(|f| f.camera.viewing_axes().0).collect()
     }
 
     #[test]
@@ -423,13 +405,13 @@ mod tests {
                 reached[k] = reached[k].max(along);
             }
             // The centre pixel's ray goes through the focus point, ahead of the view.
-            let (o, d) = cam.ray_through_ndc(0.0, 0.0);
+            let (o, d) = Camera::from(*cam).ray_through_ndc(0.0, 0.0);
             let to_focus = spiral.focus() - o;
             assert!(to_focus.cross(d).length() < 1e-9 * to_focus.length(), "{i}");
             assert!(to_focus.dot(d) > 0.0, "{i}");
             assert!(d.normalize().dot(forward) >= cos_cone, "{i}: {d}");
             // The top of the picture is the spiral's up.
-            let (_, top) = cam.ray_through_ndc(0.0, 0.5);
+            let (_, top) = Camera::from(*cam).ray_through_ndc(0.0, 0.5);
             assert!((top - d).dot(up) > 0.0, "{i}");
             assert_eq!(cam.focal, spiral.focal);
         }
@@ -442,7 +424,7 @@ mod tests {
         }
         // The focus is in front of every training camera, within its field of view's cone.
         for f in &frames {
-            let (cam_forward, _) = viewing_axes(&f.camera);
+            let (cam_forward, _) = f.camera.viewing_axes();
             assert!((spiral.focus() - f.camera.center()).dot(cam_forward) > 0.0);
         }
         // The mean field of view: 150 px over half of 200 across and of 100 down.
@@ -483,7 +465,7 @@ mod tests {
         assert_eq!(spiral.focus_distance, floor);
         let cos_cone = FORWARD_FACING_MAX_ANGLE_DEG.to_radians().cos();
         for cam in spiral.cameras(24) {
-            let (_, d) = cam.ray_through_ndc(0.0, 0.0);
+            let (_, d) = Camera::from(cam).ray_through_ndc(0.0, 0.0);
             assert!(d.normalize().dot(spiral.forward) >= cos_cone - 1e-12);
         }
     }

@@ -11,8 +11,8 @@ use super::scene_format::SceneFormat;
 pub use super::split::Split;
 use super::{DatasetError, DOWNLOAD_HINT};
 use nerf_core::camera::PerspectiveCamera;
-use nerf_core::camera_error::CameraError;
-use nerf_core::frame_camera::FrameCamera;
+use nerf_core::camera::CameraError;
+use nerf_core::camera::Camera;
 use nerf_files::bounded_read::read_regular_file;
 
 /// The NeRF-synthetic release: a folder with `transforms_{split}.json` files, read split by
@@ -34,7 +34,7 @@ pub struct Frame {
     pub file_path: PathBuf,
     /// The view's camera: pytorch3d's pinhole for the NeRF-synthetic scenes, COLMAP's
     /// conventions (with distortion) for captures.
-    pub camera: FrameCamera,
+    pub camera: Camera,
     /// The frame's mask (`super::frame_mask`), when it has one (captures only).
     pub mask_path: Option<PathBuf>,
 }

@@ -14,7 +14,7 @@ use anyhow::{anyhow, bail, ensure, Result};
 use serde::de::IgnoredAny;
 use serde::Deserialize;
 
-use nerf_core::camera_colmap::NerfstudioIntrinsics;
+use nerf_core::camera::NerfstudioIntrinsics;
 
 /// The largest image side (`w`, `h`) taken, in pixels.
 pub(crate) const MAX_IMAGE_SIDE: usize = 1 << 20;

@@ -1,4 +1,4 @@
-//! Tests of `core::camera_colmap`: COLMAP's camera models, poses and nerfstudio's keys.
+//! Tests of `core::camera::colmap`: COLMAP's camera models, poses and nerfstudio's keys.
 
 use super::*;
 use crate::lens::colmap_camera_models;

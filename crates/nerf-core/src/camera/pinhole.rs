@@ -1,4 +1,5 @@
-//! Perspective cameras in pytorch3d's conventions.
+//! The pinhole camera of the homework, in pytorch3d's conventions ([`PerspectiveCamera`]),
+//! and pytorch3d's `look_at_view_transform`.
 //!
 //! * World → view is the row-vector transform `X_view = X_world · R + T` (pytorch3d
 //!   `PerspectiveCameras`), so the camera centre is `C = −T · Rᵀ`.
@@ -9,43 +10,7 @@
 
 use glam::{DMat3, DVec3};
 
-use crate::camera_error::CameraError;
-
-/// A camera: its pose and how it images the world. The camera seam, how a point of the
-/// homework's pixel grid becomes a ray: [`PerspectiveCamera`] here (pytorch3d's) and
-/// [`crate::camera_colmap::ColmapCamera`] (pixel intrinsics with a lens, one file per lens
-/// model in [`crate::lens`]) implement it; rays ([`crate::rays::Rays`]) and the renderer take
-/// any of them.
-pub trait Camera: std::fmt::Debug + Send + Sync {
-    /// The camera centre in world space.
-    fn center(&self) -> DVec3;
-
-    /// The world-space point imaged at the NDC point `(x, y)` (the homework's convention: +X
-    /// left, +Y up, both in [-1, 1] across the image) at view depth `depth`.
-    fn unproject_ndc(&self, x: f64, y: f64, depth: f64) -> DVec3;
-
-    /// An error naming what is wrong when the camera cannot image anything (a non-finite or
-    /// degenerate pose or intrinsics; see [`CameraError`]).
-    fn validate(&self) -> Result<(), CameraError>;
-
-    /// Origin and unit direction of the ray through the NDC point `(x, y)`: from the centre
-    /// towards the point unprojected at depth 1.
-    fn ray_through_ndc(&self, x: f64, y: f64) -> (DVec3, DVec3) {
-        let origin = self.center();
-        let target = self.unproject_ndc(x, y, 1.0);
-        (origin, (target - origin).normalize())
-    }
-
-    /// Origin and unit direction of the ray through pixel `(column, row)` of a
-    /// `width × height` image (row 0 the top). The default is the homework's pixel grid
-    /// ([`crate::pixel_grid::homework_ndc`]: pixel centres reach the image's edges); a camera
-    /// with pixel intrinsics overrides it with its own convention (COLMAP's: the centre of
-    /// pixel `i` at `i + 0.5`).
-    fn pixel_ray(&self, column: usize, row: usize, size: (usize, usize)) -> (DVec3, DVec3) {
-        let [x, y] = crate::pixel_grid::homework_ndc(column, row, size);
-        self.ray_through_ndc(x, y)
-    }
-}
+use super::{CameraError, Projection};
 
 /// A pinhole camera with pytorch3d `PerspectiveCameras` parameters (NDC focal length and
 /// principal point).
@@ -145,7 +110,7 @@ impl PerspectiveCamera {
     }
 }
 
-impl Camera for PerspectiveCamera {
+impl Projection for PerspectiveCamera {
     fn center(&self) -> DVec3 {
         PerspectiveCamera::center(self)
     }
@@ -156,6 +121,17 @@ impl Camera for PerspectiveCamera {
 
     fn validate(&self) -> Result<(), CameraError> {
         PerspectiveCamera::validate(self)
+    }
+
+    fn ndc_focal(&self) -> [f64; 2] {
+        self.focal
+    }
+
+    /// pytorch3d: `X_view = X_world · R`, so `R`'s columns are the view axes (x left, y up,
+    /// z forward) in world space.
+    fn viewing_axes(&self) -> (DVec3, DVec3) {
+        let column = |j: usize| DVec3::new(self.r[0][j], self.r[1][j], self.r[2][j]);
+        (column(2).normalize(), column(1).normalize())
     }
 }
 

@@ -20,7 +20,7 @@
 
 use glam::DVec2;
 
-use crate::camera_error::CameraError;
+use crate::camera::CameraError;
 use crate::lens::LensDistortion;
 use crate::term::short_number;
 

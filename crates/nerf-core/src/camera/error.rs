@@ -1,5 +1,5 @@
 //! [`CameraError`]: why a camera cannot image anything, as the camera checks
-//! ([`crate::camera_checks`]) and camera validation ([`crate::camera::Camera::validate`])
+//! ([`crate::camera::checks`]) and camera validation ([`crate::camera::Camera::validate`])
 //! say it. Each variant holds the values it names, and its text is the one-line message the
 //! checks have always given (it has no source: nothing further is printed after it).
 
@@ -8,9 +8,9 @@ use crate::term::short_number;
 /// A camera that cannot be right: non-finite or degenerate values, a field of view or
 /// principal point no lens has, a distortion that cannot be inverted, a size its photo does
 /// not have, or a pose too far away. Returned by the functions of
-/// [`crate::camera_checks`], [`crate::camera::Camera::validate`] (so
+/// [`crate::camera::checks`], [`crate::camera::Camera::validate`] (so
 /// [`crate::camera::PerspectiveCamera::validate`] and the COLMAP camera's),
-/// [`crate::camera_colmap::ColmapPose::from_quaternion`] and
+/// [`crate::camera::ColmapPose::from_quaternion`] and
 /// `nerf::io::dataset::check_rigid`; a dataset wraps it in
 /// `nerf::io::dataset::DatasetError::Camera`.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -48,7 +48,7 @@ pub enum CameraError {
         determinant: f64,
     },
     /// The field of view across an image axis is outside what a lens can have
-    /// ([`crate::camera_checks::check_intrinsics`]).
+    /// ([`crate::camera::checks::check_intrinsics`]).
     #[error(
         "a field of view of {}° across {axis} ({side} px at focal length {} px) is not a \
          {}lens's: it must be {}° to {}°",
@@ -73,7 +73,7 @@ pub enum CameraError {
         range: [f64; 2],
     },
     /// An NDC focal length whose field of view is outside what a lens can have
-    /// ([`crate::camera_checks::check_ndc_focal`]).
+    /// ([`crate::camera::checks::check_ndc_focal`]).
     #[error(
         "an NDC focal length of {} gives a field of view of {}°: it must be {}° to {}°",
         short_number(*.focal),
@@ -115,7 +115,7 @@ pub enum CameraError {
         detail: String,
     },
     /// The camera's image size cannot describe its photo's
-    /// ([`crate::camera_checks::check_photo_size`]).
+    /// ([`crate::camera::checks::check_photo_size`]).
     #[error(
         "the camera is {}x{} but its photo is {}x{}: {rule}",
         .camera.0,
@@ -132,7 +132,7 @@ pub enum CameraError {
         rule: String,
     },
     /// A stored capture path reaches too far from the normalised frame's centre
-    /// ([`crate::camera_checks::check_normalised_distance`]).
+    /// ([`crate::camera::checks::check_normalised_distance`]).
     #[error(
         "{what} {} is beyond {limit} in the normalised frame, where the training cameras \
          stand within 1 of the centre",

@@ -8,7 +8,7 @@
 //!
 //! Agreement between two runs is measured on the images both registered: the second run's
 //! centres are aligned to the first's by the least-squares similarity
-//! ([`crate::camera_alignment::align_centres`]), re-fitted without the cameras far
+//! ([`crate::camera::alignment::align_centres`]), re-fitted without the cameras far
 //! off it so that a flipped camera does not pull the rest, and each image's centre distance is
 //! taken as a fraction of the first run's camera spread (the root-mean-square distance of its
 //! centres from their mean).
@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 
 use glam::{DMat3, DVec3};
 
-use crate::camera_alignment::{align_centres, CameraPair};
+use crate::camera::alignment::{align_centres, CameraPair};
 
 /// Camera centres of one reconstruction, by image name.
 pub type Centres = BTreeMap<String, DVec3>;

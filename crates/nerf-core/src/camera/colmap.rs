@@ -23,8 +23,7 @@
 use anyhow::{bail, ensure, Context, Result};
 use glam::{DMat3, DQuat, DVec2, DVec3};
 
-use crate::camera::Camera;
-use crate::camera_error::CameraError;
+use super::{CameraError, Projection};
 use crate::lens::{ColmapCameraModel, Fisheye, LensDistortion};
 
 /// A camera pose as COLMAP stores it: world → camera, `X_cam = rotation · X_world + translation`
@@ -165,7 +164,7 @@ pub struct ColmapCamera {
 impl ColmapCamera {
     /// A camera of `model` with COLMAP's parameter list `params` for images of `size =
     /// (width, height)` pixels; an error naming the model for a wrong parameter count, or
-    /// what [`Camera::validate`] rejects.
+    /// what [`Camera::validate`](super::Camera::validate) rejects.
     pub fn new(
         model: &ColmapCameraModel,
         params: &[f64],
@@ -208,7 +207,7 @@ impl ColmapCamera {
     /// A camera from a nerfstudio frame: camera → world in OpenGL axes (the top three rows of
     /// `transform_matrix`, see [`ColmapPose::from_opengl_camera_to_world`]) and its intrinsics.
     /// Errors name an unsupported `camera_model`, tangential terms given to a fisheye, or what
-    /// [`Camera::validate`] rejects.
+    /// [`Camera::validate`](super::Camera::validate) rejects.
     pub fn from_nerfstudio(
         camera_to_world: [[f64; 4]; 3],
         intrinsics: &NerfstudioIntrinsics,
@@ -307,7 +306,7 @@ impl ColmapCamera {
     }
 }
 
-impl Camera for ColmapCamera {
+impl Projection for ColmapCamera {
     fn center(&self) -> DVec3 {
         self.pose.center()
     }
@@ -366,11 +365,26 @@ impl Camera for ColmapCamera {
                 determinant: r.determinant(),
             });
         }
-        crate::camera_checks::check_intrinsics(
+        crate::camera::checks::check_intrinsics(
             self.size,
             self.focal,
             self.principal_point,
             &self.distortion,
+        )
+    }
+
+    fn ndc_focal(&self) -> [f64; 2] {
+        [
+            self.focal[0] / (0.5 * self.size.0 as f64),
+            self.focal[1] / (0.5 * self.size.1 as f64),
+        ]
+    }
+
+    /// OpenCV axes (x right, y down, z forward): the rows of the world → camera rotation.
+    fn viewing_axes(&self) -> (DVec3, DVec3) {
+        (
+            self.pose.rotation.row(2).normalize(),
+            -self.pose.rotation.row(1).normalize(),
         )
     }
 
@@ -391,5 +405,5 @@ impl Camera for ColmapCamera {
 }
 
 #[cfg(test)]
-#[path = "camera_colmap_tests.rs"]
+#[path = "colmap_tests.rs"]
 mod tests;
