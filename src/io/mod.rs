@@ -6,7 +6,5 @@ pub use nerf_checkpoint::{
     checkpoint, checkpoint_error, checkpoint_file, parameter_shapes, pickle, torch, torch_archive,
     torch_save,
 };
-#[cfg(feature = "plot")]
-pub use nerf_files::plot;
 pub use nerf_files::{bounded_read, decode_budget, images, npy, output, ply, progress};
 pub use nerf_scene::{camera_path, camera_truth, colmap, dataset};

@@ -173,8 +173,8 @@ fn an_object_photographed_alone_is_sampled_over_its_hull_at_training_and_eval() 
     let log = common::stderr(&scene.run_ok("train", &opaque, &[]));
     assert!(!log.contains("outline an object"), "{log}");
     let meta = nerf::io::checkpoint::read_metadata(path).unwrap();
-    assert!(!meta.contains_key(nerf::io::checkpoint::SAMPLE_DEPTHS_KEY));
-    assert!(!meta.contains_key(nerf::io::checkpoint::OBJECT_BOX_KEY));
+    assert!(!meta.contains_key(nerf::io::checkpoint::SAMPLE_DEPTHS.key));
+    assert!(!meta.contains_key(nerf::io::checkpoint::OBJECT_BOX.key));
 }
 
 #[test]

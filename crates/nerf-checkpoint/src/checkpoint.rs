@@ -39,12 +39,12 @@ pub(crate) const IMAGE_SIZE_KEY: &str = "image_size";
 
 /// The metadata key of the depth range training narrowed the sampler to (`near far`; an
 /// object photographed alone, [`nerf_scene::dataset::object_hull`]).
-pub const SAMPLE_DEPTHS_KEY: &str = "sample_depths";
+pub(crate) const SAMPLE_DEPTHS_KEY: &str = "sample_depths";
 
 /// The metadata key of the box training fitted the field and the occupancy grid to
 /// (`min_x min_y min_z max_x max_y max_z`; an object photographed alone,
 /// [`nerf_scene::dataset::object_hull`]).
-pub const OBJECT_BOX_KEY: &str = "object_box";
+pub(crate) const OBJECT_BOX_KEY: &str = "object_box";
 
 /// The metadata key of the field's layout ([`CheckpointInfo::field_layout`]).
 pub const FIELD_LAYOUT_KEY: &str = "field_layout";

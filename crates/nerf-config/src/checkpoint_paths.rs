@@ -13,11 +13,11 @@ use nerf_train::fit::TrainPaths;
 
 /// The NeRF shipped with the project, the default of every command that loads a model when
 /// neither `--checkpoint` nor the config's `training.checkpoint_path` names one.
-pub const SHIPPED_CHECKPOINT: &str = "checkpoints/nerf_lego.safetensors";
+pub(crate) const SHIPPED_CHECKPOINT: &str = "checkpoints/nerf_lego.safetensors";
 
 /// The lego NeRF trained as the homework trains it (`nerf_lego`, dense sampling, no occupancy
 /// grid): the shipped model for configs that render densely.
-pub const HOMEWORK_CHECKPOINT: &str = "checkpoints/homework/nerf_lego.safetensors";
+pub(crate) const HOMEWORK_CHECKPOINT: &str = "checkpoints/homework/nerf_lego.safetensors";
 
 /// The shipped hash-grid lego model (the `lego_ngp` config's checkpoint).
 pub const SHIPPED_NGP_CHECKPOINT: &str = "checkpoints/ngp_lego.safetensors";

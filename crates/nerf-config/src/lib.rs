@@ -36,7 +36,7 @@ use messages::{blame, from_value, one_line};
 
 pub use built_in::config_text;
 pub(crate) use cameras::CamerasConfig;
-pub use checkpoint_paths::{HOMEWORK_CHECKPOINT, SHIPPED_CHECKPOINT, SHIPPED_NGP_CHECKPOINT};
+pub use checkpoint_paths::SHIPPED_NGP_CHECKPOINT;
 pub use config_error::ConfigError;
 pub use data::{
     photo_scale_factor, DataCameraConfig, DataCameras, DataConfig, SizeUse, DEFAULT_PIXEL_BUDGET,

@@ -2,8 +2,7 @@
 //! goes through the one rule of [`output`] (written beside its target, then renamed; never
 //! over a symlink or a device); PNG and GIF images ([`images`]), `.npy` arrays ([`npy`]) and
 //! PLY meshes and point clouds ([`ply`]); reads bounded in size ([`bounded_read`]) and in
-//! decoded pixels ([`decode_budget`]); progress on stderr ([`progress`]); and, with the
-//! `plot` feature, loss and PSNR plots (`plot`).
+//! decoded pixels ([`decode_budget`]); and progress on stderr ([`progress`]).
 //!
 //! The `nerf` facade re-exports these modules under `nerf::io`.
 
@@ -14,8 +13,6 @@ pub mod decode_budget;
 pub mod images;
 pub mod npy;
 pub mod output;
-#[cfg(feature = "plot")]
-pub mod plot;
 pub mod ply;
 pub mod progress;
 #[cfg(any(test, feature = "test-support"))]

@@ -65,7 +65,8 @@ fn kind_by_name<'de, D: Deserializer<'de>>(d: D) -> Result<&'static SamplerKind,
 impl SamplerSettings {
     /// The homework's stratified sampling of `n_pts_per_ray` depths on
     /// `[min_depth, max_depth]`, every other key at its default.
-    pub fn stratified(n_pts_per_ray: usize, min_depth: f64, max_depth: f64) -> Self {
+    #[cfg(test)]
+    fn stratified(n_pts_per_ray: usize, min_depth: f64, max_depth: f64) -> Self {
         Self {
             kind: default_kind(),
             n_pts_per_ray,

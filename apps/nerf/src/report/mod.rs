@@ -15,6 +15,7 @@
 
 pub mod box_study;
 pub mod lego_study;
+mod line_plot;
 pub mod markdown;
 pub mod plots;
 pub mod scoring;
@@ -28,7 +29,7 @@ use candle_core::Device;
 use serde::Serialize;
 
 use crate::bench::{machine_info, MachineInfo};
-use nerf::io::plot::{write_line_plot, LinePlot};
+use line_plot::{write_line_plot, LinePlot};
 use plots::{box_plot, lego_plot, training_plot};
 
 pub use box_study::{box_study, BoxScene, BoxStudy};

@@ -2,9 +2,9 @@
 
 use super::box_study::{BoxRow, BoxStudy};
 use super::lego_study::{LegoMethod, LegoStudy};
+use super::line_plot::{LinePlot, Series};
 use super::training_log::TrainingCurve;
 use super::Report;
-use nerf::io::plot::{LinePlot, Series};
 
 /// The box plot: each study's errors against seconds per frame, log-log.
 pub(super) fn box_plot(report: &Report) -> LinePlot {

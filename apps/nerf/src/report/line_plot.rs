@@ -9,35 +9,35 @@ use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 
 /// DejaVu Sans (Bitstream Vera licence, assets/fonts/DejaVuSans-LICENSE.txt).
-static FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("../../../../assets/fonts/DejaVuSans.ttf");
 static REGISTER_FONT: Once = Once::new();
 
 /// One line of a plot: `(x, y)` points in drawing order, each drawn as a dot too.
 #[derive(Debug, Clone)]
-pub struct Series {
+pub(crate) struct Series {
     /// Legend entry.
-    pub label: String,
+    pub(crate) label: String,
     /// `(x, y)` points in drawing order.
-    pub points: Vec<(f64, f64)>,
+    pub(crate) points: Vec<(f64, f64)>,
 }
 
 /// A line plot.
 #[derive(Debug, Clone)]
-pub struct LinePlot {
+pub(crate) struct LinePlot {
     /// Title above the plot.
-    pub title: String,
+    pub(crate) title: String,
     /// Label of the x axis.
-    pub x_label: String,
+    pub(crate) x_label: String,
     /// Label of the y axis.
-    pub y_label: String,
+    pub(crate) y_label: String,
     /// Logarithmic x axis.
-    pub log_x: bool,
+    pub(crate) log_x: bool,
     /// Logarithmic y axis.
-    pub log_y: bool,
+    pub(crate) log_y: bool,
     /// Where the legend goes (the corner the data leave empty).
-    pub legend: SeriesLabelPosition,
+    pub(crate) legend: SeriesLabelPosition,
     /// The lines drawn, each in its own colour.
-    pub series: Vec<Series>,
+    pub(crate) series: Vec<Series>,
 }
 
 /// A compact tick label: `0.02`, `150`, `1e-5`, not `0.020000000000000004`.
@@ -191,12 +191,12 @@ where
 }
 
 /// Draws `plot` and writes it as a PNG at `path` (atomically).
-pub fn write_line_plot(path: &Path, plot: &LinePlot) -> Result<()> {
+pub(crate) fn write_line_plot(path: &Path, plot: &LinePlot) -> Result<()> {
     let bytes = draw(plot)?;
     let (w, h) = PLOT_SIZE;
     let image: image::RgbImage =
         image::ImageBuffer::from_raw(w, h, bytes).ok_or_else(|| anyhow!("plot buffer size"))?;
-    crate::output::write_atomically(path, |out| {
+    nerf::io::output::write_atomically(path, |out| {
         image.write_to(out, image::ImageFormat::Png)?;
         Ok(())
     })
