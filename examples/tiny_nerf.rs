@@ -39,29 +39,23 @@ fn main() -> Result<()> {
     let sampler = StratifiedSampler::new(32, 0.0, 5.0)?;
     let renderer = VolumeRenderer::new(32768, false)?;
     let targets_pipeline = Pipeline::new(&target_field, &sampler, &renderer);
-    let cameras = nerf::surround_cameras(3.0, 4, glam::DVec3::Y, 1.0);
+    let cameras: Vec<nerf::Camera> = nerf::surround_cameras(3.0, 4, glam::DVec3::Y, 1.0)
+        .into_iter()
+        .map(Into::into)
+        .collect();
     let targets = cameras
         .iter()
-        .map(|c| {
-            Ok(render_view(
-                &targets_pipeline,
-                &nerf::Camera::from(*c),
-                (SIZE, SIZE),
-                &device,
-            )?
-            .color)
-        })
+        .map(|c| Ok(render_view(&targets_pipeline, c, (SIZE, SIZE), &device)?.color))
         .collect::<Result<Vec<RgbImage>>>()?;
 
     // A small NeRF and Adam over its variables.
     let params = NerfParams {
         n_harmonic_functions_xyz: 4,
-        n_harmonic_functions_dir: 2,
         n_hidden_neurons_xyz: 64,
         n_hidden_neurons_dir: 32,
         n_layers_xyz: 3,
         append_xyz: vec![],
-        density_noise_std: 0.0,
+        ..NerfParams::default()
     };
     let state = NerfState::seeded(&params, 0, &device)?;
     // Much above 2e-3 the density ReLU tends to die early on (σ = 0 everywhere, a black
@@ -76,8 +70,7 @@ fn main() -> Result<()> {
         let mut target = Vec::new();
         for (camera, image) in cameras.iter().zip(&targets) {
             let pixels = random_pixel_indices(SIZE, SIZE, RAYS_PER_CAMERA, &mut rng);
-            let rays =
-                Rays::for_pixels(&nerf::Camera::from(*camera), SIZE, SIZE, &pixels, &device)?;
+            let rays = Rays::for_pixels(camera, SIZE, SIZE, &pixels, &device)?;
             origins.push(rays.origins);
             directions.push(rays.directions);
             target.extend(
@@ -112,7 +105,7 @@ fn main() -> Result<()> {
     let trained = state.field();
     let view = render_view(
         &Pipeline::new(&trained, &sampler, &renderer),
-        &nerf::Camera::from(cameras[0]),
+        &cameras[0],
         (SIZE, SIZE),
         &device,
     )?;

@@ -9,7 +9,7 @@ use nerf::core::rays::Rays;
 use nerf::core::volume::{deltas, weights, MAX_OPTICAL_DEPTH};
 use nerf::kernels::composite::{composite, Composited};
 use nerf::{render_view, Field, NerfField, Pipeline, StratifiedSampler, VolumeRenderer};
-use nerf::{PerspectiveCamera, RenderedView, SdfField, SdfVolume};
+use nerf::{RenderedView, SdfField, SdfVolume};
 
 fn all_finite(t: &Tensor) -> bool {
     t.flatten_all()
@@ -138,12 +138,11 @@ fn box_scene(overrides: &[String]) -> (Config, SdfField, SdfVolume, StratifiedSa
 fn float64_errors(
     frame: &RenderedView,
     volume: &SdfVolume,
-    cam: &PerspectiveCamera,
+    cam: &nerf::Camera,
     sampler: &StratifiedSampler,
 ) -> (f64, f64) {
     let size = (frame.color.width, frame.color.height);
-    let (colours, depths) =
-        nerf::eval::reference::render_image(volume, &nerf::Camera::from(*cam), size, sampler);
+    let (colours, depths) = nerf::eval::reference::render_image(volume, cam, size, sampler);
     let max = |a: &[f32], b: &[f64]| {
         a.iter()
             .zip(b)
@@ -162,14 +161,13 @@ fn sdf_beta_down_to_1e_6_stays_finite_and_matches_float64() {
             format!("implicit_function.beta.val={beta}"),
         ]);
         let renderer = config.renderer().unwrap();
-        let cam = config.surround_cameras()[3];
+        let cam: nerf::Camera = config.surround_cameras()[3].into();
         let pipeline = Pipeline::new(&field, &sampler, &renderer);
-        let frame =
-            render_view(&pipeline, &nerf::Camera::from(cam), (24, 18), &Device::Cpu).unwrap();
+        let frame = render_view(&pipeline, &cam, (24, 18), &Device::Cpu).unwrap();
         assert!(frame.color.data.iter().all(|v| v.is_finite()));
         assert!(frame.depth.iter().all(|v| v.is_finite()));
         // Per-sample weights of every ray (points far inside and outside the box included).
-        let rays = Rays::for_image(&nerf::Camera::from(cam), 24, 18, &Device::Cpu).unwrap();
+        let rays = Rays::for_image(&cam, 24, 18, &Device::Cpu).unwrap();
         let samples = sampler.sample(&rays, None).unwrap();
         let d = deltas(&samples.lengths).unwrap();
         let out = field.evaluate(&samples, &d, &rays.directions).unwrap();
@@ -267,11 +265,10 @@ fn float32_against_float64_at_64_and_1024_samples() {
             "data.image_size=[32,32]".into(),
             format!("sampler.n_pts_per_ray={n}"),
         ]);
-        let cam = config.surround_cameras()[1];
+        let cam: nerf::Camera = config.surround_cameras()[1].into();
         let renderer = config.renderer().unwrap();
         let pipeline = Pipeline::new(&field, &sampler, &renderer);
-        let frame =
-            render_view(&pipeline, &nerf::Camera::from(cam), (32, 32), &Device::Cpu).unwrap();
+        let frame = render_view(&pipeline, &cam, (32, 32), &Device::Cpu).unwrap();
         let (c, d) = float64_errors(&frame, &volume, &cam, &sampler);
         eprintln!(
             "{n} samples: f32 vs f64 max colour difference {c:.1e}, max depth difference {d:.1e}"

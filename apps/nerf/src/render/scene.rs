@@ -138,19 +138,14 @@ pub fn grid_image(width: usize, height: usize, band: usize, device: &Device) -> 
 
 /// The homework's `vis_rays`: `|direction|` per pixel, `band` pixels at a time.
 pub fn ray_image(
-    camera: &PerspectiveCamera,
+    camera: &nerf::Camera,
     (width, height): (usize, usize),
     band: usize,
     device: &Device,
 ) -> Result<RgbImage> {
     let mut data = Vec::with_capacity(3 * width * height);
     for pixels in pixel_bands(width * height, band) {
-        let rays = band_rays(
-            &nerf::Camera::from(*camera),
-            (width, height),
-            pixels,
-            device,
-        )?;
+        let rays = band_rays(camera, (width, height), pixels, device)?;
         data.extend(rays.directions.abs()?.flatten_all()?.to_vec1::<f32>()?);
     }
     RgbImage::new(width, height, data)
@@ -160,7 +155,7 @@ pub fn ray_image(
 /// `point_vis`), made and splatted about `max_points` points at a time (whole rays, at least
 /// one).
 pub fn point_image(
-    camera: &PerspectiveCamera,
+    camera: &nerf::Camera,
     (width, height): (usize, usize),
     sampler: &dyn RaySampler,
     size: usize,
@@ -171,12 +166,7 @@ pub fn point_image(
     // The points every sampler starts from.
     let band = (max_points / sampler.drawn_per_ray()).max(1);
     for pixels in pixel_bands(width * height, band) {
-        let rays = band_rays(
-            &nerf::Camera::from(*camera),
-            (width, height),
-            pixels,
-            device,
-        )?;
+        let rays = band_rays(camera, (width, height), pixels, device)?;
         let lengths = sampler.lengths(&rays, None)?;
         let points = sample_points(&rays.origins, &rays.directions, &lengths)?;
         splatter.add(&points.flatten_all()?.to_vec1::<f32>()?);
@@ -294,15 +284,9 @@ pub fn render_sdf_scene(
     let cameras = config.surround_cameras();
     prepare_out_dir(out_dir)?;
     let grid = grid_image(w, h, chunks.rays, device)?;
-    let rays = ray_image(&cameras[0], (w, h), chunks.rays, device)?;
-    let points = point_image(
-        &cameras[0],
-        (w, h),
-        sampler.as_ref(),
-        256,
-        chunks.points,
-        device,
-    )?;
+    let first: nerf::Camera = cameras[0].into();
+    let rays = ray_image(&first, (w, h), chunks.rays, device)?;
+    let points = point_image(&first, (w, h), sampler.as_ref(), 256, chunks.points, device)?;
     let frames = render_views_in_bands(
         &Pipeline::new(&field, &*sampler, &renderer),
         &cameras,

@@ -162,15 +162,17 @@ pub struct ColmapCamera {
 }
 
 impl ColmapCamera {
-    /// A camera of `model` with COLMAP's parameter list `params` for images of `size =
-    /// (width, height)` pixels; an error naming the model for a wrong parameter count, or
+    /// A camera of the COLMAP model `model_name` (as a `cameras.txt` line names it) with
+    /// COLMAP's parameter list `params`, for images of `size = (width, height)` pixels. An
+    /// error names an unknown model (listing the supported ones), a wrong parameter count, or
     /// what [`Camera::validate`](super::Camera::validate) rejects.
-    pub fn new(
-        model: &ColmapCameraModel,
+    pub fn from_colmap(
+        model_name: &str,
         params: &[f64],
         size: (usize, usize),
         pose: ColmapPose,
     ) -> Result<Self> {
+        let model = ColmapCameraModel::from_name(model_name)?;
         let (focal, principal_point, distortion) = model.intrinsics(params)?;
         let camera = Self {
             pose,
@@ -186,22 +188,6 @@ impl ColmapCamera {
             .validate()
             .with_context(|| format!("COLMAP camera model {}", model.name))?;
         Ok(camera)
-    }
-
-    /// A camera from a `cameras.txt` line's model name and parameters: as [`Self::new`],
-    /// with an error naming an unknown model and listing the supported ones.
-    pub fn from_colmap(
-        model_name: &str,
-        params: &[f64],
-        size: (usize, usize),
-        pose: ColmapPose,
-    ) -> Result<Self> {
-        Self::new(
-            ColmapCameraModel::from_name(model_name)?,
-            params,
-            size,
-            pose,
-        )
     }
 
     /// A camera from a nerfstudio frame: camera → world in OpenGL axes (the top three rows of

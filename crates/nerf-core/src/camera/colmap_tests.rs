@@ -43,7 +43,7 @@ fn cameras_of_every_model() -> Vec<(&'static ColmapCameraModel, ColmapCamera)> {
     colmap_camera_models()
         .into_iter()
         .map(|model| {
-            let camera = ColmapCamera::new(model, &params(model), SIZE, arbitrary_pose()).unwrap();
+            let camera = ColmapCamera::from_colmap(model.name, &params(model), SIZE, arbitrary_pose()).unwrap();
             (model, camera)
         })
         .collect()
@@ -237,7 +237,7 @@ fn wrong_parameter_counts_and_unknown_models_are_errors_naming_the_model() {
     let pose = arbitrary_pose();
     for model in colmap_camera_models() {
         let n = model.parameters.len();
-        let error = ColmapCamera::new(model, &vec![1.0; n + 1], SIZE, pose)
+        let error = ColmapCamera::from_colmap(model.name, &vec![1.0; n + 1], SIZE, pose)
             .unwrap_err()
             .to_string();
         assert!(error.contains(model.name), "{error}");

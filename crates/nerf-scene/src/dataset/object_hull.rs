@@ -200,7 +200,6 @@ mod tests {
     use crate::dataset::Frame;
     use nerf_core::camera::{ColmapCamera, ColmapPose};
     use nerf_core::image::RgbImage;
-    use nerf_core::lens::ColmapCameraModel;
 
     /// A pinhole camera at `eye` looking at the origin, world +z up (OpenCV axes: x right,
     /// y down, z forward), `size × size` pixels with a 60° field of view.
@@ -214,13 +213,7 @@ mod tests {
         let pose = ColmapPose::from_matrix(rows, translation.to_array());
         let f = 0.5 * size as f64 / (30f64.to_radians()).tan();
         let c = 0.5 * size as f64;
-        ColmapCamera::new(
-            ColmapCameraModel::from_name("SIMPLE_PINHOLE").unwrap(),
-            &[f, c, c],
-            (size, size),
-            pose,
-        )
-        .unwrap()
+        ColmapCamera::from_colmap("SIMPLE_PINHOLE", &[f, c, c], (size, size), pose).unwrap()
     }
 
     /// A ring of twelve cameras at distance 1 round a ball of radius `r` at `centre`, and two
