@@ -5,23 +5,19 @@
 use std::sync::Arc;
 
 use anyhow::Result;
-use serde::{Deserialize, Deserializer};
+use serde::Deserialize;
 
 use crate::ray_sampler::RaySampler;
 use crate::sampler::StratifiedSampler;
-use crate::sampler_registry::{find_sampler_kind, sampler_kind_names, SAMPLER_KINDS};
 
 /// A config's `sampler` section, whatever the kind (each kind checks the keys it does not
 /// take are left at their defaults).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SamplerSettings {
-    /// `sampler.type`: a registered kind, the homework's `stratified` by default.
-    #[serde(
-        rename = "type",
-        default = "default_kind",
-        deserialize_with = "kind_by_name"
-    )]
+    /// `sampler.type`: a registered kind, the homework's `stratified` by default (the
+    /// registry reads a kind by its name: [`crate::sampler_registry`]).
+    #[serde(rename = "type", default)]
     pub kind: &'static SamplerKind,
     /// Samples per ray on `[min_depth, max_depth]` (`sampler.n_pts_per_ray`).
     pub n_pts_per_ray: usize,
@@ -44,22 +40,8 @@ pub struct SamplerSettings {
     pub far_depth: f64,
 }
 
-fn default_kind() -> &'static SamplerKind {
-    &SAMPLER_KINDS[0]
-}
-
 fn default_far_depth() -> f64 {
     1000.0
-}
-
-fn kind_by_name<'de, D: Deserializer<'de>>(d: D) -> Result<&'static SamplerKind, D::Error> {
-    let name = String::deserialize(d)?;
-    find_sampler_kind(&name).ok_or_else(|| {
-        serde::de::Error::custom(format!(
-            "unknown `{name}` (expected {})",
-            sampler_kind_names()
-        ))
-    })
 }
 
 impl SamplerSettings {
@@ -68,7 +50,7 @@ impl SamplerSettings {
     #[cfg(test)]
     fn stratified(n_pts_per_ray: usize, min_depth: f64, max_depth: f64) -> Self {
         Self {
-            kind: default_kind(),
+            kind: Default::default(),
             n_pts_per_ray,
             min_depth,
             max_depth,

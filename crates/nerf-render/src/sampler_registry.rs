@@ -22,6 +22,26 @@ pub fn sampler_kind_names() -> String {
     listed_names(SAMPLER_KINDS)
 }
 
+/// `sampler.type` left out: the first registered kind, the homework's `stratified`.
+impl Default for &'static SamplerKind {
+    fn default() -> Self {
+        &SAMPLER_KINDS[0]
+    }
+}
+
+/// `sampler.type`: the registered kind of that name; an error listing the kinds for another.
+impl<'de> serde::Deserialize<'de> for &'static SamplerKind {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        find_sampler_kind(&name).ok_or_else(|| {
+            serde::de::Error::custom(format!(
+                "unknown `{name}` (expected {})",
+                sampler_kind_names()
+            ))
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
