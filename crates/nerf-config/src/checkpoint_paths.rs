@@ -44,8 +44,8 @@ impl Config {
 
     /// The checkpoint a command reads — the one path for render, eval, bench, report, view and
     /// export: `given` (the `--checkpoint` option), else the config's
-    /// `training.checkpoint_path`, else the shipped [`SHIPPED_CHECKPOINT`]; a directory is
-    /// resolved to the checkpoint it holds by
+    /// `training.checkpoint_path`, else the shipped NeRF (`checkpoints/nerf_lego.safetensors`);
+    /// a directory is resolved to the checkpoint it holds by
     /// [`nerf_checkpoint::checkpoint_file::resolve`] where it can be (where it cannot, the directory
     /// itself, whose [`Config::ensure_checkpoint`] error says why).
     pub fn checkpoint(&self, given: Option<&Path>) -> PathBuf {
