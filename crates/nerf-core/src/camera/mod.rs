@@ -6,13 +6,13 @@
 //!   `look_at_view_transform`.
 //! * [`Camera::Colmap`]: a real camera of a COLMAP or nerfstudio capture (`colmap.rs`): pixel
 //!   intrinsics, COLMAP's world → camera pose in OpenCV axes, and a lens, one file per lens
-//!   model in [`crate::lens`] (pinhole, radial–tangential, fisheye, field of view), which
+//!   model in [`crate::lens`] (none, radial–tangential, fisheye, field of view), which
 //!   also lists the COLMAP camera models each reads.
 //!
 //! Rays ([`crate::rays::Rays`]), the renderer and the float64 reference take a [`Camera`].
 //! A new kind is one file implementing the crate's `Projection` (the centre, NDC
-//! unprojection, its checks, and optionally its own ray and pixel conventions) and one line
-//! of the `camera_kinds!` list below. The checks every kind's intrinsics go through are
+//! unprojection, its checks, its NDC focal length and viewing axes, and optionally its own
+//! ray and pixel conventions) and one line of the `camera_kinds!` list below. The checks every kind's intrinsics go through are
 //! [`checks`], their typed error [`CameraError`]; [`alignment`] and [`consensus`] compare
 //! sets of camera centres (a capture's against surveyed ones, several SfM runs').
 
