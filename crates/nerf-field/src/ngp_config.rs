@@ -120,7 +120,6 @@ impl NgpParams {
     }
 }
 
-
 impl FieldConfig for NgpParams {
     fn kind(&self) -> &'static str {
         NGP.name
@@ -143,22 +142,22 @@ impl FieldConfig for NgpParams {
 }
 
 /// `n_levels`: 16 levels.
-pub(crate) fn default_levels() -> usize {
+fn default_levels() -> usize {
     16
 }
 /// `n_features_per_level`: 2 features.
-pub(crate) fn default_features() -> usize {
+fn default_features() -> usize {
     2
 }
 /// `log2_hashmap_size`: 2^19 rows a level.
-pub(crate) fn default_log2_rows() -> u32 {
+fn default_log2_rows() -> u32 {
     19
 }
 /// `base_resolution`: 16 cells a side at the coarsest level.
-pub(crate) fn default_base_resolution() -> f64 {
+fn default_base_resolution() -> f64 {
     16.0
 }
 /// `aabb`: ±1.5 on every axis.
-pub(crate) fn default_aabb() -> [[f64; 3]; 2] {
+fn default_aabb() -> [[f64; 3]; 2] {
     [[-1.5; 3], [1.5; 3]]
 }
