@@ -181,8 +181,7 @@ mod tests {
     fn rays_have_unit_directions_and_shapes() {
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[4];
         for (w, h) in [(5, 3), (16, 16), (20, 15)] {
-            let rays =
-                Rays::for_image(&crate::camera::Camera::from(cam), w, h, &Device::Cpu).unwrap();
+            let rays = Rays::for_image(&Camera::from(cam), w, h, &Device::Cpu).unwrap();
             assert_eq!(rays.origins.dims(), &[w * h, 3]);
             assert_eq!(rays.directions.dims(), &[w * h, 3]);
             let norms = rays
@@ -202,7 +201,7 @@ mod tests {
     #[test]
     fn central_ray_points_at_the_origin() {
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[7];
-        let (o, d) = ray_through_ndc(&crate::camera::Camera::from(cam), 0.0, 0.0);
+        let (o, d) = ray_through_ndc(&Camera::from(cam), 0.0, 0.0);
         // The camera looks at the origin, so o + 3·d = 0.
         assert!((o + d * 3.0).length() < 1e-12);
     }
@@ -211,7 +210,7 @@ mod tests {
     fn corner_ray_matches_the_focal_length() {
         // In view space the corner ray of a focal-1 camera is (1, 1, 1)/√3.
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[0];
-        let (_, d) = ray_through_ndc(&crate::camera::Camera::from(cam), 1.0, 1.0);
+        let (_, d) = ray_through_ndc(&Camera::from(cam), 1.0, 1.0);
         let view = cam.world_to_view(d) - cam.world_to_view(DVec3::ZERO);
         let expected = DVec3::splat(1.0 / 3f64.sqrt());
         assert!((view - expected).length() < 1e-12);
@@ -221,12 +220,11 @@ mod tests {
     fn pixel_subsets_match_the_full_grid() {
         let cam = surround_cameras(3.0, 20, DVec3::Y, 1.0)[2];
         let (w, h) = (9, 6);
-        let all = Rays::for_image(&crate::camera::Camera::from(cam), w, h, &Device::Cpu).unwrap();
+        let all = Rays::for_image(&Camera::from(cam), w, h, &Device::Cpu).unwrap();
         let mut rng = rand::rng();
         let idx = random_pixel_indices(w, h, 10, &mut rng);
         assert_eq!(idx.len(), 10);
-        let sub =
-            Rays::for_pixels(&crate::camera::Camera::from(cam), w, h, &idx, &Device::Cpu).unwrap();
+        let sub = Rays::for_pixels(&Camera::from(cam), w, h, &idx, &Device::Cpu).unwrap();
         let all_d = all.directions.to_vec2::<f32>().unwrap();
         let sub_d = sub.directions.to_vec2::<f32>().unwrap();
         for (k, &i) in idx.iter().enumerate() {
