@@ -1,4 +1,4 @@
-//! The distortion loss of N rays ([`nerf_core::distortion_loss`]) as a fused CPU kernel,
+//! The distortion loss of N rays (the per-ray maths of `ray_distortion`) as a fused CPU kernel,
 //! forward and backward with respect to the densities, on dense samples and on the packed
 //! samples of a skipping render, with their tensor-op twins.
 //!
@@ -16,11 +16,12 @@ use rayon::prelude::*;
 
 use crate::composite::{lengths_per_ray, scatter_rows, PackedDensities, PackedRays};
 use crate::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
+pub use crate::ray_distortion::RaySpacing;
+use crate::ray_distortion::{
+    ray_distortion, ray_distortion_gradient, weight_gradient_to_optical_depth,
+};
 use crate::storage::host_values;
 use crate::use_fused;
-use nerf_core::distortion_loss::{
-    ray_distortion, ray_distortion_gradient, weight_gradient_to_optical_depth, RaySpacing,
-};
 use nerf_core::volume::{
     clamped_optical_depth, deltas, exclusive_cumsum, ray_weights, spacing, weights,
     MAX_OPTICAL_DEPTH,

@@ -12,9 +12,11 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::cpu_dispatch::dispatched;
-use nerf_core::sdf::{
-    box_distance_with_gradient, sphere_distance_with_gradient, PackedLayout, Sdf, SdfVolume,
+use crate::sdf_point::{
+    box_distance_with_gradient, colour_at, colour_factors, packed_layout,
+    sphere_distance_with_gradient, transparency_from_distance, transparency_parts, PackedLayout,
 };
+use nerf_core::sdf::{Sdf, SdfVolume};
 use nerf_core::volume::spacing;
 
 /// Samples computed together before the running transmittance is checked.
@@ -29,7 +31,7 @@ pub(crate) struct RayScratch {
     weight: Vec<f32>,
     /// Transmittance after the sample, `T_{i+1}`.
     after: Vec<f32>,
-    /// Colour scale per channel ([`SdfVolume::colour_factors`]).
+    /// Colour scale per channel (`sdf_point::colour_factors`).
     scale: [Vec<f32>; 3],
     /// `∂scale_k/∂c_k` per channel.
     d_scale: [Vec<f32>; 3],
@@ -132,8 +134,8 @@ fn fill<D>(
     let mut b = Block::default();
     for j in 0..BLOCK {
         let point = point_at(ray, t[j]);
-        let (clear, d) = volume.transparency_from_distance(distance(point));
-        let (scale, d_scale) = volume.colour_factors(point);
+        let (clear, d) = transparency_from_distance(&volume, distance(point));
+        let (scale, d_scale) = colour_factors(&volume, point);
         b.clear[j] = 1.0 - live[j] * (1.0 - clear);
         for k in 0..3 {
             b.scale[k][j] = scale[k];
@@ -210,9 +212,9 @@ fn forward_with<D: Fn([f32; 3]) -> f32>(
         let mut colour = [[0f32; BLOCK]; 3];
         for j in 0..BLOCK {
             let p = point_at(ray, t[j]);
-            let (c, _, _) = volume.transparency_parts(distance(p));
+            let (c, _, _) = transparency_parts(&volume, distance(p));
             clear[j] = 1.0 - live[j] * (1.0 - c);
-            let rgb = volume.colour_at(p);
+            let rgb = colour_at(&volume, p);
             for k in 0..3 {
                 colour[k][j] = rgb[k];
             }
@@ -237,7 +239,7 @@ dispatched! {
     /// Replays one ray `[origin, direction]` at `lengths` into `sc`, up to the block in which
     /// its transmittance reaches 0; returns how many samples that is and the ray's `[r, g, b,
     /// depth, opacity]`. The weights use `e^{−τ} = 1 − density`
-    /// ([`SdfVolume::transparency_from_distance`]).
+    /// (`sdf_point::transparency_from_distance`).
     pub(crate) fn replay(
         volume: &SdfVolume,
         ray: &[f32],
@@ -341,7 +343,7 @@ fn reverse_portable(
         suffix += w * gi;
     }
     let (g, w) = (&sc.g[..n], &sc.weight[..n]);
-    let layout: PackedLayout = volume.packed_layout();
+    let layout: PackedLayout = packed_layout(&volume);
     for k in 0..3 {
         let colour_center = dot(w, &sc.d_scale[k][..n]) * gf[k] as f64;
         acc[k] += dot(g, &sc.d_center[k][..n]) + colour_center;

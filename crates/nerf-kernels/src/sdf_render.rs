@@ -3,19 +3,19 @@
 //! `(N, S, ·)` sample tensors; per ray, blocks of samples are computed together so that the
 //! work vectorises (`crate::sdf_ray`).
 //!
-//! The maths is the twin's — the sampler's points, [`SdfVolume::evaluate_point`] and
+//! The maths is the twin's — the sampler's points, `sdf_point::evaluate_point` and
 //! [`nerf_core::volume`]'s weights, as [`crate::sample_points`],
 //! [`crate::sdf_volume`] and [`crate::composite`] compute them — with two
 //! float32-level differences: a sample's `e^{−τ}` is taken as `1 − density` (the twin's
 //! `e^{−(−ln(1 − density)/Δ)·Δ}`, which is the same number up to rounding, and an opaque
-//! sample's clamped τ the same 0), and `e^x` is `nerf_core::fastexp::exp_fast` (2 ulps).
+//! sample's clamped τ the same 0), and `e^x` is `fastexp::exp_fast` (2 ulps).
 //! Measured against the twin and the float64 reference in the tests. A ray stops after the
 //! block in which its transmittance is exactly 0: every later weight is exactly 0.
 //!
 //! The backward pass recomputes each ray, then, walking back, forms the compositing
 //! gradients (`∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j`, `∂L/∂c_i = w_i G`, see
 //! [`crate::composite`]) and turns them into gradients of the packed parameters
-//! ([`SdfVolume::transparency_from_distance`], [`SdfVolume::colour_factors`]). Rays and
+//! (`sdf_point::transparency_from_distance`, `sdf_point::colour_factors`). Rays and
 //! depths get no gradient (they are never trained; tracked ones take the twin).
 //!
 //! [`sdf_render_mse`] does a training step's loss in the same pass: the gradient is formed

@@ -13,6 +13,8 @@ use crate::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelOutput};
 use crate::{needs_grad, use_fused};
 use nerf_core::sdf::{Sdf, SdfVolume};
 
+use crate::sdf_point::evaluate_point;
+
 /// The shape of an SDF volume as tensors (any of them may be a trainable variable).
 #[derive(Debug, Clone)]
 pub enum ShapeTensors {
@@ -118,7 +120,7 @@ impl SdfTensors {
     }
 
     /// The parameters packed into one `(P,)` tensor, `[center, side_lengths | radius, alpha,
-    /// beta, feature]` ([`nerf_core::sdf::PackedLayout`]), by a differentiable
+    /// beta, feature]` (`sdf_point::PackedLayout`), by a differentiable
     /// concatenation: gradients with respect to it reach each variable.
     pub(crate) fn packed(&self) -> Result<Tensor> {
         let dtype = self.center().dtype();
@@ -316,7 +318,7 @@ impl CpuKernel<2> for FusedSdfVolume {
             .zip(deltas.par_chunks(BLOCK))
             .for_each(|((o, p), d)| {
                 for ((o, p), &delta) in o.chunks_exact_mut(4).zip(p.chunks_exact(3)).zip(d) {
-                    let (sigma, f) = self.0.evaluate_point([p[0], p[1], p[2]], delta);
+                    let (sigma, f) = evaluate_point(&self.0, [p[0], p[1], p[2]], delta);
                     o.copy_from_slice(&[sigma, f[0], f[1], f[2]]);
                 }
             });
@@ -324,8 +326,38 @@ impl CpuKernel<2> for FusedSdfVolume {
     }
 }
 
+#[inline]
+/// The signed distance at which [`sdf_to_density`] equals `density`: its inverse,
+/// `−β·ln(2d/α)` for `d ≤ α/2` and `β·ln(2(1 − d/α))` above (0 at `α/2`). `None` unless
+/// `0 < density < α` (the density only reaches 0 and α at infinite distance).
+pub fn sdf_at_density(density: f64, alpha: f64, beta: f64) -> Option<f64> {
+    let x = density / alpha;
+    if !(x > 0.0 && x < 1.0 && beta > 0.0) {
+        return None;
+    }
+    Some(if x <= 0.5 {
+        -beta * (2.0 * x).ln()
+    } else {
+        beta * (2.0 * (1.0 - x)).ln()
+    })
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn sdf_at_density_inverts_the_density() {
+        use crate::sdf_point::sdf_to_density_scalar;
+        for s in [-0.2f32, -0.01, 0.0, 0.03, 0.15] {
+            let d = sdf_to_density_scalar(s, 0.8, 0.05) as f64;
+            let back = super::sdf_at_density(d, 0.8, 0.05).unwrap();
+            assert!((back - s as f64).abs() < 1e-5, "{s} -> {d} -> {back}");
+        }
+        assert_eq!(super::sdf_at_density(0.4, 0.8, 0.05), Some(0.0));
+        for bad in [0.0, 0.8, 1.0, -0.1, f64::NAN] {
+            assert_eq!(super::sdf_at_density(bad, 0.8, 0.05), None);
+        }
+    }
+
     use super::*;
     use crate::{with_kernel_choice, KernelChoice};
     use candle_core::Device;

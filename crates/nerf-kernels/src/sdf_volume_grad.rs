@@ -2,11 +2,11 @@
 //! hand-written backward pass, for training an SDF volume (the homework's `type: train`).
 //!
 //! Both read the volume's parameters packed into one `(P,)` tensor (see
-//! [`nerf_core::sdf::PackedLayout`]: `[center, side_lengths | radius, alpha, beta,
+//! `sdf_point::PackedLayout`: `[center, side_lengths | radius, alpha, beta,
 //! feature]`), which is built from the field's variables with a differentiable
 //! concatenation, so their gradients reach each variable. The backward passes are one
 //! multi-threaded pass over the samples each, summing `g · ∂σ/∂θ` (or `g · ∂colour/∂θ`) in
-//! float64 ([`SdfVolume::sigma_vjp`], [`SdfVolume::colour_vjp`]); they also return the
+//! float64 (`sdf_point::sigma_vjp`, `sdf_point::colour_vjp`); they also return the
 //! gradient with respect to the points when the points were tracked. Spacings get none (they
 //! come from the sampler's depths, which are never trained).
 //!
@@ -21,6 +21,8 @@ use rayon::prelude::*;
 
 use crate::cpu_kernel::{CpuInput, CpuKernel, Fused, KernelGradients, KernelOutput};
 use nerf_core::sdf::SdfVolume;
+
+use crate::sdf_point::{colour_at, colour_vjp, evaluate_point, packed_layout, sigma_vjp};
 
 /// Samples per parallel work item.
 const BLOCK: usize = 4096;
@@ -103,7 +105,7 @@ impl SdfOp {
     where
         F: Fn(usize, &mut [f64]) -> [f32; 3] + Sync,
     {
-        let p = self.volume.packed_layout().len();
+        let p = packed_layout(&self.volume).len();
         let mut g_points = vec![0f32; if self.points_grad { 3 * samples } else { 0 }];
         let block_sum = |block: usize, gp: &mut [f32]| {
             let mut acc = vec![0f64; p];
@@ -150,7 +152,7 @@ impl CpuKernel<3> for SigmaOp {
             .zip(deltas.par_chunks(BLOCK))
             .for_each(|((o, p), d)| {
                 for ((o, p), &delta) in o.iter_mut().zip(p.chunks_exact(3)).zip(d) {
-                    *o = self.0.volume.evaluate_point([p[0], p[1], p[2]], delta).0;
+                    *o = evaluate_point(&self.0.volume, [p[0], p[1], p[2]], delta).0;
                 }
             });
         Ok((out, deltas_in.shape().clone()))
@@ -182,9 +184,7 @@ impl CpuKernel<3> for SigmaBackward {
         let [points, deltas, grad] = CpuInput::all_f32(&inputs, Self::NAME)?;
         Ok(self.0.backward_pass(deltas.len(), |i, acc| {
             let x = &points[3 * i..3 * i + 3];
-            self.0
-                .volume
-                .sigma_vjp([x[0], x[1], x[2]], deltas[i], grad[i], acc)
+            sigma_vjp(&self.0.volume, [x[0], x[1], x[2]], deltas[i], grad[i], acc)
         }))
     }
 }
@@ -202,7 +202,7 @@ impl CpuKernel<2> for ColourOp {
             .zip(points.par_chunks(3 * BLOCK))
             .for_each(|(o, p)| {
                 for (o, p) in o.chunks_exact_mut(3).zip(p.chunks_exact(3)) {
-                    o.copy_from_slice(&self.0.volume.colour_at([p[0], p[1], p[2]]));
+                    o.copy_from_slice(&colour_at(&self.0.volume, [p[0], p[1], p[2]]));
                 }
             });
         Ok((out, points_in.shape().clone()))
@@ -226,9 +226,7 @@ impl CpuKernel<2> for ColourBackward {
         let [points, grad] = CpuInput::all_f32(&inputs, Self::NAME)?;
         Ok(self.0.backward_pass(points.len() / 3, |i, acc| {
             let (x, g) = (&points[3 * i..3 * i + 3], &grad[3 * i..3 * i + 3]);
-            self.0
-                .volume
-                .colour_vjp([x[0], x[1], x[2]], [g[0], g[1], g[2]], acc)
+            colour_vjp(&self.0.volume, [x[0], x[1], x[2]], [g[0], g[1], g[2]], acc)
         }))
     }
 }

@@ -21,8 +21,8 @@ use rand::Rng;
 use crate::ray_sampler::RaySampler;
 use crate::sampler::shared_lengths;
 use crate::sampler_kind::{SamplerKind, SamplerSettings};
-use nerf_core::distortion_loss::RaySpacing;
 use nerf_core::rays::Rays;
+use nerf_kernels::distortion_loss::RaySpacing;
 
 /// The `depth_then_disparity` sampler kind ([`crate::sampler_registry`]).
 pub(crate) const DEPTH_THEN_DISPARITY: SamplerKind = SamplerKind {

@@ -16,8 +16,8 @@ use candle_core::Tensor;
 
 use crate::field::Field;
 use crate::sampler::StratifiedSampler;
-use nerf_core::distortion_loss::RaySpacing;
 use nerf_core::rays::Rays;
+use nerf_kernels::distortion_loss::RaySpacing;
 
 /// A sampling strategy for the renderer.
 pub trait RaySampler: std::fmt::Debug + Send + Sync {

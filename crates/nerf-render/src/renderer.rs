@@ -11,11 +11,11 @@ use crate::field::{render_fused, samples_per_chunk, supports_packed, Composited,
 use crate::ray_sampler::RaySampler;
 use crate::sampler::RaySamples;
 use crate::skipping::SampleCounts;
-use nerf_core::distortion_loss::RaySpacing;
 use nerf_core::rays::Rays;
 use nerf_core::volume::deltas;
 use nerf_kernels::composite::composite;
 use nerf_kernels::distortion_loss::distortion_loss;
+use nerf_kernels::distortion_loss::RaySpacing;
 use nerf_kernels::sample_points::sample_points;
 
 /// Most samples drawn per chunk of rays when samples are skipped (an occupancy grid or early
@@ -40,7 +40,7 @@ pub struct RenderOutput {
     pub opacity: Tensor,
     /// Samples drawn and evaluated (see [`crate::skipping`]).
     pub samples: SampleCounts,
-    /// `(N, 1)` each ray's distortion loss ([`nerf_core::distortion_loss`]), when the
+    /// `(N, 1)` each ray's distortion loss ([`nerf_kernels::distortion_loss`]), when the
     /// renderer computes it ([`VolumeRenderer::distortion_loss`]).
     pub distortion: Option<Tensor>,
 }

@@ -24,11 +24,11 @@ use rayon::prelude::*;
 
 use crate::field::{packed_evaluation, Field, FieldOutput};
 use crate::occupancy::{EmptyBlocks, OccupancyGrid, RayFaces};
-use nerf_core::distortion_loss::RaySpacing;
 use nerf_core::rays::Rays;
 use nerf_core::volume::{clamped_optical_depth, spacing};
 use nerf_kernels::composite::{composite_packed, Composited, PackedDensities, PackedValues};
 use nerf_kernels::distortion_loss::distortion_loss_packed;
+use nerf_kernels::distortion_loss::RaySpacing;
 
 /// The most occupied samples per ray evaluated between early-termination checks.
 pub const SEGMENT: usize = 16;

@@ -47,7 +47,7 @@ pub enum RaySpacing {
 impl RaySpacing {
     /// `s(t)`, clamped to `[0, 1]` (a depth past `far`, such as the last sample's end at
     /// `t + 1e10`, is at 1).
-    pub fn normalised(&self, t: f64) -> f64 {
+    pub(crate) fn normalised(&self, t: f64) -> f64 {
         let s = match *self {
             Self::Linear { near, far } => (t - near) / (far - near),
             Self::LinearThenDisparity {
@@ -73,7 +73,7 @@ impl RaySpacing {
     /// The interval `[s(t), s(t + delta)]` of a sample at depth `t` whose spacing to the next
     /// is `delta` ([`crate::volume::spacing`]).
     #[inline]
-    pub fn interval(&self, t: f32, delta: f32) -> (f32, f32) {
+    pub(crate) fn interval(&self, t: f32, delta: f32) -> (f32, f32) {
         let t = f64::from(t);
         (
             self.normalised(t) as f32,
@@ -84,7 +84,7 @@ impl RaySpacing {
 
 /// The distortion loss of one ray: weights `w` and intervals `[start_i, end_i]` (n each, in
 /// increasing order along the ray), in O(n).
-pub fn ray_distortion(w: &[f32], start: &[f32], end: &[f32]) -> f32 {
+pub(crate) fn ray_distortion(w: &[f32], start: &[f32], end: &[f32]) -> f32 {
     let (mut w_before, mut x_before, mut total) = (0f64, 0f64, 0f64);
     for i in 0..w.len() {
         let (wi, a, b) = (f64::from(w[i]), f64::from(start[i]), f64::from(end[i]));
@@ -97,7 +97,7 @@ pub fn ray_distortion(w: &[f32], start: &[f32], end: &[f32]) -> f32 {
 }
 
 /// `∂L/∂w` of [`ray_distortion`] into `grad` (n), in O(n).
-pub fn ray_distortion_gradient(w: &[f32], start: &[f32], end: &[f32], grad: &mut [f32]) {
+pub(crate) fn ray_distortion_gradient(w: &[f32], start: &[f32], end: &[f32], grad: &mut [f32]) {
     let mid = |i: usize| 0.5 * (f64::from(start[i]) + f64::from(end[i]));
     let (w_total, x_total) = (0..w.len()).fold((0f64, 0f64), |(wt, xt), i| {
         (wt + f64::from(w[i]), xt + f64::from(w[i]) * mid(i))
@@ -119,7 +119,11 @@ pub fn ray_distortion_gradient(w: &[f32], start: &[f32], end: &[f32], grad: &mut
 /// transmittance after each sample `T_{i+1}` (as [`crate::volume::ray_weights`] gives
 /// them): `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j` (the chain through
 /// `w_i = T_i (1 − e^{−τ_i})`), written into `g` in place.
-pub fn weight_gradient_to_optical_depth(w: &[f32], transmittance_after: &[f32], g: &mut [f32]) {
+pub(crate) fn weight_gradient_to_optical_depth(
+    w: &[f32],
+    transmittance_after: &[f32],
+    g: &mut [f32],
+) {
     let mut suffix = 0f32;
     for i in (0..g.len()).rev() {
         let gi = g[i];
