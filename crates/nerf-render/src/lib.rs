@@ -8,18 +8,15 @@
 #![warn(missing_docs)]
 
 pub mod bands;
-pub mod depth_points;
 pub(crate) mod disparity_sampler;
 pub mod field;
 pub mod hierarchical;
 pub mod occupancy;
 pub mod occupied_field;
-pub mod pointcloud;
 pub mod ray_sampler;
 pub mod renderer;
 pub mod sampler;
 pub mod sampler_kind;
 pub mod sampler_registry;
 pub mod skipping;
-pub mod surface;
 pub mod view;

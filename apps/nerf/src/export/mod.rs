@@ -2,7 +2,9 @@
 //! mesh (marching cubes on the density), a point cloud (expected depths of the dataset's
 //! views) and depth maps.
 
+mod depth_points;
 pub mod model_file;
+mod surface;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -22,9 +24,9 @@ use nerf::io::output::prepare_out_dir;
 use nerf::io::ply::{write_mesh_ply, write_points_ply};
 use nerf::io::progress::progress_bar;
 use nerf::kernels::sdf_volume::sdf_at_density;
-use nerf::render::depth_points::{depth_points, ColoredPoints};
+use depth_points::{depth_points, ColoredPoints};
 use nerf::render::field::Field;
-use nerf::render::surface::{sample_grid, surface_colors};
+use surface::{sample_grid, surface_colors};
 use nerf::render::view::render_view;
 
 /// Default density threshold σ of a NeRF's surface (one sample step of the lego config, 4/127,

@@ -2,5 +2,6 @@
 //! its cameras, and camera paths.
 
 pub mod path_frames;
+mod pointcloud;
 pub mod scene;
 pub mod scene_frame;

@@ -15,7 +15,7 @@ use nerf::io::progress::progress_bar;
 use nerf::kernels::sample_points::sample_points;
 use nerf::render::bands::{band_ndc, band_rays, pixel_bands};
 use nerf::render::field::Field;
-use nerf::render::pointcloud::{PointSplatter, PointView};
+use super::pointcloud::{PointSplatter, PointView};
 use nerf::render::ray_sampler::RaySampler;
 use nerf::render::view::{render_view_interruptible, Interrupt, Pipeline, RenderedView};
 

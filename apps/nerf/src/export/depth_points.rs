@@ -5,11 +5,11 @@
 use anyhow::Result;
 use candle_core::Device;
 
-use crate::bands::{band_rays, pixel_bands};
-use crate::renderer::{RenderOutput, VolumeRenderer};
-use crate::view::Pipeline;
-use nerf_core::camera::Camera;
-use nerf_core::rays::Rays;
+use nerf::core::camera::Camera;
+use nerf::core::rays::Rays;
+use nerf::render::bands::{band_rays, pixel_bands};
+use nerf::render::renderer::{RenderOutput, VolumeRenderer, BLACK};
+use nerf::render::view::Pipeline;
 
 /// Coloured points in world space.
 #[derive(Debug, Clone, Default)]
@@ -35,7 +35,7 @@ pub fn depth_points(
     camera.validate()?;
     // On black, so that dividing by the opacity recovers the colour.
     let black = VolumeRenderer {
-        background: crate::renderer::BLACK,
+        background: BLACK,
         ..*pipeline.renderer
     };
     let black = Pipeline {

@@ -13,10 +13,10 @@ use anyhow::Result;
 use glam::DVec3;
 use rayon::prelude::*;
 
-use nerf_core::camera::{
+use nerf::core::camera::{
     camera_position_from_spherical_angles, look_at_view_transform, PerspectiveCamera,
 };
-use nerf_core::image::RgbImage;
+use nerf::core::image::RgbImage;
 
 /// Settings of the point view.
 #[derive(Debug, Clone, Copy)]

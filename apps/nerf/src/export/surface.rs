@@ -4,13 +4,14 @@
 use anyhow::{ensure, Result};
 use candle_core::{Device, Tensor};
 
-use crate::bands::pixel_bands;
-use crate::field::Field;
-use crate::occupancy::OccupancyGrid;
-use crate::renderer::VolumeRenderer;
-use crate::sampler::StratifiedSampler;
-use nerf_core::marching_cubes::{TriMesh, VolumeGrid};
-use nerf_core::rays::Rays;
+use nerf::core::marching_cubes::{TriMesh, VolumeGrid};
+use nerf::core::rays::Rays;
+use nerf::render::bands::pixel_bands;
+use nerf::render::field::Field;
+use nerf::render::occupancy::OccupancyGrid;
+use nerf::render::renderer::{VolumeRenderer, BLACK};
+use nerf::render::sampler::StratifiedSampler;
+use nerf::render::view::Pipeline;
 
 /// Samples `scalar` at the `dims` grid points spanning `aabb` (`[min_x, min_y, min_z, max_x,
 /// max_y, max_z]`; x fastest, as [`VolumeGrid`]), `batch` points per call (at least 1).
@@ -88,10 +89,10 @@ pub fn surface_colors(
     let sampler = StratifiedSampler::new(n_samples, 0.0, 2.0 * offset as f64)?;
     // On black, so that dividing by the opacity recovers the surface colour.
     let black = VolumeRenderer {
-        background: crate::renderer::BLACK,
+        background: BLACK,
         ..*renderer
     };
-    let band = black.rays_per_band(field, &sampler, band);
+    let band = Pipeline::new(field, &sampler, &black).rays_per_band(band);
     let mut colors = Vec::with_capacity(vertices.len());
     for pixels in pixel_bands(vertices.len(), band) {
         let (v, nrm) = (&vertices[pixels.clone()], &normals[pixels]);
