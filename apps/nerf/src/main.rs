@@ -6,6 +6,7 @@ mod cli;
 mod commands;
 mod eval;
 mod export;
+mod limits;
 mod process;
 #[cfg(test)]
 mod readme_commands;

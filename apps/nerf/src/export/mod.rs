@@ -14,7 +14,10 @@ use candle_core::{Device, Tensor};
 
 use crate::render::scene::{load_scene_field, write_all, SceneField, WorkChunks};
 use crate::render::scene_frame::{note_scene_frame, stored_transform};
-use nerf::config::{limits, Config, OccupancyGridConfig, SizeUse};
+use nerf::config::{Config, OccupancyGridConfig, SizeUse};
+
+use crate::limits;
+use depth_points::{depth_points, ColoredPoints};
 use nerf::core::camera::Camera;
 use nerf::core::marching_cubes::{marching_cubes, TriMesh, VolumeGrid};
 use nerf::core::sdf::{Sdf, SdfVolume};
@@ -24,10 +27,9 @@ use nerf::io::output::prepare_out_dir;
 use nerf::io::ply::{write_mesh_ply, write_points_ply};
 use nerf::io::progress::progress_bar;
 use nerf::kernels::sdf_volume::sdf_at_density;
-use depth_points::{depth_points, ColoredPoints};
 use nerf::render::field::Field;
-use surface::{sample_grid, surface_colors};
 use nerf::render::view::render_view;
+use surface::{sample_grid, surface_colors};
 
 /// Default density threshold σ of a NeRF's surface (one sample step of the lego config, 4/127,
 /// then has opacity `1 − e^{−σΔ}` ≈ 0.27). Chosen as the threshold whose mesh of the shipped

@@ -5,7 +5,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use candle_core::{Device, Tensor};
 
-use nerf::config::{limits, Config};
+use nerf::config::Config;
+
+use super::pointcloud::{PointSplatter, PointView};
+use crate::limits;
 use nerf::core::camera::PerspectiveCamera;
 use nerf::core::sdf::SdfVolume;
 use nerf::field::trainable::BoxedField;
@@ -15,7 +18,6 @@ use nerf::io::progress::progress_bar;
 use nerf::kernels::sample_points::sample_points;
 use nerf::render::bands::{band_ndc, band_rays, pixel_bands};
 use nerf::render::field::Field;
-use super::pointcloud::{PointSplatter, PointView};
 use nerf::render::ray_sampler::RaySampler;
 use nerf::render::view::{render_view_interruptible, Interrupt, Pipeline, RenderedView};
 
