@@ -1,8 +1,8 @@
 //! `nerf-checkpoint`: a model's parameters and training state on disk: `nerf`'s own
 //! safetensors checkpoints ([`checkpoint`], [`checkpoint_file`]), their typed error
-//! ([`checkpoint_error`]), and the PyTorch side: `torch.save` archives read and written
-//! ([`torch_archive`], [`torch_save`]) through a bounded pickle reader ([`pickle`]), and the
-//! homework's checkpoints imported ([`torch`]).
+//! ([`checkpoint_error`]), and the PyTorch side: the homework's checkpoints read and
+//! imported, and written back as `torch.save` archives ([`torch`]), through this crate's own
+//! bounded pickle reader (`pickle.rs`, `torch_archive.rs`, `torch_save.rs`: internal).
 //!
 //! The `nerf` facade re-exports these modules under `nerf::io`.
 
@@ -12,7 +12,10 @@ pub mod checkpoint;
 pub mod checkpoint_error;
 pub mod checkpoint_file;
 pub mod parameter_shapes;
-pub mod pickle;
+pub(crate) mod pickle;
 pub mod torch;
-pub mod torch_archive;
-pub mod torch_save;
+pub(crate) mod torch_archive;
+pub(crate) mod torch_save;
+
+#[cfg(test)]
+mod hostile_torch_tests;

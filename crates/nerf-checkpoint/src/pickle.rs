@@ -35,11 +35,15 @@ pub(crate) const MAX_PICKLE_BYTES: usize = 64 << 20;
 /// Most opcodes one stream may run (a state dict pickles to about 15 per tensor).
 pub(crate) const MAX_OPS: usize = 1 << 21;
 /// Deepest nesting of containers (a state dict is 4 deep).
-pub const MAX_DEPTH: u32 = 1000;
+pub(crate) const MAX_DEPTH: u32 = 1000;
 
 /// An unpickled value. Containers are shared: cloning a [`Value`] clones an [`Rc`].
 #[derive(Clone)]
-pub enum Value {
+// The payloads of `Bool`, `BigInt` and `Float` are not read: a checkpoint's structure needs
+// ints, strings and containers, but the reader keeps every value a pickle holds, so that
+// what it returns is the stream's whole content.
+#[allow(dead_code)]
+pub(crate) enum Value {
     /// `None`.
     None,
     /// `True` / `False`.
@@ -80,7 +84,7 @@ pub(crate) enum Kind {
 }
 
 /// A container value: its kind, its items and how deep it nests.
-pub struct Node {
+pub(crate) struct Node {
     kind: Kind,
     items: RefCell<Vec<Value>>,
     depth: Cell<u32>,
@@ -111,7 +115,7 @@ impl Value {
     }
 
     /// The integer, for an `int` that fits in 64 bits (a `bool` is not one).
-    pub fn as_int(&self) -> Option<i64> {
+    pub(crate) fn as_int(&self) -> Option<i64> {
         match self {
             Value::Int(i) => Some(*i),
             _ => None,
@@ -149,7 +153,7 @@ impl Value {
     }
 
     /// The items, for a list.
-    pub fn list(&self) -> Option<Ref<'_, Vec<Value>>> {
+    pub(crate) fn list(&self) -> Option<Ref<'_, Vec<Value>>> {
         self.node(Kind::List).map(|n| n.items.borrow())
     }
 
@@ -170,7 +174,7 @@ impl Value {
     }
 
     /// The value under the string key `key`, for a dict (the last one set, as in Python).
-    pub fn get(&self, key: &str) -> Option<Value> {
+    pub(crate) fn get(&self, key: &str) -> Option<Value> {
         let node = self.node(Kind::Dict)?;
         let items = node.items.borrow();
         items
@@ -204,7 +208,7 @@ impl Value {
 }
 
 /// Reads one pickled object from `bytes` (up to its `STOP`); see the module's limits.
-pub fn unpickle(bytes: &[u8]) -> Result<Value> {
+pub(crate) fn unpickle(bytes: &[u8]) -> Result<Value> {
     if bytes.len() > MAX_PICKLE_BYTES {
         bail!(
             "the pickle is {} bytes, more than the {} read",

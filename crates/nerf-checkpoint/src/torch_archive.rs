@@ -33,7 +33,7 @@ pub(crate) const MAX_ARCHIVE_MEMBERS: usize = 1 << 20;
 const MAX_RANK: usize = 64;
 
 /// An opened `torch.save` archive: its parsed object and its records.
-pub struct TorchArchive {
+pub(crate) struct TorchArchive {
     path: PathBuf,
     zip: zip::ZipArchive<Cursor<Vec<u8>>>,
     /// The records' folder inside the archive (`<name>/data`).
@@ -71,7 +71,7 @@ impl TensorRef {
 
 impl TorchArchive {
     /// Opens and unpickles `path`; an error (one line) names the file and what is wrong.
-    pub fn open(path: &Path) -> Result<Self> {
+    pub(crate) fn open(path: &Path) -> Result<Self> {
         let bytes = read_regular_file(path, "PyTorch file", MAX_TORCH_FILE_BYTES)?;
         if is_legacy_torch(&bytes) {
             bail!(
@@ -139,7 +139,7 @@ impl TorchArchive {
     /// The tensor `obj` describes, as f32 on the CPU (any shape), or `None` when `obj` is not
     /// a tensor. Contiguous tensors of float (and u8, i64) storages are read; everything the
     /// file says about the tensor is checked against its record first.
-    pub fn tensor(&mut self, obj: &Value) -> Result<Option<Tensor>> {
+    pub(crate) fn tensor(&mut self, obj: &Value) -> Result<Option<Tensor>> {
         let Some(t) = tensor_ref(obj).map_err(|e| anyhow!("{}: {e}", self.path.display()))? else {
             return Ok(None);
         };

@@ -71,7 +71,7 @@ impl RaySpacing {
     }
 
     /// The interval `[s(t), s(t + delta)]` of a sample at depth `t` whose spacing to the next
-    /// is `delta` ([`crate::volume::spacing`]).
+    /// is `delta` ([`nerf_core::volume::spacing`]).
     #[inline]
     pub(crate) fn interval(&self, t: f32, delta: f32) -> (f32, f32) {
         let t = f64::from(t);
@@ -116,7 +116,7 @@ pub(crate) fn ray_distortion_gradient(w: &[f32], start: &[f32], end: &[f32], gra
 }
 
 /// `∂L/∂τ` of a loss `L(w)` from `∂L/∂w` (`g`), given the ray's weights `w` and the
-/// transmittance after each sample `T_{i+1}` (as [`crate::volume::ray_weights`] gives
+/// transmittance after each sample `T_{i+1}` (as [`nerf_core::volume::ray_weights`] gives
 /// them): `∂L/∂τ_i = T_{i+1} g_i − Σ_{j>i} w_j g_j` (the chain through
 /// `w_i = T_i (1 − e^{−τ_i})`), written into `g` in place.
 pub(crate) fn weight_gradient_to_optical_depth(

@@ -134,8 +134,8 @@ fn fill<D>(
     let mut b = Block::default();
     for j in 0..BLOCK {
         let point = point_at(ray, t[j]);
-        let (clear, d) = transparency_from_distance(&volume, distance(point));
-        let (scale, d_scale) = colour_factors(&volume, point);
+        let (clear, d) = transparency_from_distance(volume, distance(point));
+        let (scale, d_scale) = colour_factors(volume, point);
         b.clear[j] = 1.0 - live[j] * (1.0 - clear);
         for k in 0..3 {
             b.scale[k][j] = scale[k];
@@ -212,9 +212,9 @@ fn forward_with<D: Fn([f32; 3]) -> f32>(
         let mut colour = [[0f32; BLOCK]; 3];
         for j in 0..BLOCK {
             let p = point_at(ray, t[j]);
-            let (c, _, _) = transparency_parts(&volume, distance(p));
+            let (c, _, _) = transparency_parts(volume, distance(p));
             clear[j] = 1.0 - live[j] * (1.0 - c);
-            let rgb = colour_at(&volume, p);
+            let rgb = colour_at(volume, p);
             for k in 0..3 {
                 colour[k][j] = rgb[k];
             }
@@ -343,7 +343,7 @@ fn reverse_portable(
         suffix += w * gi;
     }
     let (g, w) = (&sc.g[..n], &sc.weight[..n]);
-    let layout: PackedLayout = packed_layout(&volume);
+    let layout: PackedLayout = packed_layout(volume);
     for k in 0..3 {
         let colour_center = dot(w, &sc.d_scale[k][..n]) * gf[k] as f64;
         acc[k] += dot(g, &sc.d_center[k][..n]) + colour_center;
