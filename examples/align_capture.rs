@@ -29,10 +29,10 @@ use std::path::Path;
 
 use anyhow::{bail, Result};
 use glam::{DMat3, DVec3};
+use nerf::core::camera::alignment::spread;
 use nerf::core::camera::alignment::{
     align_by_orientations, align_centres, CameraAlignment, CameraPair,
 };
-use nerf::core::camera::consensus::spread;
 use nerf::core::camera::ColmapPose;
 use nerf::io::camera_truth::{
     image_stem, read_middlebury_par, read_strecha_cameras, read_transforms, TrueCamera,

@@ -1,6 +1,6 @@
 //! The mapping stage of `nerf process`: COLMAP's incremental mapper run once (COLMAP 4
 //! through pycolmap) or several times (the COLMAP program) with different `--random_seed`s, the run the others agree with best kept as `colmap/sparse`
-//! ([`nerf::core::camera::consensus`]), the images the other runs place elsewhere named so
+//! ([`super::consensus`]), the images the other runs place elsewhere named so
 //! that `transforms.json` can leave them out, and the kept model refined: observations further
 //! than [`MappingOptions::max_reprojection_error`] from their point's projection dropped
 //! (`colmap point_filtering`), then one more global bundle adjustment (`colmap
@@ -23,9 +23,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 
+use super::consensus::{consensus, Centres};
 use crate::process::colmap_run::{last_line, run_stage, Colmap};
+use nerf::core::camera::alignment::spread;
 use nerf::core::camera::alignment::{align_centres, CameraPair};
-use nerf::core::camera::consensus::{consensus, spread, Centres};
 use nerf::core::camera::ColmapPose;
 
 /// A run that registered at least this fraction of the most any run registered is compared
@@ -321,7 +322,7 @@ fn settled(centres: &[Centres], best: usize) -> bool {
         .collect();
     comparable.iter().enumerate().any(|(i, a)| {
         comparable[i + 1..].iter().any(|b| {
-            nerf::core::camera::consensus::disagreement(a, b)
+            super::consensus::disagreement(a, b)
                 .is_some_and(|d| d.iter().all(|e| e.1 <= SETTLED_FRACTION))
         })
     })

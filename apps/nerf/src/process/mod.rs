@@ -16,6 +16,7 @@
 //! docs/own-scene.md#structure-from-motion-measured).
 
 pub mod colmap_run;
+mod consensus;
 pub mod external_tool;
 pub mod frame_selection;
 pub mod inputs;

@@ -136,6 +136,21 @@ fn with_rotation(pairs: &[CameraPair], rotation: DMat3) -> CameraAlignment {
     }
 }
 
+/// The RMS distance of `centres` from their mean.
+pub fn spread(centres: &[DVec3]) -> f64 {
+    if centres.is_empty() {
+        return 0.0;
+    }
+    let n = centres.len() as f64;
+    let mean = centres.iter().copied().sum::<DVec3>() / n;
+    (centres
+        .iter()
+        .map(|c| c.distance_squared(mean))
+        .sum::<f64>()
+        / n)
+        .sqrt()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -13,14 +13,13 @@
 //! A new kind is one file implementing the crate's `Projection` (the centre, NDC
 //! unprojection, its checks, its NDC focal length and viewing axes, and optionally its own
 //! ray and pixel conventions) and one line of the `camera_kinds!` list below. The checks every kind's intrinsics go through are
-//! [`checks`], their typed error [`CameraError`]; [`alignment`] and [`consensus`] compare
-//! sets of camera centres (a capture's against surveyed ones, several SfM runs').
+//! [`checks`], their typed error [`CameraError`]; [`alignment`] compares
+//! sets of camera centres (a capture's against surveyed ones).
 
 use glam::DVec3;
 
 pub mod alignment;
 pub mod checks;
-pub mod consensus;
 mod error;
 
 pub use colmap::{ColmapPose, NerfstudioIntrinsics};

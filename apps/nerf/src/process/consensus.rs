@@ -8,7 +8,7 @@
 //!
 //! Agreement between two runs is measured on the images both registered: the second run's
 //! centres are aligned to the first's by the least-squares similarity
-//! ([`crate::camera::alignment::align_centres`]), re-fitted without the cameras far
+//! (`nerf::core::camera::alignment::align_centres`), re-fitted without the cameras far
 //! off it so that a flipped camera does not pull the rest, and each image's centre distance is
 //! taken as a fraction of the first run's camera spread (the root-mean-square distance of its
 //! centres from their mean).
@@ -17,17 +17,17 @@ use std::collections::BTreeMap;
 
 use glam::{DMat3, DVec3};
 
-use crate::camera::alignment::{align_centres, CameraPair};
+use nerf::core::camera::alignment::{align_centres, spread, CameraPair};
 
 /// Camera centres of one reconstruction, by image name.
-pub type Centres = BTreeMap<String, DVec3>;
+pub(crate) type Centres = BTreeMap<String, DVec3>;
 
 /// Fewest shared images two runs are compared on (a similarity needs three centres).
-pub(crate) const MIN_SHARED: usize = 3;
+const MIN_SHARED: usize = 3;
 
 /// What [`consensus`] chose.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Consensus {
+pub(crate) struct Consensus {
     /// Index of the chosen run.
     pub chosen: usize,
     /// Per run: the mean over the other comparable runs of the largest centre disagreement
@@ -44,26 +44,11 @@ pub struct Consensus {
     pub split: bool,
 }
 
-/// The RMS distance of `centres` from their mean.
-pub fn spread(centres: &[DVec3]) -> f64 {
-    if centres.is_empty() {
-        return 0.0;
-    }
-    let n = centres.len() as f64;
-    let mean = centres.iter().copied().sum::<DVec3>() / n;
-    (centres
-        .iter()
-        .map(|c| c.distance_squared(mean))
-        .sum::<f64>()
-        / n)
-        .sqrt()
-}
-
 /// Per image both `reference` and `other` hold (in name order), its centre disagreement:
 /// `other` aligned to `reference` by the least-squares similarity of the shared centres,
 /// distances as fractions of `reference`'s spread over the shared images. `None` when they
 /// share fewer than `MIN_SHARED` images or `reference`'s shared centres coincide.
-pub fn disagreement(reference: &Centres, other: &Centres) -> Option<Vec<(String, f64)>> {
+pub(crate) fn disagreement(reference: &Centres, other: &Centres) -> Option<Vec<(String, f64)>> {
     let shared: Vec<(&String, DVec3, DVec3)> = reference
         .iter()
         .filter_map(|(name, c)| other.get(name).map(|o| (name, *c, *o)))
@@ -133,7 +118,7 @@ fn robust_centre_errors(pairs: &[CameraPair]) -> Vec<f64> {
 /// out against the rest agreeing, while runs that disagree nearly everywhere (two runs, one of
 /// them bent) give no majority to tell which cameras are wrong, and leaving all of them out
 /// would leave nothing. `None` when no run registered any image.
-pub fn consensus(runs: &[Centres], min_fraction: f64, outlier: f64) -> Option<Consensus> {
+pub(crate) fn consensus(runs: &[Centres], min_fraction: f64, outlier: f64) -> Option<Consensus> {
     let most = runs.iter().map(BTreeMap::len).max().filter(|&m| m > 0)?;
     let comparable: Vec<usize> = (0..runs.len())
         .filter(|&i| runs[i].len() as f64 >= min_fraction * most as f64)
