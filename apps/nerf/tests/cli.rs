@@ -202,7 +202,7 @@ fn box_render_agrees_with_the_homework_reference_images() {
         let (_, color) = read_npy(&out.join(format!("color_{i:03}.npy")));
         let ours: Vec<u8> = color
             .iter()
-            .map(|&v| nerf::io::images::to_byte(v))
+            .map(|&v| nerf::core::image::to_byte(v))
             .collect();
         float_psnr += psnr_u8(&ours, &r) / 20.0;
         gif_psnr += psnr_u8(&rgb_of_rgba(&our_gif[i]), &r) / 20.0;

@@ -125,7 +125,7 @@ fn box_fit_recovers_a_box_of_our_choosing() {
         .as_raw()
         .iter()
         .zip(&target)
-        .map(|(a, t)| (*a as i32 - nerf::io::images::to_byte(*t) as i32).abs())
+        .map(|(a, t)| (*a as i32 - nerf::core::image::to_byte(*t) as i32).abs())
         .max()
         .unwrap();
     assert!(

@@ -1,6 +1,6 @@
 //! `nerf-checkpoint`: a model's parameters and training state on disk: `nerf`'s own
 //! safetensors checkpoints ([`checkpoint`], [`checkpoint_file`]), their typed error
-//! ([`checkpoint_error`]), and the PyTorch side: the homework's checkpoints read and
+//! ([`checkpoint::CheckpointError`]), and the PyTorch side: the homework's checkpoints read and
 //! imported, and written back as `torch.save` archives ([`torch`]), through this crate's own
 //! bounded pickle reader (`pickle.rs`, `torch_archive.rs`, `torch_save.rs`: internal).
 //!
@@ -9,7 +9,7 @@
 #![warn(missing_docs)]
 
 pub mod checkpoint;
-pub mod checkpoint_error;
+mod checkpoint_error;
 pub mod checkpoint_file;
 pub mod parameter_shapes;
 pub(crate) mod pickle;

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 
 use super::training::TrainingConfig;
 use super::Config;
-use nerf_checkpoint::checkpoint_error::CheckpointError;
+use nerf_checkpoint::checkpoint::CheckpointError;
 use nerf_train::fit::TrainPaths;
 
 /// The NeRF shipped with the project, the default of every command that loads a model when

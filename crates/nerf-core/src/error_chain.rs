@@ -1,6 +1,6 @@
 //! Finding a typed error in an `anyhow` chain: the library's internals return
 //! `anyhow::Result` and add context with `.context`, and a boundary function turns what they
-//! return into its typed error (`nerf::io::checkpoint_error::CheckpointError`,
+//! return into its typed error (`nerf::io::checkpoint::CheckpointError`,
 //! `nerf::io::dataset::DatasetError`, `nerf::config::ConfigError`) with [`take`].
 
 use crate::term::error_line;

@@ -52,3 +52,16 @@ pub fn colour_name(rgb: [f32; 3]) -> String {
         [r, g, b] => format!("rgb({}, {}, {})", to_byte(r), to_byte(g), to_byte(b)),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bytes_truncate_like_matplotlib() {
+        assert_eq!(to_byte(1.0), 255);
+        assert_eq!(to_byte(0.9995), 254);
+        assert_eq!(to_byte(-0.5), 0);
+        assert_eq!(to_byte(2.0), 255);
+    }
+}

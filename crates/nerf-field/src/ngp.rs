@@ -9,7 +9,7 @@
 //!   (through `trunc_exp`, or softplus), outputs 1..16 are 15 geometry features.
 //! * `color_mlp`: Linear(15 + 16, 64) + ReLU → Linear(64, 64) + ReLU → Linear(64, 3) + sigmoid,
 //!   on the geometry features and the degree-4 real spherical harmonics of the direction
-//!   ([`sh_basis`]). The direction half of the first layer depends only on the ray, so it is
+//!   ([`nerf_hash_grid::spherical_harmonics::sh_basis`]). The direction half of the first layer depends only on the ray, so it is
 //!   applied once per ray (as in [`crate::nerf`]).
 //!
 //! Parameters: `encoding.table` `(L·T, F)` (initialised U(−1e‑4, 1e‑4), as instant-ngp) and
@@ -32,7 +32,7 @@ use crate::trainable::{
 use nerf_hash_grid::box_unit::box_unit;
 use nerf_hash_grid::hash_grid::{hash_encode, HashGridParams, TableGradient};
 use nerf_hash_grid::ngp_mlp::{mlp_forward, MlpLayers};
-pub use nerf_hash_grid::spherical_harmonics::{sh_basis, sh_encode, sh_encode_tensor_ops, SH_DIM};
+use nerf_hash_grid::spherical_harmonics::{sh_encode, SH_DIM};
 use nerf_render::field::{Field, FieldFastPaths, FieldOutput};
 use nerf_render::sampler::RaySamples;
 

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use image::{ImageBuffer, Rgb};
-pub use nerf_core::image::{to_byte, RgbImage};
+use nerf_core::image::RgbImage;
 use npyz::WriterBuilder;
 
 use crate::output::write_atomically;
@@ -136,14 +136,6 @@ pub fn viridis_image(width: usize, height: usize, values: &[f32]) -> Result<RgbI
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn bytes_truncate_like_matplotlib() {
-        assert_eq!(to_byte(1.0), 255);
-        assert_eq!(to_byte(0.9995), 254);
-        assert_eq!(to_byte(-0.5), 0);
-        assert_eq!(to_byte(2.0), 255);
-    }
 
     #[test]
     fn png_and_npy_round_trip() {

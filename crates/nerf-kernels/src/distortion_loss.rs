@@ -5,8 +5,8 @@
 //! Per ray: optical depths `τ_i = clamp(σ_i Δ_i)` and weights `w_i` as compositing makes them
 //! ([`nerf_core::volume`]), each sample's interval `[s(t_i), s(t_i + Δ_i)]` of the
 //! normalised distance ([`RaySpacing`]), then `L` and `∂L/∂w` in O(n)
-//! ([`ray_distortion`], [`ray_distortion_gradient`]), and `∂L/∂σ_i = Δ_i ∂L/∂τ_i` through the
-//! weights ([`weight_gradient_to_optical_depth`]; 0 where the optical depth is clamped).
+//! (`ray_distortion` and `ray_distortion_gradient` of `ray_distortion.rs`), and `∂L/∂σ_i = Δ_i ∂L/∂τ_i` through the
+//! weights (`weight_gradient_to_optical_depth`; 0 where the optical depth is clamped).
 //! Lengths get no gradient. A packed render's skipped samples have σ = 0: weight 0, and no
 //! change to the transmittance, so they are left out (the twin scatters zeros there).
 

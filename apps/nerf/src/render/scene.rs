@@ -12,7 +12,7 @@ use crate::limits;
 use nerf::core::camera::PerspectiveCamera;
 use nerf::core::sdf::SdfVolume;
 use nerf::field::trainable::BoxedField;
-use nerf::io::images::{viridis_image, write_gif, write_npy, write_png, RgbImage};
+use nerf::io::images::{viridis_image, write_gif, write_npy, write_png};
 use nerf::io::output::prepare_out_dir;
 use nerf::io::progress::progress_bar;
 use nerf::kernels::sample_points::sample_points;
@@ -20,6 +20,7 @@ use nerf::render::bands::{band_ndc, band_rays, pixel_bands};
 use nerf::render::field::Field;
 use nerf::render::ray_sampler::RaySampler;
 use nerf::render::view::{render_view_interruptible, Interrupt, Pipeline, RenderedView};
+use nerf::RgbImage;
 
 /// The sizes of the pieces a job works through (see the working-memory part of
 /// [`limits`]): rays per band of an image, sample points per pass of `point_vis`, grid points

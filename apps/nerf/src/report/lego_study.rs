@@ -13,8 +13,8 @@ use super::{ReportOptions, Sizes};
 use crate::bench::mean_psnr_of_views;
 use nerf::config::Config;
 use nerf::core::camera::PerspectiveCamera;
-use nerf::io::images::RgbImage;
 use nerf::render::view::RenderedView;
+use nerf::RgbImage;
 
 /// How a lego row is rendered: the MLP with each acceleration the renderer offers, the MLP
 /// coarse-to-fine, or the hash-grid model. Identifies the study's rows; written as its
