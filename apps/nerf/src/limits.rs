@@ -18,9 +18,9 @@ pub(crate) const POINT_CLOUD_RAYS: usize = 1 << 27;
 // Working memory. Whatever the sizes above, every job works through its images, sample
 // sets and grids in pieces whose intermediate tensors stay within about 1 GiB, so that
 // what a job holds at once is its outputs (the frames, the grid, the mesh) plus that:
-// * the renderer evaluates at most `Field::max_samples_per_chunk` samples at once (an SDF
-//   2^22, about 250 MB; a NeRF 2^17; a hash grid 2^19), and, when it skips samples, draws
-//   at most `nerf_render::renderer::DRAWN_SAMPLES_PER_CHUNK`;
+// * the renderer evaluates at most `Field::max_samples_per_chunk` samples at once (each
+//   field kind answers for its own), and, when it skips samples, draws at most
+//   `nerf::render::renderer::DRAWN_SAMPLES_PER_CHUNK`;
 // * an image's rays are made, rendered and turned into pixels [`BAND_RAYS`] at a time (the
 //   vis images, the depth points and the mesh's colour rays too);
 // * `point_vis`'s sample points are made and splatted [`POINT_SAMPLES`] at a time;
