@@ -295,6 +295,9 @@ fn recovers_lego_cameras(lego: &Path, sfm: &[&str]) -> String {
             }
         })
         .collect();
+    // The process's log (each mapper run's score, the run kept, the cameras left out), shown
+    // with the failure: the mapper is not repeatable, so a failing run cannot be replayed.
+    eprintln!("nerf process {sfm:?} log:\n{stdout}");
     assert_aligned(&pairs);
     stdout
 }
