@@ -95,7 +95,7 @@ def main():
     )
     print(f"declared items: {len(items)}; named by the command: {by_command}; by the root "
           f"tests or examples and not the command: {named_outside - by_command}; only by "
-          f"other library crates: {len(only_library)}; only by the facade: {facade_only}; "
+          f"other library crates: {len(only_library)}; re-exported by the facade: {facade_only}; "
           f"by none: {len(items) - named_outside - len(only_library) - facade_only}")
 
     if "--merges" in sys.argv:
