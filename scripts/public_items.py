@@ -57,7 +57,6 @@ def main():
     words_by_crate = collections.defaultdict(set)
     for f in files:
         words_by_crate[owner(f)].update(WORD.findall(text[f]))
-    facade_words = set(WORD.findall("".join(text[f] for f in files if owner(f) == "facade")))
 
     counted = collections.Counter()
     # (declaring crate, the other crates that name it) for each declared item.
@@ -73,7 +72,7 @@ def main():
             if declared:
                 crate, name = owner(f), declared.group(2)
                 readers = {c for c, words in words_by_crate.items() if c != crate and name in words}
-                items.append((crate, frozenset(readers), name in facade_words))
+                items.append((crate, frozenset(readers)))
 
     print("lines that declare a public item, per crate:")
     for crate in sorted(counted):
@@ -82,16 +81,16 @@ def main():
 
     outside = {"command", "root tests and examples"}
     library = sorted(c for c in counted if c != "facade")
-    named_outside = sum(1 for _, readers, _ in items if readers & outside)
+    named_outside = sum(1 for _, readers in items if readers & outside)
+    # An item the facade names is re-exported by it, so it stays public whatever is merged.
     only_library = [
-        (crate, readers - {"facade"})
-        for crate, readers, in_facade in items
-        if not readers & outside and not in_facade and readers - {"facade"}
+        (crate, readers)
+        for crate, readers in items
+        if readers and not readers & outside and "facade" not in readers
     ]
-    by_command = sum(1 for _, readers, _ in items if "command" in readers)
+    by_command = sum(1 for _, readers in items if "command" in readers)
     facade_only = sum(
-        1 for _, readers, in_facade in items
-        if not readers & outside and (in_facade or readers == {"facade"})
+        1 for _, readers in items if not readers & outside and "facade" in readers
     )
     print(f"declared items: {len(items)}; named by the command: {by_command}; by the root "
           f"tests or examples and not the command: {named_outside - by_command}; only by "

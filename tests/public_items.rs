@@ -9,7 +9,10 @@
 
 use std::collections::BTreeMap;
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+mod source_tree;
+use source_tree::rust_files;
 
 /// The keywords after `pub ` that make a line count.
 const KEYWORDS: [&str; 9] = [
@@ -22,18 +25,6 @@ fn declares_public_item(line: &str) -> bool {
     line.trim_start()
         .strip_prefix("pub ")
         .is_some_and(|rest| KEYWORDS.iter().any(|keyword| rest.starts_with(keyword)))
-}
-
-/// Every `.rs` file under `dir`, recursively.
-fn rust_files(dir: &Path, files: &mut Vec<PathBuf>) {
-    for entry in fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
-        let path = entry.expect("a directory entry").path();
-        if path.is_dir() {
-            rust_files(&path, files);
-        } else if path.extension().is_some_and(|ext| ext == "rs") {
-            files.push(path);
-        }
-    }
 }
 
 /// Lines that declare a public item in the `.rs` files under `dir`.
